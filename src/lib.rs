@@ -1,0 +1,12 @@
+//! # mobo
+//!
+//! Deformable cells (red blood cells, vesicles) in Stokes flow: a boundary-integral method on
+//! spherical-harmonic surfaces, coupled by a kernel-independent fast multipole method.
+//!
+//! The library is built bottom-up following the data flow of the design (`shared/design.md`):
+//! [`sph_harmonics`] (grids, transforms, derivatives, resampling, rotations, singular
+//! quadrature weights) is the foundation; the FMM, cell mechanics, time stepping, scenes and
+//! output build on it.
+
+pub mod check;
+pub mod sph_harmonics;

@@ -1,0 +1,438 @@
+//! Rotations that carry a grid point to the north pole.
+//!
+//! For the target `x_t = (θ_i, φ_k)` of the order-`p` grid let `Q = R_z(φ_k) R_y(θ_i)`, the rotation
+//! that maps the north pole to `x_t`. The rotated function `g(y) = f(Q y)` has `g(north) = f(x_t)`,
+//! and singular quadrature around `x_t` becomes quadrature around the pole of `g`. Both
+//! algorithms return `g` on the grid of order `q ≥ p` (rotate at `p`, evaluate at `q`).
+//!
+//! * [`DirectRotation`]: per latitude `i` one dense matrix `M_i` (`2q(q+1) × 2p(p+1)`) with
+//!   `g = M_i S_k f`, where `S_k` shifts the longitudes of the grid values by `k` (the rotation
+//!   `R_z(φ_k)` maps the grid onto itself). `M_i = E_i F`: `F` the forward transform, `E_i` the
+//!   basis evaluated at the rotated points `R_y(θ_i) y_j`. `O(p⁴)` work per target: this is the
+//!   variant MOBO uses for its dense operators (Veerapaneni et al. 2011, Table II).
+//! * [`ShRotation`]: in coefficient space. `R_z(φ_k)` is a phase shift of each order `m`; the
+//!   rotation about `y` acts on each degree `n` by an orthogonal `(2n+1) × (2n+1)` block,
+//!   `[U_β] = Jᵀ Z(β) J`, with `Z(β)` a rotation about `z` and `J` the fixed block of the
+//!   quarter turn `X = R_x(−π/2)` (which maps the `z` axis to the `y` axis, so
+//!   `R_y(β) = X R_z(β) Xᵀ`); `J` is computed once by exact quadrature. Then an inverse transform
+//!   at order `q`. `O(p³)` per target plus the transform.
+//!
+//! Convention: for a rotation `Q` the operator `(V_Q h)(y) = h(Q y)` has the coefficient matrix
+//! `[V_Q]_{ab} = ∫ Y_a(y) Y_b(Q y) dA`, and `[V_{Q₁Q₂}] = [V_{Q₂}] [V_{Q₁}]`.
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+
+use super::basis::{angles_of, eval_basis, BasisScratch};
+use super::grid::Grid;
+use super::layout::CoefLayout;
+use super::transform::{ShTransform, ShWorkspace};
+use super::SphError;
+
+/// `R_y(β) v`.
+pub fn rotate_y(beta: f64, v: [f64; 3]) -> [f64; 3] {
+    let (s, c) = beta.sin_cos();
+    [c * v[0] + s * v[2], v[1], -s * v[0] + c * v[2]]
+}
+
+/// `R_z(α) v`.
+pub fn rotate_z(alpha: f64, v: [f64; 3]) -> [f64; 3] {
+    let (s, c) = alpha.sin_cos();
+    [c * v[0] - s * v[1], s * v[0] + c * v[1], v[2]]
+}
+
+/// Copy grid values with longitudes shifted by `k`: `out(i, l) = f(i, l + k mod 2p)`, for a batch.
+pub fn shift_longitudes(p: usize, k: usize, src: &[f64], dst: &mut [f64]) {
+    let nlon = 2 * p;
+    let k = k % nlon;
+    for (s, d) in src.chunks_exact(nlon).zip(dst.chunks_exact_mut(nlon)) {
+        d[..nlon - k].copy_from_slice(&s[k..]);
+        d[nlon - k..].copy_from_slice(&s[..k]);
+    }
+}
+
+/// Direct rotation: one dense matrix per latitude of the source grid.
+pub struct DirectRotation {
+    p: usize,
+    q: usize,
+    /// Per source latitude: `M_i`, `n_q × n_p`, column-major (absent if not built).
+    matrices: Vec<Option<Vec<f64>>>,
+    shifted: Vec<f64>,
+}
+
+impl DirectRotation {
+    /// All `p+1` matrices, rotating order-`p` data onto the order-`q` grid.
+    pub fn new(p: usize, q: usize) -> Result<Self, SphError> {
+        Self::for_latitudes(p, q, &(0..=p).collect::<Vec<_>>())
+    }
+
+    /// Only the matrices of the given source latitudes (the others return an error).
+    pub fn for_latitudes(p: usize, q: usize, lats: &[usize]) -> Result<Self, SphError> {
+        if q < p {
+            return Err(SphError::UpsampleOrder { p, q });
+        }
+        let src = ShTransform::new(p)?;
+        let np = src.n_points();
+        let nc = src.n_coefs();
+        // Forward matrix F (nc × np), column j = coefficients of the j-th unit grid vector.
+        let mut eye = vec![0.0; np * np];
+        for j in 0..np {
+            eye[j * np + j] = 1.0;
+        }
+        let mut fwd = vec![0.0; nc * np];
+        let mut ws = src.workspace();
+        src.forward(&eye, &mut fwd, &mut ws)?;
+        drop(eye);
+        let dst_grid = Grid::new(q);
+        let pts = dst_grid.unit_points();
+        let nq = pts.len();
+        let mut matrices = vec![None; p + 1];
+        let mut et = vec![0.0; nc * nq]; // Eᵀ, nc × nq column-major
+        let mut scratch = BasisScratch::new(p);
+        for &i in lats {
+            if i > p {
+                return Err(SphError::Latitude { lat: i, p });
+            }
+            let beta = src.grid().theta[i];
+            for (j, &y) in pts.iter().enumerate() {
+                let (th, ph) = angles_of(rotate_y(beta, y));
+                eval_basis(
+                    src.layout(),
+                    th,
+                    ph,
+                    &mut scratch,
+                    &mut et[j * nc..(j + 1) * nc],
+                );
+            }
+            let mut m = vec![0.0; nq * np];
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut m, nq, np),
+                Accum::Replace,
+                MatRef::from_column_major_slice(&et, nc, nq).transpose(),
+                MatRef::from_column_major_slice(&fwd, nc, np),
+                1.0,
+                Par::Seq,
+            );
+            matrices[i] = Some(m);
+        }
+        Ok(DirectRotation {
+            p,
+            q,
+            matrices,
+            shifted: Vec::new(),
+        })
+    }
+
+    /// Bytes held by the matrices.
+    pub fn memory_bytes(&self) -> usize {
+        self.matrices.iter().flatten().map(|m| m.len() * 8).sum()
+    }
+
+    /// The matrix of latitude `i` (`n_q × n_p`, column-major).
+    pub fn matrix(&self, i: usize) -> Option<&[f64]> {
+        self.matrices.get(i).and_then(|m| m.as_deref())
+    }
+
+    /// Rotate a batch of order-`p` grid functions so that target `(i, k)` moves to the north
+    /// pole; `out` receives the order-`q` grid values of every function.
+    pub fn apply(
+        &mut self,
+        lat: usize,
+        lon: usize,
+        grid: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), SphError> {
+        let np = 2 * self.p * (self.p + 1);
+        let nq = 2 * self.q * (self.q + 1);
+        let nf = grid.len() / np;
+        if grid.len() != nf * np || out.len() != nf * nq {
+            return Err(SphError::GridLength {
+                len: grid.len(),
+                per_function: np,
+            });
+        }
+        let m = self
+            .matrices
+            .get(lat)
+            .and_then(|m| m.as_deref())
+            .ok_or(SphError::Latitude { lat, p: self.p })?;
+        self.shifted.resize(grid.len(), 0.0);
+        shift_longitudes(self.p, lon, grid, &mut self.shifted);
+        matmul(
+            MatMut::from_column_major_slice_mut(out, nq, nf),
+            Accum::Replace,
+            MatRef::from_column_major_slice(m, nq, np),
+            MatRef::from_column_major_slice(&self.shifted, np, nf),
+            1.0,
+            Par::Seq,
+        );
+        Ok(())
+    }
+}
+
+/// Per-degree blocks of an orthogonal operator, degree-major: block `n` is `(2n+1)²`,
+/// column-major, local index `n + m` for `m = −n..=n`.
+fn block_offset(n: usize) -> usize {
+    // Σ_{k<n} (2k+1)² = n(2n−1)(2n+1)/3
+    if n == 0 {
+        0
+    } else {
+        n * (2 * n - 1) * (2 * n + 1) / 3
+    }
+}
+
+/// `[V_{R_z(β)}]` for degree `n` (local ordering), column-major `(2n+1)²`.
+fn z_block(n: usize, beta: f64, out: &mut [f64]) {
+    let d = 2 * n + 1;
+    out[..d * d].fill(0.0);
+    out[n * d + n] = 1.0;
+    for m in 1..=n {
+        let (s, c) = (m as f64 * beta).sin_cos();
+        let (ic, is) = (n + m, n - m);
+        // c' = c cos mβ + s sin mβ ; s' = −c sin mβ + s cos mβ
+        out[ic * d + ic] = c;
+        out[is * d + ic] = s;
+        out[ic * d + is] = -s;
+        out[is * d + is] = c;
+    }
+}
+
+/// Rotation in coefficient space with per-degree blocks.
+pub struct ShRotation {
+    p: usize,
+    q: usize,
+    layout: CoefLayout,
+    dst: ShTransform,
+    dst_ws: ShWorkspace,
+    /// Per source latitude: all degree blocks of `[U_{θ_i}]`.
+    blocks: Vec<Vec<f64>>,
+    src_phi: Vec<f64>,
+    buf_in: Vec<f64>,
+    buf_out: Vec<f64>,
+    coefs_q: Vec<f64>,
+}
+
+impl ShRotation {
+    /// Rotation of order-`p` expansions onto the order-`q` grid (`q ≥ p`).
+    pub fn new(p: usize, q: usize) -> Result<Self, SphError> {
+        if q < p {
+            return Err(SphError::UpsampleOrder { p, q });
+        }
+        let src_grid = Grid::new(p);
+        let layout = CoefLayout::new(p);
+        let jblocks = quarter_turn_blocks(p);
+        let mut blocks = Vec::with_capacity(p + 1);
+        let total = block_offset(p + 1);
+        let mut z = vec![0.0; (2 * p + 1) * (2 * p + 1)];
+        let mut zj = vec![0.0; (2 * p + 1) * (2 * p + 1)];
+        for &theta in &src_grid.theta {
+            let mut b = vec![0.0; total];
+            for n in 0..=p {
+                let d = 2 * n + 1;
+                let off = block_offset(n);
+                let j = MatRef::from_column_major_slice(&jblocks[off..off + d * d], d, d);
+                z_block(n, theta, &mut z);
+                matmul(
+                    MatMut::from_column_major_slice_mut(&mut zj[..d * d], d, d),
+                    Accum::Replace,
+                    MatRef::from_column_major_slice(&z[..d * d], d, d),
+                    j,
+                    1.0,
+                    Par::Seq,
+                );
+                matmul(
+                    MatMut::from_column_major_slice_mut(&mut b[off..off + d * d], d, d),
+                    Accum::Replace,
+                    j.transpose(),
+                    MatRef::from_column_major_slice(&zj[..d * d], d, d),
+                    1.0,
+                    Par::Seq,
+                );
+            }
+            blocks.push(b);
+        }
+        let dst = ShTransform::new(q)?;
+        let dst_ws = dst.workspace();
+        Ok(ShRotation {
+            p,
+            q,
+            layout,
+            dst,
+            dst_ws,
+            blocks,
+            src_phi: src_grid.phi,
+            buf_in: Vec::new(),
+            buf_out: Vec::new(),
+            coefs_q: Vec::new(),
+        })
+    }
+
+    /// Bytes held by the blocks.
+    pub fn memory_bytes(&self) -> usize {
+        self.blocks.iter().map(|b| b.len() * 8).sum()
+    }
+
+    /// Rotated coefficients (order `q` layout) of a batch of order-`p` coefficient vectors.
+    pub fn rotate_coefs(
+        &mut self,
+        lat: usize,
+        lon: usize,
+        coefs: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), SphError> {
+        let (p, lp) = (self.p, self.layout.len());
+        let lq = self.dst.n_coefs();
+        let nf = coefs.len() / lp;
+        if coefs.len() != nf * lp || out.len() != nf * lq {
+            return Err(SphError::CoefLength {
+                len: coefs.len(),
+                expected: nf * lp,
+            });
+        }
+        if lat > p || lon >= 2 * p {
+            return Err(SphError::Latitude { lat, p });
+        }
+        let phi = self.src_phi[lon];
+        let nloc = (p + 1) * (p + 1);
+        self.buf_in.resize(nloc * nf, 0.0);
+        self.buf_out.resize(nloc * nf, 0.0);
+        // Gather into degree-major blocks: degree n occupies rows n²..(n+1)² of a
+        // (p+1)² × nf matrix, phase-shifted by R_z(φ_k).
+        for (f, c) in coefs.chunks_exact(lp).enumerate() {
+            let col = &mut self.buf_in[f * nloc..(f + 1) * nloc];
+            for n in 0..=p {
+                let base = n * n + n;
+                col[base] = c[self.layout.cos_block(0) + n];
+                for m in 1..=n {
+                    let cv = c[self.layout.cos_block(m) + n - m];
+                    let sv = self.layout.sin_block(m).map_or(0.0, |b| c[b + n - m]);
+                    let (s, co) = (m as f64 * phi).sin_cos();
+                    col[base + m] = cv * co + sv * s;
+                    col[base - m] = -cv * s + sv * co;
+                }
+            }
+        }
+        let blocks = &self.blocks[lat];
+        for n in 0..=p {
+            let d = 2 * n + 1;
+            let off = block_offset(n);
+            let row0 = n * n;
+            let src = &self.buf_in[row0..];
+            let src = MatRef::from_column_major_slice_with_stride(
+                &src[..(nf - 1) * nloc + d],
+                d,
+                nf,
+                nloc,
+            );
+            let end = (nf - 1) * nloc + row0 + d;
+            let dst = MatMut::from_column_major_slice_with_stride_mut(
+                &mut self.buf_out[row0..end],
+                d,
+                nf,
+                nloc,
+            );
+            matmul(
+                dst,
+                Accum::Replace,
+                MatRef::from_column_major_slice(&blocks[off..off + d * d], d, d),
+                src,
+                1.0,
+                Par::Seq,
+            );
+        }
+        let lay_q = self.dst.layout();
+        for (f, o) in out.chunks_exact_mut(lq).enumerate() {
+            o.fill(0.0);
+            let col = &self.buf_out[f * nloc..(f + 1) * nloc];
+            for n in 0..=p {
+                let base = n * n + n;
+                for m in -(n as isize)..=(n as isize) {
+                    if let Some(ix) = lay_q.index(n, m) {
+                        o[ix] = col[(base as isize + m) as usize];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Rotate a batch of order-`p` coefficient vectors so that target `(lat, lon)` moves to the
+    /// north pole; `out` receives the order-`q` grid values.
+    pub fn apply(
+        &mut self,
+        lat: usize,
+        lon: usize,
+        coefs: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), SphError> {
+        let nf = coefs.len() / self.layout.len();
+        let mut cq = std::mem::take(&mut self.coefs_q);
+        cq.resize(nf * self.dst.n_coefs(), 0.0);
+        let r = self
+            .rotate_coefs(lat, lon, coefs, &mut cq)
+            .and_then(|_| self.dst.inverse(&cq, out, &mut self.dst_ws));
+        self.coefs_q = cq;
+        r
+    }
+
+    /// The order of the output grid.
+    pub fn output_order(&self) -> usize {
+        self.q
+    }
+}
+
+/// Blocks `J^n = [V_X]` of the quarter turn `X = R_x(−π/2)`, `(x, y, z) ↦ (x, z, −y)`, for
+/// `n ≤ p`, by Gauss quadrature of order `p+1` (exact for these degree-`2n` products).
+fn quarter_turn_blocks(p: usize) -> Vec<f64> {
+    let quad = p + 1;
+    let grid = Grid::new(quad);
+    let lay = CoefLayout::new(quad);
+    let w = grid.quadrature_weights();
+    let pts = grid.unit_points();
+    let npts = pts.len();
+    let nc = lay.len();
+    let mut y = vec![0.0; npts * nc]; // per point, all basis functions
+    let mut yx = vec![0.0; npts * nc];
+    let mut scratch = BasisScratch::new(quad);
+    for (j, &v) in pts.iter().enumerate() {
+        let (t, f) = grid.angles(j);
+        eval_basis(&lay, t, f, &mut scratch, &mut y[j * nc..(j + 1) * nc]);
+        let (t2, f2) = angles_of([v[0], v[2], -v[1]]);
+        eval_basis(&lay, t2, f2, &mut scratch, &mut yx[j * nc..(j + 1) * nc]);
+    }
+    let mut out = vec![0.0; block_offset(p + 1)];
+    let mut a = Vec::new();
+    let mut b = Vec::new();
+    for n in 0..=p {
+        let d = 2 * n + 1;
+        let idx: Vec<usize> = (-(n as isize)..=n as isize)
+            .map(|m| {
+                lay.index(n, m)
+                    .expect("degree n ≤ p is complete at order p+1")
+            })
+            .collect();
+        a.clear();
+        b.clear();
+        // a: d × npts (weighted Y_a), b: npts × d (Y_b ∘ X), both column-major.
+        for j in 0..npts {
+            for &ia in &idx {
+                a.push(w[j] * y[j * nc + ia]);
+            }
+        }
+        for &ib in &idx {
+            for j in 0..npts {
+                b.push(yx[j * nc + ib]);
+            }
+        }
+        let off = block_offset(n);
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut out[off..off + d * d], d, d),
+            Accum::Replace,
+            MatRef::from_column_major_slice(&a, d, npts),
+            MatRef::from_column_major_slice(&b, npts, d),
+            1.0,
+            Par::Seq,
+        );
+    }
+    out
+}

@@ -1,0 +1,475 @@
+//! Batched forward and inverse spherical-harmonic transforms and grid derivatives.
+//!
+//! Grid values `f(θ_i, φ_k)` of a batch of `nf` functions (each `2p(p+1)` values, latitude-major,
+//! functions one after another) are mapped to coefficients (each [`CoefLayout::len`] values,
+//! functions one after another) and back.
+//!
+//! **Forward**: a real FFT of length `2p` along every latitude gives, per order `m`, the cosine
+//! and sine parts `c_m(θ_i)`, `s_m(θ_i)`; then per `m` one GEMM with the analysis matrix
+//! `L_m[n, i] = σ_m w_i P̄_n^m(x_i)` (Gauss–Legendre weights `w_i`, `σ_m` the basis and FFT
+//! normalisation) maps the `p+1` latitudes of all functions in a block to the degrees `n = m..=p`.
+//! The Gauss rule is exact for these products, so the transform is exact (to round-off) for
+//! band-limited functions.
+//!
+//! **Inverse / derivatives**: per `m`, GEMMs with the synthesis matrices `P̄_n^m(x_i)`,
+//! `∂_θ P̄_n^m(x_i)`, `∂_θθ P̄_n^m(x_i)`, then an inverse real FFT per latitude; `∂_φ` multiplies the
+//! Fourier coefficient of order `m` by `i m` (the Nyquist term `m = p` has a `φ`-derivative
+//! `∝ sin(pφ)` that vanishes on every node, so it is exactly zero on the grid).
+//!
+//! Functions are processed in blocks small enough for the scratch to stay in cache; the plan is
+//! immutable and shareable, and each thread passes its own [`ShWorkspace`] (nothing allocates in
+//! the transforms). The batched layout follows MOBO (Veerapaneni et al., J. Comput. Phys. 230,
+//! 2011): columns of many surfaces side by side so that the Legendre step is GEMM-bound.
+
+use std::f64::consts::PI;
+use std::sync::Arc;
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+use rayon::prelude::*;
+use realfft::num_complex::Complex;
+use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+
+use super::grid::Grid;
+use super::layout::CoefLayout;
+use super::legendre::{legendre_derivative_tables, tri_index, tri_len};
+use super::SphError;
+
+/// A quantity the inverse transform can produce on the grid.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Deriv {
+    /// `f`
+    Value,
+    /// `∂f/∂θ`
+    Theta,
+    /// `∂f/∂φ`
+    Phi,
+    /// `∂²f/∂θ²`
+    ThetaTheta,
+    /// `∂²f/∂θ∂φ`
+    ThetaPhi,
+    /// `∂²f/∂φ²`
+    PhiPhi,
+}
+
+impl Deriv {
+    /// All six, in the order value, θ, φ, θθ, θφ, φφ.
+    pub const ALL: [Deriv; 6] = [
+        Deriv::Value,
+        Deriv::Theta,
+        Deriv::Phi,
+        Deriv::ThetaTheta,
+        Deriv::ThetaPhi,
+        Deriv::PhiPhi,
+    ];
+    /// Number of `θ` derivatives (which synthesis matrix is used).
+    fn theta_order(self) -> usize {
+        match self {
+            Deriv::Value | Deriv::Phi | Deriv::PhiPhi => 0,
+            Deriv::Theta | Deriv::ThetaPhi => 1,
+            Deriv::ThetaTheta => 2,
+        }
+    }
+    /// Number of `φ` derivatives.
+    fn phi_order(self) -> usize {
+        match self {
+            Deriv::Value | Deriv::Theta | Deriv::ThetaTheta => 0,
+            Deriv::Phi | Deriv::ThetaPhi => 1,
+            Deriv::PhiPhi => 2,
+        }
+    }
+}
+
+/// Precomputed plan for transforms of order `p`.
+pub struct ShTransform {
+    grid: Grid,
+    layout: CoefLayout,
+    /// Per `m`: analysis matrix, `(p+1−m) × (p+1)`, column-major.
+    analysis: Vec<Vec<f64>>,
+    /// Per `θ`-derivative order `0, 1, 2`, per `m`: synthesis matrix `(p+1) × (p+1−m)`, column-major.
+    synthesis: [Vec<Vec<f64>>; 3],
+    r2c: Arc<dyn RealToComplex<f64>>,
+    c2r: Arc<dyn ComplexToReal<f64>>,
+    block: usize,
+}
+
+/// Scratch space for one thread's transforms with one plan.
+pub struct ShWorkspace {
+    p: usize,
+    block: usize,
+    /// Per `θ`-derivative order: per `m` a cosine and a sine matrix `(p+1) × block`.
+    spec: [Vec<f64>; 3],
+    fft_real: Vec<f64>,
+    fft_cplx: Vec<Complex<f64>>,
+    fft_scratch: Vec<Complex<f64>>,
+}
+
+impl ShTransform {
+    /// Plan for order `p ≥ 1`.
+    pub fn new(p: usize) -> Result<Self, SphError> {
+        if p == 0 {
+            return Err(SphError::InvalidOrder(p));
+        }
+        let grid = Grid::new(p);
+        let layout = CoefLayout::new(p);
+        let nlat = p + 1;
+        let mut val = vec![0.0; tri_len(p)];
+        let mut d1 = vec![0.0; tri_len(p)];
+        let mut d2 = vec![0.0; tri_len(p)];
+        let mut analysis: Vec<Vec<f64>> = (0..=p).map(|m| vec![0.0; (p + 1 - m) * nlat]).collect();
+        let mut synthesis: [Vec<Vec<f64>>; 3] =
+            std::array::from_fn(|_| (0..=p).map(|m| vec![0.0; (p + 1 - m) * nlat]).collect());
+        let pf = p as f64;
+        for i in 0..nlat {
+            legendre_derivative_tables(
+                p,
+                grid.cos_theta[i],
+                grid.sin_theta[i],
+                &mut val,
+                &mut d1,
+                &mut d2,
+            );
+            for m in 0..=p {
+                let rows = p + 1 - m;
+                // Basis normalisation: Y = P̄ trig(mφ) / basis_norm.
+                let basis_norm = if m == 0 { (2.0 * PI).sqrt() } else { PI.sqrt() };
+                // FFT normalisation: c_m = Re X_m / (2p) for m = 0, p; / p otherwise.
+                let fft_norm = if m == 0 || m == p {
+                    1.0 / (2.0 * pf)
+                } else {
+                    1.0 / pf
+                };
+                // Inverse FFT takes Z_m = (C_m − i S_m)/2 for 0 < m < p.
+                let half = if m == 0 || m == p { 1.0 } else { 0.5 };
+                for n in m..=p {
+                    let t = tri_index(p, n, m);
+                    analysis[m][i * rows + (n - m)] =
+                        basis_norm * fft_norm * grid.gl_weights[i] * val[t];
+                    let s = half / basis_norm;
+                    synthesis[0][m][(n - m) * nlat + i] = s * val[t];
+                    synthesis[1][m][(n - m) * nlat + i] = s * d1[t];
+                    synthesis[2][m][(n - m) * nlat + i] = s * d2[t];
+                }
+            }
+        }
+        let mut planner = RealFftPlanner::<f64>::new();
+        let r2c = planner.plan_fft_forward(2 * p);
+        let c2r = planner.plan_fft_inverse(2 * p);
+        // Functions per block: keep one spectral scratch level around 256 KiB.
+        let block = (16384 / (nlat * nlat)).clamp(16, 256);
+        Ok(ShTransform {
+            grid,
+            layout,
+            analysis,
+            synthesis,
+            r2c,
+            c2r,
+            block,
+        })
+    }
+
+    /// The order `p`.
+    pub fn order(&self) -> usize {
+        self.grid.order()
+    }
+    /// The grid.
+    pub fn grid(&self) -> &Grid {
+        &self.grid
+    }
+    /// The coefficient layout.
+    pub fn layout(&self) -> &CoefLayout {
+        &self.layout
+    }
+    /// Grid values per function, `2p(p+1)`.
+    pub fn n_points(&self) -> usize {
+        self.grid.n_points()
+    }
+    /// Coefficients per function, `(p+1)² − 1`.
+    pub fn n_coefs(&self) -> usize {
+        self.layout.len()
+    }
+    /// Functions per internal block.
+    pub fn block_size(&self) -> usize {
+        self.block
+    }
+    /// Set the number of functions per internal block (for tuning; workspaces made before
+    /// must be remade).
+    pub fn set_block_size(&mut self, block: usize) {
+        self.block = block.max(1);
+    }
+
+    /// A workspace for this plan.
+    pub fn workspace(&self) -> ShWorkspace {
+        let p = self.order();
+        let level = 2 * (p + 1) * (p + 1) * self.block;
+        ShWorkspace {
+            p,
+            block: self.block,
+            spec: std::array::from_fn(|_| vec![0.0; level]),
+            fft_real: self.r2c.make_input_vec(),
+            fft_cplx: self.r2c.make_output_vec(),
+            fft_scratch: vec![
+                Complex::new(0.0, 0.0);
+                self.r2c.get_scratch_len().max(self.c2r.get_scratch_len())
+            ],
+        }
+    }
+
+    /// Flops of the Legendre GEMMs of one forward (or one value-only inverse) transform of `nf`
+    /// functions (`2mnk` per GEMM).
+    pub fn legendre_flops(&self, nf: usize) -> f64 {
+        let p = self.order();
+        let mut f = 0.0;
+        for m in 0..=p {
+            let cols = if m == 0 || m == p { 1.0 } else { 2.0 };
+            f += 2.0 * ((p + 1 - m) * (p + 1)) as f64 * cols;
+        }
+        f * nf as f64
+    }
+
+    fn check_batch(&self, grid_len: usize, coef_len: usize) -> Result<usize, SphError> {
+        let np = self.n_points();
+        let nc = self.n_coefs();
+        if grid_len % np != 0 {
+            return Err(SphError::GridLength {
+                len: grid_len,
+                per_function: np,
+            });
+        }
+        let nf = grid_len / np;
+        if coef_len != nf * nc {
+            return Err(SphError::CoefLength {
+                len: coef_len,
+                expected: nf * nc,
+            });
+        }
+        Ok(nf)
+    }
+
+    fn check_workspace(&self, ws: &ShWorkspace) -> Result<(), SphError> {
+        if ws.p != self.order() || ws.block != self.block {
+            return Err(SphError::Workspace);
+        }
+        Ok(())
+    }
+
+    /// Forward transform of a batch: `grid` holds `nf · 2p(p+1)` values, `coefs` receives
+    /// `nf · ((p+1)² − 1)` coefficients.
+    pub fn forward(
+        &self,
+        grid: &[f64],
+        coefs: &mut [f64],
+        ws: &mut ShWorkspace,
+    ) -> Result<(), SphError> {
+        let nf = self.check_batch(grid.len(), coefs.len())?;
+        self.check_workspace(ws)?;
+        let np = self.n_points();
+        let nc = self.n_coefs();
+        let mut f0 = 0;
+        while f0 < nf {
+            let b = self.block.min(nf - f0);
+            self.forward_block(
+                &grid[f0 * np..(f0 + b) * np],
+                &mut coefs[f0 * nc..(f0 + b) * nc],
+                ws,
+            );
+            f0 += b;
+        }
+        Ok(())
+    }
+
+    fn forward_block(&self, grid: &[f64], coefs: &mut [f64], ws: &mut ShWorkspace) {
+        let p = self.order();
+        let nlat = p + 1;
+        let nlon = 2 * p;
+        let np = self.n_points();
+        let nc = self.n_coefs();
+        let b = grid.len() / np;
+        let level = nlat * self.block;
+        let spec = &mut ws.spec[0];
+        for j in 0..b {
+            let g = &grid[j * np..(j + 1) * np];
+            for i in 0..nlat {
+                ws.fft_real.copy_from_slice(&g[i * nlon..(i + 1) * nlon]);
+                self.r2c
+                    .process_with_scratch(&mut ws.fft_real, &mut ws.fft_cplx, &mut ws.fft_scratch)
+                    .expect("FFT buffer sizes come from the plan");
+                for m in 0..=p {
+                    let off = 2 * m * level + j * nlat + i;
+                    spec[off] = ws.fft_cplx[m].re;
+                    spec[off + level] = -ws.fft_cplx[m].im;
+                }
+            }
+        }
+        for m in 0..=p {
+            let rows = p + 1 - m;
+            let lhs = MatRef::from_column_major_slice(&self.analysis[m], rows, nlat);
+            let emit = |src_off: usize, dst_off: usize, coefs: &mut [f64]| {
+                let rhs =
+                    MatRef::from_column_major_slice(&spec[src_off..src_off + nlat * b], nlat, b);
+                let end = (b - 1) * nc + dst_off + rows;
+                let dst = MatMut::from_column_major_slice_with_stride_mut(
+                    &mut coefs[dst_off..end],
+                    rows,
+                    b,
+                    nc,
+                );
+                matmul(dst, Accum::Replace, lhs, rhs, 1.0, Par::Seq);
+            };
+            emit(2 * m * level, self.layout.cos_block(m), coefs);
+            if let Some(sb) = self.layout.sin_block(m) {
+                emit(2 * m * level + level, sb, coefs);
+            }
+        }
+    }
+
+    /// Inverse transform of a batch (grid values from coefficients).
+    pub fn inverse(
+        &self,
+        coefs: &[f64],
+        grid: &mut [f64],
+        ws: &mut ShWorkspace,
+    ) -> Result<(), SphError> {
+        self.synthesize(coefs, &[Deriv::Value], &mut [grid], ws)
+    }
+
+    /// Grid values of the requested derivatives of a batch of expansions: `outs[d]` receives
+    /// `derivs[d]` for every function (each `nf · 2p(p+1)` values).
+    pub fn synthesize(
+        &self,
+        coefs: &[f64],
+        derivs: &[Deriv],
+        outs: &mut [&mut [f64]],
+        ws: &mut ShWorkspace,
+    ) -> Result<(), SphError> {
+        if derivs.len() != outs.len() {
+            return Err(SphError::OutputCount {
+                derivs: derivs.len(),
+                outputs: outs.len(),
+            });
+        }
+        let nc = self.n_coefs();
+        if coefs.len() % nc != 0 {
+            return Err(SphError::CoefLength {
+                len: coefs.len(),
+                expected: (coefs.len() / nc) * nc,
+            });
+        }
+        let nf = coefs.len() / nc;
+        for o in outs.iter() {
+            self.check_batch(o.len(), coefs.len())?;
+        }
+        self.check_workspace(ws)?;
+        let np = self.n_points();
+        let mut f0 = 0;
+        while f0 < nf {
+            let b = self.block.min(nf - f0);
+            self.synthesize_block(&coefs[f0 * nc..(f0 + b) * nc], derivs, outs, f0 * np, ws);
+            f0 += b;
+        }
+        Ok(())
+    }
+
+    fn synthesize_block(
+        &self,
+        coefs: &[f64],
+        derivs: &[Deriv],
+        outs: &mut [&mut [f64]],
+        out_off: usize,
+        ws: &mut ShWorkspace,
+    ) {
+        let p = self.order();
+        let nlat = p + 1;
+        let nlon = 2 * p;
+        let np = self.n_points();
+        let nc = self.n_coefs();
+        let b = coefs.len() / nc;
+        let level = nlat * self.block;
+        let mut needed = [false; 3];
+        for d in derivs {
+            needed[d.theta_order()] = true;
+        }
+        for (t, spec) in ws.spec.iter_mut().enumerate() {
+            if !needed[t] {
+                continue;
+            }
+            for m in 0..=p {
+                let rows = p + 1 - m;
+                let lhs = MatRef::from_column_major_slice(&self.synthesis[t][m], nlat, rows);
+                let emit = |src_off: usize, dst_off: usize, spec: &mut [f64]| {
+                    let end = (b - 1) * nc + src_off + rows;
+                    let rhs = MatRef::from_column_major_slice_with_stride(
+                        &coefs[src_off..end],
+                        rows,
+                        b,
+                        nc,
+                    );
+                    let dst = MatMut::from_column_major_slice_mut(
+                        &mut spec[dst_off..dst_off + nlat * b],
+                        nlat,
+                        b,
+                    );
+                    matmul(dst, Accum::Replace, lhs, rhs, 1.0, Par::Seq);
+                };
+                emit(self.layout.cos_block(m), 2 * m * level, spec);
+                match self.layout.sin_block(m) {
+                    Some(sb) => emit(sb, 2 * m * level + level, spec),
+                    None => spec[2 * m * level + level..2 * m * level + level + nlat * b].fill(0.0),
+                }
+            }
+        }
+        for j in 0..b {
+            for i in 0..nlat {
+                for (d, out) in derivs.iter().zip(outs.iter_mut()) {
+                    let spec = &ws.spec[d.theta_order()];
+                    let k = d.phi_order();
+                    for m in 0..=p {
+                        let off = 2 * m * level + j * nlat + i;
+                        let z = Complex::new(spec[off], -spec[off + level]);
+                        let mf = m as f64;
+                        ws.fft_cplx[m] = match k {
+                            0 => z,
+                            1 => Complex::new(-mf * z.im, mf * z.re),
+                            _ => z * (-mf * mf),
+                        };
+                    }
+                    // Real FFT needs real DC and Nyquist terms; the Nyquist φ-derivative
+                    // is ∝ sin(pφ), zero at every node.
+                    ws.fft_cplx[0].im = 0.0;
+                    if k == 1 {
+                        ws.fft_cplx[p] = Complex::new(0.0, 0.0);
+                    }
+                    ws.fft_cplx[p].im = 0.0;
+                    self.c2r
+                        .process_with_scratch(
+                            &mut ws.fft_cplx,
+                            &mut ws.fft_real,
+                            &mut ws.fft_scratch,
+                        )
+                        .expect("FFT buffer sizes come from the plan");
+                    let start = out_off + j * np + i * nlon;
+                    out[start..start + nlon].copy_from_slice(&ws.fft_real);
+                }
+            }
+        }
+    }
+
+    /// [`forward`](Self::forward) with the batch split over rayon threads (one workspace each).
+    pub fn forward_par(&self, grid: &[f64], coefs: &mut [f64]) -> Result<(), SphError> {
+        self.check_batch(grid.len(), coefs.len())?;
+        let (np, nc, blk) = (self.n_points(), self.n_coefs(), self.block);
+        grid.par_chunks(blk * np)
+            .zip(coefs.par_chunks_mut(blk * nc))
+            .try_for_each_init(|| self.workspace(), |ws, (g, c)| self.forward(g, c, ws))
+    }
+
+    /// [`inverse`](Self::inverse) with the batch split over rayon threads.
+    pub fn inverse_par(&self, coefs: &[f64], grid: &mut [f64]) -> Result<(), SphError> {
+        self.check_batch(grid.len(), coefs.len())?;
+        let (np, nc, blk) = (self.n_points(), self.n_coefs(), self.block);
+        coefs
+            .par_chunks(blk * nc)
+            .zip(grid.par_chunks_mut(blk * np))
+            .try_for_each_init(|| self.workspace(), |ws, (c, g)| self.inverse(c, g, ws))
+    }
+}
