@@ -44,7 +44,7 @@ pub use layout::CoefLayout;
 pub use resample::{resample_coefs, Filter, Resampler};
 pub use rotation::{DirectRotation, ShRotation};
 pub use singular::GrahamSloan;
-pub use transform::{Deriv, ShTransform, ShWorkspace};
+pub use transform::{Deriv, PhaseTimings, ShTransform, ShWorkspace};
 
 /// Errors of the spherical-harmonic routines.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]

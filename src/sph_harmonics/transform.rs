@@ -23,6 +23,7 @@
 
 use std::f64::consts::PI;
 use std::sync::Arc;
+use std::time::Instant;
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
@@ -102,6 +103,17 @@ pub struct ShWorkspace {
     fft_real: Vec<f64>,
     fft_cplx: Vec<Complex<f64>>,
     fft_scratch: Vec<Complex<f64>>,
+    /// Accumulated time in each phase since the workspace was made or last reset.
+    pub timings: PhaseTimings,
+}
+
+/// Seconds spent in each phase of the transforms (accumulated over calls).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PhaseTimings {
+    /// FFTs along latitudes, including packing into and out of the GEMM layout.
+    pub fft_s: f64,
+    /// Legendre GEMMs.
+    pub gemm_s: f64,
 }
 
 impl ShTransform {
@@ -212,6 +224,7 @@ impl ShTransform {
                 Complex::new(0.0, 0.0);
                 self.r2c.get_scratch_len().max(self.c2r.get_scratch_len())
             ],
+            timings: PhaseTimings::default(),
         }
     }
 
@@ -286,6 +299,7 @@ impl ShTransform {
         let nc = self.n_coefs();
         let b = grid.len() / np;
         let level = nlat * self.block;
+        let t0 = Instant::now();
         let spec = &mut ws.spec[0];
         for j in 0..b {
             let g = &grid[j * np..(j + 1) * np];
@@ -301,6 +315,7 @@ impl ShTransform {
                 }
             }
         }
+        let t1 = Instant::now();
         for m in 0..=p {
             let rows = p + 1 - m;
             let lhs = MatRef::from_column_major_slice(&self.analysis[m], rows, nlat);
@@ -321,6 +336,9 @@ impl ShTransform {
                 emit(2 * m * level + level, sb, coefs);
             }
         }
+        let t2 = Instant::now();
+        ws.timings.fft_s += (t1 - t0).as_secs_f64();
+        ws.timings.gemm_s += (t2 - t1).as_secs_f64();
     }
 
     /// Inverse transform of a batch (grid values from coefficients).
@@ -389,6 +407,7 @@ impl ShTransform {
         for d in derivs {
             needed[d.theta_order()] = true;
         }
+        let t0 = Instant::now();
         for (t, spec) in ws.spec.iter_mut().enumerate() {
             if !needed[t] {
                 continue;
@@ -418,6 +437,7 @@ impl ShTransform {
                 }
             }
         }
+        let t1 = Instant::now();
         for j in 0..b {
             for i in 0..nlat {
                 for (d, out) in derivs.iter().zip(outs.iter_mut()) {
@@ -452,6 +472,8 @@ impl ShTransform {
                 }
             }
         }
+        ws.timings.gemm_s += (t1 - t0).as_secs_f64();
+        ws.timings.fft_s += t1.elapsed().as_secs_f64();
     }
 
     /// [`forward`](Self::forward) with the batch split over rayon threads (one workspace each).
