@@ -28,8 +28,8 @@ use std::time::Instant;
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 use rayon::prelude::*;
-use realfft::num_complex::Complex;
-use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+use rustfft::num_complex::Complex;
+use rustfft::{Fft, FftPlanner};
 
 use super::grid::Grid;
 use super::layout::CoefLayout;
@@ -89,8 +89,8 @@ pub struct ShTransform {
     analysis: Vec<Vec<f64>>,
     /// Per `θ`-derivative order `0, 1, 2`, per `m`: synthesis matrix `(p+1) × (p+1−m)`, column-major.
     synthesis: [Vec<Vec<f64>>; 3],
-    r2c: Arc<dyn RealToComplex<f64>>,
-    c2r: Arc<dyn ComplexToReal<f64>>,
+    fft_fwd: Arc<dyn Fft<f64>>,
+    fft_inv: Arc<dyn Fft<f64>>,
     block: usize,
 }
 
@@ -100,8 +100,8 @@ pub struct ShWorkspace {
     block: usize,
     /// Per `θ`-derivative order: per `m` a cosine and a sine matrix `(p+1) × block`.
     spec: [Vec<f64>; 3],
-    fft_real: Vec<f64>,
-    fft_cplx: Vec<Complex<f64>>,
+    /// Rings of a block packed two per complex FFT.
+    fft_buf: Vec<Complex<f64>>,
     fft_scratch: Vec<Complex<f64>>,
     /// Accumulated time in each phase since the workspace was made or last reset.
     pub timings: PhaseTimings,
@@ -164,9 +164,9 @@ impl ShTransform {
                 }
             }
         }
-        let mut planner = RealFftPlanner::<f64>::new();
-        let r2c = planner.plan_fft_forward(2 * p);
-        let c2r = planner.plan_fft_inverse(2 * p);
+        let mut planner = FftPlanner::<f64>::new();
+        let fft_fwd = planner.plan_fft_forward(2 * p);
+        let fft_inv = planner.plan_fft_inverse(2 * p);
         // Functions per block: keep one spectral scratch level around 256 KiB.
         let block = (16384 / (nlat * nlat)).clamp(16, 256);
         Ok(ShTransform {
@@ -174,8 +174,8 @@ impl ShTransform {
             layout,
             analysis,
             synthesis,
-            r2c,
-            c2r,
+            fft_fwd,
+            fft_inv,
             block,
         })
     }
@@ -218,11 +218,12 @@ impl ShTransform {
             p,
             block: self.block,
             spec: std::array::from_fn(|_| vec![0.0; level]),
-            fft_real: self.r2c.make_input_vec(),
-            fft_cplx: self.r2c.make_output_vec(),
+            fft_buf: vec![Complex::new(0.0, 0.0); (self.block * (p + 1)).div_ceil(2) * 2 * p],
             fft_scratch: vec![
                 Complex::new(0.0, 0.0);
-                self.r2c.get_scratch_len().max(self.c2r.get_scratch_len())
+                self.fft_fwd
+                    .get_inplace_scratch_len()
+                    .max(self.fft_inv.get_inplace_scratch_len())
             ],
             timings: PhaseTimings::default(),
         }
@@ -301,17 +302,39 @@ impl ShTransform {
         let level = nlat * self.block;
         let t0 = Instant::now();
         let spec = &mut ws.spec[0];
-        for j in 0..b {
-            let g = &grid[j * np..(j + 1) * np];
-            for i in 0..nlat {
-                ws.fft_real.copy_from_slice(&g[i * nlon..(i + 1) * nlon]);
-                self.r2c
-                    .process_with_scratch(&mut ws.fft_real, &mut ws.fft_cplx, &mut ws.fft_scratch)
-                    .expect("FFT buffer sizes come from the plan");
-                for m in 0..=p {
-                    let off = 2 * m * level + j * nlat + i;
-                    spec[off] = ws.fft_cplx[m].re;
-                    spec[off + level] = -ws.fft_cplx[m].im;
+        // Two real rings per complex FFT: z = x_a + i x_b, all rings of the block in one call.
+        let rings = b * nlat;
+        let pairs = rings.div_ceil(2);
+        let buf = &mut ws.fft_buf[..pairs * nlon];
+        for (pr, z) in buf.chunks_exact_mut(nlon).enumerate() {
+            let xa = &grid[2 * pr * nlon..(2 * pr + 1) * nlon];
+            if 2 * pr + 1 < rings {
+                let xb = &grid[(2 * pr + 1) * nlon..(2 * pr + 2) * nlon];
+                for ((z, &a), &b) in z.iter_mut().zip(xa).zip(xb) {
+                    *z = Complex::new(a, b);
+                }
+            } else {
+                for (z, &a) in z.iter_mut().zip(xa) {
+                    *z = Complex::new(a, 0.0);
+                }
+            }
+        }
+        self.fft_fwd.process_with_scratch(buf, &mut ws.fft_scratch);
+        // Split: X_a[m] = (Z_m + conj Z_{N−m})/2, X_b[m] = (Z_m − conj Z_{N−m})/(2i).
+        for (pr, z) in buf.chunks_exact(nlon).enumerate() {
+            let (ra, rb) = (2 * pr, 2 * pr + 1);
+            // Spectral column of ring r = j·(p+1) + i is r itself.
+            let (col_a, col_b) = (ra, rb);
+            for m in 0..=p {
+                let zm = z[m];
+                let zc = z[(nlon - m) % nlon].conj();
+                let off = 2 * m * level;
+                spec[off + col_a] = 0.5 * (zm.re + zc.re);
+                spec[off + level + col_a] = -0.5 * (zm.im + zc.im);
+                if rb < rings {
+                    // (zm − zc)/(2i) = (Δim, −Δre)/2
+                    spec[off + col_b] = 0.5 * (zm.im - zc.im);
+                    spec[off + level + col_b] = 0.5 * (zm.re - zc.re);
                 }
             }
         }
@@ -399,7 +422,6 @@ impl ShTransform {
         let p = self.order();
         let nlat = p + 1;
         let nlon = 2 * p;
-        let np = self.n_points();
         let nc = self.n_coefs();
         let b = coefs.len() / nc;
         let level = nlat * self.block;
@@ -438,37 +460,57 @@ impl ShTransform {
             }
         }
         let t1 = Instant::now();
-        for j in 0..b {
-            for i in 0..nlat {
-                for (d, out) in derivs.iter().zip(outs.iter_mut()) {
-                    let spec = &ws.spec[d.theta_order()];
-                    let k = d.phi_order();
-                    for m in 0..=p {
-                        let off = 2 * m * level + j * nlat + i;
-                        let z = Complex::new(spec[off], -spec[off + level]);
-                        let mf = m as f64;
-                        ws.fft_cplx[m] = match k {
-                            0 => z,
-                            1 => Complex::new(-mf * z.im, mf * z.re),
-                            _ => z * (-mf * mf),
-                        };
+        let rings = b * nlat;
+        let pairs = rings.div_ceil(2);
+        for (d, out) in derivs.iter().zip(outs.iter_mut()) {
+            let spec = &ws.spec[d.theta_order()];
+            let k = d.phi_order();
+            // Spectrum of ring r (column r of the spectral matrices) at order m, with the
+            // φ-derivative applied; the Nyquist term of an odd φ-derivative is ∝ sin(pφ) and
+            // vanishes at every node.
+            let coef = |r: usize, m: usize| -> Complex<f64> {
+                if r >= rings || (k == 1 && m == p) {
+                    return Complex::new(0.0, 0.0);
+                }
+                let off = 2 * m * level + r;
+                let z = Complex::new(spec[off], -spec[off + level]);
+                let mf = m as f64;
+                match k {
+                    0 => z,
+                    1 => Complex::new(-mf * z.im, mf * z.re),
+                    _ => z * (-mf * mf),
+                }
+            };
+            let buf = &mut ws.fft_buf[..pairs * nlon];
+            for (pr, z) in buf.chunks_exact_mut(nlon).enumerate() {
+                // Z = X_a + i X_b with Hermitian X_a, X_b: x_a = Re ifft(Z), x_b = Im ifft(Z).
+                let (ra, rb) = (2 * pr, 2 * pr + 1);
+                let i = Complex::new(0.0, 1.0);
+                let (mut a0, mut b0) = (coef(ra, 0), coef(rb, 0));
+                a0.im = 0.0;
+                b0.im = 0.0;
+                z[0] = a0 + i * b0;
+                let (mut an, mut bn) = (coef(ra, p), coef(rb, p));
+                an.im = 0.0;
+                bn.im = 0.0;
+                z[p] = an + i * bn;
+                for m in 1..p {
+                    let (a, bb) = (coef(ra, m), coef(rb, m));
+                    z[m] = a + i * bb;
+                    z[nlon - m] = a.conj() + i * bb.conj();
+                }
+            }
+            self.fft_inv.process_with_scratch(buf, &mut ws.fft_scratch);
+            let dst = &mut out[out_off..out_off + rings * nlon];
+            for (pr, z) in buf.chunks_exact(nlon).enumerate() {
+                let ra = 2 * pr;
+                for (x, zv) in dst[ra * nlon..(ra + 1) * nlon].iter_mut().zip(z) {
+                    *x = zv.re;
+                }
+                if ra + 1 < rings {
+                    for (x, zv) in dst[(ra + 1) * nlon..(ra + 2) * nlon].iter_mut().zip(z) {
+                        *x = zv.im;
                     }
-                    // Real FFT needs real DC and Nyquist terms; the Nyquist φ-derivative
-                    // is ∝ sin(pφ), zero at every node.
-                    ws.fft_cplx[0].im = 0.0;
-                    if k == 1 {
-                        ws.fft_cplx[p] = Complex::new(0.0, 0.0);
-                    }
-                    ws.fft_cplx[p].im = 0.0;
-                    self.c2r
-                        .process_with_scratch(
-                            &mut ws.fft_cplx,
-                            &mut ws.fft_real,
-                            &mut ws.fft_scratch,
-                        )
-                        .expect("FFT buffer sizes come from the plan");
-                    let start = out_off + j * np + i * nlon;
-                    out[start..start + nlon].copy_from_slice(&ws.fft_real);
                 }
             }
         }
