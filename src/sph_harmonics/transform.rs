@@ -167,8 +167,10 @@ impl ShTransform {
         let mut planner = FftPlanner::<f64>::new();
         let fft_fwd = planner.plan_fft_forward(2 * p);
         let fft_inv = planner.plan_fft_inverse(2 * p);
-        // Functions per block: keep one spectral scratch level around 256 KiB.
-        let block = (16384 / (nlat * nlat)).clamp(16, 256);
+        // Functions per block: about 64 KiB of spectral scratch per level, so that the packed
+        // rings, the spectra and the GEMM operands of a block stay in L2 (tuned with
+        // `examples/sht_phases.rs` on a 512 KiB-L2 core: 64 at p = 6, 16 at p = 12…16).
+        let block = (4096 / (nlat * nlat)).clamp(8, 128);
         Ok(ShTransform {
             grid,
             layout,
