@@ -8,5 +8,8 @@
 //! quadrature weights) is the foundation; the FMM, cell mechanics, time stepping, scenes and
 //! output build on it.
 
+pub mod brownian;
 pub mod check;
+pub mod io;
+pub mod scene;
 pub mod sph_harmonics;

@@ -28,6 +28,18 @@ enum Command {
         #[arg(long, default_value_t = 16)]
         order: usize,
     },
+    /// Brownian dynamics with hydrodynamic interactions from a scene file with a [brownian]
+    /// section; writes trajectory.npy, observables.csv and summary.json.
+    Brownian {
+        /// The scene file (TOML).
+        scene: std::path::PathBuf,
+        /// Output directory (default: out/<scene name>).
+        #[arg(long)]
+        out: Option<std::path::PathBuf>,
+        /// No progress bar.
+        #[arg(long)]
+        quiet: bool,
+    },
     /// Time batched forward + inverse transforms; prints one JSON line.
     BenchSht {
         /// Spherical-harmonic order p.
@@ -51,12 +63,17 @@ enum CliError {
     Sph(#[from] SphError),
     #[error("invalid argument: {0}")]
     Arg(String),
+    #[error("{0}")]
+    Scene(#[from] mobo::scene::SceneError),
+    #[error("{0}")]
+    Run(#[from] mobo::scene::brownian_run::RunError),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command.unwrap_or(Command::Demo { order: 16 }) {
         Command::Demo { order } => demo(order),
+        Command::Brownian { scene, out, quiet } => brownian(&scene, out, quiet),
         Command::BenchSht {
             order,
             surfaces,
@@ -210,6 +227,40 @@ fn bench_sht(order: usize, surfaces: usize, threads: usize, reps: usize) -> Resu
     println!(
         "{{\"p\":{order},\"surfaces\":{surfaces},\"functions\":{nf},\"threads\":{threads},\"forward_s\":{best_f:.6e},\"inverse_s\":{best_i:.6e},\"legendre_gflops\":{:.3}}}",
         flops / (best_f + best_i) / 1e9
+    );
+    Ok(())
+}
+
+fn brownian(
+    scene: &std::path::Path,
+    out: Option<std::path::PathBuf>,
+    quiet: bool,
+) -> Result<(), CliError> {
+    let sc = mobo::scene::brownian::load(scene)?;
+    let out = out
+        .unwrap_or_else(|| std::path::Path::new("out").join(scene.file_stem().unwrap_or_default()));
+    if !quiet {
+        eprintln!(
+            "mobo brownian: {} ({} beads, {} steps, noise {:?}) -> {}",
+            scene.display(),
+            sc.positions.len(),
+            sc.steps,
+            sc.params.noise,
+            out.display()
+        );
+        for e in mobo::scene::brownian_run::effects(&sc) {
+            eprintln!(
+                "  {} {}: {}",
+                if e.enabled { "+" } else { "-" },
+                e.name,
+                e.reason
+            );
+        }
+    }
+    let s = mobo::scene::brownian_run::run(&sc, &out, !quiet)?;
+    println!(
+        "{} beads, {} steps in {:.2} s ({:.0} steps/s); D_CM estimate {:.4} (D0 = {:.4}); <Rg^2> = {:.4}; <Ree^2> = {:.4}",
+        s.beads, s.steps, s.wall_s, s.steps_per_second, s.com_diffusion_estimate, s.d0, s.mean_rg2, s.mean_end_to_end_sq
     );
     Ok(())
 }

@@ -1,0 +1,180 @@
+//! The Ermak–McCammon step with hydrodynamic interactions.
+//!
+//! `Δr = D F Δt / k_BT + √(2Δt) B ξ`, `B Bᵀ = D`, `ξ` standard normal (Ermak & McCammon, J. Chem.
+//! Phys. 69, 1978). In units of `D0 = k_BT/(6πηa)`: `Δr = (D0Δt/k_BT) D̃F + √(2D0Δt) B̃ξ`. The RPY
+//! tensor is divergence-free, so no drift correction term appears.
+
+use rand::rngs::StdRng;
+use rand::SeedableRng;
+use rand_distr::{Distribution, StandardNormal};
+
+use super::forces::ForceField;
+use super::noise::{cholesky_factor, lanczos_sqrt};
+use super::rpy::apply_mobility;
+use super::tea_hi::{fused_pass, tea_hi_noise, FusedSums, Soa, TeaHiCoefficients};
+use super::BrownianError;
+
+/// How the noise (and with it the hydrodynamic coupling) is computed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum NoiseModel {
+    /// No hydrodynamic interactions: `D = D0 I`.
+    FreeDraining,
+    /// RPY drift, TEA-HI noise in one fused pass.
+    TeaHi,
+    /// RPY drift, exact noise by Cholesky factorisation.
+    Cholesky,
+    /// RPY drift, Krylov (Lanczos) square root to the given tolerance.
+    Lanczos { tol: f64, max_iter: usize },
+}
+
+/// Physical and numerical parameters.
+#[derive(Clone, Copy, Debug)]
+pub struct BrownianParams {
+    /// Bead radius `a`.
+    pub radius: f64,
+    /// Thermal energy `k_BT`.
+    pub kt: f64,
+    /// Solvent viscosity `η`.
+    pub viscosity: f64,
+    /// Time step.
+    pub dt: f64,
+    /// Noise model.
+    pub noise: NoiseModel,
+    /// Seed of the random stream.
+    pub seed: u64,
+}
+
+impl BrownianParams {
+    /// `D0 = k_BT/(6πηa)`.
+    pub fn d0(&self) -> f64 {
+        self.kt / (6.0 * std::f64::consts::PI * self.viscosity * self.radius)
+    }
+}
+
+/// A bead system advanced by Ermak–McCammon steps.
+pub struct BrownianSimulation {
+    /// Parameters.
+    pub params: BrownianParams,
+    /// Bead positions.
+    pub positions: Vec<[f64; 3]>,
+    /// Force field.
+    pub forces: ForceField,
+    /// Simulated time.
+    pub time: f64,
+    /// Steps taken.
+    pub steps: u64,
+    /// `ε` and `β'` of the last TEA-HI step.
+    pub last_tea_hi: Option<TeaHiCoefficients>,
+    rng: StdRng,
+    f: Vec<[f64; 3]>,
+    xi: Vec<[f64; 3]>,
+    drift: Vec<[f64; 3]>,
+    noise: Vec<[f64; 3]>,
+    soa: (Soa, Soa, Soa),
+    sums: FusedSums,
+}
+
+impl BrownianSimulation {
+    /// A simulation of the given beads.
+    pub fn new(
+        params: BrownianParams,
+        positions: Vec<[f64; 3]>,
+        forces: ForceField,
+    ) -> Result<Self, BrownianError> {
+        if !(params.radius > 0.0 && params.kt > 0.0 && params.viscosity > 0.0 && params.dt > 0.0) {
+            return Err(BrownianError::Parameter(
+                "radius, kT, viscosity and dt must be positive".into(),
+            ));
+        }
+        if positions.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(BrownianError::Parameter("positions must be finite".into()));
+        }
+        let n = positions.len();
+        Ok(BrownianSimulation {
+            params,
+            positions,
+            forces,
+            time: 0.0,
+            steps: 0,
+            last_tea_hi: None,
+            rng: StdRng::seed_from_u64(params.seed),
+            f: vec![[0.0; 3]; n],
+            xi: vec![[0.0; 3]; n],
+            drift: vec![[0.0; 3]; n],
+            noise: vec![[0.0; 3]; n],
+            soa: Default::default(),
+            sums: FusedSums::default(),
+        })
+    }
+
+    /// One step.
+    pub fn step(&mut self) -> Result<(), BrownianError> {
+        let p = self.params;
+        let a = p.radius;
+        let d0 = p.d0();
+        self.forces.forces(&self.positions, &mut self.f);
+        for x in self.xi.iter_mut().flatten() {
+            *x = StandardNormal.sample(&mut self.rng);
+        }
+        match p.noise {
+            NoiseModel::FreeDraining => {
+                self.drift.copy_from_slice(&self.f);
+                self.noise.copy_from_slice(&self.xi);
+            }
+            NoiseModel::TeaHi => {
+                let (pos, frc, xi) = &mut self.soa;
+                pos.fill(&self.positions);
+                frc.fill(&self.f);
+                xi.fill(&self.xi);
+                fused_pass(pos, frc, xi, a, &mut self.sums);
+                let coef =
+                    TeaHiCoefficients::from_entry_sum(self.sums.entry_sum, self.positions.len())
+                        .ok_or(BrownianError::TeaHiBreakdown {
+                            step: self.steps,
+                            epsilon: self.sums.entry_sum
+                                / (9.0
+                                    * (self.positions.len() * (self.positions.len() - 1)) as f64),
+                        })?;
+                self.last_tea_hi = Some(coef);
+                self.drift.copy_from_slice(&self.sums.drift);
+                tea_hi_noise(&self.sums, xi, coef, &mut self.noise);
+            }
+            NoiseModel::Cholesky => {
+                apply_mobility(&self.positions, a, &self.f, &mut self.drift);
+                let l = cholesky_factor(&self.positions, a)?;
+                let n3 = 3 * self.positions.len();
+                for r in 0..n3 {
+                    let mut s = 0.0;
+                    for c in 0..=r {
+                        s += l[(r, c)] * self.xi[c / 3][c % 3];
+                    }
+                    self.noise[r / 3][r % 3] = s;
+                }
+            }
+            NoiseModel::Lanczos { tol, max_iter } => {
+                apply_mobility(&self.positions, a, &self.f, &mut self.drift);
+                self.noise = lanczos_sqrt(&self.positions, a, &self.xi, tol, max_iter)?.value;
+            }
+        }
+        let cd = d0 * p.dt / p.kt;
+        let cn = (2.0 * d0 * p.dt).sqrt();
+        for ((x, d), w) in self.positions.iter_mut().zip(&self.drift).zip(&self.noise) {
+            for k in 0..3 {
+                x[k] += cd * d[k] + cn * w[k];
+            }
+        }
+        if let Some(i) = self
+            .positions
+            .iter()
+            .position(|x| !x.iter().all(|v| v.is_finite()))
+        {
+            return Err(BrownianError::NonFinite {
+                step: self.steps,
+                particle: i,
+            });
+        }
+        self.steps += 1;
+        self.time += p.dt;
+        Ok(())
+    }
+}

@@ -1,0 +1,63 @@
+//! Scene files (TOML): schema, validation with errors that name the file, line and key.
+//!
+//! Only the `[brownian]` section exists so far; the cell scene sections come with the
+//! time-stepping issue.
+
+pub mod brownian;
+pub mod brownian_run;
+
+use std::path::{Path, PathBuf};
+
+/// A scene error: the file, the place (line and column where known) and what is wrong.
+#[derive(Debug, thiserror::Error)]
+#[error("{}{}: {message}", file.display(), place.map(|(l, c)| format!(":{l}:{c}")).unwrap_or_default())]
+pub struct SceneError {
+    /// The scene file.
+    pub file: PathBuf,
+    /// Line and column (1-based), if known.
+    pub place: Option<(usize, usize)>,
+    /// What is wrong.
+    pub message: String,
+}
+
+impl SceneError {
+    /// An error without a place.
+    pub fn new(file: &Path, message: impl Into<String>) -> Self {
+        SceneError {
+            file: file.to_path_buf(),
+            place: None,
+            message: message.into(),
+        }
+    }
+}
+
+/// Parse TOML text into `T`, turning parse and schema errors into [`SceneError`]s with the line.
+pub fn parse_toml<T: serde::de::DeserializeOwned>(
+    file: &Path,
+    text: &str,
+) -> Result<T, SceneError> {
+    toml::from_str(text).map_err(|e| {
+        let place = e.span().map(|s| line_col(text, s.start));
+        SceneError {
+            file: file.to_path_buf(),
+            place,
+            message: e.message().trim().to_string(),
+        }
+    })
+}
+
+/// 1-based line and column of a byte offset.
+pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
+    let before = &text[..offset.min(text.len())];
+    let line = before.matches('\n').count() + 1;
+    let col = before
+        .rfind('\n')
+        .map_or(before.len(), |p| before.len() - p - 1)
+        + 1;
+    (line, col)
+}
+
+/// Read a file to a string, with the file name in the error.
+pub fn read_scene_file(file: &Path) -> Result<String, SceneError> {
+    std::fs::read_to_string(file).map_err(|e| SceneError::new(file, format!("cannot read: {e}")))
+}
