@@ -404,3 +404,19 @@ fn bad_parameters_are_errors() {
     let p = params(NoiseModel::TeaHi, 1);
     assert!(BrownianSimulation::new(p, vec![[f64::NAN, 0.0, 0.0]], ForceField::default()).is_err());
 }
+
+#[test]
+fn simd_pair_loop_matches_scalar_reference() {
+    use mobo::brownian::tea_hi::{row_sums, row_sums_portable};
+    // Sizes that leave every remainder 0..3, dense enough for both RPY branches.
+    for n in [2usize, 3, 4, 5, 6, 7, 9, 17, 64, 131] {
+        let pos = Soa::from_points(&random_config(n, (n as f64).cbrt() * 2.5, n as u64));
+        let f = Soa::from_points(&random_config(n, 2.0, 1 + n as u64));
+        let xi = Soa::from_points(&random_config(n, 2.0, 2 + n as u64));
+        for i in 0..n {
+            let got = row_sums(&pos, &f, &xi, 1.0, i);
+            let want = row_sums_portable(&pos, &f, &xi, 1.0, i);
+            assert_close(&format!("row sums n={n} i={i}"), &got, &want, 1e-13);
+        }
+    }
+}

@@ -13,8 +13,9 @@
 //! sum of all entries for `ε`: four partial sums per row, as in the reference GPU implementation.
 //! The Ermak–McCammon displacement is then `Δr = D0 Δt/(k_BT) D̃F + √(2 D0 Δt) B̃ξ`.
 //!
-//! The pair loop is written over structure-of-arrays coordinates in chunks of four lanes, with an
-//! AVX2+FMA version selected at run time and the portable one kept as the reference.
+//! The pair loop runs over structure-of-arrays coordinates: an AVX2+FMA version (four sources per
+//! register) is selected at run time, and the scalar loop is kept as the portable path and the
+//! reference it is tested against.
 
 use rayon::prelude::*;
 
@@ -94,6 +95,9 @@ impl Soa {
     }
 }
 
+/// Particle count from which [`fused_pass`] runs over rayon threads.
+pub const PARALLEL_THRESHOLD: usize = 256;
+
 /// The fused pass: drift, noise sum, square sums and entry sum for every particle.
 /// `pos`, `force` and `xi` are structure-of-arrays of the same length.
 pub fn fused_pass(pos: &Soa, force: &Soa, xi: &Soa, a: f64, out: &mut FusedSums) {
@@ -101,20 +105,34 @@ pub fn fused_pass(pos: &Soa, force: &Soa, xi: &Soa, a: f64, out: &mut FusedSums)
     out.drift.resize(n, [0.0; 3]);
     out.noise_sum.resize(n, [0.0; 3]);
     out.square_sum.resize(n, [0.0; 3]);
-    let entry: f64 = out
-        .drift
-        .par_iter_mut()
-        .zip(out.noise_sum.par_iter_mut())
-        .zip(out.square_sum.par_iter_mut())
-        .enumerate()
-        .map(|(i, ((d, s), q))| {
-            let r = row_sums(pos, force, xi, a, i);
-            *d = [r[0] + force.x[i], r[1] + force.y[i], r[2] + force.z[i]];
-            *s = [r[3], r[4], r[5]];
-            *q = [r[6], r[7], r[8]];
-            r[9]
-        })
-        .sum();
+    let row = |i: usize, d: &mut [f64; 3], s: &mut [f64; 3], q: &mut [f64; 3]| -> f64 {
+        let r = row_sums(pos, force, xi, a, i);
+        *d = [r[0] + force.x[i], r[1] + force.y[i], r[2] + force.z[i]];
+        *s = [r[3], r[4], r[5]];
+        *q = [r[6], r[7], r[8]];
+        r[9]
+    };
+    // Below a few hundred particles a parallel dispatch costs more than the pairs.
+    let entry: f64 = if n < PARALLEL_THRESHOLD {
+        let mut e = 0.0;
+        for i in 0..n {
+            e += row(
+                i,
+                &mut out.drift[i],
+                &mut out.noise_sum[i],
+                &mut out.square_sum[i],
+            );
+        }
+        e
+    } else {
+        out.drift
+            .par_iter_mut()
+            .zip(out.noise_sum.par_iter_mut())
+            .zip(out.square_sum.par_iter_mut())
+            .enumerate()
+            .map(|(i, ((d, s), q))| row(i, d, s, q))
+            .sum()
+    };
     out.entry_sum = entry;
 }
 
@@ -132,80 +150,138 @@ pub fn row_sums(pos: &Soa, force: &Soa, xi: &Soa, a: f64, i: usize) -> [f64; 10]
     row_sums_portable(pos, force, xi, a, i)
 }
 
+/// Contribution of the pair `(i, j)`, `j ≠ i`, to the ten row sums of `i` (scalar).
+#[inline(always)]
+fn pair_scalar(pos: &Soa, force: &Soa, xi: &Soa, a: f64, i: usize, j: usize, acc: &mut [f64; 10]) {
+    let rx = pos.x[i] - pos.x[j];
+    let ry = pos.y[i] - pos.y[j];
+    let rz = pos.z[i] - pos.z[j];
+    let d2 = rx * rx + ry * ry + rz * rz;
+    let d = d2.sqrt();
+    let inv_d = 1.0 / d;
+    let (ci, crr) = if d >= 2.0 * a {
+        let s = a * inv_d;
+        let s3 = s * s * s;
+        (0.75 * s + 0.5 * s3, 0.75 * s - 1.5 * s3)
+    } else {
+        let t = d / a;
+        (1.0 - 0.28125 * t, 0.09375 * t)
+    };
+    let g = crr * inv_d * inv_d;
+    let (fx, fy, fz) = (force.x[j], force.y[j], force.z[j]);
+    let (ex, ey, ez) = (xi.x[j], xi.y[j], xi.z[j]);
+    let rf = g * (rx * fx + ry * fy + rz * fz);
+    let re = g * (rx * ex + ry * ey + rz * ez);
+    acc[0] += ci * fx + rf * rx;
+    acc[1] += ci * fy + rf * ry;
+    acc[2] += ci * fz + rf * rz;
+    acc[3] += ci * ex + re * rx;
+    acc[4] += ci * ey + re * ry;
+    acc[5] += ci * ez + re * rz;
+    // Block entries M_kl = ci δ_kl + g r_k r_l.
+    let (mxx, myy, mzz) = (ci + g * rx * rx, ci + g * ry * ry, ci + g * rz * rz);
+    let (mxy, mxz, myz) = (g * rx * ry, g * rx * rz, g * ry * rz);
+    acc[6] += mxx * mxx + mxy * mxy + mxz * mxz;
+    acc[7] += mxy * mxy + myy * myy + myz * myz;
+    acc[8] += mxz * mxz + myz * myz + mzz * mzz;
+    acc[9] += mxx + myy + mzz + 2.0 * (mxy + mxz + myz);
+}
+
+/// Portable pair loop: the reference for the SIMD version.
+pub fn row_sums_portable(pos: &Soa, force: &Soa, xi: &Soa, a: f64, i: usize) -> [f64; 10] {
+    let mut acc = [0.0; 10];
+    for j in (0..pos.x.len()).filter(|&j| j != i) {
+        pair_scalar(pos, force, xi, a, i, j, &mut acc);
+    }
+    acc
+}
+
+/// AVX2+FMA pair loop: four sources per register, both RPY branches computed and blended.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn row_sums_avx2(pos: &Soa, force: &Soa, xi: &Soa, a: f64, i: usize) -> [f64; 10] {
-    row_sums_portable(pos, force, xi, a, i)
-}
-
-/// Portable pair loop (inlined into the AVX2 version, which the compiler vectorises 4-wide).
-#[inline(always)]
-pub fn row_sums_portable(pos: &Soa, force: &Soa, xi: &Soa, a: f64, i: usize) -> [f64; 10] {
-    const L: usize = 4;
+    use std::arch::x86_64::*;
     let n = pos.x.len();
-    let (xi0, yi0, zi0) = (pos.x[i], pos.y[i], pos.z[i]);
-    let mut acc = [[0.0f64; L]; 10];
-    let two_a = 2.0 * a;
-    let inv_a = 1.0 / a;
-    let lane_body = |j: usize, l: usize, acc: &mut [[f64; L]; 10]| {
-        let rx = xi0 - pos.x[j];
-        let ry = yi0 - pos.y[j];
-        let rz = zi0 - pos.z[j];
-        let d2 = rx * rx + ry * ry + rz * rz;
-        let d = d2.sqrt();
-        let inv_d = 1.0 / d;
-        // Both branches, selected without a jump.
-        let s = a * inv_d;
-        let s3 = s * s * s;
-        let far = d >= two_a;
-        let t = d * inv_a;
-        let ci = if far {
-            0.75 * s + 0.5 * s3
-        } else {
-            1.0 - 0.28125 * t
-        };
-        let crr = if far {
-            0.75 * s - 1.5 * s3
-        } else {
-            0.09375 * t
-        };
-        let g = crr * inv_d * inv_d;
-        let (fx, fy, fz) = (force.x[j], force.y[j], force.z[j]);
-        let (ex, ey, ez) = (xi.x[j], xi.y[j], xi.z[j]);
-        let rf = g * (rx * fx + ry * fy + rz * fz);
-        let re = g * (rx * ex + ry * ey + rz * ez);
-        acc[0][l] += ci * fx + rf * rx;
-        acc[1][l] += ci * fy + rf * ry;
-        acc[2][l] += ci * fz + rf * rz;
-        acc[3][l] += ci * ex + re * rx;
-        acc[4][l] += ci * ey + re * ry;
-        acc[5][l] += ci * ez + re * rz;
-        // Block entries M_kl = ci δ_kl + g r_k r_l.
-        let (mxx, myy, mzz) = (ci + g * rx * rx, ci + g * ry * ry, ci + g * rz * rz);
-        let (mxy, mxz, myz) = (g * rx * ry, g * rx * rz, g * ry * rz);
-        acc[6][l] += mxx * mxx + mxy * mxy + mxz * mxz;
-        acc[7][l] += mxy * mxy + myy * myy + myz * myz;
-        acc[8][l] += mxz * mxz + myz * myz + mzz * mzz;
-        acc[9][l] += mxx + myy + mzz + 2.0 * (mxy + mxz + myz);
-    };
-    // j < i and j > i, in chunks of L lanes; remainders one by one.
-    for range in [0..i, i + 1..n] {
-        let (start, end) = (range.start, range.end);
-        let full = start + (end - start) / L * L;
+    let set = |v: f64| _mm256_set1_pd(v);
+    let (x0, y0, z0) = (set(pos.x[i]), set(pos.y[i]), set(pos.z[i]));
+    let (av, two_a, inv_a, one) = (set(a), set(2.0 * a), set(1.0 / a), set(1.0));
+    let (c075, c05, c15, c9_32, c3_32, two) = (
+        set(0.75),
+        set(0.5),
+        set(1.5),
+        set(0.28125),
+        set(0.09375),
+        set(2.0),
+    );
+    let mut acc = [_mm256_setzero_pd(); 10];
+    let mut tail = [0.0f64; 10];
+    for (start, end) in [(0, i), (i + 1, n)] {
+        let full = start + (end - start) / 4 * 4;
         let mut j = start;
         while j < full {
-            for l in 0..L {
-                lane_body(j + l, l, &mut acc);
-            }
-            j += L;
+            // SAFETY: j + 3 < end ≤ n, and all arrays have length n.
+            let ld = |v: &Vec<f64>| _mm256_loadu_pd(v.as_ptr().add(j));
+            let rx = _mm256_sub_pd(x0, ld(&pos.x));
+            let ry = _mm256_sub_pd(y0, ld(&pos.y));
+            let rz = _mm256_sub_pd(z0, ld(&pos.z));
+            let d2 = _mm256_fmadd_pd(rx, rx, _mm256_fmadd_pd(ry, ry, _mm256_mul_pd(rz, rz)));
+            let d = _mm256_sqrt_pd(d2);
+            let inv_d = _mm256_div_pd(one, d);
+            let s = _mm256_mul_pd(av, inv_d);
+            let s3 = _mm256_mul_pd(_mm256_mul_pd(s, s), s);
+            let t = _mm256_mul_pd(d, inv_a);
+            let far = _mm256_cmp_pd::<_CMP_GE_OQ>(d, two_a);
+            let ci_far = _mm256_fmadd_pd(c075, s, _mm256_mul_pd(c05, s3));
+            let crr_far = _mm256_fmsub_pd(c075, s, _mm256_mul_pd(c15, s3));
+            let ci_near = _mm256_fnmadd_pd(c9_32, t, one);
+            let crr_near = _mm256_mul_pd(c3_32, t);
+            let ci = _mm256_blendv_pd(ci_near, ci_far, far);
+            let crr = _mm256_blendv_pd(crr_near, crr_far, far);
+            let g = _mm256_mul_pd(crr, _mm256_mul_pd(inv_d, inv_d));
+            let (fx, fy, fz) = (ld(&force.x), ld(&force.y), ld(&force.z));
+            let (ex, ey, ez) = (ld(&xi.x), ld(&xi.y), ld(&xi.z));
+            let dot = |ux, uy, uz| {
+                _mm256_fmadd_pd(rx, ux, _mm256_fmadd_pd(ry, uy, _mm256_mul_pd(rz, uz)))
+            };
+            let rf = _mm256_mul_pd(g, dot(fx, fy, fz));
+            let re = _mm256_mul_pd(g, dot(ex, ey, ez));
+            let upd = |acc: __m256d, c: __m256d, u: __m256d, w: __m256d, r: __m256d| {
+                _mm256_add_pd(acc, _mm256_fmadd_pd(c, u, _mm256_mul_pd(w, r)))
+            };
+            acc[0] = upd(acc[0], ci, fx, rf, rx);
+            acc[1] = upd(acc[1], ci, fy, rf, ry);
+            acc[2] = upd(acc[2], ci, fz, rf, rz);
+            acc[3] = upd(acc[3], ci, ex, re, rx);
+            acc[4] = upd(acc[4], ci, ey, re, ry);
+            acc[5] = upd(acc[5], ci, ez, re, rz);
+            let gx = _mm256_mul_pd(g, rx);
+            let gy = _mm256_mul_pd(g, ry);
+            let mxx = _mm256_fmadd_pd(gx, rx, ci);
+            let myy = _mm256_fmadd_pd(gy, ry, ci);
+            let mzz = _mm256_fmadd_pd(_mm256_mul_pd(g, rz), rz, ci);
+            let mxy = _mm256_mul_pd(gx, ry);
+            let mxz = _mm256_mul_pd(gx, rz);
+            let myz = _mm256_mul_pd(gy, rz);
+            let sq3 = |acc: __m256d, p: __m256d, q: __m256d, r: __m256d| {
+                _mm256_fmadd_pd(p, p, _mm256_fmadd_pd(q, q, _mm256_fmadd_pd(r, r, acc)))
+            };
+            acc[6] = sq3(acc[6], mxx, mxy, mxz);
+            acc[7] = sq3(acc[7], mxy, myy, myz);
+            acc[8] = sq3(acc[8], mxz, myz, mzz);
+            let diag = _mm256_add_pd(_mm256_add_pd(mxx, myy), mzz);
+            let off = _mm256_add_pd(_mm256_add_pd(mxy, mxz), myz);
+            acc[9] = _mm256_add_pd(acc[9], _mm256_fmadd_pd(two, off, diag));
+            j += 4;
         }
-        for (l, jj) in (full..end).enumerate() {
-            lane_body(jj, l, &mut acc);
+        for jj in full..end {
+            pair_scalar(pos, force, xi, a, i, jj, &mut tail);
         }
     }
-    let mut out = [0.0; 10];
-    for (o, a) in out.iter_mut().zip(&acc) {
-        *o = a.iter().sum();
+    let mut out = tail;
+    for (o, v) in out.iter_mut().zip(acc) {
+        let mut lanes = [0.0f64; 4];
+        _mm256_storeu_pd(lanes.as_mut_ptr(), v);
+        *o += lanes.iter().sum::<f64>();
     }
     out
 }

@@ -133,27 +133,28 @@ pub fn parse(file: &Path, text: &str) -> Result<BrownianScene, SceneError> {
     if b.save_every == 0 {
         return Err(bad("save_every", "must be at least 1"));
     }
-    let noise =
-        match b.noise.as_str() {
-            "tea-hi" => NoiseModel::TeaHi,
-            "exact" => NoiseModel::Cholesky,
-            "lanczos" => {
-                if !(b.lanczos_tol > 0.0 && b.lanczos_tol < 1.0) {
-                    return Err(bad("lanczos_tol", "must be in (0, 1)"));
-                }
-                NoiseModel::Lanczos {
-                    tol: b.lanczos_tol,
-                    max_iter: 200,
-                }
+    let noise = match b.noise.as_str() {
+        "tea-hi" => NoiseModel::TeaHi,
+        "exact" => NoiseModel::Cholesky,
+        "lanczos" => {
+            if !(b.lanczos_tol > 0.0 && b.lanczos_tol < 1.0) {
+                return Err(bad("lanczos_tol", "must be in (0, 1)"));
             }
-            "free-draining" => NoiseModel::FreeDraining,
-            other => return Err(bad(
+            NoiseModel::Lanczos {
+                tol: b.lanczos_tol,
+                max_iter: 200,
+            }
+        }
+        "free-draining" => NoiseModel::FreeDraining,
+        other => {
+            return Err(bad(
                 "noise",
                 &format!(
                     "unknown model \"{other}\" (expected tea-hi, exact, lanczos or free-draining)"
                 ),
-            )),
-        };
+            ))
+        }
+    };
     let s = b.system;
     let sbad =
         |key: &str, why: &str| SceneError::new(file, format!("[brownian.system] {key}: {why}"));
