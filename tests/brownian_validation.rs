@@ -144,6 +144,7 @@ fn dimer_orientational_relaxation_quick() {
 #[test]
 #[ignore]
 fn dimer_table() {
+    println!();
     println!("| d/a | noise | D_CM | theory | ratio | τ (short-time) | τ (fit of C(t)) | theory | ratio (short-time) |");
     println!("|---|---|---|---|---|---|---|---|---|");
     for d in [2.0, 3.0, 5.0, 10.0, 20.0] {
@@ -221,6 +222,7 @@ fn polymer_scaling_exponent() {
     // Bead-spring chains with excluded volume (overlap repulsion), TEA-HI noise. Chains start as
     // self-avoiding random walks (a straight start relaxes too slowly and biases ν upwards).
     let sizes = [10usize, 14, 20, 28, 40];
+    println!();
     println!("| beads N | steps per stream | ⟨R_g²⟩ | std. error |\n|---|---|---|---|");
     let mut pts = Vec::new();
     for &n in &sizes {
