@@ -5,43 +5,16 @@
 //! implementation (Geyer & Winter); the loop here does about 95 arithmetic operations, one square
 //! root and one division per ordered pair.
 
-use std::hint::black_box;
-use std::time::Instant;
+mod common;
 
-use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, Par};
+use std::hint::black_box;
+
+use common::{best_of, gemm_rate};
+use faer::Par;
 use mobo::brownian::noise::cholesky_factor;
 use mobo::brownian::tea_hi::{fused_pass, FusedSums, Soa};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
-
-fn best<F: FnMut()>(min_reps: usize, min_secs: f64, mut f: F) -> f64 {
-    f();
-    let start = Instant::now();
-    let mut b = f64::INFINITY;
-    let mut n = 0;
-    while n < min_reps || start.elapsed().as_secs_f64() < min_secs {
-        let t = Instant::now();
-        f();
-        b = b.min(t.elapsed().as_secs_f64());
-        n += 1;
-        if n >= 30 {
-            break;
-        }
-    }
-    b
-}
-
-fn gemm_rate(par: Par) -> f64 {
-    let n = 512;
-    let a = Mat::<f64>::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64);
-    let b = Mat::<f64>::from_fn(n, n, |i, j| ((i * 5 + j) % 13) as f64);
-    let mut c = Mat::<f64>::zeros(n, n);
-    let t = best(5, 1.0, || {
-        matmul(c.as_mut(), Accum::Replace, a.as_ref(), b.as_ref(), 1.0, par)
-    });
-    2.0 * (n * n * n) as f64 / t / 1e9
-}
 
 fn config(n: usize, seed: u64) -> Vec<[f64; 3]> {
     // Volume fraction 5%.
@@ -65,8 +38,8 @@ fn main() {
         .num_threads(1)
         .build()
         .unwrap();
-    let g1 = gemm_rate(Par::Seq);
-    let gp = gemm_rate(Par::rayon(threads));
+    let g1 = gemm_rate(512, Par::Seq);
+    let gp = gemm_rate(512, Par::rayon(threads));
     println!("faer GEMM 512²: {g1:.1} GFLOP/s (1 thread), {gp:.1} GFLOP/s ({threads} threads)\n");
     println!("| N | fused pass 1 thr (ms) | GFLOP/s | / GEMM | fused pass {threads} thr (ms) | GFLOP/s | / GEMM |");
     println!("|---|---|---|---|---|---|---|");
@@ -82,8 +55,8 @@ fn main() {
         let mut sums = FusedSums::default();
         let flops = 104.0 * (n * (n - 1)) as f64;
         let reps = if n >= 30_000 { 1 } else { 3 };
-        let t1 = one.install(|| best(reps, 0.5, || fused_pass(&pos, &f, &xi, 1.0, &mut sums)));
-        let tp = best(reps, 0.5, || fused_pass(&pos, &f, &xi, 1.0, &mut sums));
+        let t1 = one.install(|| best_of(reps, 0.5, || fused_pass(&pos, &f, &xi, 1.0, &mut sums)));
+        let tp = best_of(reps, 0.5, || fused_pass(&pos, &f, &xi, 1.0, &mut sums));
         fused_times.push((n, tp));
         println!(
             "| {n} | {:.2} | {:.1} | {:.0}% | {:.2} | {:.1} | {:.0}% |",
@@ -100,12 +73,12 @@ fn main() {
     println!("|---|---|---|---|");
     for n in [250usize, 500, 1000, 2000] {
         let p = config(n, 4);
-        let tc = best(2, 0.5, || {
+        let tc = best_of(2, 0.5, || {
             black_box(cholesky_factor(&p, 1.0).unwrap());
         });
         let pos = Soa::from_points(&p);
         let mut sums = FusedSums::default();
-        let tf = best(3, 0.3, || fused_pass(&pos, &pos, &pos, 1.0, &mut sums));
+        let tf = best_of(3, 0.3, || fused_pass(&pos, &pos, &pos, 1.0, &mut sums));
         println!(
             "| {n} | {:.2} | {:.3} | {:.0} |",
             tc * 1e3,

@@ -6,40 +6,13 @@
 //! movement included), the same flops divided by the time of the GEMM calls alone, and the ratio
 //! to faer's 512² GEMM rate measured in the same process, on 1 thread and on all threads.
 
+mod common;
+
 use std::hint::black_box;
-use std::time::Instant;
 
-use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, Par};
+use common::{best_of, gemm_rate};
+use faer::Par;
 use mobo::sph_harmonics::{Deriv, DirectRotation, ShRotation, ShTransform};
-
-fn best_of<F: FnMut()>(reps: usize, min_secs: f64, mut f: F) -> f64 {
-    f();
-    let mut best = f64::INFINITY;
-    let start = Instant::now();
-    let mut n = 0;
-    while n < reps || start.elapsed().as_secs_f64() < min_secs {
-        let t = Instant::now();
-        f();
-        best = best.min(t.elapsed().as_secs_f64());
-        n += 1;
-        if n >= 50 {
-            break;
-        }
-    }
-    best
-}
-
-fn gemm_rate(n: usize, par: Par) -> f64 {
-    let a = Mat::<f64>::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 - 5.0);
-    let b = Mat::<f64>::from_fn(n, n, |i, j| ((i * 5 + j) % 13) as f64 - 6.0);
-    let mut c = Mat::<f64>::zeros(n, n);
-    let t = best_of(5, 1.0, || {
-        matmul(c.as_mut(), Accum::Replace, a.as_ref(), b.as_ref(), 1.0, par);
-        black_box(&c);
-    });
-    2.0 * (n * n * n) as f64 / t / 1e9
-}
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");

@@ -34,35 +34,25 @@ pub fn orientation(pos: &[[f64; 3]]) -> [f64; 3] {
     [e[0] / n, e[1] / n, e[2] / n]
 }
 
-/// Mean squared displacement of a vector time series at lag `lag` (samples), averaged over all
-/// time origins.
-pub fn mean_square_displacement(series: &[[f64; 3]], lag: usize) -> f64 {
+/// Average of `f(x(t), x(t+lag))` over all time origins `t` of a vector series (NaN if the series
+/// is not longer than `lag`).
+fn lag_average(series: &[[f64; 3]], lag: usize, f: impl Fn(&[f64; 3], &[f64; 3]) -> f64) -> f64 {
     if lag >= series.len() {
         return f64::NAN;
     }
     let n = series.len() - lag;
-    (0..n)
-        .map(|t| {
-            (0..3)
-                .map(|k| (series[t + lag][k] - series[t][k]).powi(2))
-                .sum::<f64>()
-        })
-        .sum::<f64>()
-        / n as f64
+    (0..n).map(|t| f(&series[t], &series[t + lag])).sum::<f64>() / n as f64
+}
+
+/// Mean squared displacement `⟨|x(t+lag) − x(t)|²⟩` of a vector time series at lag `lag`
+/// (samples), averaged over all time origins.
+pub fn mean_square_displacement(series: &[[f64; 3]], lag: usize) -> f64 {
+    lag_average(series, lag, |a, b| {
+        (0..3).map(|k| (b[k] - a[k]).powi(2)).sum()
+    })
 }
 
 /// Autocorrelation `⟨u(t+lag)·u(t)⟩` of a vector time series, averaged over time origins.
 pub fn autocorrelation(series: &[[f64; 3]], lag: usize) -> f64 {
-    if lag >= series.len() {
-        return f64::NAN;
-    }
-    let n = series.len() - lag;
-    (0..n)
-        .map(|t| {
-            (0..3)
-                .map(|k| series[t + lag][k] * series[t][k])
-                .sum::<f64>()
-        })
-        .sum::<f64>()
-        / n as f64
+    lag_average(series, lag, |a, b| (0..3).map(|k| a[k] * b[k]).sum())
 }
