@@ -19,7 +19,13 @@ pub fn resample_coefs(
     dst: &mut [f64],
 ) -> Result<(), SphError> {
     let nf = src.len() / from.len();
-    if src.len() != nf * from.len() || dst.len() != nf * to.len() {
+    if src.len() != nf * from.len() {
+        return Err(SphError::CoefLength {
+            len: src.len(),
+            expected: (nf + 1) * from.len(),
+        });
+    }
+    if dst.len() != nf * to.len() {
         return Err(SphError::CoefLength {
             len: dst.len(),
             expected: nf * to.len(),
