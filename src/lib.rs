@@ -10,6 +10,7 @@
 
 pub mod brownian;
 pub mod check;
+pub mod fmm;
 pub mod io;
 pub mod scene;
 pub mod sph_harmonics;

@@ -40,6 +40,38 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// Evaluate an N-body sum on user data (.npy float64 files); prints one JSON line.
+    /// The FMM is not built yet: sums are evaluated by exact direct summation (reported as
+    /// "method": "direct").
+    Fmm {
+        /// Kernel.
+        #[arg(long, value_enum)]
+        kernel: KernelArg,
+        /// Source points, shape (N, 3).
+        #[arg(long)]
+        sources: std::path::PathBuf,
+        /// Densities: (N,) or (N, 1) for Laplace charges, (N, 3) for vector kernels.
+        #[arg(long)]
+        density: std::path::PathBuf,
+        /// Target points, shape (M, 3) (default: the sources, self terms left out except RPY's).
+        #[arg(long)]
+        targets: Option<std::path::PathBuf>,
+        /// Source normals / orientations, shape (N, 3) (stresslet, laplace-dl).
+        #[arg(long)]
+        normals: Option<std::path::PathBuf>,
+        /// Bead radius (rpy).
+        #[arg(long)]
+        radius: Option<f64>,
+        /// Requested accuracy in digits (3 to 10).
+        #[arg(long, default_value_t = 6)]
+        digits: u32,
+        /// Exact direct summation.
+        #[arg(long)]
+        direct: bool,
+        /// Output file, (M,) for Laplace kernels, (M, 3) for vector kernels.
+        #[arg(long)]
+        out: std::path::PathBuf,
+    },
     /// Time batched forward + inverse transforms; prints one JSON line.
     BenchSht {
         /// Spherical-harmonic order p.
@@ -57,6 +89,15 @@ enum Command {
     },
 }
 
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum KernelArg {
+    Laplace,
+    LaplaceDl,
+    Stokeslet,
+    Stresslet,
+    Rpy,
+}
+
 #[derive(Debug, thiserror::Error)]
 enum CliError {
     #[error("spherical harmonics: {0}")]
@@ -66,6 +107,10 @@ enum CliError {
     #[error("{0}")]
     Scene(#[from] mobo::scene::SceneError),
     #[error("{0}")]
+    Io(#[from] mobo::io::IoError),
+    #[error("{0}")]
+    Fmm(#[from] mobo::fmm::FmmError),
+    #[error("{0}")]
     Run(#[from] mobo::scene::brownian_run::RunError),
 }
 
@@ -74,6 +119,27 @@ fn main() -> ExitCode {
     let result = match cli.command.unwrap_or(Command::Demo { order: 16 }) {
         Command::Demo { order } => demo(order),
         Command::Brownian { scene, out, quiet } => brownian(&scene, out, quiet),
+        Command::Fmm {
+            kernel,
+            sources,
+            density,
+            targets,
+            normals,
+            radius,
+            digits,
+            direct,
+            out,
+        } => fmm(FmmArgs {
+            kernel,
+            sources,
+            density,
+            targets,
+            normals,
+            radius,
+            digits,
+            direct,
+            out,
+        }),
         Command::BenchSht {
             order,
             surfaces,
@@ -261,6 +327,139 @@ fn brownian(
     println!(
         "{} beads, {} steps in {:.2} s ({:.0} steps/s); D_CM estimate {:.4} (D0 = {:.4}); <Rg^2> = {:.4}; <Ree^2> = {:.4}",
         s.beads, s.steps, s.wall_s, s.steps_per_second, s.com_diffusion_estimate, s.d0, s.mean_rg2, s.mean_end_to_end_sq
+    );
+    Ok(())
+}
+
+struct FmmArgs {
+    kernel: KernelArg,
+    sources: std::path::PathBuf,
+    density: std::path::PathBuf,
+    targets: Option<std::path::PathBuf>,
+    normals: Option<std::path::PathBuf>,
+    radius: Option<f64>,
+    digits: u32,
+    direct: bool,
+    out: std::path::PathBuf,
+}
+
+/// Read an `.npy` array of `n × cols` finite values (`cols = 1` also accepts shape `(n,)`);
+/// `n = None` takes any row count. Errors name the file.
+fn read_points(
+    path: &std::path::Path,
+    cols: usize,
+    n: Option<usize>,
+) -> Result<Vec<f64>, CliError> {
+    let (shape, data) = mobo::io::npy::read_f64(path)?;
+    let bad = |m: String| CliError::Arg(format!("{}: {m}", path.display()));
+    let rows = match shape.as_slice() {
+        [r] if cols == 1 => *r,
+        [r, c] if *c == cols => *r,
+        _ => {
+            let want = if cols == 1 {
+                "(N,) or (N, 1)".to_string()
+            } else {
+                format!("(N, {cols})")
+            };
+            return Err(bad(format!("shape {shape:?}, expected {want}")));
+        }
+    };
+    if let Some(n) = n {
+        if rows != n {
+            return Err(bad(format!("{rows} rows, but there are {n} sources")));
+        }
+    }
+    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+        return Err(bad(format!(
+            "non-finite value {} at row {}",
+            data[i],
+            i / cols
+        )));
+    }
+    Ok(data)
+}
+
+fn fmm(a: FmmArgs) -> Result<(), CliError> {
+    use mobo::fmm::{
+        direct_sum, Kernel, Laplace, LaplaceDoubleLayer, Rpy, Stokeslet, Stresslet, SumInput,
+    };
+    if !(3..=10).contains(&a.digits) {
+        return Err(CliError::Arg(format!(
+            "--digits must be between 3 and 10, got {}",
+            a.digits
+        )));
+    }
+    let rpy;
+    let kernel: &dyn Kernel = match a.kernel {
+        KernelArg::Laplace => &Laplace,
+        KernelArg::LaplaceDl => &LaplaceDoubleLayer,
+        KernelArg::Stokeslet => &Stokeslet,
+        KernelArg::Stresslet => &Stresslet,
+        KernelArg::Rpy => {
+            let r = a
+                .radius
+                .ok_or_else(|| CliError::Arg("--radius is required for --kernel rpy".into()))?;
+            if !(r.is_finite() && r > 0.0) {
+                return Err(CliError::Arg(format!("--radius must be positive, got {r}")));
+            }
+            rpy = Rpy { radius: r };
+            &rpy
+        }
+    };
+    let t0 = Instant::now();
+    let to_points =
+        |v: Vec<f64>| -> Vec<[f64; 3]> { v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect() };
+    let sources = to_points(read_points(&a.sources, 3, None)?);
+    let n = sources.len();
+    let density = read_points(&a.density, kernel.density_dim(), Some(n))?;
+    let normals = match (&a.normals, kernel.needs_normals()) {
+        (Some(p), true) => Some(to_points(read_points(p, 3, Some(n))?)),
+        (None, true) => {
+            return Err(CliError::Arg(format!(
+                "--kernel {} needs --normals",
+                kernel.name()
+            )))
+        }
+        (Some(_), false) => {
+            return Err(CliError::Arg(format!(
+                "--kernel {} takes no --normals",
+                kernel.name()
+            )))
+        }
+        (None, false) => None,
+    };
+    let targets = match &a.targets {
+        Some(p) => to_points(read_points(p, 3, None)?),
+        None => sources.clone(),
+    };
+    let setup = t0.elapsed().as_secs_f64();
+    let od = kernel.output_dim();
+    let mut u = vec![0.0; targets.len() * od];
+    let t1 = Instant::now();
+    let input = SumInput {
+        sources: &sources,
+        density: &density,
+        normals: normals.as_deref(),
+        targets: &targets,
+    };
+    direct_sum(kernel, &input, &mut u)?;
+    let eval = t1.elapsed().as_secs_f64();
+    let shape: Vec<usize> = if od == 1 {
+        vec![targets.len()]
+    } else {
+        vec![targets.len(), od]
+    };
+    mobo::io::npy::write_f64(&a.out, &shape, &u)?;
+    let note = if a.direct {
+        ""
+    } else {
+        ",\"note\":\"the FMM is not built yet; evaluated by direct summation\""
+    };
+    println!(
+        "{{\"kernel\":\"{}\",\"n_sources\":{n},\"n_targets\":{},\"digits\":{},\"order\":null,\"method\":\"direct\",\"setup_s\":{setup:.6e},\"eval_s\":{eval:.6e}{note}}}",
+        kernel.name(),
+        targets.len(),
+        a.digits
     );
     Ok(())
 }

@@ -15,6 +15,8 @@
 use faer::Mat;
 use rayon::prelude::*;
 
+pub use crate::fmm::kernels::rpy_coefficients;
+
 /// `D_ij / D0` for the separation `r = x_i − x_j ≠ 0`, row-major 3×3.
 #[inline]
 pub fn rpy_block(r: [f64; 3], a: f64) -> [[f64; 3]; 3] {
@@ -28,19 +30,6 @@ pub fn rpy_block(r: [f64; 3], a: f64) -> [[f64; 3]; 3] {
         }
     }
     out
-}
-
-/// The scalar coefficients `(f, g)` of `D_ij/D0 = f I + g r̂r̂` at distance `d > 0`.
-#[inline]
-pub fn rpy_coefficients(d: f64, a: f64) -> (f64, f64) {
-    if d >= 2.0 * a {
-        let s = a / d;
-        let s3 = s * s * s;
-        (0.75 * s + 0.5 * s3, 0.75 * s - 1.5 * s3)
-    } else {
-        let t = d / a;
-        (1.0 - 9.0 * t / 32.0, 3.0 * t / 32.0)
-    }
 }
 
 /// The dense `3N × 3N` mobility `D / D0` of a configuration (`positions` as `[x, y, z]`).

@@ -1,0 +1,196 @@
+//! The kernels of the N-body sums, with the normalisations of the `mobo fmm` contract
+//! (`r = x − y`, viscosity `μ = 1`):
+//!
+//! * [`Laplace`]: `u(x) = Σ q_j / (4π|r|)`;
+//! * [`LaplaceDoubleLayer`]: `u(x) = Σ (n_j·r) q_j / (4π|r|³)`;
+//! * [`Stokeslet`]: `u(x) = Σ (1/8π) (I/|r| + r rᵀ/|r|³) f_j`;
+//! * [`Stresslet`]: `u(x) = Σ (3/4π) (r·f_j)(r·n_j) r / |r|⁵` (density `f_j`, orientation `n_j`);
+//! * [`Rpy`]: `u(x) = Σ M(r) f_j`, the Rotne–Prager–Yamakawa mobility with `M0 = 1/(6πa)`, both
+//!   the `r ≥ 2a` and the overlapping `r < 2a` forms.
+//!
+//! Coincident points (`r = 0`): the singular kernels contribute nothing (the self term is left
+//! out); RPY contributes its self mobility `M0 f_j`.
+//!
+//! Kernels are serial, branch-light functions of one pair; drivers loop over pairs.
+
+/// The scalar coefficients `(f, g)` of the dimensionless RPY block `M/M0 = f I + g r̂r̂` at
+/// distance `d > 0` for radius `a`: `r ≥ 2a`: `f = 3a/4d + a³/2d³`, `g = 3a/4d − 3a³/2d³`;
+/// `r < 2a`: `f = 1 − 9d/32a`, `g = 3d/32a`.
+#[inline]
+pub fn rpy_coefficients(d: f64, a: f64) -> (f64, f64) {
+    if d >= 2.0 * a {
+        let s = a / d;
+        let s3 = s * s * s;
+        (0.75 * s + 0.5 * s3, 0.75 * s - 1.5 * s3)
+    } else {
+        let t = d / a;
+        (1.0 - 9.0 * t / 32.0, 3.0 * t / 32.0)
+    }
+}
+
+/// One kernel: how a source of given density (and orientation) acts at separation `r = x − y`.
+pub trait Kernel: Sync {
+    /// Name used on the command line.
+    fn name(&self) -> &'static str;
+    /// Components of the density per source.
+    fn density_dim(&self) -> usize;
+    /// Components of the result per target.
+    fn output_dim(&self) -> usize;
+    /// Whether sources carry an orientation (normal).
+    fn needs_normals(&self) -> bool;
+    /// Add the contribution of one source at `r ≠ 0` to `out`.
+    fn accumulate(&self, r: [f64; 3], density: &[f64], normal: [f64; 3], out: &mut [f64]);
+    /// Add the contribution of a source coincident with the target (`r = 0`).
+    fn coincident(&self, _density: &[f64], _out: &mut [f64]) {}
+}
+
+const FOUR_PI: f64 = 4.0 * std::f64::consts::PI;
+const EIGHT_PI: f64 = 8.0 * std::f64::consts::PI;
+
+#[inline]
+fn dot(a: [f64; 3], b: &[f64]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Laplace single layer.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Laplace;
+
+impl Kernel for Laplace {
+    fn name(&self) -> &'static str {
+        "laplace"
+    }
+    fn density_dim(&self) -> usize {
+        1
+    }
+    fn output_dim(&self) -> usize {
+        1
+    }
+    fn needs_normals(&self) -> bool {
+        false
+    }
+    #[inline]
+    fn accumulate(&self, r: [f64; 3], q: &[f64], _n: [f64; 3], out: &mut [f64]) {
+        let d = dot(r, &r).sqrt();
+        out[0] += q[0] / (FOUR_PI * d);
+    }
+}
+
+/// Laplace double layer.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LaplaceDoubleLayer;
+
+impl Kernel for LaplaceDoubleLayer {
+    fn name(&self) -> &'static str {
+        "laplace-dl"
+    }
+    fn density_dim(&self) -> usize {
+        1
+    }
+    fn output_dim(&self) -> usize {
+        1
+    }
+    fn needs_normals(&self) -> bool {
+        true
+    }
+    #[inline]
+    fn accumulate(&self, r: [f64; 3], q: &[f64], n: [f64; 3], out: &mut [f64]) {
+        let d2 = dot(r, &r);
+        let d = d2.sqrt();
+        out[0] += dot(n, &r) * q[0] / (FOUR_PI * d2 * d);
+    }
+}
+
+/// Stokeslet (free-space Green's function of Stokes flow, `μ = 1`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stokeslet;
+
+impl Kernel for Stokeslet {
+    fn name(&self) -> &'static str {
+        "stokeslet"
+    }
+    fn density_dim(&self) -> usize {
+        3
+    }
+    fn output_dim(&self) -> usize {
+        3
+    }
+    fn needs_normals(&self) -> bool {
+        false
+    }
+    #[inline]
+    fn accumulate(&self, r: [f64; 3], f: &[f64], _n: [f64; 3], out: &mut [f64]) {
+        let d2 = dot(r, &r);
+        let inv = 1.0 / d2.sqrt();
+        let rf = dot(r, f) * inv * inv;
+        for k in 0..3 {
+            out[k] += (f[k] + rf * r[k]) * inv / EIGHT_PI;
+        }
+    }
+}
+
+/// Stresslet (the Stokes double-layer kernel) with density `f` and orientation `n`.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Stresslet;
+
+impl Kernel for Stresslet {
+    fn name(&self) -> &'static str {
+        "stresslet"
+    }
+    fn density_dim(&self) -> usize {
+        3
+    }
+    fn output_dim(&self) -> usize {
+        3
+    }
+    fn needs_normals(&self) -> bool {
+        true
+    }
+    #[inline]
+    fn accumulate(&self, r: [f64; 3], f: &[f64], n: [f64; 3], out: &mut [f64]) {
+        let d2 = dot(r, &r);
+        let d = d2.sqrt();
+        let c = 3.0 / FOUR_PI * dot(r, f) * dot(n, &r) / (d2 * d2 * d);
+        for k in 0..3 {
+            out[k] += c * r[k];
+        }
+    }
+}
+
+/// Rotne–Prager–Yamakawa mobility of beads of radius `a`, `M0 = 1/(6πa)`.
+#[derive(Clone, Copy, Debug)]
+pub struct Rpy {
+    /// Bead radius.
+    pub radius: f64,
+}
+
+impl Kernel for Rpy {
+    fn name(&self) -> &'static str {
+        "rpy"
+    }
+    fn density_dim(&self) -> usize {
+        3
+    }
+    fn output_dim(&self) -> usize {
+        3
+    }
+    fn needs_normals(&self) -> bool {
+        false
+    }
+    #[inline]
+    fn accumulate(&self, r: [f64; 3], f: &[f64], _n: [f64; 3], out: &mut [f64]) {
+        let d2 = dot(r, &r);
+        let (ci, crr) = rpy_coefficients(d2.sqrt(), self.radius);
+        let m0 = 1.0 / (6.0 * std::f64::consts::PI * self.radius);
+        let rf = crr * dot(r, f) / d2;
+        for k in 0..3 {
+            out[k] += m0 * (ci * f[k] + rf * r[k]);
+        }
+    }
+    fn coincident(&self, f: &[f64], out: &mut [f64]) {
+        let m0 = 1.0 / (6.0 * std::f64::consts::PI * self.radius);
+        for k in 0..3 {
+            out[k] += m0 * f[k];
+        }
+    }
+}
