@@ -242,8 +242,8 @@ impl Octree {
                 }
             }
         }
-        for b in 0..n {
-            if !self.nodes[b].is_leaf() {
+        for (b, node) in self.nodes.iter().enumerate() {
+            if !node.is_leaf() {
                 continue;
             }
             // U: leaves adjacent to b, found by descending through adjacent boxes.
