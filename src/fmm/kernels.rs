@@ -194,3 +194,34 @@ impl Kernel for Rpy {
         }
     }
 }
+
+/// Equivalent kernel for Stokes double layers: a Stokeslet plus a point source,
+/// `u(x) = Σ (1/8π)(I/|r| + r rᵀ/|r|³) f_j + q_j r/(4π|r|³)`, density `(f, q)`. The source term
+/// carries the net flux of the trace part of a stresslet `f ⊗ n`, which divergence-free
+/// Stokeslets cannot represent.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StokesletSource;
+
+impl Kernel for StokesletSource {
+    fn name(&self) -> &'static str {
+        "stokeslet+source"
+    }
+    fn density_dim(&self) -> usize {
+        4
+    }
+    fn output_dim(&self) -> usize {
+        3
+    }
+    fn needs_normals(&self) -> bool {
+        false
+    }
+    #[inline]
+    fn accumulate(&self, r: [f64; 3], fq: &[f64], n: [f64; 3], out: &mut [f64]) {
+        Stokeslet.accumulate(r, &fq[..3], n, out);
+        let d2 = dot(r, &r);
+        let c = fq[3] / (FOUR_PI * d2 * d2.sqrt());
+        for k in 0..3 {
+            out[k] += c * r[k];
+        }
+    }
+}

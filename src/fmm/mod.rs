@@ -6,6 +6,7 @@
 
 pub mod direct;
 pub mod kernels;
+pub mod kifmm;
 pub mod octree;
 
 pub use direct::{direct_sum, SumInput};
