@@ -41,37 +41,10 @@ enum Command {
         quiet: bool,
     },
     /// Evaluate an N-body sum on user data (.npy float64 files); prints one JSON line.
-    /// The FMM is not built yet: sums are evaluated by exact direct summation (reported as
+    /// The FMM is not used yet (its first version is slower than direct summation): sums are
+    /// evaluated by exact direct summation (reported as
     /// "method": "direct").
-    Fmm {
-        /// Kernel.
-        #[arg(long, value_enum)]
-        kernel: KernelArg,
-        /// Source points, shape (N, 3).
-        #[arg(long)]
-        sources: std::path::PathBuf,
-        /// Densities: (N,) or (N, 1) for Laplace charges, (N, 3) for vector kernels.
-        #[arg(long)]
-        density: std::path::PathBuf,
-        /// Target points, shape (M, 3) (default: the sources, self terms left out except RPY's).
-        #[arg(long)]
-        targets: Option<std::path::PathBuf>,
-        /// Source normals / orientations, shape (N, 3) (stresslet, laplace-dl).
-        #[arg(long)]
-        normals: Option<std::path::PathBuf>,
-        /// Bead radius (rpy).
-        #[arg(long)]
-        radius: Option<f64>,
-        /// Requested accuracy in digits (3 to 10).
-        #[arg(long, default_value_t = 6)]
-        digits: u32,
-        /// Exact direct summation.
-        #[arg(long)]
-        direct: bool,
-        /// Output file, (M,) for Laplace kernels, (M, 3) for vector kernels.
-        #[arg(long)]
-        out: std::path::PathBuf,
-    },
+    Fmm(FmmArgs),
     /// Time batched forward + inverse transforms; prints one JSON line.
     BenchSht {
         /// Spherical-harmonic order p.
@@ -119,27 +92,7 @@ fn main() -> ExitCode {
     let result = match cli.command.unwrap_or(Command::Demo { order: 16 }) {
         Command::Demo { order } => demo(order),
         Command::Brownian { scene, out, quiet } => brownian(&scene, out, quiet),
-        Command::Fmm {
-            kernel,
-            sources,
-            density,
-            targets,
-            normals,
-            radius,
-            digits,
-            direct,
-            out,
-        } => fmm(FmmArgs {
-            kernel,
-            sources,
-            density,
-            targets,
-            normals,
-            radius,
-            digits,
-            direct,
-            out,
-        }),
+        Command::Fmm(args) => fmm(args),
         Command::BenchSht {
             order,
             surfaces,
@@ -331,15 +284,35 @@ fn brownian(
     Ok(())
 }
 
+/// Arguments of `mobo fmm`.
+#[derive(clap::Args)]
 struct FmmArgs {
+    /// Kernel.
+    #[arg(long, value_enum)]
     kernel: KernelArg,
+    /// Source points, shape (N, 3).
+    #[arg(long)]
     sources: std::path::PathBuf,
+    /// Densities: (N,) or (N, 1) for Laplace charges, (N, 3) for vector kernels.
+    #[arg(long)]
     density: std::path::PathBuf,
+    /// Target points, shape (M, 3) (default: the sources, self terms left out except RPY's).
+    #[arg(long)]
     targets: Option<std::path::PathBuf>,
+    /// Source normals / orientations, shape (N, 3) (stresslet, laplace-dl).
+    #[arg(long)]
     normals: Option<std::path::PathBuf>,
+    /// Bead radius (rpy).
+    #[arg(long)]
     radius: Option<f64>,
+    /// Requested accuracy in digits (3 to 10).
+    #[arg(long, default_value_t = 6)]
     digits: u32,
+    /// Exact direct summation.
+    #[arg(long)]
     direct: bool,
+    /// Output file, (M,) for Laplace kernels, (M, 3) for vector kernels.
+    #[arg(long)]
     out: std::path::PathBuf,
 }
 
@@ -453,7 +426,7 @@ fn fmm(a: FmmArgs) -> Result<(), CliError> {
     let note = if a.direct {
         ""
     } else {
-        ",\"note\":\"the FMM is not built yet; evaluated by direct summation\""
+        ",\"note\":\"the FMM is not used yet; evaluated by direct summation\""
     };
     println!(
         "{{\"kernel\":\"{}\",\"n_sources\":{n},\"n_targets\":{},\"digits\":{},\"order\":null,\"method\":\"direct\",\"setup_s\":{setup:.6e},\"eval_s\":{eval:.6e}{note}}}",

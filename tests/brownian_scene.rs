@@ -1,24 +1,12 @@
 //! `[brownian]` scenes and `mobo brownian`: every example scene runs; bad scenes give errors that
 //! name the file, the place and the problem, with a non-zero exit and no panic.
 
-use std::path::{Path, PathBuf};
-use std::process::Command;
+mod common;
+use common::*;
+
+use std::path::Path;
 
 use mobo::scene::brownian::parse;
-
-fn mobo(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_mobo"))
-        .args(args)
-        .output()
-        .expect("run mobo")
-}
-
-fn tmpdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mobo-test-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 const GOOD: &str = r#"
 [brownian]

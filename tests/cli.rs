@@ -1,13 +1,7 @@
 //! The `mobo` binary: help, version, demo, and errors for bad arguments (non-zero exit, no panic).
 
-use std::process::Command;
-
-fn mobo(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_mobo"))
-        .args(args)
-        .output()
-        .expect("run mobo")
-}
+mod common;
+use common::*;
 
 #[test]
 fn help_and_version() {

@@ -1,9 +1,11 @@
 //! Kernels and direct sums against independently written formulas, and `mobo fmm` on `.npy`
 //! files: round trip and error messages.
 
+mod common;
+use common::*;
+
 use std::f64::consts::PI;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::path::Path;
 
 use mobo::check::assert_close;
 use mobo::fmm::{
@@ -185,20 +187,6 @@ fn mismatched_inputs_are_errors() {
     );
 }
 
-fn mobo(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_mobo"))
-        .args(args)
-        .output()
-        .expect("run mobo")
-}
-
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mobo-fmm-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 fn save(dir: &Path, name: &str, shape: &[usize], data: &[f64]) -> String {
     let p = dir.join(name);
     npy::write_f64(&p, shape, data).unwrap();
@@ -207,7 +195,7 @@ fn save(dir: &Path, name: &str, shape: &[usize], data: &[f64]) -> String {
 
 #[test]
 fn cli_round_trip_on_npy_files() {
-    let dir = tmp("rt");
+    let dir = tmpdir("rt");
     let src = cloud(50, 7, 1.0);
     let tgt = cloud(20, 8, 1.0);
     let flat = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<_>>();
@@ -280,7 +268,7 @@ fn cli_round_trip_on_npy_files() {
 
 #[test]
 fn cli_errors_name_the_file_and_the_problem() {
-    let dir = tmp("err");
+    let dir = tmpdir("err");
     let s = save(
         &dir,
         "s.npy",
