@@ -76,11 +76,9 @@ pub struct Soa {
 impl Soa {
     /// From `[x, y, z]` triples.
     pub fn from_points(p: &[[f64; 3]]) -> Self {
-        Soa {
-            x: p.iter().map(|v| v[0]).collect(),
-            y: p.iter().map(|v| v[1]).collect(),
-            z: p.iter().map(|v| v[2]).collect(),
-        }
+        let mut s = Soa::default();
+        s.fill(p);
+        s
     }
     /// Overwrite from `[x, y, z]` triples.
     pub fn fill(&mut self, p: &[[f64; 3]]) {
