@@ -42,7 +42,40 @@ pub trait Kernel: Sync {
     fn accumulate(&self, r: [f64; 3], density: &[f64], normal: [f64; 3], out: &mut [f64]);
     /// Add the contribution of a source coincident with the target (`r = 0`).
     fn coincident(&self, _density: &[f64], _out: &mut [f64]) {}
+    /// Add the field of a block of sources at every target (`output_dim` values per target in
+    /// `out`). The default loops over pairs with [`Kernel::accumulate`]; the kernels of this
+    /// module override it with the vectorised loops of [`super::p2p`].
+    fn eval_block(&self, targets: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        let (dd, od) = (self.density_dim(), self.output_dim());
+        let mut q = [0.0; 4];
+        for (x, o) in targets.iter().zip(out.chunks_exact_mut(od)) {
+            for j in 0..s.len() {
+                for (c, v) in q.iter_mut().enumerate().take(dd) {
+                    *v = s.q[c][j];
+                }
+                let r = [x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]];
+                if r == [0.0; 3] {
+                    self.coincident(&q[..dd], o);
+                } else {
+                    let n = if s.n[0].is_empty() {
+                        [0.0; 3]
+                    } else {
+                        [s.n[0][j], s.n[1][j], s.n[2][j]]
+                    };
+                    self.accumulate(r, &q[..dd], n, o);
+                }
+            }
+        }
+    }
+    /// Degree of homogeneity of density component `c`, `K(s r) = s^d K(r)` for `s > 0`, if the
+    /// kernel is homogeneous (the FMM then builds its translation operators once for all levels).
+    fn homogeneity(&self, _component: usize) -> Option<i32> {
+        None
+    }
 }
+
+use super::blocks::SourceView;
+use super::p2p;
 
 const FOUR_PI: f64 = 4.0 * std::f64::consts::PI;
 const EIGHT_PI: f64 = 8.0 * std::f64::consts::PI;
@@ -74,6 +107,12 @@ impl Kernel for Laplace {
         let d = dot(r, &r).sqrt();
         out[0] += q[0] / (FOUR_PI * d);
     }
+    fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        p2p::laplace(t, s, out)
+    }
+    fn homogeneity(&self, _c: usize) -> Option<i32> {
+        Some(-1)
+    }
 }
 
 /// Laplace double layer.
@@ -98,6 +137,9 @@ impl Kernel for LaplaceDoubleLayer {
         let d2 = dot(r, &r);
         let d = d2.sqrt();
         out[0] += dot(n, &r) * q[0] / (FOUR_PI * d2 * d);
+    }
+    fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        p2p::laplace_dl(t, s, out)
     }
 }
 
@@ -127,6 +169,12 @@ impl Kernel for Stokeslet {
             out[k] += (f[k] + rf * r[k]) * inv / EIGHT_PI;
         }
     }
+    fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        p2p::stokeslet(t, s, out)
+    }
+    fn homogeneity(&self, _c: usize) -> Option<i32> {
+        Some(-1)
+    }
 }
 
 /// Stresslet (the Stokes double-layer kernel) with density `f` and orientation `n`.
@@ -154,6 +202,9 @@ impl Kernel for Stresslet {
         for k in 0..3 {
             out[k] += c * r[k];
         }
+    }
+    fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        p2p::stresslet(t, s, out)
     }
 }
 
@@ -193,6 +244,9 @@ impl Kernel for Rpy {
             out[k] += m0 * f[k];
         }
     }
+    fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        p2p::rpy(t, s, out, self.radius)
+    }
 }
 
 /// Equivalent kernel for Stokes double layers: a Stokeslet plus a point source,
@@ -223,5 +277,50 @@ impl Kernel for StokesletSource {
         for k in 0..3 {
             out[k] += c * r[k];
         }
+    }
+    fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        p2p::stokeslet_source(t, s, out)
+    }
+    fn homogeneity(&self, c: usize) -> Option<i32> {
+        Some(if c < 3 { -1 } else { -2 })
+    }
+}
+
+/// The RPY far field seen from one side: `(1 + a²/6 ∇²) G`, `G` the Stokeslet, i.e.
+/// `u = (1/8π)[(1/r + a²/3r³) f + (1/r³ − a²/r⁵)(r·f) r]`. The FMM applies it between beads and
+/// equivalent surfaces (P2M, P2L, M2P, L2P); applied on both sides it composes to the RPY
+/// tensor for `r ≥ 2a`, `(1 + a²/3 ∇²) G`.
+#[derive(Clone, Copy, Debug)]
+pub struct RpyFar {
+    /// Bead radius.
+    pub radius: f64,
+}
+
+impl Kernel for RpyFar {
+    fn name(&self) -> &'static str {
+        "rpy-far"
+    }
+    fn density_dim(&self) -> usize {
+        3
+    }
+    fn output_dim(&self) -> usize {
+        3
+    }
+    fn needs_normals(&self) -> bool {
+        false
+    }
+    #[inline]
+    fn accumulate(&self, r: [f64; 3], f: &[f64], _n: [f64; 3], out: &mut [f64]) {
+        let d2 = dot(r, &r);
+        let inv = 1.0 / d2.sqrt();
+        let a2 = self.radius * self.radius;
+        let ci = inv * (1.0 + a2 / 3.0 * inv * inv) / EIGHT_PI;
+        let crr = inv * inv * inv * (1.0 - a2 * inv * inv) * dot(r, f) / EIGHT_PI;
+        for k in 0..3 {
+            out[k] += ci * f[k] + crr * r[k];
+        }
+    }
+    fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+        p2p::rpy_far(t, s, out, self.radius)
     }
 }

@@ -95,6 +95,18 @@ impl Octree {
     /// Build the tree over `sources` and `targets` (pass the same slice twice when they
     /// coincide).
     pub fn new(sources: &[[f64; 3]], targets: &[[f64; 3]], leaf_size: usize) -> Self {
+        Self::with_min_width(sources, targets, leaf_size, 0.0)
+    }
+
+    /// As [`Octree::new`], but boxes are not split below side length `min_width` (the RPY FMM
+    /// needs boxes at least one bead diameter wide so that every pair in separated boxes is at
+    /// distance `≥ 2a`).
+    pub fn with_min_width(
+        sources: &[[f64; 3]],
+        targets: &[[f64; 3]],
+        leaf_size: usize,
+        min_width: f64,
+    ) -> Self {
         let leaf_size = leaf_size.max(1);
         let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
         for p in sources.iter().chain(targets) {
@@ -147,7 +159,8 @@ impl Octree {
         while let Some(b) = stack.pop() {
             let node = &tree.nodes[b];
             let count = node.sources.len() + node.targets.len();
-            if count <= leaf_size || node.level >= MAX_DEPTH {
+            // Children have side `node.half`.
+            if count <= leaf_size || node.level >= MAX_DEPTH || node.half < min_width {
                 continue;
             }
             let level = node.level + 1;

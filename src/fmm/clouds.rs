@@ -1,0 +1,108 @@
+//! Point clouds for tests and benchmarks of the N-body sums: uniform in the unit cube,
+//! strongly clustered Gaussian blobs, and points on a few hundred small spheres (cell-like).
+//! The same generators drive the tests, `benches/fmm.rs` and `mobo fmm-cloud`, so that every
+//! measurement names its cloud by kind, size and seed.
+
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use rand_distr::{Distribution, StandardNormal};
+
+/// Kinds of clouds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Cloud {
+    /// Uniform in `[0, 1]³`.
+    Uniform,
+    /// Four Gaussian blobs with standard deviations 0.1 and 0.01 (half the points each).
+    Blobs,
+    /// Points uniformly on spheres of radius 0.03 at random centres in `[0, 1]³`, about 300
+    /// spheres (at least 20 points each).
+    Spheres,
+}
+
+impl Cloud {
+    /// Parse `uniform`, `blobs` or `spheres`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "uniform" => Some(Cloud::Uniform),
+            "blobs" => Some(Cloud::Blobs),
+            "spheres" => Some(Cloud::Spheres),
+            _ => None,
+        }
+    }
+
+    /// The name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Cloud::Uniform => "uniform",
+            Cloud::Blobs => "blobs",
+            Cloud::Spheres => "spheres",
+        }
+    }
+
+    /// `n` points, reproducible from `seed`.
+    pub fn points(&self, n: usize, seed: u64) -> Vec<[f64; 3]> {
+        let mut rng = StdRng::seed_from_u64(seed);
+        let g = |r: &mut StdRng| -> f64 { StandardNormal.sample(r) };
+        match self {
+            Cloud::Uniform => (0..n)
+                .map(|_| [rng.random(), rng.random(), rng.random()])
+                .collect(),
+            Cloud::Blobs => {
+                let c: Vec<[f64; 3]> = (0..4)
+                    .map(|_| [rng.random(), rng.random(), rng.random()])
+                    .collect();
+                (0..n)
+                    .map(|i| {
+                        let s = 10f64.powi(-(1 + (i % 2) as i32));
+                        let k = c[i % 4];
+                        [
+                            k[0] + s * g(&mut rng),
+                            k[1] + s * g(&mut rng),
+                            k[2] + s * g(&mut rng),
+                        ]
+                    })
+                    .collect()
+            }
+            Cloud::Spheres => {
+                let per = (n / 300).max(20);
+                let radius = 0.03;
+                let mut out = Vec::with_capacity(n);
+                while out.len() < n {
+                    let c = [
+                        rng.random::<f64>(),
+                        rng.random::<f64>(),
+                        rng.random::<f64>(),
+                    ];
+                    for _ in 0..per.min(n - out.len()) {
+                        let v = [g(&mut rng), g(&mut rng), g(&mut rng)];
+                        let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() / radius;
+                        out.push([c[0] + v[0] / r, c[1] + v[1] / r, c[2] + v[2] / r]);
+                    }
+                }
+                out
+            }
+        }
+    }
+
+    /// `n` random unit vectors (orientations for double layers), reproducible from `seed`.
+    pub fn unit_vectors(n: usize, seed: u64) -> Vec<[f64; 3]> {
+        let mut rng = StdRng::seed_from_u64(seed);
+        (0..n)
+            .map(|_| {
+                let v: [f64; 3] = [
+                    StandardNormal.sample(&mut rng),
+                    StandardNormal.sample(&mut rng),
+                    StandardNormal.sample(&mut rng),
+                ];
+                let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                [v[0] / r, v[1] / r, v[2] / r]
+            })
+            .collect()
+    }
+
+    /// `n` values uniform in `[−1, 1]`, reproducible from `seed`.
+    pub fn densities(n: usize, seed: u64) -> Vec<f64> {
+        let mut rng = StdRng::seed_from_u64(seed);
+        (0..n).map(|_| rng.random_range(-1.0..1.0)).collect()
+    }
+}

@@ -1,0 +1,453 @@
+//! M2L by FFT (the scheme of PVFMM: Malhotra & Biros, Commun. Comput. Phys. 2015).
+//!
+//! The upward equivalent surface of a source box and the downward check surface of a target
+//! box of the same level have the same radius (`INNER · h`), so their points lie on one lattice
+//! of spacing `δ = 2·INNER·h/(p−1)`, and for boxes at offset `Δ` (in box widths) the check
+//! potential is a discrete convolution,
+//!
+//! `C[j] = Σ_s G_Δ[j − s] φ[s]`,   `G_Δ[m] = K(2hΔ + δ m)`,  `m ∈ [−(p−1), p−1]³`,
+//!
+//! which on a `(2p)³` grid has no wrap-around for `j ∈ [0, p)³`. Densities are normalised
+//! (`φ̃ = h^d φ` per component of degree `d`, see [`super::operators`]), so the kernel
+//! spectra `Ĝ_Δ` are computed once, at `h = 1`, for the 316 offsets with `2 ≤ |Δ|∞ ≤ 3`.
+//! Real data: spectra keep the `p + 1` non-negative frequencies of the last axis.
+
+use std::sync::Arc;
+
+use rustfft::num_complex::Complex64;
+use rustfft::{Fft, FftPlanner};
+
+use super::kernels::Kernel;
+use super::operators::INNER;
+use super::surface::CubeSurface;
+use rayon::prelude::*;
+
+/// Frequencies per chunk of the blocked Hadamard products.
+pub const CHUNK: usize = 32;
+
+/// Index of the offset `Δ ∈ [−3, 3]³` among the 343 slots.
+pub fn offset_index(d: [i32; 3]) -> usize {
+    ((d[0] + 3) * 49 + (d[1] + 3) * 7 + (d[2] + 3)) as usize
+}
+
+/// Scratch buffers of one thread.
+pub struct FftScratch {
+    grid: Vec<Complex64>,
+    line: Vec<Complex64>,
+    fft: Vec<Complex64>,
+}
+
+/// Precomputed kernel spectra and FFT plans for one kernel and order.
+pub struct FftM2l {
+    p: usize,
+    n: usize,
+    /// Frequencies kept per component: `n · n · (p + 1)`.
+    pub nf: usize,
+    dt: usize,
+    de: usize,
+    /// Per offset slot: `dt × de` blocks of `[re; nf] [im; nf]` (empty for unused slots).
+    kernel_hat: Vec<Vec<f64>>,
+    /// The same spectra by frequency chunk: `[chunk][compact offset][a][b][re; CHUNK][im; CHUNK]`.
+    kernel_chunks: Vec<f64>,
+    /// Compact index (0..316) of each of the 343 offset slots.
+    compact: Vec<u16>,
+    /// Number of frequency chunks.
+    pub n_chunks: usize,
+    lattice: Vec<[usize; 3]>,
+    fwd: Arc<dyn Fft<f64>>,
+    inv: Arc<dyn Fft<f64>>,
+}
+
+impl FftM2l {
+    /// Spectra of `ke` for every well-separated offset at unit half-width.
+    pub fn new(ke: &dyn Kernel, surf: &CubeSurface) -> Self {
+        let p = surf.p;
+        let n = 2 * p;
+        let nh = p + 1;
+        let nf = n * n * nh;
+        let (dt, de) = (ke.output_dim(), ke.density_dim());
+        let mut planner = FftPlanner::new();
+        let fwd = planner.plan_fft_forward(n);
+        let inv = planner.plan_fft_inverse(n);
+        let mut m2l = FftM2l {
+            p,
+            n,
+            nf,
+            dt,
+            de,
+            kernel_hat: vec![Vec::new(); 343],
+            kernel_chunks: Vec::new(),
+            compact: vec![u16::MAX; 343],
+            n_chunks: nf.div_ceil(CHUNK),
+            lattice: surf.lattice.clone(),
+            fwd,
+            inv,
+        };
+        let delta = 2.0 * INNER / (p - 1) as f64;
+        let scale = 1.0 / (n * n * n) as f64;
+        let mut scratch = m2l.scratch();
+        let real = vec![0.0; n * n * n];
+        let mut unit = vec![0.0; de];
+        let mut val = vec![0.0; dt];
+        let wrap = |m: i64| -> usize { m.rem_euclid(n as i64) as usize };
+        let lim = p as i64 - 1;
+        for dx in -3i32..=3 {
+            for dy in -3i32..=3 {
+                for dz in -3i32..=3 {
+                    if dx.abs().max(dy.abs()).max(dz.abs()) < 2 {
+                        continue;
+                    }
+                    let mut hat = vec![0.0; dt * de * 2 * nf];
+                    for b in 0..de {
+                        unit.fill(0.0);
+                        unit[b] = 1.0;
+                        // One real grid per output component a.
+                        let mut grids = vec![real.clone(); dt];
+                        for mx in -lim..=lim {
+                            for my in -lim..=lim {
+                                for mz in -lim..=lim {
+                                    let r = [
+                                        2.0 * dx as f64 + delta * mx as f64,
+                                        2.0 * dy as f64 + delta * my as f64,
+                                        2.0 * dz as f64 + delta * mz as f64,
+                                    ];
+                                    val.fill(0.0);
+                                    ke.accumulate(r, &unit, [0.0; 3], &mut val);
+                                    let idx = (wrap(mx) * n + wrap(my)) * n + wrap(mz);
+                                    for a in 0..dt {
+                                        grids[a][idx] = val[a] * scale;
+                                    }
+                                }
+                            }
+                        }
+                        for (a, g) in grids.iter().enumerate() {
+                            let blk = &mut hat[(a * de + b) * 2 * nf..(a * de + b + 1) * 2 * nf];
+                            m2l.forward_full(g, blk, &mut scratch);
+                        }
+                    }
+                    m2l.kernel_hat[offset_index([dx, dy, dz])] = hat;
+                }
+            }
+        }
+        // Chunked copy of the spectra.
+        let mut next = 0u16;
+        for (slot, h) in m2l.kernel_hat.iter().enumerate() {
+            if !h.is_empty() {
+                m2l.compact[slot] = next;
+                next += 1;
+            }
+        }
+        let nblk = dt * de;
+        let per_chunk = next as usize * nblk * 2 * CHUNK;
+        let mut kc = vec![0.0; m2l.n_chunks * per_chunk];
+        for (slot, h) in m2l.kernel_hat.iter().enumerate() {
+            if h.is_empty() {
+                continue;
+            }
+            let o = m2l.compact[slot] as usize;
+            for blk in 0..nblk {
+                let src = &h[blk * 2 * nf..(blk + 1) * 2 * nf];
+                for f in 0..nf {
+                    let (c, i) = (f / CHUNK, f % CHUNK);
+                    let base = c * per_chunk + (o * nblk + blk) * 2 * CHUNK;
+                    kc[base + i] = src[f];
+                    kc[base + CHUNK + i] = src[nf + f];
+                }
+            }
+        }
+        m2l.kernel_chunks = kc;
+        m2l.kernel_hat = Vec::new();
+        m2l
+    }
+
+    /// Compact offset index (0..316) of a well-separated offset slot.
+    pub fn compact_offset(&self, slot: usize) -> usize {
+        self.compact[slot] as usize
+    }
+
+    /// Length of one box's `comps` components in one frequency chunk.
+    pub fn chunk_len(comps: usize) -> usize {
+        comps * 2 * CHUNK
+    }
+
+    /// Reorder per-box spectra (`boxes × comps × [re; nf][im; nf]`) into frequency chunks
+    /// (`chunk × boxes × comps × [re; CHUNK][im; CHUNK]`, zero-padded).
+    pub fn to_chunks(&self, per_box: &[f64], comps: usize, out: &mut [f64]) {
+        let nf = self.nf;
+        let nbox = per_box.len() / (comps * 2 * nf);
+        let per_chunk = nbox * comps * 2 * CHUNK;
+        out.par_chunks_mut(per_chunk)
+            .enumerate()
+            .for_each(|(c, dst)| {
+                let f0 = c * CHUNK;
+                let len = CHUNK.min(nf - f0);
+                for bx in 0..nbox {
+                    for k in 0..comps {
+                        let src =
+                            &per_box[(bx * comps + k) * 2 * nf..(bx * comps + k + 1) * 2 * nf];
+                        let d = &mut dst
+                            [(bx * comps + k) * 2 * CHUNK..(bx * comps + k + 1) * 2 * CHUNK];
+                        d[..len].copy_from_slice(&src[f0..f0 + len]);
+                        d[CHUNK..CHUNK + len].copy_from_slice(&src[nf + f0..nf + f0 + len]);
+                    }
+                }
+            });
+    }
+
+    /// Gather box `bx`'s spectrum (`comps × [re; nf][im; nf]`) from chunked storage of `nbox`
+    /// boxes.
+    pub fn from_chunks(
+        &self,
+        chunks: &[f64],
+        nbox: usize,
+        bx: usize,
+        comps: usize,
+        out: &mut [f64],
+    ) {
+        let nf = self.nf;
+        let per_chunk = nbox * comps * 2 * CHUNK;
+        for c in 0..self.n_chunks {
+            let f0 = c * CHUNK;
+            let len = CHUNK.min(nf - f0);
+            for k in 0..comps {
+                let s = &chunks[c * per_chunk + (bx * comps + k) * 2 * CHUNK..];
+                out[k * 2 * nf + f0..k * 2 * nf + f0 + len].copy_from_slice(&s[..len]);
+                out[k * 2 * nf + nf + f0..k * 2 * nf + nf + f0 + len]
+                    .copy_from_slice(&s[CHUNK..CHUNK + len]);
+            }
+        }
+    }
+
+    /// Within frequency chunk `c`: `target += Ĝ_o · source` for compact offset `o`.
+    pub fn accumulate_chunk(&self, c: usize, o: usize, source: &[f64], target: &mut [f64]) {
+        let nblk = self.dt * self.de;
+        let per_chunk = self.kernel_chunks.len() / self.n_chunks;
+        let base = c * per_chunk + o * nblk * 2 * CHUNK;
+        let g = &self.kernel_chunks[base..base + nblk * 2 * CHUNK];
+        hadamard(g, source, target, self.dt, self.de, CHUNK);
+    }
+
+    /// Fresh scratch buffers.
+    pub fn scratch(&self) -> FftScratch {
+        let len = self.n * self.n * (self.p + 1);
+        FftScratch {
+            grid: vec![Complex64::new(0.0, 0.0); len.max(self.n * self.n * self.n)],
+            line: vec![Complex64::new(0.0, 0.0); self.n * self.n * self.n],
+            fft: vec![
+                Complex64::new(0.0, 0.0);
+                self.fwd
+                    .get_inplace_scratch_len()
+                    .max(self.inv.get_inplace_scratch_len())
+            ],
+        }
+    }
+
+    /// Length of one spectrum of `comps` components.
+    pub fn spectrum_len(&self, comps: usize) -> usize {
+        comps * 2 * self.nf
+    }
+
+    /// Half spectrum (`[re; nf] [im; nf]`) of a full real `n³` grid.
+    fn forward_full(&self, real: &[f64], out: &mut [f64], s: &mut FftScratch) {
+        let n = self.n;
+        for (c, &r) in s.line.iter_mut().zip(real) {
+            *c = Complex64::new(r, 0.0);
+        }
+        self.fwd
+            .process_with_scratch(&mut s.line[..n * n * n], &mut s.fft);
+        let nh = self.p + 1;
+        for i in 0..n {
+            for j in 0..n {
+                for k in 0..nh {
+                    s.grid[(i * n + j) * nh + k] = s.line[(i * n + j) * n + k];
+                }
+            }
+        }
+        self.transform_ij(s, false, n);
+        self.store(s, out);
+    }
+
+    fn store(&self, s: &FftScratch, out: &mut [f64]) {
+        let nf = self.nf;
+        let (re, im) = out.split_at_mut(nf);
+        for (f, c) in s.grid[..nf].iter().enumerate() {
+            re[f] = c.re;
+            im[f] = c.im;
+        }
+    }
+
+    /// FFTs of `s.grid` (`n × n × (p+1)`, last axis already transformed) along the second and
+    /// first axes; `rows` limits the first-axis indices that hold data for the second-axis pass.
+    fn transform_ij(&self, s: &mut FftScratch, inverse: bool, rows: usize) {
+        let (n, nh) = (self.n, self.p + 1);
+        let plan = if inverse { &self.inv } else { &self.fwd };
+        let ib = rows.min(n);
+        // Along j, for i < ib.
+        let mut cnt = 0;
+        for i in 0..ib {
+            for k in 0..nh {
+                for j in 0..n {
+                    s.line[cnt * n + j] = s.grid[(i * n + j) * nh + k];
+                }
+                cnt += 1;
+            }
+        }
+        plan.process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
+        cnt = 0;
+        for i in 0..ib {
+            for k in 0..nh {
+                for j in 0..n {
+                    s.grid[(i * n + j) * nh + k] = s.line[cnt * n + j];
+                }
+                cnt += 1;
+            }
+        }
+        // Along i, for all (j, k).
+        cnt = 0;
+        for j in 0..n {
+            for k in 0..nh {
+                for i in 0..n {
+                    s.line[cnt * n + i] = s.grid[(i * n + j) * nh + k];
+                }
+                cnt += 1;
+            }
+        }
+        plan.process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
+        cnt = 0;
+        for j in 0..n {
+            for k in 0..nh {
+                for i in 0..n {
+                    s.grid[(i * n + j) * nh + k] = s.line[cnt * n + i];
+                }
+                cnt += 1;
+            }
+        }
+    }
+
+    /// Spectrum of an equivalent density on the surface (`de` values per surface point,
+    /// interleaved) into `out` (`de` blocks of `[re; nf] [im; nf]`).
+    pub fn spectrum(&self, density: &[f64], out: &mut [f64], s: &mut FftScratch) {
+        let (p, n, nh, nf) = (self.p, self.n, self.p + 1, self.nf);
+        for b in 0..self.de {
+            // Rows along k for i, j < p: real data, FFT of length n, keep p + 1 entries.
+            s.line[..p * p * n].fill(Complex64::new(0.0, 0.0));
+            for (pt, l) in self.lattice.iter().enumerate() {
+                s.line[(l[0] * p + l[1]) * n + l[2]] =
+                    Complex64::new(density[pt * self.de + b], 0.0);
+            }
+            self.fwd
+                .process_with_scratch(&mut s.line[..p * p * n], &mut s.fft);
+            s.grid[..nf].fill(Complex64::new(0.0, 0.0));
+            for i in 0..p {
+                for j in 0..p {
+                    for k in 0..nh {
+                        s.grid[(i * n + j) * nh + k] = s.line[(i * p + j) * n + k];
+                    }
+                }
+            }
+            self.transform_ij(s, false, p);
+            self.store(s, &mut out[b * 2 * nf..(b + 1) * 2 * nf]);
+        }
+    }
+
+    /// Add the check values (`dt` per surface point, interleaved) of a target spectrum.
+    pub fn check_values(&self, spec: &[f64], out: &mut [f64], s: &mut FftScratch) {
+        let (p, n, nh, nf) = (self.p, self.n, self.p + 1, self.nf);
+        for a in 0..self.dt {
+            let blk = &spec[a * 2 * nf..(a + 1) * 2 * nf];
+            for f in 0..nf {
+                s.grid[f] = Complex64::new(blk[f], blk[nf + f]);
+            }
+            // Inverse along i (all j, k), then along j for i < p.
+            let mut cnt = 0;
+            for j in 0..n {
+                for k in 0..nh {
+                    for i in 0..n {
+                        s.line[cnt * n + i] = s.grid[(i * n + j) * nh + k];
+                    }
+                    cnt += 1;
+                }
+            }
+            self.inv
+                .process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
+            cnt = 0;
+            for j in 0..n {
+                for k in 0..nh {
+                    for i in 0..n {
+                        s.grid[(i * n + j) * nh + k] = s.line[cnt * n + i];
+                    }
+                    cnt += 1;
+                }
+            }
+            cnt = 0;
+            for i in 0..p {
+                for k in 0..nh {
+                    for j in 0..n {
+                        s.line[cnt * n + j] = s.grid[(i * n + j) * nh + k];
+                    }
+                    cnt += 1;
+                }
+            }
+            self.inv
+                .process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
+            cnt = 0;
+            for i in 0..p {
+                for k in 0..nh {
+                    for j in 0..n {
+                        s.grid[(i * n + j) * nh + k] = s.line[cnt * n + j];
+                    }
+                    cnt += 1;
+                }
+            }
+            // Along k: rebuild the full Hermitian row, inverse FFT, real part.
+            for i in 0..p {
+                for j in 0..p {
+                    let row = &mut s.line[(i * p + j) * n..(i * p + j + 1) * n];
+                    let src = &s.grid[(i * n + j) * nh..(i * n + j + 1) * nh];
+                    row[..nh].copy_from_slice(src);
+                    for k in nh..n {
+                        row[k] = src[n - k].conj();
+                    }
+                }
+            }
+            self.inv
+                .process_with_scratch(&mut s.line[..p * p * n], &mut s.fft);
+            for (pt, l) in self.lattice.iter().enumerate() {
+                out[pt * self.dt + a] += s.line[(l[0] * p + l[1]) * n + l[2]].re;
+            }
+        }
+    }
+}
+
+#[inline(always)]
+fn hadamard_body(g: &[f64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize, nf: usize) {
+    for a in 0..dt {
+        let (tre, tim) = tgt[a * 2 * nf..(a + 1) * 2 * nf].split_at_mut(nf);
+        for b in 0..de {
+            let gb = &g[(a * de + b) * 2 * nf..(a * de + b + 1) * 2 * nf];
+            let (gre, gim) = gb.split_at(nf);
+            let (sre, sim) = src[b * 2 * nf..(b + 1) * 2 * nf].split_at(nf);
+            for f in 0..nf {
+                tre[f] += gre[f] * sre[f] - gim[f] * sim[f];
+                tim[f] += gre[f] * sim[f] + gim[f] * sre[f];
+            }
+        }
+    }
+}
+
+fn hadamard(g: &[f64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize, nf: usize) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn avx2(g: &[f64], s: &[f64], t: &mut [f64], dt: usize, de: usize, nf: usize) {
+            hadamard_body(g, s, t, dt, de, nf)
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+            unsafe { avx2(g, src, tgt, dt, de, nf) };
+            return;
+        }
+    }
+    hadamard_body(g, src, tgt, dt, de, nf)
+}
