@@ -308,7 +308,14 @@ struct FmmArgs {
     /// Requested accuracy in digits (3 to 10).
     #[arg(long, default_value_t = 6)]
     digits: u32,
-    /// Exact direct summation.
+    /// FMM order (surface points per box edge, 2 to 20); overrides the order that --digits
+    /// selects from the calibration table.
+    #[arg(long)]
+    order: Option<usize>,
+    /// Maximum points per leaf box (default: chosen from kernel and order).
+    #[arg(long)]
+    leaf_size: Option<usize>,
+    /// Exact direct summation instead of the FMM.
     #[arg(long)]
     direct: bool,
     /// Output file, (M,) for Laplace kernels, (M, 3) for vector kernels.
@@ -353,21 +360,18 @@ fn read_points(
 }
 
 fn fmm(a: FmmArgs) -> Result<(), CliError> {
-    use mobo::fmm::{
-        direct_sum, Kernel, Laplace, LaplaceDoubleLayer, Rpy, Stokeslet, Stresslet, SumInput,
-    };
+    use mobo::fmm::{order_for_digits, Fmm, FmmKernel};
     if !(3..=10).contains(&a.digits) {
         return Err(CliError::Arg(format!(
             "--digits must be between 3 and 10, got {}",
             a.digits
         )));
     }
-    let rpy;
-    let kernel: &dyn Kernel = match a.kernel {
-        KernelArg::Laplace => &Laplace,
-        KernelArg::LaplaceDl => &LaplaceDoubleLayer,
-        KernelArg::Stokeslet => &Stokeslet,
-        KernelArg::Stresslet => &Stresslet,
+    let name = match a.kernel {
+        KernelArg::Laplace => "laplace",
+        KernelArg::LaplaceDl => "laplace-dl",
+        KernelArg::Stokeslet => "stokeslet",
+        KernelArg::Stresslet => "stresslet",
         KernelArg::Rpy => {
             let r = a
                 .radius
@@ -375,11 +379,24 @@ fn fmm(a: FmmArgs) -> Result<(), CliError> {
             if !(r.is_finite() && r > 0.0) {
                 return Err(CliError::Arg(format!("--radius must be positive, got {r}")));
             }
-            rpy = Rpy { radius: r };
-            &rpy
+            "rpy"
         }
     };
-    let t0 = Instant::now();
+    let kind = FmmKernel::from_name(name, a.radius)?;
+    let kernel = kind.near();
+    let order = match a.order {
+        Some(p) if !(2..=20).contains(&p) => {
+            return Err(CliError::Arg(format!(
+                "--order must be between 2 and 20, got {p}"
+            )))
+        }
+        Some(p) => p,
+        None => order_for_digits(kind, a.digits)?,
+    };
+    let leaf = a.leaf_size.unwrap_or_else(|| kind.default_leaf_size(order));
+    if leaf == 0 {
+        return Err(CliError::Arg("--leaf-size must be positive".into()));
+    }
     let to_points =
         |v: Vec<f64>| -> Vec<[f64; 3]> { v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect() };
     let sources = to_points(read_points(&a.sources, 3, None)?);
@@ -405,17 +422,17 @@ fn fmm(a: FmmArgs) -> Result<(), CliError> {
         Some(p) => to_points(read_points(p, 3, None)?),
         None => sources.clone(),
     };
-    let setup = t0.elapsed().as_secs_f64();
     let od = kernel.output_dim();
     let mut u = vec![0.0; targets.len() * od];
+    let t0 = Instant::now();
+    let mut fmm = Fmm::new(kind, &sources, normals.as_deref(), &targets, order, leaf)?;
+    let setup = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let input = SumInput {
-        sources: &sources,
-        density: &density,
-        normals: normals.as_deref(),
-        targets: &targets,
-    };
-    direct_sum(kernel, &input, &mut u)?;
+    if a.direct {
+        fmm.direct(&density, &mut u)?;
+    } else {
+        fmm.evaluate(&density, &mut u)?;
+    }
     let eval = t1.elapsed().as_secs_f64();
     let shape: Vec<usize> = if od == 1 {
         vec![targets.len()]
@@ -423,16 +440,21 @@ fn fmm(a: FmmArgs) -> Result<(), CliError> {
         vec![targets.len(), od]
     };
     mobo::io::npy::write_f64(&a.out, &shape, &u)?;
-    let note = if a.direct {
-        ""
-    } else {
-        ",\"note\":\"the FMM is not used yet; evaluated by direct summation\""
-    };
-    println!(
-        "{{\"kernel\":\"{}\",\"n_sources\":{n},\"n_targets\":{},\"digits\":{},\"order\":null,\"method\":\"direct\",\"setup_s\":{setup:.6e},\"eval_s\":{eval:.6e}{note}}}",
-        kernel.name(),
-        targets.len(),
-        a.digits
-    );
+    let line = serde_json::json!({
+        "kernel": kernel.name(),
+        "n_sources": n,
+        "n_targets": targets.len(),
+        "digits": a.digits,
+        "order": order,
+        "method": if a.direct { "direct" } else { "fmm" },
+        "leaf_size": leaf,
+        "tree_depth": fmm.tree.depth(),
+        "boxes": fmm.tree.nodes.len(),
+        "threads": rayon::current_num_threads(),
+        "setup_s": setup,
+        "eval_s": eval,
+        "phases_s": if a.direct { serde_json::Value::Null } else { serde_json::to_value(fmm.timings).unwrap_or_default() },
+    });
+    println!("{line}");
     Ok(())
 }

@@ -20,7 +20,7 @@ use super::FmmError;
 /// Orders for 3, 4, …, 10 digits.
 const LAPLACE: [usize; 8] = [4, 5, 6, 7, 8, 9, 11, 13];
 const LAPLACE_DL: [usize; 8] = [4, 5, 7, 8, 9, 10, 12, 14];
-const STOKES: [usize; 8] = [6, 7, 8, 10, 11, 13, 14, 16];
+const STOKES: [usize; 8] = [6, 7, 8, 10, 11, 13, 15, 16];
 
 /// Smallest accuracy offered, in digits.
 pub const MIN_DIGITS: u32 = 3;

@@ -29,6 +29,7 @@ use super::kernels::{
 use super::m2l_fft::{offset_index, FftM2l};
 use super::octree::{Lists, Octree};
 use super::operators::{gemm, octant, Translations, DOWN_EQUIV, INNER, UP_CHECK};
+use super::surface::CubeSurface;
 use super::FmmError;
 
 type Operators = (Arc<Translations>, Arc<FftM2l>);
@@ -43,8 +44,11 @@ fn operators_for(kind: FmmKernel, order: usize) -> Result<Operators, FmmError> {
     if let Some(v) = cache.lock().map_err(|_| poisoned())?.get(&key) {
         return Ok(v.clone());
     }
-    let ops = Translations::new(equivalent.as_ref(), order, kind.rcond())?;
-    let m2l = FftM2l::new(equivalent.as_ref(), &ops.surf);
+    let (ops, m2l) = rayon::join(
+        || Translations::new(equivalent.as_ref(), order, kind.rcond()),
+        || FftM2l::new(equivalent.as_ref(), &CubeSurface::new(order)),
+    );
+    let ops = ops?;
     let v = (Arc::new(ops), Arc::new(m2l));
     cache.lock().map_err(|_| poisoned())?.insert(key, v.clone());
     Ok(v)

@@ -49,7 +49,7 @@ impl Pinv {
     /// Drop singular values below `rcond · σ_max`.
     pub fn new(a: &Mat<f64>, rcond: f64) -> Result<Self, FmmError> {
         let svd = a
-            .svd()
+            .thin_svd()
             .map_err(|_| FmmError::Shape("SVD of a check-to-equivalent matrix failed".into()))?;
         let (u, s, v) = (svd.U(), svd.S().column_vector(), svd.V());
         let smax = s.iter().fold(0.0f64, |m, &x| m.max(x));
@@ -190,14 +190,21 @@ impl Translations {
                 .collect()
         };
         let zero = [0.0; 3];
-        let up = Pinv::new(
-            &kernel_matrix(ke, &scaled(UP_CHECK, zero), &scaled(INNER, zero)),
-            rcond,
-        )?;
-        let down = Pinv::new(
-            &kernel_matrix(ke, &scaled(INNER, zero), &scaled(DOWN_EQUIV, zero)),
-            rcond,
-        )?;
+        let (up, down) = rayon::join(
+            || {
+                Pinv::new(
+                    &kernel_matrix(ke, &scaled(UP_CHECK, zero), &scaled(INNER, zero)),
+                    rcond,
+                )
+            },
+            || {
+                Pinv::new(
+                    &kernel_matrix(ke, &scaled(INNER, zero), &scaled(DOWN_EQUIV, zero)),
+                    rcond,
+                )
+            },
+        );
+        let (up, down) = (up?, down?);
         let mut m2m = Vec::with_capacity(8);
         let mut l2l = Vec::with_capacity(8);
         for o in 0..8 {

@@ -1,0 +1,237 @@
+//! The fast FMM against direct sums (pair-by-pair reference, `direct_sum`) on sampled targets:
+//! every kernel, three clouds (uniform cube, Gaussian blobs, small spheres), at the orders the
+//! calibration table gives for 3, 6 and 9 digits; reuse of one tree for many densities;
+//! convergence in the order; a 10⁵-point run.
+
+use mobo::fmm::clouds::Cloud;
+use mobo::fmm::{direct_sum, order_for_digits, Fmm, FmmKernel, SumInput};
+
+const KERNELS: [FmmKernel; 5] = [
+    FmmKernel::Laplace,
+    FmmKernel::LaplaceDoubleLayer,
+    FmmKernel::Stokeslet,
+    FmmKernel::Stresslet,
+    // Radius such that the clouds have overlapping pairs (r < 2a) in the near field.
+    FmmKernel::Rpy { radius: 0.004 },
+];
+const CLOUDS: [Cloud; 3] = [Cloud::Uniform, Cloud::Blobs, Cloud::Spheres];
+
+/// Relative L2 error of the FMM at `m` sampled targets (sources = targets) against the direct
+/// sum; returns (error, fmm).
+fn sampled_error(
+    kernel: FmmKernel,
+    cloud: Cloud,
+    n: usize,
+    order: usize,
+    m: usize,
+    seed: u64,
+) -> (f64, Fmm) {
+    let pts = cloud.points(n, seed);
+    let nrm = Cloud::unit_vectors(n, seed + 1);
+    let k = kernel.near();
+    let dens = Cloud::densities(n * k.density_dim(), seed + 2);
+    let mut fmm = Fmm::new(
+        kernel,
+        &pts,
+        Some(&nrm),
+        &pts,
+        order,
+        kernel.default_leaf_size(order),
+    )
+    .unwrap();
+    let mut u = vec![0.0; n * k.output_dim()];
+    fmm.evaluate(&dens, &mut u).unwrap();
+    let idx: Vec<usize> = (0..m).map(|i| i * n / m).collect();
+    let tg: Vec<[f64; 3]> = idx.iter().map(|&i| pts[i]).collect();
+    let mut want = vec![0.0; m * k.output_dim()];
+    direct_sum(
+        k.as_ref(),
+        &SumInput {
+            sources: &pts,
+            density: &dens,
+            normals: Some(&nrm),
+            targets: &tg,
+        },
+        &mut want,
+    )
+    .unwrap();
+    let od = k.output_dim();
+    let (mut num, mut den) = (0.0, 0.0);
+    for (s, &i) in idx.iter().enumerate() {
+        for c in 0..od {
+            num += (u[i * od + c] - want[s * od + c]).powi(2);
+            den += want[s * od + c].powi(2);
+        }
+    }
+    ((num / den).sqrt(), fmm)
+}
+
+fn check_digits(digits: u32, n: usize) {
+    let mut failures = Vec::new();
+    for kernel in KERNELS {
+        let order = order_for_digits(kernel, digits).unwrap();
+        for cloud in CLOUDS {
+            let (err, fmm) = sampled_error(kernel, cloud, n, order, 200, 11);
+            println!(
+                "{kernel:?} {} n={n} digits={digits} order={order} depth={} setup {:.1}s: error {err:.2e}",
+                cloud.name(),
+                fmm.tree.depth(),
+                fmm.setup_s
+            );
+            assert!(
+                fmm.tree.depth() >= 3,
+                "tree too shallow to test the far field"
+            );
+            if !(err < 10f64.powi(-(digits as i32))) {
+                failures.push(format!("{kernel:?} {}: {err:.2e}", cloud.name()));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "above 1e-{digits}: {failures:?}");
+}
+
+#[test]
+fn three_digits_on_every_kernel_and_cloud() {
+    check_digits(3, 20_000);
+}
+
+#[test]
+fn six_digits_on_every_kernel_and_cloud() {
+    check_digits(6, 20_000);
+}
+
+#[test]
+fn nine_digits_on_every_kernel_and_cloud() {
+    check_digits(9, 8_000);
+}
+
+#[test]
+fn hundred_thousand_points() {
+    for (kernel, cloud) in [
+        (FmmKernel::Laplace, Cloud::Uniform),
+        (FmmKernel::Stokeslet, Cloud::Spheres),
+    ] {
+        let order = order_for_digits(kernel, 3).unwrap();
+        let (err, fmm) = sampled_error(kernel, cloud, 100_000, order, 100, 5);
+        println!(
+            "{kernel:?} {} n=1e5 order={order}: error {err:.2e}, {:?}",
+            cloud.name(),
+            fmm.timings
+        );
+        assert!(err < 1e-3, "{kernel:?} {}: {err:.2e}", cloud.name());
+    }
+}
+
+#[test]
+fn new_densities_on_one_tree_match_a_fresh_build() {
+    let n = 6000;
+    let pts = Cloud::Spheres.points(n, 3);
+    for kernel in [FmmKernel::Stokeslet, FmmKernel::Laplace] {
+        let dd = kernel.near().density_dim();
+        let od = kernel.near().output_dim();
+        let mut fmm = Fmm::new(kernel, &pts, None, &pts, 6, 100).unwrap();
+        let mut u1 = vec![0.0; n * od];
+        for seed in 0..3 {
+            fmm.evaluate(&Cloud::densities(n * dd, seed), &mut u1)
+                .unwrap();
+        }
+        let d = Cloud::densities(n * dd, 99);
+        fmm.evaluate(&d, &mut u1).unwrap();
+        let mut fresh = Fmm::new(kernel, &pts, None, &pts, 6, 100).unwrap();
+        let mut u2 = vec![0.0; n * od];
+        fresh.evaluate(&d, &mut u2).unwrap();
+        assert_eq!(u1, u2, "{kernel:?}: reuse differs from a fresh build");
+    }
+}
+
+#[test]
+fn error_falls_as_the_order_rises() {
+    let mut last = f64::INFINITY;
+    for order in [3, 5, 7, 9] {
+        let (err, _) = sampled_error(FmmKernel::Laplace, Cloud::Blobs, 10_000, order, 200, 7);
+        println!("laplace blobs order {order}: {err:.2e}");
+        assert!(
+            err < last / 5.0,
+            "order {order}: {err:.2e} after {last:.2e}"
+        );
+        last = err;
+    }
+    let mut last = f64::INFINITY;
+    for order in [4, 6, 8] {
+        let (err, _) = sampled_error(FmmKernel::Stokeslet, Cloud::Uniform, 8_000, order, 200, 7);
+        println!("stokeslet uniform order {order}: {err:.2e}");
+        assert!(
+            err < last / 5.0,
+            "order {order}: {err:.2e} after {last:.2e}"
+        );
+        last = err;
+    }
+}
+
+#[test]
+fn direct_path_matches_the_reference_sum() {
+    let n = 1500;
+    let pts = Cloud::Blobs.points(n, 4);
+    let tg = Cloud::Uniform.points(300, 5);
+    let nrm = Cloud::unit_vectors(n, 6);
+    for kernel in KERNELS {
+        let k = kernel.near();
+        let dens = Cloud::densities(n * k.density_dim(), 8);
+        let mut fmm = Fmm::new(kernel, &pts, Some(&nrm), &tg, 4, 50).unwrap();
+        let mut got = vec![0.0; tg.len() * k.output_dim()];
+        fmm.direct(&dens, &mut got).unwrap();
+        let mut want = vec![0.0; got.len()];
+        direct_sum(
+            k.as_ref(),
+            &SumInput {
+                sources: &pts,
+                density: &dens,
+                normals: Some(&nrm),
+                targets: &tg,
+            },
+            &mut want,
+        )
+        .unwrap();
+        mobo::check::assert_close(&format!("{kernel:?} direct"), &got, &want, 1e-12);
+    }
+}
+
+#[test]
+fn bad_arguments_are_errors() {
+    let pts = Cloud::Uniform.points(100, 1);
+    assert!(Fmm::new(FmmKernel::Laplace, &pts, None, &pts, 1, 10).is_err());
+    assert!(Fmm::new(FmmKernel::Laplace, &pts, None, &pts, 30, 10).is_err());
+    assert!(Fmm::new(FmmKernel::Stresslet, &pts, None, &pts, 4, 10).is_err());
+    assert!(FmmKernel::from_name("rpy", None).is_err());
+    assert!(FmmKernel::from_name("rpy", Some(-1.0)).is_err());
+    assert!(FmmKernel::from_name("helmholtz", None).is_err());
+    assert!(order_for_digits(FmmKernel::Laplace, 2).is_err());
+    assert!(order_for_digits(FmmKernel::Laplace, 11).is_err());
+    let mut fmm = Fmm::new(FmmKernel::Stokeslet, &pts, None, &pts, 4, 10).unwrap();
+    let mut out = vec![0.0; 300];
+    assert!(fmm.evaluate(&[0.0; 100], &mut out).is_err());
+    assert!(fmm.evaluate(&[0.0; 300], &mut out[..3]).is_err());
+}
+
+/// Error against order for every kernel and cloud:
+/// `cargo test --release --test fmm_accuracy -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn fmm_convergence_table() {
+    println!("| kernel | cloud | n | order | leaf | error | setup s | eval s |");
+    println!("|---|---|---|---|---|---|---|---|");
+    for kernel in KERNELS {
+        for cloud in CLOUDS {
+            for order in 3..=12 {
+                let (err, fmm) = sampled_error(kernel, cloud, 20_000, order, 300, 21);
+                println!(
+                    "| {kernel:?} | {} | 20000 | {order} | {} | {err:.2e} | {:.2} | {:.3} |",
+                    cloud.name(),
+                    fmm.tree.leaf_size,
+                    fmm.setup_s,
+                    fmm.timings.total
+                );
+            }
+        }
+    }
+}
