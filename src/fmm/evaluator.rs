@@ -534,6 +534,9 @@ impl Fmm {
                         if self.lists.x[bx].is_empty() || node.targets.is_empty() {
                             return;
                         }
+                        if self.x_direct(bx) {
+                            return;
+                        }
                         self.ops.surf.place(node.center, node.half, INNER, pts);
                         for &x in &self.lists.x[bx] {
                             let xn = &self.tree.nodes[x];
@@ -609,10 +612,15 @@ impl Fmm {
                     self.far_target.eval_block(tgts, &s.block.all(), vals);
                 }
                 t = clock.add(6, t);
-                // M2P
+                // M2P, or P2P where the box has fewer sources than surface points.
                 for &w in &self.lists.w[bx] {
                     let wn = &self.tree.nodes[w];
                     if wn.sources.is_empty() {
+                        continue;
+                    }
+                    if wn.sources.len() <= self.ops.surf.len() {
+                        self.near
+                            .eval_block(tgts, &self.sources.view(wn.sources.clone()), vals);
                         continue;
                     }
                     let p = self.pos[w];
@@ -622,7 +630,14 @@ impl Fmm {
                     self.far_target.eval_block(tgts, &s.block.all(), vals);
                 }
                 t = clock.add(7, t);
-                // P2P
+                // P2P: U list, and the X list of a small leaf (instead of P2L).
+                if self.x_direct(bx) {
+                    for &x in &self.lists.x[bx] {
+                        let xn = &self.tree.nodes[x];
+                        self.near
+                            .eval_block(tgts, &self.sources.view(xn.sources.clone()), vals);
+                    }
+                }
                 for &u in &self.lists.u[bx] {
                     let un = &self.tree.nodes[u];
                     if !un.sources.is_empty() {
@@ -634,6 +649,13 @@ impl Fmm {
             },
         );
         sorted
+    }
+
+    /// Whether the X list of box `b` acts directly on its targets (a leaf with fewer targets
+    /// than surface points) rather than through its downward check surface.
+    fn x_direct(&self, b: usize) -> bool {
+        let node = &self.tree.nodes[b];
+        node.is_leaf() && node.targets.len() <= self.ops.surf.len()
     }
 
     /// Undo the normalisation of an equivalent density of a box of half-width `h`.

@@ -224,7 +224,7 @@ impl FftM2l {
         let per_chunk = self.kernel_chunks.len() / self.n_chunks;
         let base = c * per_chunk + o * nblk * 2 * CHUNK;
         let g = &self.kernel_chunks[base..base + nblk * 2 * CHUNK];
-        hadamard(g, source, target, self.dt, self.de, CHUNK);
+        hadamard(g, source, target, self.dt, self.de);
     }
 
     /// Fresh scratch buffers.
@@ -419,35 +419,68 @@ impl FftM2l {
     }
 }
 
+/// `t[a] += Σ_b g[a][b] · s[b]` over `CHUNK` complex frequencies (`[re; CHUNK][im; CHUNK]`
+/// blocks), with the target of each frequency kept in registers across `b`.
 #[inline(always)]
-fn hadamard_body(g: &[f64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize, nf: usize) {
-    for a in 0..dt {
-        let (tre, tim) = tgt[a * 2 * nf..(a + 1) * 2 * nf].split_at_mut(nf);
-        for b in 0..de {
-            let gb = &g[(a * de + b) * 2 * nf..(a * de + b + 1) * 2 * nf];
-            let (gre, gim) = gb.split_at(nf);
-            let (sre, sim) = src[b * 2 * nf..(b + 1) * 2 * nf].split_at(nf);
-            for f in 0..nf {
-                tre[f] += gre[f] * sre[f] - gim[f] * sim[f];
-                tim[f] += gre[f] * sim[f] + gim[f] * sre[f];
+fn hadamard_body<const DT: usize, const DE: usize>(g: &[f64], src: &[f64], tgt: &mut [f64]) {
+    const F: usize = CHUNK;
+    let g = &g[..DT * DE * 2 * F];
+    let src = &src[..DE * 2 * F];
+    let tgt = &mut tgt[..DT * 2 * F];
+    for a in 0..DT {
+        let (tre, tim) = tgt[a * 2 * F..(a + 1) * 2 * F].split_at_mut(F);
+        for f in 0..F {
+            let (mut re, mut im) = (tre[f], tim[f]);
+            for b in 0..DE {
+                let o = (a * DE + b) * 2 * F;
+                let (gr, gi) = (g[o + f], g[o + F + f]);
+                let (sr, si) = (src[b * 2 * F + f], src[b * 2 * F + F + f]);
+                re += gr * sr - gi * si;
+                im += gr * si + gi * sr;
             }
+            tre[f] = re;
+            tim[f] = im;
         }
     }
 }
 
-fn hadamard(g: &[f64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize, nf: usize) {
+fn hadamard_generic<const DT: usize, const DE: usize>(g: &[f64], src: &[f64], tgt: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     {
         #[target_feature(enable = "avx2,fma")]
-        unsafe fn avx2(g: &[f64], s: &[f64], t: &mut [f64], dt: usize, de: usize, nf: usize) {
-            hadamard_body(g, s, t, dt, de, nf)
+        unsafe fn avx2<const DT: usize, const DE: usize>(g: &[f64], s: &[f64], t: &mut [f64]) {
+            hadamard_body::<DT, DE>(g, s, t)
         }
         if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
         {
             // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-            unsafe { avx2(g, src, tgt, dt, de, nf) };
+            unsafe { avx2::<DT, DE>(g, src, tgt) };
             return;
         }
     }
-    hadamard_body(g, src, tgt, dt, de, nf)
+    hadamard_body::<DT, DE>(g, src, tgt)
+}
+
+/// `target[a] += Σ_b Ĝ[a][b] · source[b]` on one frequency chunk.
+fn hadamard(g: &[f64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize) {
+    match (dt, de) {
+        (1, 1) => hadamard_generic::<1, 1>(g, src, tgt),
+        (3, 3) => hadamard_generic::<3, 3>(g, src, tgt),
+        (3, 4) => hadamard_generic::<3, 4>(g, src, tgt),
+        _ => {
+            // Any other shape: the same sum without compile-time sizes.
+            let f = CHUNK;
+            for a in 0..dt {
+                for b in 0..de {
+                    let o = (a * de + b) * 2 * f;
+                    for k in 0..f {
+                        let (gr, gi) = (g[o + k], g[o + f + k]);
+                        let (sr, si) = (src[b * 2 * f + k], src[b * 2 * f + f + k]);
+                        tgt[a * 2 * f + k] += gr * sr - gi * si;
+                        tgt[a * 2 * f + f + k] += gr * si + gi * sr;
+                    }
+                }
+            }
+        }
+    }
 }

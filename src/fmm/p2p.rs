@@ -50,11 +50,13 @@ macro_rules! dispatched {
 
 #[inline(always)]
 fn laplace_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
-    let q = &s.q[0][..s.len()];
+    let n = s.len();
+    let q = &s.q[0][..n];
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
     for (x, o) in t.iter().zip(out.iter_mut()) {
         let mut acc = 0.0;
-        for j in 0..q.len() {
-            let (dx, dy, dz) = (x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]);
+        for j in 0..n {
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
             acc += q[j] * inv_norm(dx * dx + dy * dy + dz * dz);
         }
         *o += acc / FOUR_PI;
@@ -68,11 +70,12 @@ dispatched!(
 #[inline(always)]
 fn laplace_dl_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
     let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
     let (q, nx, ny, nz) = (&s.q[0][..n], &s.n[0][..n], &s.n[1][..n], &s.n[2][..n]);
     for (x, o) in t.iter().zip(out.iter_mut()) {
         let mut acc = 0.0;
         for j in 0..n {
-            let (dx, dy, dz) = (x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]);
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
             let inv = inv_norm(dx * dx + dy * dy + dz * dz);
             acc += q[j] * (nx[j] * dx + ny[j] * dy + nz[j] * dz) * inv * inv * inv;
         }
@@ -87,11 +90,12 @@ dispatched!(
 #[inline(always)]
 fn stokeslet_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
     let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
     let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
     for (x, o) in t.iter().zip(out.chunks_exact_mut(3)) {
         let (mut ax, mut ay, mut az) = (0.0, 0.0, 0.0);
         for j in 0..n {
-            let (dx, dy, dz) = (x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]);
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
             let inv = inv_norm(dx * dx + dy * dy + dz * dz);
             let rf = (dx * fx[j] + dy * fy[j] + dz * fz[j]) * inv * inv;
             ax += (fx[j] + rf * dx) * inv;
@@ -111,11 +115,12 @@ dispatched!(
 #[inline(always)]
 fn stokeslet_source_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
     let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
     let (fx, fy, fz, m) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n], &s.q[3][..n]);
     for (x, o) in t.iter().zip(out.chunks_exact_mut(3)) {
         let (mut ax, mut ay, mut az) = (0.0, 0.0, 0.0);
         for j in 0..n {
-            let (dx, dy, dz) = (x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]);
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
             let inv = inv_norm(dx * dx + dy * dy + dz * dz);
             let inv2 = inv * inv;
             let rf = (dx * fx[j] + dy * fy[j] + dz * fz[j]) * inv2;
@@ -138,12 +143,13 @@ dispatched!(
 #[inline(always)]
 fn stresslet_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
     let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
     let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
     let (nx, ny, nz) = (&s.n[0][..n], &s.n[1][..n], &s.n[2][..n]);
     for (x, o) in t.iter().zip(out.chunks_exact_mut(3)) {
         let (mut ax, mut ay, mut az) = (0.0, 0.0, 0.0);
         for j in 0..n {
-            let (dx, dy, dz) = (x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]);
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
             let inv = inv_norm(dx * dx + dy * dy + dz * dz);
             let inv2 = inv * inv;
             let c = (dx * fx[j] + dy * fy[j] + dz * fz[j])
@@ -169,6 +175,7 @@ dispatched!(
 #[inline(always)]
 fn rpy_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64], a: f64) {
     let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
     let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
     let m0 = 1.0 / (6.0 * std::f64::consts::PI * a);
     let inv_a = 1.0 / a;
@@ -176,7 +183,7 @@ fn rpy_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64], a: f64) {
     for (x, o) in t.iter().zip(out.chunks_exact_mut(3)) {
         let (mut ax, mut ay, mut az) = (0.0, 0.0, 0.0);
         for j in 0..n {
-            let (dx, dy, dz) = (x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]);
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
             let d2 = dx * dx + dy * dy + dz * dz;
             let inv = inv_norm(d2);
             let d = d2 * inv;
@@ -211,6 +218,7 @@ dispatched!(
 #[inline(always)]
 fn rpy_far_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64], a: f64) {
     let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
     let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
     // G + (a²/6)∇²G with ∇²G = (I − 3 r̂r̂)/(4π r³):
     // (1/8π)[(1/r + a²/(3r³)) f + (1/r³ − a²/r⁵)(r·f) r].
@@ -218,7 +226,7 @@ fn rpy_far_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64], a: f64) {
     for (x, o) in t.iter().zip(out.chunks_exact_mut(3)) {
         let (mut ax, mut ay, mut az) = (0.0, 0.0, 0.0);
         for j in 0..n {
-            let (dx, dy, dz) = (x[0] - s.x[j], x[1] - s.y[j], x[2] - s.z[j]);
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
             let inv = inv_norm(dx * dx + dy * dy + dz * dz);
             let inv2 = inv * inv;
             let ci = inv * (1.0 + c2 * inv2);
