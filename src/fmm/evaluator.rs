@@ -140,13 +140,12 @@ impl FmmKernel {
     }
 
     /// Default leaf size (points per leaf, sources plus targets), balancing P2P against the
-    /// translations (measured in `benches/fmm.rs`).
+    /// translations: measured on 10⁵ points of the uniform and sphere clouds (examples/fmm_probe).
     pub fn default_leaf_size(&self, order: usize) -> usize {
-        let base = match self {
-            FmmKernel::Laplace | FmmKernel::LaplaceDoubleLayer => 160,
-            _ => 120,
-        };
-        base * order.max(4) / 6
+        match self {
+            FmmKernel::Laplace | FmmKernel::LaplaceDoubleLayer => 70 * order.max(4),
+            _ => 60 * order.max(4),
+        }
     }
 }
 
