@@ -144,7 +144,7 @@ impl FmmKernel {
     pub fn default_leaf_size(&self, order: usize) -> usize {
         match self {
             FmmKernel::Laplace | FmmKernel::LaplaceDoubleLayer => 70 * order.max(4),
-            _ => 60 * order.max(4),
+            _ => 100 * order.max(4),
         }
     }
 }
