@@ -5,16 +5,21 @@
 //! is band-limited at `p`), and the scratch for the force routines of [`super::bending`],
 //! [`super::tension`] and [`super::skalak`]. Inputs on the order-`p` grid are upsampled to `q`
 //! (forward at `p`, zero-padding, inverse at `q`); forces computed at `q` are filtered back
-//! (forward at `q`, truncation to degree `p`, inverse at `p`). Nothing allocates after
-//! construction except [`Membrane::set_reference`] (once per reference shape).
+//! (forward at `q`, truncation to degree `p`, inverse at `p`). The quantity filtered is the
+//! density per unit *solid angle* of the parameter sphere, `f J` with `J = W / sin θ`:
+//! `f_p = P_p(f J) / J_p`, where `P_p` is the projection on degrees `≤ p` and `J_p` the exact area
+//! element of the band-limited surface on the order-`p` grid. Then `∫ f_p·δX dA = ∫ f·δX dA` for
+//! every `δX` of degree `≤ p` (the virtual work of the filtered force is that of the fine one),
+//! which a plain filter of `f` would not give, because `J` is not band-limited. Nothing
+//! allocates after construction except [`Membrane::set_reference`] (once per reference shape).
 //!
 //! The routines that take a field (`σ`, `u`, `Y`) are linear in it and use the frozen geometry:
 //! they are the linear operators the semi-implicit time step needs.
 
 use super::geometry::{Geometry, SurfaceCalculus};
 use super::skalak::Reference;
-use super::{check_len, VesicleError};
-use crate::sph_harmonics::{resample_coefs, ShTransform, ShWorkspace};
+use super::{check_len, cross, dot, get3, VesicleError};
+use crate::sph_harmonics::{resample_coefs, Deriv, ShTransform, ShWorkspace};
 
 /// Geometry of one cell on the upsampled grid and scratch for its membrane forces.
 pub struct Membrane {
@@ -33,6 +38,11 @@ pub struct Membrane {
     pub(super) s1: Vec<f64>,
     pub(super) s2: Vec<f64>,
     pub(super) reference: Option<Reference>,
+    /// `J = W / sin θ` on the order-`q` and order-`p` grids.
+    pub(super) jac_q: Vec<f64>,
+    pub(super) jac_p: Vec<f64>,
+    /// `X_θ, X_φ` on the order-`p` grid (scratch for `jac_p`).
+    dxp: Vec<f64>,
 }
 
 impl Membrane {
@@ -45,6 +55,7 @@ impl Membrane {
         let ws_p = sht_p.workspace();
         let calc = SurfaceCalculus::new(q)?;
         let nq = calc.n_points();
+        let np = sht_p.n_points();
         let ncq = calc.transform().n_coefs();
         Ok(Membrane {
             cp: vec![0.0; 3 * sht_p.n_coefs()],
@@ -59,6 +70,9 @@ impl Membrane {
             s1: vec![0.0; nq],
             s2: vec![0.0; nq],
             reference: None,
+            jac_q: vec![0.0; nq],
+            jac_p: vec![0.0; np],
+            dxp: vec![0.0; 6 * np],
         })
     }
 
@@ -95,6 +109,25 @@ impl Membrane {
             &mut self.cq,
         )?;
         self.calc.update_geometry(&self.cq, &mut self.geom)?;
+        let nlon_q = 2 * self.upsampled_order();
+        let grid_q = self.calc.transform().grid();
+        for (j, jq) in self.jac_q.iter_mut().enumerate() {
+            *jq = self.geom.w[j] / grid_q.sin_theta[j / nlon_q];
+        }
+        let np = self.n_points();
+        let nlon_p = 2 * self.order();
+        let (xt, xp) = self.dxp.split_at_mut(3 * np);
+        self.sht_p.synthesize(
+            coefs,
+            &[Deriv::Theta, Deriv::Phi],
+            &mut [xt, xp],
+            &mut self.ws_p,
+        )?;
+        let grid_p = self.sht_p.grid();
+        for (j, jp) in self.jac_p.iter_mut().enumerate() {
+            let w = cross(get3(xt, np, j), get3(xp, np, j));
+            *jp = dot(w, w).sqrt() / grid_p.sin_theta[j / nlon_p];
+        }
         self.geom_set = true;
         Ok(())
     }
@@ -164,8 +197,25 @@ impl Membrane {
             .inverse(&self.cp[..k * ncp], dst, &mut self.ws_p)?)
     }
 
-    /// Write the vector scratch `a` (order `q`) to `out`: filtered to order `p` if `filtered`,
-    /// else copied (order-`q` length).
+    /// Filter `k ≤ 3` densities from the order-`q` grid to the order-`p` grid preserving their
+    /// virtual work against fields of degree `≤ p`: `dst = P_p(src J_q) / J_p` (see the module
+    /// docs). `src` is overwritten with `src J_q`. Needs the frozen geometry.
+    pub fn filter_density(&mut self, src: &mut [f64], dst: &mut [f64]) -> Result<(), VesicleError> {
+        self.require_geometry()?;
+        let nq = self.n_points_upsampled();
+        let np = self.n_points();
+        for c in src.chunks_exact_mut(nq) {
+            c.iter_mut().zip(&self.jac_q).for_each(|(v, j)| *v *= j);
+        }
+        self.filter_down(src, dst)?;
+        for c in dst.chunks_exact_mut(np) {
+            c.iter_mut().zip(&self.jac_p).for_each(|(v, j)| *v /= j);
+        }
+        Ok(())
+    }
+
+    /// Write the vector scratch `a` (order `q`) to `out`: filtered to order `p` by
+    /// [`Self::filter_density`] if `filtered`, else copied (order-`q` length).
     pub(super) fn emit_vector(
         &mut self,
         out: &mut [f64],
@@ -177,8 +227,8 @@ impl Membrane {
             return Ok(());
         }
         check_len("force output", out.len(), 3 * self.n_points())?;
-        let a = std::mem::take(&mut self.a);
-        let r = self.filter_down(&a, out);
+        let mut a = std::mem::take(&mut self.a);
+        let r = self.filter_density(&mut a, out);
         self.a = a;
         r
     }

@@ -68,7 +68,7 @@
 //! let rbc = shapes::rbc(16).unwrap();
 //! let mut calc = SurfaceCalculus::new(16).unwrap();
 //! let g = calc.geometry(rbc.coefs()).unwrap();
-//! assert!((g.equivalent_radius() - 1.0).abs() < 1e-6);
+//! assert!((g.equivalent_radius() - 1.0).abs() < 3e-5);
 //! assert!((g.reduced_volume() - 0.644).abs() < 2e-3);
 //! ```
 

@@ -60,7 +60,8 @@ impl Membrane {
     }
 
     /// Surface divergence `∇_s·u` of a velocity on the order-`p` grid (component-major); the
-    /// result, computed at `q` and filtered, is on the order-`p` grid.
+    /// result, computed at `q` and filtered by [`Membrane::filter_density`] (so that
+    /// `∫ σ ∇_s·u dA` is preserved for `σ` of degree `≤ p`), is on the order-`p` grid.
     pub fn surface_divergence(&mut self, u: &[f64], out: &mut [f64]) -> Result<(), VesicleError> {
         self.require_geometry()?;
         check_len("velocity", u.len(), 3 * self.n_points())?;
@@ -70,7 +71,7 @@ impl Membrane {
         let r = self
             .upsample(u, &mut b)
             .and_then(|_| self.calc.divergence(&self.geom, &b, &mut s))
-            .and_then(|_| self.filter_down(&s, out));
+            .and_then(|_| self.filter_density(&mut s, out));
         self.b = b;
         self.s1 = s;
         r
