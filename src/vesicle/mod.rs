@@ -74,12 +74,14 @@
 
 pub mod bending;
 pub mod geometry;
+pub mod layer;
 pub mod membrane;
 pub mod shapes;
 pub mod skalak;
 pub mod tension;
 
 pub use geometry::{Geometry, SurfaceCalculus};
+pub use layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 pub use membrane::Membrane;
 pub use shapes::{Spheroid, Surface};
 pub use skalak::SkalakParams;
