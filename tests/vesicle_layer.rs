@@ -1,10 +1,14 @@
 //! On-surface Stokes layer potentials: exact sphere identities, convergence of the Graham–Sloan
-//! rule against a high-order reference, and the dense operator against matrix-free evaluation.
+//! rule against a high-order reference, the dense operator against matrix-free evaluation, and
+//! off-surface (near-singular) evaluation against the Stokes solutions of a moving sphere.
+
+use std::f64::consts::PI;
 
 use mobo::check::{assert_close, rel_max_error};
 use mobo::sph_harmonics::{resample_coefs, CoefLayout, ShTransform};
 use mobo::vesicle::{
-    shapes, LayerKernel, RotationAlgorithm, SelfInteraction, Surface, SurfaceCalculus, VesicleError,
+    shapes, LayerKernel, NearParams, OffSurface, RotationAlgorithm, SelfInteraction, Surface,
+    SurfaceCalculus, VesicleError,
 };
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -232,6 +236,118 @@ fn dense_operator_equals_matrix_free_evaluation_for_both_rotations() {
     }
 }
 
+/// Targets at distance `d` inside and outside a sphere (radius `a`, centre `c`) along a few
+/// generic directions; returns (points, inside flags).
+fn sphere_targets(a: f64, c: [f64; 3], d: f64) -> (Vec<[f64; 3]>, Vec<bool>) {
+    let mut rng = StdRng::seed_from_u64(17);
+    let mut pts = Vec::new();
+    let mut inside = Vec::new();
+    for _ in 0..6 {
+        let v: [f64; 3] = std::array::from_fn(|_| rng.random_range(-1.0..1.0));
+        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        for (sign, ins) in [(1.0, false), (-1.0, true)] {
+            let r = a + sign * d;
+            pts.push(std::array::from_fn(|k| c[k] + r * v[k] / n));
+            inside.push(ins);
+        }
+    }
+    (pts, inside)
+}
+
+#[test]
+fn off_surface_sphere_translating_and_rotating() {
+    let (p, a, mu, c) = (16, 1.0, 1.0, [0.3, -0.2, 0.5]);
+    let mut s = shapes::sphere(p, a).unwrap();
+    s.translate(c);
+    let g = SurfaceCalculus::new(p)
+        .unwrap()
+        .geometry(s.coefs())
+        .unwrap();
+    let np = g.n_points();
+    let mut off = OffSurface::new(p, NearParams::default()).unwrap();
+    off.set_surface(s.coefs()).unwrap();
+    let f0 = [0.4, 1.0, -0.7];
+    let omega = [0.3, -1.1, 0.6];
+    let sl = LayerKernel::SingleLayer { viscosity: mu };
+    let traction: Vec<f64> = (0..3).flat_map(|k| vec![f0[k]; np]).collect();
+    let rot_traction: Vec<f64> = (0..3)
+        .flat_map(|k| {
+            g.normal.iter().map(move |n| {
+                let w = cross(omega, *n);
+                3.0 * mu * w[k]
+            })
+        })
+        .collect();
+    let force: [f64; 3] = f0.map(|v| 4.0 * PI * a * a * v);
+    for d in [0.5 * a, 0.1 * a, 0.01 * a] {
+        let (pts, inside) = sphere_targets(a, c, d);
+        let nt = pts.len();
+        let mut u = vec![0.0; 3 * nt];
+        // Translating sphere: uniform inside, Stokeslet + source doublet outside.
+        let infos = off.evaluate(sl, &traction, &pts, &mut u).unwrap();
+        for (info, &ins) in infos.iter().zip(&inside) {
+            assert_eq!(info.inside, ins, "classification at d = {d}");
+            assert_eq!(info.near, d < off.near_distance());
+        }
+        let mut want = vec![0.0; 3 * nt];
+        for (t, x) in pts.iter().enumerate() {
+            let r: [f64; 3] = std::array::from_fn(|k| x[k] - c[k]);
+            let v = if inside[t] {
+                f0.map(|v| 2.0 * a * v / (3.0 * mu))
+            } else {
+                let rn = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+                let rf = r[0] * force[0] + r[1] * force[1] + r[2] * force[2];
+                std::array::from_fn(|k| {
+                    (force[k] / rn
+                        + rf * r[k] / rn.powi(3)
+                        + a * a / 3.0 * (force[k] / rn.powi(3) - 3.0 * rf * r[k] / rn.powi(5)))
+                        / (8.0 * PI * mu)
+                })
+            };
+            for k in 0..3 {
+                want[k * nt + t] = v[k];
+            }
+        }
+        let e = assert_close(&format!("translating sphere, d = {d}"), &u, &want, 1e-6);
+        // Rotating sphere: rigid inside, Ω×r a³/|r|³ outside.
+        off.evaluate(sl, &rot_traction, &pts, &mut u).unwrap();
+        for (t, x) in pts.iter().enumerate() {
+            let r: [f64; 3] = std::array::from_fn(|k| x[k] - c[k]);
+            let rn = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+            let fac = if inside[t] { 1.0 } else { (a / rn).powi(3) };
+            let w = cross(omega, r);
+            for k in 0..3 {
+                want[k * nt + t] = fac * w[k];
+            }
+        }
+        let er = assert_close(&format!("rotating sphere, d = {d}"), &u, &want, 1e-6);
+        // Double layer of a constant: −c inside, 0 outside.
+        off.evaluate(LayerKernel::DoubleLayer, &traction, &pts, &mut u)
+            .unwrap();
+        for t in 0..nt {
+            for k in 0..3 {
+                want[k * nt + t] = if inside[t] { -f0[k] } else { 0.0 };
+            }
+        }
+        let ed = mobo::check::assert_close_floor(
+            &format!("double layer of a constant, d = {d}"),
+            &u,
+            &want,
+            1e-6,
+            1.0,
+        );
+        println!("off-surface, d = {d}: translating {e:.2e}, rotating {er:.2e}, D[c] {ed:.2e}");
+    }
+}
+
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
 #[test]
 fn bad_input_is_an_error() {
     assert!(matches!(
@@ -254,4 +370,29 @@ fn bad_input_is_an_error() {
     let mut u1 = vec![0.0; 3];
     assert!(si.evaluate_at(sl, s.coefs(), &f, &[np], &mut u1).is_err());
     assert!(si.assemble(sl, s.coefs(), &mut u).is_err());
+    // Off-surface evaluation.
+    let zero = NearParams {
+        check_points: 0,
+        ..Default::default()
+    };
+    assert!(matches!(
+        OffSurface::new(4, zero),
+        Err(VesicleError::Parameter { .. })
+    ));
+    let neg = NearParams {
+        near_distance: Some(-1.0),
+        ..Default::default()
+    };
+    assert!(OffSurface::new(4, neg).is_err());
+    let mut off = OffSurface::new(4, NearParams::default()).unwrap();
+    let mut u1 = vec![0.0; 3];
+    assert!(matches!(
+        off.evaluate(sl, &f, &[[2.0, 0.0, 0.0]], &mut u1),
+        Err(VesicleError::Missing(_))
+    ));
+    off.set_surface(s.coefs()).unwrap();
+    assert!(off
+        .evaluate(sl, &f[..4], &[[2.0, 0.0, 0.0]], &mut u1)
+        .is_err());
+    assert!(off.evaluate(bad, &f, &[[2.0, 0.0, 0.0]], &mut u1).is_err());
 }

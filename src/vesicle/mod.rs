@@ -76,6 +76,7 @@ pub mod bending;
 pub mod geometry;
 pub mod layer;
 pub mod membrane;
+pub mod near;
 pub mod shapes;
 pub mod skalak;
 pub mod tension;
@@ -83,6 +84,7 @@ pub mod tension;
 pub use geometry::{Geometry, SurfaceCalculus};
 pub use layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 pub use membrane::Membrane;
+pub use near::{NearParams, OffSurface, TargetInfo};
 pub use shapes::{Spheroid, Surface};
 pub use skalak::SkalakParams;
 
