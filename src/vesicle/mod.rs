@@ -77,6 +77,8 @@ pub mod geometry;
 pub mod layer;
 pub mod membrane;
 pub mod near;
+mod point;
+pub mod reparam;
 pub mod shapes;
 pub mod skalak;
 pub mod tension;
@@ -85,6 +87,7 @@ pub use geometry::{Geometry, SurfaceCalculus};
 pub use layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 pub use membrane::Membrane;
 pub use near::{NearParams, OffSurface, TargetInfo};
+pub use reparam::{reparametrize, ReparamParams, ReparamReport};
 pub use shapes::{Spheroid, Surface};
 pub use skalak::SkalakParams;
 

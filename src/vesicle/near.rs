@@ -27,9 +27,9 @@ use std::f64::consts::PI;
 
 use super::geometry::{Geometry, SurfaceCalculus};
 use super::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
+use super::point::{closest_point, PointEval};
 use super::{check_len, dot, get3, VesicleError};
 use crate::sph_harmonics::basis::{eval_basis, BasisScratch};
-use crate::sph_harmonics::legendre::{legendre_derivative_tables, tri_index, tri_len};
 use crate::sph_harmonics::{resample_coefs, CoefLayout, Grid, ShTransform, ShWorkspace};
 
 /// Parameters of the off-surface evaluation.
@@ -72,69 +72,6 @@ pub struct TargetInfo {
     /// Parameters `(θ*, φ*)` of the closest surface point (near targets; for far targets those
     /// of the nearest upsampled grid point).
     pub closest: (f64, f64),
-}
-
-/// Values and derivatives of a surface at one parameter point.
-#[derive(Clone, Copy, Debug, Default)]
-struct PointDerivs {
-    x: [f64; 3],
-    xt: [f64; 3],
-    xp: [f64; 3],
-    xtt: [f64; 3],
-    xtp: [f64; 3],
-    xpp: [f64; 3],
-}
-
-/// Scratch for evaluating expansions at arbitrary points.
-struct PointEval {
-    val: Vec<f64>,
-    d1: Vec<f64>,
-    d2: Vec<f64>,
-}
-
-impl PointEval {
-    fn new(p: usize) -> Self {
-        PointEval {
-            val: vec![0.0; tri_len(p)],
-            d1: vec![0.0; tri_len(p)],
-            d2: vec![0.0; tri_len(p)],
-        }
-    }
-
-    /// `X` and its first and second derivatives at `(θ, φ)` for `x, y, z` coefficients.
-    fn eval(&mut self, lay: &CoefLayout, coefs: &[f64], theta: f64, phi: f64) -> PointDerivs {
-        let p = lay.order();
-        let nc = lay.len();
-        let (s, c) = theta.sin_cos();
-        legendre_derivative_tables(p, c, s, &mut self.val, &mut self.d1, &mut self.d2);
-        let mut out = PointDerivs::default();
-        for m in 0..=p {
-            let norm = if m == 0 { (2.0 * PI).sqrt() } else { PI.sqrt() };
-            let mf = m as f64;
-            let (sm, cm) = (mf * phi).sin_cos();
-            for n in m..=p {
-                let t = tri_index(p, n, m);
-                let (v, d1, d2) = (self.val[t] / norm, self.d1[t] / norm, self.d2[t] / norm);
-                for comp in 0..3 {
-                    let a = coefs[comp * nc + lay.cos_block(m) + n - m];
-                    let b = lay
-                        .sin_block(m)
-                        .map_or(0.0, |o| coefs[comp * nc + o + n - m]);
-                    // a cos mφ + b sin mφ and its φ-derivatives.
-                    let f0 = a * cm + b * sm;
-                    let f1 = mf * (b * cm - a * sm);
-                    let f2 = -mf * mf * f0;
-                    out.x[comp] += v * f0;
-                    out.xt[comp] += d1 * f0;
-                    out.xp[comp] += v * f1;
-                    out.xtt[comp] += d2 * f0;
-                    out.xtp[comp] += d1 * f1;
-                    out.xpp[comp] += v * f2;
-                }
-            }
-        }
-        out
-    }
 }
 
 /// Off-surface evaluator for one cell surface of order `p`.
@@ -272,37 +209,6 @@ impl OffSurface {
         }
     }
 
-    /// Closest surface point to `x` by Newton's method on `½|X(θ, φ) − x|²` from `(θ₀, φ₀)`.
-    fn closest_point(&mut self, x: [f64; 3], start: (f64, f64)) -> ((f64, f64), PointDerivs) {
-        let (mut t, mut f) = start;
-        let mut pd = self.point.eval(&self.lay_p, &self.coefs, t, f);
-        for _ in 0..60 {
-            let r = [pd.x[0] - x[0], pd.x[1] - x[1], pd.x[2] - x[2]];
-            let g = [dot(pd.xt, r), dot(pd.xp, r)];
-            let jtj = [dot(pd.xt, pd.xt), dot(pd.xt, pd.xp), dot(pd.xp, pd.xp)];
-            let mut h = [
-                jtj[0] + dot(pd.xtt, r),
-                jtj[1] + dot(pd.xtp, r),
-                jtj[2] + dot(pd.xpp, r),
-            ];
-            let mut det = h[0] * h[2] - h[1] * h[1];
-            if !(det > 0.0 && h[0] > 0.0) {
-                // Not convex here: Gauss–Newton.
-                h = jtj;
-                det = h[0] * h[2] - h[1] * h[1];
-            }
-            let dt = -(h[2] * g[0] - h[1] * g[1]) / det;
-            let dp = -(h[0] * g[1] - h[1] * g[0]) / det;
-            t += dt;
-            f += dp;
-            pd = self.point.eval(&self.lay_p, &self.coefs, t, f);
-            if dt.abs() + dp.abs() < 1e-15 {
-                break;
-            }
-        }
-        ((t, f), pd)
-    }
-
     /// Classify a target (see [`TargetInfo`]).
     pub fn classify(&mut self, x: [f64; 3]) -> Result<TargetInfo, VesicleError> {
         self.require_surface()?;
@@ -329,7 +235,7 @@ impl OffSurface {
                 closest: start,
             });
         }
-        let (tp, pd) = self.closest_point(x, start);
+        let (tp, pd) = closest_point(&mut self.point, &self.lay_p, &self.coefs, x, start);
         let nv = super::cross(pd.xt, pd.xp);
         let r = [x[0] - pd.x[0], x[1] - pd.x[1], x[2] - pd.x[2]];
         let d = dot(r, r).sqrt();
