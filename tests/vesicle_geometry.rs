@@ -7,7 +7,7 @@ use mobo::check::{assert_close, assert_close_floor, rel_max_error};
 use mobo::sph_harmonics::{reference, ShTransform};
 use mobo::vesicle::geometry::symmetric_eigen3;
 use mobo::vesicle::shapes::{self, RBC_ALPHA};
-use mobo::vesicle::{Geometry, Spheroid, Surface, SurfaceCalculus, VesicleError};
+use mobo::vesicle::{CellMesh, Geometry, Spheroid, Surface, SurfaceCalculus, VesicleError};
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
@@ -602,6 +602,75 @@ fn reparametrisation_keeps_the_shape_and_lowers_the_spectral_energy() {
         ..params
     };
     assert!(mobo::vesicle::reparametrize(&mut e, &bad).is_err());
+}
+
+#[test]
+fn cell_mesh_topology_and_convergence() {
+    let rbc = shapes::rbc(16).unwrap();
+    let g = geometry(&rbc);
+    let mut prev_err = f64::INFINITY;
+    for k in 0..=5u32 {
+        let mesh = CellMesh::icosphere(&rbc, k).unwrap();
+        let (nv, ne, nt) = (mesh.vertices.len(), mesh.edges.len(), mesh.triangles.len());
+        let f = 4usize.pow(k);
+        assert_eq!((nv, ne, nt), (10 * f + 2, 30 * f, 20 * f));
+        assert_eq!(nv as i64 - ne as i64 + nt as i64, 2, "Euler characteristic");
+        // Valences: twelve 5s, the rest 6; adjacency symmetric.
+        let val5 = (0..nv).filter(|&v| mesh.neighbours(v).len() == 5).count();
+        assert_eq!(val5, 12);
+        assert!((0..nv).all(|v| matches!(mesh.neighbours(v).len(), 5 | 6)));
+        for v in 0..nv {
+            for &w in mesh.neighbours(v) {
+                assert!(mesh.neighbours(w).binary_search(&v).is_ok());
+            }
+        }
+        // Every edge is shared by exactly two triangles, in opposite directions (a closed,
+        // consistently oriented surface).
+        let mut directed = std::collections::HashSet::new();
+        for t in &mesh.triangles {
+            for (a, b) in [(t[0], t[1]), (t[1], t[2]), (t[2], t[0])] {
+                assert!(
+                    directed.insert((a, b)),
+                    "edge ({a},{b}) used twice in one direction"
+                );
+            }
+        }
+        assert!(directed.iter().all(|&(a, b)| directed.contains(&(b, a))));
+        // Area and volume converge like h² to the spectral values.
+        let err = rel_max_error(&[mesh.area(), mesh.volume()], &[g.area(), g.volume()]);
+        println!("RBC mesh k={k}: {nt} triangles, area/volume error {err:.2e}");
+        if k >= 2 {
+            assert!(err < 0.3 * prev_err, "k={k}: {err:.2e} vs {prev_err:.2e}");
+        }
+        prev_err = err;
+        assert!(mesh.volume() > 0.0, "outward orientation");
+        assert!(mesh.triangle_areas().iter().all(|&a| a > 0.0));
+        assert!(mesh.edge_lengths().iter().all(|&l| l > 0.0));
+    }
+    assert!(prev_err < 2e-3);
+    // Vertex positions are the expansion evaluated at the vertices' sphere points: on a sphere
+    // of radius 2 they are 2·y exactly; update follows a deformation.
+    let sph = shapes::sphere(8, 2.0).unwrap();
+    let mut mesh = CellMesh::icosphere(&sph, 2).unwrap();
+    let got: Vec<f64> = mesh.vertices.iter().flatten().copied().collect();
+    let want: Vec<f64> = mesh
+        .sphere_points
+        .iter()
+        .flatten()
+        .map(|v| 2.0 * v)
+        .collect();
+    assert_close("mesh vertices on a sphere", &got, &want, 1e-14);
+    let ell = shapes::ellipsoid(8, [1.0, 2.0, 3.0]).unwrap();
+    mesh.update(&ell).unwrap();
+    let got: Vec<f64> = mesh.vertices.iter().flatten().copied().collect();
+    let want: Vec<f64> = mesh
+        .sphere_points
+        .iter()
+        .flat_map(|y| [y[0], 2.0 * y[1], 3.0 * y[2]])
+        .collect();
+    assert_close("mesh vertices after update", &got, &want, 1e-14);
+    assert!(mesh.update(&shapes::sphere(6, 1.0).unwrap()).is_err());
+    assert!(CellMesh::icosphere(&sph, 11).is_err());
 }
 
 #[test]
