@@ -96,7 +96,6 @@ pub struct SelfInteraction {
     yt: Vec<f64>,
     yp: Vec<f64>,
     dens_rot: Vec<f64>,
-    shifted: Vec<f64>,
     /// Kernel rows of one target, `9 × n_q` (row `3a + b`, column-major).
     kern: Vec<f64>,
 }
@@ -132,7 +131,6 @@ impl SelfInteraction {
             yt: vec![0.0; 3 * nq],
             yp: vec![0.0; 3 * nq],
             dens_rot: vec![0.0; 3 * nq],
-            shifted: vec![0.0; 3 * np],
             kern: vec![0.0; 9 * nq],
             sht_p,
             sht_q,
@@ -170,43 +168,6 @@ impl SelfInteraction {
             &mut self.ws_q,
         )?;
         Ok(())
-    }
-
-    /// Kernel rows `K_ab(j)` (weights included) of target point `x_t` from the rotated surface.
-    fn kernel_rows(&mut self, kernel: LayerKernel, xt: [f64; 3]) {
-        let nq = self.sht_q.n_points();
-        let nlon = 2 * self.q;
-        for j in 0..nq {
-            let lat = j / nlon;
-            let y = get3(&self.y, nq, j);
-            let nv = cross(get3(&self.yt, nq, j), get3(&self.yp, nq, j));
-            let w = dot(nv, nv).sqrt();
-            let wt = self.gs[lat] * w / self.sin_q[lat];
-            let r = [xt[0] - y[0], xt[1] - y[1], xt[2] - y[2]];
-            let r2 = dot(r, r);
-            let rinv = 1.0 / r2.sqrt();
-            let col = &mut self.kern[9 * j..9 * j + 9];
-            match kernel {
-                LayerKernel::SingleLayer { viscosity } => {
-                    let c = wt / (8.0 * PI * viscosity) * rinv;
-                    let c3 = c / r2;
-                    for a in 0..3 {
-                        for b in 0..3 {
-                            col[3 * a + b] = c3 * r[a] * r[b] + if a == b { c } else { 0.0 };
-                        }
-                    }
-                }
-                LayerKernel::DoubleLayer => {
-                    let rn = dot(r, nv) / w;
-                    let c = 3.0 / (4.0 * PI) * wt * rn * rinv.powi(5);
-                    for a in 0..3 {
-                        for b in 0..3 {
-                            col[3 * a + b] = c * r[a] * r[b];
-                        }
-                    }
-                }
-            }
-        }
     }
 
     /// Matrix-free evaluation at the listed targets (latitude-major indices of the order-`p`
@@ -255,7 +216,16 @@ impl SelfInteraction {
                 }
             }
             self.rotated_derivatives()?;
-            self.kernel_rows(kernel, get3(&self.x_grid, np, t));
+            kernel_rows(
+                kernel,
+                get3(&self.x_grid, np, t),
+                &self.y,
+                &self.yt,
+                &self.yp,
+                &self.gs,
+                &self.sin_q,
+                &mut self.kern,
+            );
             let mut u = [0.0; 3];
             for j in 0..nq {
                 let f = get3(&self.dens_rot, nq, j);
@@ -315,36 +285,60 @@ impl SelfInteraction {
         };
         let mut kmat = vec![0.0; rows * nq];
         let mut cmat = vec![0.0; rows * np];
+        // The surface shifted by every longitude (np × 3·2p) and, per latitude, its rotations
+        // with their derivatives (batches of 3·2p functions on the order-q grid).
+        let nf = 3 * nlon;
+        let mut xs = vec![0.0; np * nf];
+        for lon in 0..nlon {
+            crate::sph_harmonics::rotation::shift_longitudes(
+                self.p,
+                lon,
+                &self.x_grid,
+                &mut xs[lon * 3 * np..(lon + 1) * 3 * np],
+            );
+        }
+        let mut y_all = vec![0.0; nq * nf];
+        let mut yt_all = vec![0.0; nq * nf];
+        let mut yp_all = vec![0.0; nq * nf];
+        let mut c_all = vec![0.0; self.sht_q.n_coefs() * nf];
         for lat in 0..=self.p {
             if let (Rotator::ViaSh(r), Some((f, b))) = (&mut self.rot, b_sh.as_mut()) {
                 r.apply(lat, 0, f, b)?;
             }
+            let b: &[f64] = match (&self.rot, b_sh.as_ref()) {
+                (Rotator::Direct(d), _) => d.matrix(lat).expect("all latitudes are built"),
+                (Rotator::ViaSh(_), Some((_, b))) => b,
+                _ => unreachable!("ViaSh always has its B_i scratch"),
+            };
+            // Rotated surfaces Y_k = B_i S_k X of all 2p targets of the latitude, one GEMM.
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut y_all, nq, nf),
+                Accum::Replace,
+                MatRef::from_column_major_slice(b, nq, np),
+                MatRef::from_column_major_slice(&xs, np, nf),
+                1.0,
+                Par::Seq,
+            );
+            self.sht_q.forward(&y_all, &mut c_all, &mut self.ws_q)?;
+            self.sht_q.synthesize(
+                &c_all,
+                &[Deriv::Value, Deriv::Theta, Deriv::Phi],
+                &mut [&mut y_all, &mut yt_all, &mut yp_all],
+                &mut self.ws_q,
+            )?;
             for lon in 0..nlon {
-                // Rotated surface Y = B_i S_k X.
-                crate::sph_harmonics::rotation::shift_longitudes(
-                    self.p,
-                    lon,
-                    &self.x_grid,
-                    &mut self.shifted,
-                );
-                let b: &[f64] = match (&self.rot, b_sh.as_ref()) {
-                    (Rotator::Direct(d), _) => d.matrix(lat).expect("all latitudes are built"),
-                    (Rotator::ViaSh(_), Some((_, b))) => b,
-                    _ => unreachable!("ViaSh always has its B_i scratch"),
-                };
-                matmul(
-                    MatMut::from_column_major_slice_mut(&mut self.rot_vals, nq, 3),
-                    Accum::Replace,
-                    MatRef::from_column_major_slice(b, nq, np),
-                    MatRef::from_column_major_slice(&self.shifted, np, 3),
-                    1.0,
-                    Par::Seq,
-                );
-                self.sht_q
-                    .forward(&self.rot_vals, &mut self.rot_coef, &mut self.ws_q)?;
-                self.rotated_derivatives()?;
                 let t = lat * nlon + lon;
-                self.kernel_rows(kernel, get3(&self.x_grid, np, t));
+                let blk = lon * 3 * nq..(lon + 1) * 3 * nq;
+                kernel_rows(
+                    kernel,
+                    get3(&self.x_grid, np, t),
+                    &y_all[blk.clone()],
+                    &yt_all[blk.clone()],
+                    &yp_all[blk],
+                    &self.gs,
+                    &self.sin_q,
+                    &mut self.kern,
+                );
                 for j in 0..nq {
                     kmat[j * rows + 9 * lon..j * rows + 9 * lon + 9]
                         .copy_from_slice(&self.kern[9 * j..9 * j + 9]);
@@ -379,5 +373,53 @@ impl SelfInteraction {
             }
         }
         Ok(())
+    }
+}
+
+/// Kernel rows `K_ab(j)` (quadrature weights included) of target point `xt` from the rotated
+/// surface `y, y_θ, y_φ` (component-major on the order-`q` grid), into `kern` (`9 × n_q`).
+#[allow(clippy::too_many_arguments)]
+fn kernel_rows(
+    kernel: LayerKernel,
+    xt: [f64; 3],
+    y: &[f64],
+    yt: &[f64],
+    yp: &[f64],
+    gs: &[f64],
+    sin_q: &[f64],
+    kern: &mut [f64],
+) {
+    let nq = y.len() / 3;
+    let nlon = nq / gs.len();
+    for j in 0..nq {
+        let lat = j / nlon;
+        let yj = get3(y, nq, j);
+        let nv = cross(get3(yt, nq, j), get3(yp, nq, j));
+        let w = dot(nv, nv).sqrt();
+        let wt = gs[lat] * w / sin_q[lat];
+        let r = [xt[0] - yj[0], xt[1] - yj[1], xt[2] - yj[2]];
+        let r2 = dot(r, r);
+        let rinv = 1.0 / r2.sqrt();
+        let col = &mut kern[9 * j..9 * j + 9];
+        match kernel {
+            LayerKernel::SingleLayer { viscosity } => {
+                let c = wt / (8.0 * PI * viscosity) * rinv;
+                let c3 = c / r2;
+                for a in 0..3 {
+                    for b in 0..3 {
+                        col[3 * a + b] = c3 * r[a] * r[b] + if a == b { c } else { 0.0 };
+                    }
+                }
+            }
+            LayerKernel::DoubleLayer => {
+                let rn = dot(r, nv) / w;
+                let c = 3.0 / (4.0 * PI) * wt * rn * rinv.powi(5);
+                for a in 0..3 {
+                    for b in 0..3 {
+                        col[3 * a + b] = c * r[a] * r[b];
+                    }
+                }
+            }
+        }
     }
 }
