@@ -1,7 +1,7 @@
 //! Off-surface evaluation of a cell's layer potentials at arbitrary targets.
 //!
 //! * **Far** targets (distance to the surface at least the near-zone distance `δ`): the smooth
-//!   quadrature on the upsampled grid of order `q_far` (default `4p`), `Σ_j K(x, y_j) f_j dA_j`
+//!   quadrature on the upsampled grid of order `q_far` (default `6p`), `Σ_j K(x, y_j) f_j dA_j`
 //!   with the density upsampled (exactly, it is band-limited at `p`).
 //! * **Near** targets (distance `d < δ`): the closest surface point `X* = X(θ*, φ*)` by Newton's
 //!   method on `½|X(θ, φ) − x|²` (started from the nearest upsampled grid point); the potential
@@ -16,12 +16,15 @@
 //!
 //! Defaults: `δ = R_eq / √p` (design.md suggests `~2R/√p`, which at `p = 16` would put inner
 //! check points of a sphere beyond its centre), 12 check points spaced `δ/10` (the nodes span
-//! `[0, 2.1δ]`), smooth quadrature at `q_far = 4p`. Measured on the unit sphere at `p = 16`
-//! (translating-sphere field, singular at the centre): errors ≤ 5e-8 at distances `0.2, 0.1, 0.01`
-//! outside, ≤ 1e-8 inside; with 8 check points spaced `δ/4` the outer error was 7.5e-6 (the
-//! interpolation interval, not the quadrature, limits it). Check points must stay inside the cell
-//! for inner targets: thin parts of a cell need a smaller `δ`, which the smooth quadrature then
-//! has to resolve (raise `q_far`).
+//! `[0, 2.1δ]`), smooth quadrature at `q_far = 6p`. Measured at `p = 16`: on the unit sphere
+//! (translating-sphere field, singular at the centre) errors ≤ 5e-8 at distances `0.2, 0.1, 0.01`
+//! outside, ≤ 1e-8 inside (with 8 check points spaced `δ/4` the outer error was 7.5e-6: the
+//! interpolation interval limits it); on the ellipsoid 1:0.8:0.6 (`S[n] = 0`, `D[c]`) 2.7e-8, where
+//! `q_far = 4p` gave 9.3e-7 (the quadrature at the first check point limits it).
+//!
+//! Check points must stay inside the cell for inner targets: thin parts of a cell (the centre of
+//! an RBC, 0.29 thick at unit equivalent radius) need a smaller `δ`, which the smooth quadrature
+//! then has to resolve (raise `q_far`); this is not detected automatically.
 
 use std::f64::consts::PI;
 
@@ -41,7 +44,7 @@ pub struct NearParams {
     pub check_points: usize,
     /// Spacing of the check points as a fraction of `δ`.
     pub check_spacing: f64,
-    /// Order of the smooth (far) quadrature; `None` gives `4p`.
+    /// Order of the smooth (far) quadrature; `None` gives `6p`.
     pub far_order: Option<usize>,
     /// Quadrature order of the on-surface (singular) values; `None` gives `2p`.
     pub self_order: Option<usize>,
@@ -108,7 +111,7 @@ pub struct OffSurface {
 impl OffSurface {
     /// Evaluator for surfaces of order `p`.
     pub fn new(p: usize, params: NearParams) -> Result<Self, VesicleError> {
-        let q_far = params.far_order.unwrap_or(4 * p);
+        let q_far = params.far_order.unwrap_or(6 * p);
         let q_self = params.self_order.unwrap_or(2 * p);
         if q_far < p {
             return Err(VesicleError::Order { p, q: q_far });
