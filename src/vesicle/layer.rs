@@ -55,7 +55,8 @@ pub enum LayerKernel {
 }
 
 impl LayerKernel {
-    fn check(&self) -> Result<(), VesicleError> {
+    /// Error unless the parameters are valid (a positive, finite viscosity).
+    pub(crate) fn check(&self) -> Result<(), VesicleError> {
         if let LayerKernel::SingleLayer { viscosity } = *self {
             if !(viscosity.is_finite() && viscosity > 0.0) {
                 return Err(VesicleError::Parameter {

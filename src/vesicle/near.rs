@@ -297,15 +297,7 @@ impl OffSurface {
         let np = self.sht_p.n_points();
         check_len("density", density.len(), 3 * np)?;
         check_len("output", out.len(), 3 * targets.len())?;
-        if let LayerKernel::SingleLayer { viscosity } = kernel {
-            if !(viscosity.is_finite() && viscosity > 0.0) {
-                return Err(VesicleError::Parameter {
-                    name: "viscosity",
-                    value: viscosity,
-                    reason: "must be positive and finite",
-                });
-            }
-        }
+        kernel.check()?;
         // Density on the far grid.
         self.sht_p
             .forward(density, &mut self.dens_coef, &mut self.ws_p)?;
