@@ -14,3 +14,4 @@ pub mod fmm;
 pub mod io;
 pub mod scene;
 pub mod sph_harmonics;
+pub mod vesicle;

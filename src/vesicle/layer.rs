@@ -1,0 +1,426 @@
+//! Stokes layer potentials on a cell's own surface: pole rotation and the Graham–Sloan rule.
+//!
+//! For every grid point `x_t` (latitude `i`, longitude `k`) of the order-`p` grid the surface and
+//! the density are rotated so that `x_t` sits at the north pole of the parameter sphere
+//! ([`crate::sph_harmonics::rotation`], rotation at order `p`, output on the order-`q` grid), and
+//! the `1/r`-singular integral is evaluated with the Graham–Sloan weights `ω_i` of order `q`
+//! ([`GrahamSloan`]; Graham & Sloan 2002, Veerapaneni et al. 2011):
+//!
+//! * single layer `S[f](x) = (1/8πμ) ∫ (I/r + r⊗r/r³) f dA ≈ (1/8πμ) Σ_j ω_j J_j (I/r + r⊗r/r³) f_j`,
+//! * double layer `D[u](x) = (3/4π) ∫ (r·n)(r⊗r)/r⁵ u dA`, same rule,
+//!
+//! with `r = x − y_j`, `y_j` the rotated surface on the order-`q` grid, `n` its outward normal and
+//! `J = |Y_θ × Y_φ| / sin θ` its area per unit solid angle (computed from the rotated, still
+//! band-limited, surface: exact). On a sphere of radius `a`: `S[3μΩ×n/a] = Ω×x`,
+//! `S[f] = 2af/3μ` for a uniform `f`, and `D[c] = −c/2` for a constant `c`.
+//!
+//! Both rotation algorithms are selectable ([`RotationAlgorithm`]). The dense self-interaction
+//! operator ([`SelfInteraction::assemble`]) uses that the rotation of target `(i, k)` is the
+//! rotation of target `(i, 0)` composed with a cyclic shift of the longitudes by `k`: per latitude
+//! one rotation matrix `B_i` (`n_q × n_p`; [`DirectRotation`]'s `M_i`, or the same matrix built
+//! through [`ShRotation`]), and one GEMM `(9·2p × n_q) · (n_q × n_p)` for the kernel rows of all
+//! `2p` targets of the latitude; the shift is applied when the rows are scattered. The
+//! matrix-free [`SelfInteraction::evaluate_at`] instead rotates the density per target with the
+//! rotation's own `apply`, so the two paths check each other.
+
+use std::f64::consts::PI;
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+
+use super::{check_len, cross, dot, get3, VesicleError};
+use crate::sph_harmonics::{
+    Deriv, DirectRotation, GrahamSloan, Grid, ShRotation, ShTransform, ShWorkspace,
+};
+
+/// Which rotation carries a target to the north pole.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RotationAlgorithm {
+    /// One dense `n_q × n_p` matrix per latitude (MOBO's choice; `O(p⁴)` memory per latitude).
+    Direct,
+    /// Per-degree Wigner-type blocks in coefficient space, then an inverse transform.
+    ViaSh,
+}
+
+/// The kernel of a layer potential.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum LayerKernel {
+    /// Stokes single layer with viscosity `μ`.
+    SingleLayer {
+        /// `μ`.
+        viscosity: f64,
+    },
+    /// Stokes double layer `(3/4π) ∫ (r·n)(r⊗r)/r⁵ u dA`.
+    DoubleLayer,
+}
+
+impl LayerKernel {
+    /// Error unless the parameters are valid (a positive, finite viscosity).
+    pub(crate) fn check(&self) -> Result<(), VesicleError> {
+        if let LayerKernel::SingleLayer { viscosity } = *self {
+            if !(viscosity.is_finite() && viscosity > 0.0) {
+                return Err(VesicleError::Parameter {
+                    name: "viscosity",
+                    value: viscosity,
+                    reason: "must be positive and finite",
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+enum Rotator {
+    Direct(DirectRotation),
+    ViaSh(Box<ShRotation>),
+}
+
+/// On-surface layer potentials of one cell surface of order `p`, quadrature at order `q`.
+pub struct SelfInteraction {
+    p: usize,
+    q: usize,
+    rot: Rotator,
+    sht_p: ShTransform,
+    ws_p: ShWorkspace,
+    sht_q: ShTransform,
+    ws_q: ShWorkspace,
+    /// Graham–Sloan weight per latitude of the order-`q` grid.
+    gs: Vec<f64>,
+    sin_q: Vec<f64>,
+    // Scratch.
+    x_grid: Vec<f64>,
+    x_coef: Vec<f64>,
+    dens_coef: Vec<f64>,
+    rot_vals: Vec<f64>,
+    rot_coef: Vec<f64>,
+    y: Vec<f64>,
+    yt: Vec<f64>,
+    yp: Vec<f64>,
+    dens_rot: Vec<f64>,
+    /// Kernel rows of one target, `9 × n_q` (row `3a + b`, column-major).
+    kern: Vec<f64>,
+}
+
+impl SelfInteraction {
+    /// Layer potentials for surfaces of order `p`, quadrature order `q ≥ p`.
+    pub fn new(p: usize, q: usize, algorithm: RotationAlgorithm) -> Result<Self, VesicleError> {
+        if q < p {
+            return Err(VesicleError::Order { p, q });
+        }
+        let rot = match algorithm {
+            RotationAlgorithm::Direct => Rotator::Direct(DirectRotation::new(p, q)?),
+            RotationAlgorithm::ViaSh => Rotator::ViaSh(Box::new(ShRotation::new(p, q)?)),
+        };
+        let sht_p = ShTransform::new(p)?;
+        let sht_q = ShTransform::new(q)?;
+        let (np, nq) = (sht_p.n_points(), sht_q.n_points());
+        let (ncp, ncq) = (sht_p.n_coefs(), sht_q.n_coefs());
+        Ok(SelfInteraction {
+            p,
+            q,
+            rot,
+            ws_p: sht_p.workspace(),
+            ws_q: sht_q.workspace(),
+            gs: GrahamSloan::new(q).latitude_weights,
+            sin_q: Grid::new(q).sin_theta,
+            x_grid: vec![0.0; 3 * np],
+            x_coef: vec![0.0; 3 * ncp],
+            dens_coef: vec![0.0; 3 * ncp],
+            rot_vals: vec![0.0; 3 * nq],
+            rot_coef: vec![0.0; 3 * ncq],
+            y: vec![0.0; 3 * nq],
+            yt: vec![0.0; 3 * nq],
+            yp: vec![0.0; 3 * nq],
+            dens_rot: vec![0.0; 3 * nq],
+            kern: vec![0.0; 9 * nq],
+            sht_p,
+            sht_q,
+        })
+    }
+
+    /// Surface order `p`.
+    pub fn order(&self) -> usize {
+        self.p
+    }
+    /// Quadrature order `q`.
+    pub fn quadrature_order(&self) -> usize {
+        self.q
+    }
+    /// Grid points at order `p`.
+    pub fn n_points(&self) -> usize {
+        self.sht_p.n_points()
+    }
+
+    fn set_surface(&mut self, coefs: &[f64]) -> Result<(), VesicleError> {
+        check_len("surface coefficients", coefs.len(), self.x_coef.len())?;
+        self.x_coef.copy_from_slice(coefs);
+        self.sht_p
+            .inverse(coefs, &mut self.x_grid, &mut self.ws_p)?;
+        Ok(())
+    }
+
+    /// `y, y_θ, y_φ` of the surface rotated so that `(lat, lon)` is at the pole, from rotated
+    /// coefficients in `rot_coef`.
+    fn rotated_derivatives(&mut self) -> Result<(), VesicleError> {
+        self.sht_q.synthesize(
+            &self.rot_coef,
+            &[Deriv::Value, Deriv::Theta, Deriv::Phi],
+            &mut [&mut self.y, &mut self.yt, &mut self.yp],
+            &mut self.ws_q,
+        )?;
+        Ok(())
+    }
+
+    /// Matrix-free evaluation at the listed targets (latitude-major indices of the order-`p`
+    /// grid): `out` (component-major, `3 · targets.len()`) receives the layer potential of the
+    /// density (component-major on the order-`p` grid) over the surface with coefficients
+    /// `coefs`. The density is rotated per target with the rotation's own `apply`.
+    pub fn evaluate_at(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        density: &[f64],
+        targets: &[usize],
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        kernel.check()?;
+        let np = self.n_points();
+        check_len("density", density.len(), 3 * np)?;
+        check_len("output", out.len(), 3 * targets.len())?;
+        if let Some(&t) = targets.iter().find(|&&t| t >= np) {
+            return Err(VesicleError::Length {
+                what: "target index (beyond the grid)",
+                len: t,
+                expected: np,
+            });
+        }
+        self.set_surface(coefs)?;
+        if matches!(self.rot, Rotator::ViaSh(_)) {
+            self.sht_p
+                .forward(density, &mut self.dens_coef, &mut self.ws_p)?;
+        }
+        let nq = self.sht_q.n_points();
+        let nlon = 2 * self.p;
+        let nt = targets.len();
+        for (ti, &t) in targets.iter().enumerate() {
+            let (lat, lon) = (t / nlon, t % nlon);
+            match &mut self.rot {
+                Rotator::Direct(d) => {
+                    d.apply(lat, lon, &self.x_grid, &mut self.rot_vals)?;
+                    self.sht_q
+                        .forward(&self.rot_vals, &mut self.rot_coef, &mut self.ws_q)?;
+                    d.apply(lat, lon, density, &mut self.dens_rot)?;
+                }
+                Rotator::ViaSh(r) => {
+                    r.rotate_coefs(lat, lon, &self.x_coef, &mut self.rot_coef)?;
+                    r.apply(lat, lon, &self.dens_coef, &mut self.dens_rot)?;
+                }
+            }
+            self.rotated_derivatives()?;
+            kernel_rows(
+                kernel,
+                get3(&self.x_grid, np, t),
+                &self.y,
+                &self.yt,
+                &self.yp,
+                &self.gs,
+                &self.sin_q,
+                &mut self.kern,
+            );
+            let mut u = [0.0; 3];
+            for j in 0..nq {
+                let f = get3(&self.dens_rot, nq, j);
+                let col = &self.kern[9 * j..9 * j + 9];
+                for (a, ua) in u.iter_mut().enumerate() {
+                    *ua += col[3 * a] * f[0] + col[3 * a + 1] * f[1] + col[3 * a + 2] * f[2];
+                }
+            }
+            for (a, ua) in u.iter().enumerate() {
+                out[a * nt + ti] = *ua;
+            }
+        }
+        Ok(())
+    }
+
+    /// Matrix-free evaluation at every grid point (`out`: component-major, `3 n_p`).
+    pub fn evaluate(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        density: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        let targets: Vec<usize> = (0..self.n_points()).collect();
+        self.evaluate_at(kernel, coefs, density, &targets, out)
+    }
+
+    /// The dense self-interaction operator `A` (`3n_p × 3n_p`, column-major, rows and columns
+    /// component-major) with `A · density = evaluate(density)` for every density on the grid.
+    pub fn assemble(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        kernel.check()?;
+        let np = self.n_points();
+        let n3 = 3 * np;
+        check_len("operator", out.len(), n3 * n3)?;
+        self.set_surface(coefs)?;
+        let nq = self.sht_q.n_points();
+        let nlon = 2 * self.p;
+        let rows = 9 * nlon;
+        // Per-latitude scratch: B_i (for ViaSh), the stacked kernel rows and their product.
+        let mut b_sh = match self.rot {
+            Rotator::ViaSh(_) => {
+                // Coefficients of the order-p grid's unit vectors (the forward matrix F).
+                let mut eye = vec![0.0; np * np];
+                for j in 0..np {
+                    eye[j * np + j] = 1.0;
+                }
+                let mut f = vec![0.0; self.sht_p.n_coefs() * np];
+                self.sht_p.forward(&eye, &mut f, &mut self.ws_p)?;
+                Some((f, vec![0.0; nq * np]))
+            }
+            Rotator::Direct(_) => None,
+        };
+        let mut kmat = vec![0.0; rows * nq];
+        let mut cmat = vec![0.0; rows * np];
+        // The surface shifted by every longitude (np × 3·2p) and, per latitude, its rotations
+        // with their derivatives (batches of 3·2p functions on the order-q grid).
+        let nf = 3 * nlon;
+        let mut xs = vec![0.0; np * nf];
+        for lon in 0..nlon {
+            crate::sph_harmonics::rotation::shift_longitudes(
+                self.p,
+                lon,
+                &self.x_grid,
+                &mut xs[lon * 3 * np..(lon + 1) * 3 * np],
+            );
+        }
+        let mut y_all = vec![0.0; nq * nf];
+        let mut yt_all = vec![0.0; nq * nf];
+        let mut yp_all = vec![0.0; nq * nf];
+        let mut c_all = vec![0.0; self.sht_q.n_coefs() * nf];
+        for lat in 0..=self.p {
+            if let (Rotator::ViaSh(r), Some((f, b))) = (&mut self.rot, b_sh.as_mut()) {
+                r.apply(lat, 0, f, b)?;
+            }
+            let b: &[f64] = match (&self.rot, b_sh.as_ref()) {
+                (Rotator::Direct(d), _) => d.matrix(lat).expect("all latitudes are built"),
+                (Rotator::ViaSh(_), Some((_, b))) => b,
+                _ => unreachable!("ViaSh always has its B_i scratch"),
+            };
+            // Rotated surfaces Y_k = B_i S_k X of all 2p targets of the latitude, one GEMM.
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut y_all, nq, nf),
+                Accum::Replace,
+                MatRef::from_column_major_slice(b, nq, np),
+                MatRef::from_column_major_slice(&xs, np, nf),
+                1.0,
+                Par::Seq,
+            );
+            self.sht_q.forward(&y_all, &mut c_all, &mut self.ws_q)?;
+            self.sht_q.synthesize(
+                &c_all,
+                &[Deriv::Value, Deriv::Theta, Deriv::Phi],
+                &mut [&mut y_all, &mut yt_all, &mut yp_all],
+                &mut self.ws_q,
+            )?;
+            for lon in 0..nlon {
+                let t = lat * nlon + lon;
+                let blk = lon * 3 * nq..(lon + 1) * 3 * nq;
+                kernel_rows(
+                    kernel,
+                    get3(&self.x_grid, np, t),
+                    &y_all[blk.clone()],
+                    &yt_all[blk.clone()],
+                    &yp_all[blk],
+                    &self.gs,
+                    &self.sin_q,
+                    &mut self.kern,
+                );
+                for j in 0..nq {
+                    kmat[j * rows + 9 * lon..j * rows + 9 * lon + 9]
+                        .copy_from_slice(&self.kern[9 * j..9 * j + 9]);
+                }
+            }
+            let b: &[f64] = match (&self.rot, b_sh.as_ref()) {
+                (Rotator::Direct(d), _) => d.matrix(lat).expect("all latitudes are built"),
+                (Rotator::ViaSh(_), Some((_, b))) => b,
+                _ => unreachable!("ViaSh always has its B_i scratch"),
+            };
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut cmat, rows, np),
+                Accum::Replace,
+                MatRef::from_column_major_slice(&kmat, rows, nq),
+                MatRef::from_column_major_slice(b, nq, np),
+                1.0,
+                Par::Seq,
+            );
+            // Scatter: the density at c = (lat(c'), lon(c') + k) meets column c' of B_i.
+            for lon in 0..nlon {
+                let t = lat * nlon + lon;
+                for cp in 0..np {
+                    let (cl, ck) = (cp / nlon, cp % nlon);
+                    let c = cl * nlon + (ck + lon) % nlon;
+                    let src = &cmat[cp * rows + 9 * lon..cp * rows + 9 * lon + 9];
+                    for a in 0..3 {
+                        for bb in 0..3 {
+                            out[(bb * np + c) * n3 + a * np + t] = src[3 * a + bb];
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Kernel rows `K_ab(j)` (quadrature weights included) of target point `xt` from the rotated
+/// surface `y, y_θ, y_φ` (component-major on the order-`q` grid), into `kern` (`9 × n_q`).
+#[allow(clippy::too_many_arguments)]
+fn kernel_rows(
+    kernel: LayerKernel,
+    xt: [f64; 3],
+    y: &[f64],
+    yt: &[f64],
+    yp: &[f64],
+    gs: &[f64],
+    sin_q: &[f64],
+    kern: &mut [f64],
+) {
+    let nq = y.len() / 3;
+    let nlon = nq / gs.len();
+    for j in 0..nq {
+        let lat = j / nlon;
+        let yj = get3(y, nq, j);
+        let nv = cross(get3(yt, nq, j), get3(yp, nq, j));
+        let w = dot(nv, nv).sqrt();
+        let wt = gs[lat] * w / sin_q[lat];
+        let r = [xt[0] - yj[0], xt[1] - yj[1], xt[2] - yj[2]];
+        let r2 = dot(r, r);
+        let rinv = 1.0 / r2.sqrt();
+        let col = &mut kern[9 * j..9 * j + 9];
+        match kernel {
+            LayerKernel::SingleLayer { viscosity } => {
+                let c = wt / (8.0 * PI * viscosity) * rinv;
+                let c3 = c / r2;
+                for a in 0..3 {
+                    for b in 0..3 {
+                        col[3 * a + b] = c3 * r[a] * r[b] + if a == b { c } else { 0.0 };
+                    }
+                }
+            }
+            LayerKernel::DoubleLayer => {
+                let rn = dot(r, nv) / w;
+                let c = 3.0 / (4.0 * PI) * wt * rn * rinv.powi(5);
+                for a in 0..3 {
+                    for b in 0..3 {
+                        col[3 * a + b] = c * r[a] * r[b];
+                    }
+                }
+            }
+        }
+    }
+}
