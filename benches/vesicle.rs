@@ -1,7 +1,7 @@
 //! Self-interaction operators of a cell: assembly per cell with both rotation algorithms and
 //! application batched over cells, beside faer's GEMM rate measured in the same run.
 //!
-//! `cargo run --release --example vesicle_bench [-- CELLS]` (default 1000 cells at p = 6,
+//! `cargo bench --bench vesicle [-- CELLS]` (default 1000 cells at p = 6,
 //! scaled down at larger p to stay within ~1.5 GB of operators). One thread.
 //!
 //! Flop counts: assembly counts the two GEMMs per latitude, the rotation of the surface for all
@@ -44,7 +44,10 @@ fn gemm_rate(m: usize, k: usize, n: usize) -> f64 {
 }
 
 fn main() {
-    let cells_arg: Option<usize> = std::env::args().nth(1).and_then(|s| s.parse().ok());
+    let cells_arg: Option<usize> = std::env::args()
+        .skip(1)
+        .find(|a| !a.starts_with('-'))
+        .and_then(|s| s.parse().ok());
     println!(
         "faer GEMM 512² (1 thread): {:.1} GFLOP/s\n",
         gemm_rate(512, 512, 512)
