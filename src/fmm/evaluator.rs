@@ -140,12 +140,11 @@ impl FmmKernel {
     }
 
     /// Default leaf size (points per leaf, sources plus targets), balancing P2P against the
-    /// translations: measured on 10⁵ points of the uniform and sphere clouds (examples/fmm_probe).
+    /// translations: measured on 10⁵ and 10⁶ points of the uniform and sphere clouds
+    /// (examples/fmm_probe). Larger leaves also keep uniform clouds off half-refined levels,
+    /// whose W and X lists cost more than they save.
     pub fn default_leaf_size(&self, order: usize) -> usize {
-        match self {
-            FmmKernel::Laplace | FmmKernel::LaplaceDoubleLayer => 70 * order.max(4),
-            _ => 100 * order.max(4),
-        }
+        100 * order.max(4)
     }
 }
 
