@@ -267,6 +267,54 @@ fn cli_round_trip_on_npy_files() {
 }
 
 #[test]
+fn cli_fmm_matches_cli_direct_to_the_requested_digits() {
+    let dir = tmpdir("fmmcli");
+    let n = 4000;
+    let src = mobo::fmm::clouds::Cloud::Spheres.points(n, 3);
+    let flat: Vec<f64> = src.iter().flatten().copied().collect();
+    let s = save(&dir, "s.npy", &[n, 3], &flat);
+    let f = mobo::fmm::clouds::Cloud::densities(3 * n, 4);
+    let q = save(&dir, "q.npy", &[n, 3], &f);
+    let run = |extra: &[&str], out: &str| {
+        let mut args = vec![
+            "fmm",
+            "--kernel",
+            "stokeslet",
+            "--sources",
+            &s,
+            "--density",
+            &q,
+        ];
+        args.extend_from_slice(extra);
+        args.extend(["--out", out]);
+        let o = mobo(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let line = String::from_utf8_lossy(&o.stdout).trim().to_string();
+        let (_, u) = npy::read_f64(Path::new(out)).unwrap();
+        (line, u)
+    };
+    let fo = dir.join("fmm.npy");
+    let dout = dir.join("direct.npy");
+    let (line, u) = run(
+        &["--digits", "4", "--leaf-size", "200"],
+        fo.to_str().unwrap(),
+    );
+    assert!(line.contains("\"method\":\"fmm\""), "{line}");
+    assert!(line.contains("\"order\":7"), "{line}");
+    assert!(line.contains("\"tree_depth\":"), "{line}");
+    let (dline, want) = run(&["--direct"], dout.to_str().unwrap());
+    assert!(dline.contains("\"method\":\"direct\""), "{dline}");
+    let err = (u
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        / want.iter().map(|b| b * b).sum::<f64>())
+    .sqrt();
+    assert!(err < 1e-4 && err > 0.0, "fmm vs direct: {err:.2e}");
+}
+
+#[test]
 fn cli_errors_name_the_file_and_the_problem() {
     let dir = tmpdir("err");
     let s = save(
@@ -330,6 +378,19 @@ fn cli_errors_name_the_file_and_the_problem() {
                 "12",
             ],
             "--digits",
+        ),
+        (
+            vec![
+                "--kernel",
+                "stokeslet",
+                "--sources",
+                &s,
+                "--density",
+                &q3,
+                "--order",
+                "1",
+            ],
+            "--order",
         ),
     ];
     for (args, expect) in cases {

@@ -1,8 +1,28 @@
-//! N-body sums of Stokes and Laplace kernels.
+//! N-body sums of Stokes and Laplace kernels: direct and by a kernel-independent FMM.
 //!
-//! So far: the kernels of the `mobo fmm` contract ([`kernels`]) and their direct sums
-//! ([`direct`]), the exact reference. The kernel-independent FMM (Ying, Biros & Zorin, J. Comput.
-//! Phys. 196, 2004) with its adaptive octree is the next step (issue 3).
+//! * [`kernels`]: the kernels of the `mobo fmm` contract and their normalisations;
+//!   [`direct`]: exact sums, the reference.
+//! * [`octree`]: adaptive Morton octree with U, V, W, X lists.
+//! * [`evaluator::Fmm`]: the KIFMM of Ying, Biros & Zorin (J. Comput. Phys. 196, 2004) with
+//!   level-independent operators ([`operators`]), M2L by FFT ([`m2l_fft`], the scheme of PVFMM,
+//!   Malhotra & Biros 2015) and batched P2P ([`p2p`]); accuracy in digits via
+//!   [`calibration`]. [`kifmm`] is the first, dense reference version kept for comparison.
+//!
+//! ```
+//! use mobo::fmm::{clouds::Cloud, direct_sum, order_for_digits, Fmm, FmmKernel, SumInput};
+//! let pts = Cloud::Spheres.points(3000, 1);
+//! let f = Cloud::densities(3 * pts.len(), 2);
+//! let order = order_for_digits(FmmKernel::Stokeslet, 3).unwrap();
+//! let mut fmm = Fmm::new(FmmKernel::Stokeslet, &pts, None, &pts, order, 200).unwrap();
+//! let mut u = vec![0.0; f.len()];
+//! fmm.evaluate(&f, &mut u).unwrap(); // again with other densities on the same tree
+//! let mut exact = vec![0.0; f.len()];
+//! let input = SumInput { sources: &pts, density: &f, normals: None, targets: &pts };
+//! direct_sum(&mobo::fmm::Stokeslet, &input, &mut exact).unwrap();
+//! let err = (u.iter().zip(&exact).map(|(a, b)| (a - b).powi(2)).sum::<f64>()
+//!     / exact.iter().map(|b| b * b).sum::<f64>()).sqrt();
+//! assert!(err < 1e-3);
+//! ```
 
 pub mod blocks;
 pub mod calibration;
