@@ -4,7 +4,7 @@
 //! convergence in the order; a 10⁵-point run.
 
 use mobo::fmm::clouds::Cloud;
-use mobo::fmm::{direct_sum, order_for_digits, Fmm, FmmKernel, SumInput};
+use mobo::fmm::{direct_sum, order_for_digits, Fmm, FmmKernel, Kernel, SumInput};
 
 const KERNELS: [FmmKernel; 5] = [
     FmmKernel::Laplace,
@@ -15,6 +15,25 @@ const KERNELS: [FmmKernel; 5] = [
     FmmKernel::Rpy { radius: 0.004 },
 ];
 const CLOUDS: [Cloud; 3] = [Cloud::Uniform, Cloud::Blobs, Cloud::Spheres];
+
+/// The pair-by-pair direct sum at `targets`.
+fn reference(
+    k: &dyn Kernel,
+    sources: &[[f64; 3]],
+    density: &[f64],
+    normals: &[[f64; 3]],
+    targets: &[[f64; 3]],
+) -> Vec<f64> {
+    let mut want = vec![0.0; targets.len() * k.output_dim()];
+    let input = SumInput {
+        sources,
+        density,
+        normals: Some(normals),
+        targets,
+    };
+    direct_sum(k, &input, &mut want).unwrap();
+    want
+}
 
 /// Relative L2 error of the FMM at `m` sampled targets (sources = targets) against the direct
 /// sum; returns (error, fmm).
@@ -43,18 +62,7 @@ fn sampled_error(
     fmm.evaluate(&dens, &mut u).unwrap();
     let idx: Vec<usize> = (0..m).map(|i| i * n / m).collect();
     let tg: Vec<[f64; 3]> = idx.iter().map(|&i| pts[i]).collect();
-    let mut want = vec![0.0; m * k.output_dim()];
-    direct_sum(
-        k.as_ref(),
-        &SumInput {
-            sources: &pts,
-            density: &dens,
-            normals: Some(&nrm),
-            targets: &tg,
-        },
-        &mut want,
-    )
-    .unwrap();
+    let want = reference(k.as_ref(), &pts, &dens, &nrm, &tg);
     let od = k.output_dim();
     let (mut num, mut den) = (0.0, 0.0);
     for (s, &i) in idx.iter().enumerate() {
@@ -180,18 +188,7 @@ fn direct_path_matches_the_reference_sum() {
         let mut fmm = Fmm::new(kernel, &pts, Some(&nrm), &tg, 4, 50).unwrap();
         let mut got = vec![0.0; tg.len() * k.output_dim()];
         fmm.direct(&dens, &mut got).unwrap();
-        let mut want = vec![0.0; got.len()];
-        direct_sum(
-            k.as_ref(),
-            &SumInput {
-                sources: &pts,
-                density: &dens,
-                normals: Some(&nrm),
-                targets: &tg,
-            },
-            &mut want,
-        )
-        .unwrap();
+        let want = reference(k.as_ref(), &pts, &dens, &nrm, &tg);
         mobo::check::assert_close(&format!("{kernel:?} direct"), &got, &want, 1e-12);
     }
 }

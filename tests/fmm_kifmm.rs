@@ -1,54 +1,12 @@
 //! The reference KIFMM against direct sums on uniform, clustered and cell-surface clouds.
 
+use mobo::fmm::clouds::Cloud;
 use mobo::fmm::kernels::StokesletSource;
 use mobo::fmm::kifmm::Kifmm;
 use mobo::fmm::{direct_sum, Kernel, Laplace, LaplaceDoubleLayer, Stokeslet, Stresslet, SumInput};
-use rand::rngs::StdRng;
-use rand::{Rng, SeedableRng};
-use rand_distr::{Distribution, StandardNormal};
 
 fn cloud(kind: &str, n: usize, seed: u64) -> Vec<[f64; 3]> {
-    let mut rng = StdRng::seed_from_u64(seed);
-    let g = |r: &mut StdRng| -> f64 { StandardNormal.sample(r) };
-    match kind {
-        "uniform" => (0..n)
-            .map(|_| [rng.random(), rng.random(), rng.random()])
-            .collect(),
-        "blobs" => {
-            let c: Vec<[f64; 3]> = (0..4)
-                .map(|_| [rng.random(), rng.random(), rng.random()])
-                .collect();
-            (0..n)
-                .map(|i| {
-                    let s = 10f64.powi(-(1 + (i % 2) as i32));
-                    let k = c[i % 4];
-                    [
-                        k[0] + s * g(&mut rng),
-                        k[1] + s * g(&mut rng),
-                        k[2] + s * g(&mut rng),
-                    ]
-                })
-                .collect()
-        }
-        _ => {
-            // Points on small spheres ("cells") of radius 0.05 in the unit cube.
-            let per = 60;
-            let mut out = Vec::new();
-            while out.len() < n {
-                let c = [
-                    rng.random::<f64>(),
-                    rng.random::<f64>(),
-                    rng.random::<f64>(),
-                ];
-                for _ in 0..per.min(n - out.len()) {
-                    let v = [g(&mut rng), g(&mut rng), g(&mut rng)];
-                    let r = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() / 0.05;
-                    out.push([c[0] + v[0] / r, c[1] + v[1] / r, c[2] + v[2] / r]);
-                }
-            }
-            out
-        }
-    }
+    Cloud::from_name(kind).expect("known cloud").points(n, seed)
 }
 
 fn rel_l2(a: &[f64], b: &[f64]) -> f64 {
@@ -64,10 +22,7 @@ fn error<KS: Kernel, KE: Kernel>(
     tgt: &[[f64; 3]],
     order: usize,
 ) -> f64 {
-    let mut rng = StdRng::seed_from_u64(4);
-    let dens: Vec<f64> = (0..pts.len() * ks.density_dim())
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
+    let dens = Cloud::densities(pts.len() * ks.density_dim(), 4);
     let nrm = cloud("uniform", pts.len(), 5);
     let fmm = Kifmm::new(ks, ke, pts, Some(&nrm), tgt, order, 50).unwrap();
     let mut u = vec![0.0; tgt.len() * ks.output_dim()];

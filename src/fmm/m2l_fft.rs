@@ -276,52 +276,45 @@ impl FftM2l {
         }
     }
 
-    /// FFTs of `s.grid` (`n × n × (p+1)`, last axis already transformed) along the second and
-    /// first axes; `rows` limits the first-axis indices that hold data for the second-axis pass.
-    fn transform_ij(&self, s: &mut FftScratch, inverse: bool, rows: usize) {
+    /// FFTs of `s.grid` (`n × n × (p+1)`) along one of its first two axes (`axis` 0: along
+    /// `i`, 1: along `j`), for the indices `< limit` of the other of the two.
+    fn fft_axis(&self, s: &mut FftScratch, axis: usize, limit: usize, inverse: bool) {
         let (n, nh) = (self.n, self.p + 1);
         let plan = if inverse { &self.inv } else { &self.fwd };
-        let ib = rows.min(n);
-        // Along j, for i < ib.
+        let at = |other: usize, along: usize, k: usize| -> usize {
+            let (i, j) = if axis == 0 {
+                (along, other)
+            } else {
+                (other, along)
+            };
+            (i * n + j) * nh + k
+        };
         let mut cnt = 0;
-        for i in 0..ib {
+        for other in 0..limit {
             for k in 0..nh {
-                for j in 0..n {
-                    s.line[cnt * n + j] = s.grid[(i * n + j) * nh + k];
+                for along in 0..n {
+                    s.line[cnt * n + along] = s.grid[at(other, along, k)];
                 }
                 cnt += 1;
             }
         }
         plan.process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
         cnt = 0;
-        for i in 0..ib {
+        for other in 0..limit {
             for k in 0..nh {
-                for j in 0..n {
-                    s.grid[(i * n + j) * nh + k] = s.line[cnt * n + j];
+                for along in 0..n {
+                    s.grid[at(other, along, k)] = s.line[cnt * n + along];
                 }
                 cnt += 1;
             }
         }
-        // Along i, for all (j, k).
-        cnt = 0;
-        for j in 0..n {
-            for k in 0..nh {
-                for i in 0..n {
-                    s.line[cnt * n + i] = s.grid[(i * n + j) * nh + k];
-                }
-                cnt += 1;
-            }
-        }
-        plan.process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
-        cnt = 0;
-        for j in 0..n {
-            for k in 0..nh {
-                for i in 0..n {
-                    s.grid[(i * n + j) * nh + k] = s.line[cnt * n + i];
-                }
-                cnt += 1;
-            }
-        }
+    }
+
+    /// FFTs of `s.grid` (last axis already transformed) along `j` for `i < rows`, then along
+    /// `i` for all `j`.
+    fn transform_ij(&self, s: &mut FftScratch, inverse: bool, rows: usize) {
+        self.fft_axis(s, 1, rows.min(self.n), inverse);
+        self.fft_axis(s, 0, self.n, inverse);
     }
 
     /// Spectrum of an equivalent density on the surface (`de` values per surface point,
@@ -359,46 +352,8 @@ impl FftM2l {
                 s.grid[f] = Complex64::new(blk[f], blk[nf + f]);
             }
             // Inverse along i (all j, k), then along j for i < p.
-            let mut cnt = 0;
-            for j in 0..n {
-                for k in 0..nh {
-                    for i in 0..n {
-                        s.line[cnt * n + i] = s.grid[(i * n + j) * nh + k];
-                    }
-                    cnt += 1;
-                }
-            }
-            self.inv
-                .process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
-            cnt = 0;
-            for j in 0..n {
-                for k in 0..nh {
-                    for i in 0..n {
-                        s.grid[(i * n + j) * nh + k] = s.line[cnt * n + i];
-                    }
-                    cnt += 1;
-                }
-            }
-            cnt = 0;
-            for i in 0..p {
-                for k in 0..nh {
-                    for j in 0..n {
-                        s.line[cnt * n + j] = s.grid[(i * n + j) * nh + k];
-                    }
-                    cnt += 1;
-                }
-            }
-            self.inv
-                .process_with_scratch(&mut s.line[..cnt * n], &mut s.fft);
-            cnt = 0;
-            for i in 0..p {
-                for k in 0..nh {
-                    for j in 0..n {
-                        s.grid[(i * n + j) * nh + k] = s.line[cnt * n + j];
-                    }
-                    cnt += 1;
-                }
-            }
+            self.fft_axis(s, 0, n, true);
+            self.fft_axis(s, 1, p, true);
             // Along k: rebuild the full Hermitian row, inverse FFT, real part.
             for i in 0..p {
                 for j in 0..p {
