@@ -27,7 +27,9 @@ fn pairwise(k: &dyn Kernel, t: &[[f64; 3]], s: &[[f64; 3]], n: &[[f64; 3]], q: &
     out
 }
 
-fn cases(scale: f64) -> (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>) {
+type Points = Vec<[f64; 3]>;
+
+fn cases(scale: f64) -> (Points, Points, Points) {
     // 37 sources (not a multiple of the vector width), 11 targets of which 5 coincide with
     // sources.
     let s: Vec<[f64; 3]> = Cloud::Blobs
