@@ -1,10 +1,11 @@
 //! Scene files (TOML): schema, validation with errors that name the file, line and key.
 //!
-//! Only the `[brownian]` section exists so far; the cell scene sections come with the
-//! time-stepping issue.
+//! [`cells`]: cell scenes for `mobo run` (fluid, flow, cells, numerics, output) and the
+//! assembly decisions; [`brownian`]: the `[brownian]` section of `mobo brownian`.
 
 pub mod brownian;
 pub mod brownian_run;
+pub mod cells;
 
 use std::path::{Path, PathBuf};
 

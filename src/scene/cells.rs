@@ -1,0 +1,752 @@
+//! Cell scenes (the `mobo run` contract, design.md 4.2): schema, validation with errors that
+//! name the file, the line and the key, placement of many cells, and the assembly decisions
+//! that say which physics a scene needs (and why).
+//!
+//! ```toml
+//! [fluid]
+//! viscosity = 1.0                 # μ of the suspending fluid
+//!
+//! [flow]
+//! kind = "shear"                  # "none" | "shear" | "extensional" | "poiseuille"
+//! rate = 1.0                      # shear: u = (γ̇ y, 0, 0); extensional: u = ε̇ (x, −y, 0)
+//! # speed = 1.0, radius = 5.0     # poiseuille along x: u = U (1 − (y² + z²)/R²), free space
+//!
+//! [[cells]]
+//! shape = "rbc"                   # "sphere" | "ellipsoid" | "rbc" | "prolate" | "oblate"
+//! radius = 1.0                    # equivalent radius (sphere of equal volume)
+//! center = [0.0, 0.0, 0.0]
+//! # axes = [1.0, 0.8, 0.6]        # ellipsoid (scaled to the equivalent radius)
+//! # reduced_volume = 0.9          # prolate, oblate
+//! # orientation = [0, 0, 1, 30]   # rotation axis and angle in degrees
+//! bending_modulus = 0.05
+//! shear_modulus = 0.0             # Skalak G_s (0: none)
+//! skalak_c = 10.0                 # Skalak area-dilation parameter C
+//! viscosity_ratio = 1.0           # λ = μ_in / μ_out
+//! force = [0.0, 0.0, 0.0]         # body force per cell
+//! # count = 27, placement = "lattice" | "random", spacing = 3.0, region = [[..], [..]], seed = 1
+//!
+//! [numerics]
+//! order = 12                      # SH order p
+//! upsample = 2                    # quadrature order q = upsample · p
+//! fmm_digits = 6
+//! gmres_tol = 1e-8
+//! dt = 0.01
+//! t_end = 1.0
+//! scheme = "euler"                # "euler" | "bdf2"
+//! adaptive_dt = false
+//!
+//! [output]
+//! every = 10                      # steps between saved frames
+//! ```
+
+use std::path::Path;
+
+use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use serde::Deserialize;
+use toml::Spanned;
+
+use super::{line_col, parse_toml, read_scene_file, SceneError};
+use crate::vesicle::shapes::{self, Spheroid, Surface};
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct File {
+    fluid: Option<FluidSection>,
+    flow: Option<FlowSection>,
+    cells: Option<Vec<CellSection>>,
+    numerics: Option<NumericsSection>,
+    output: Option<OutputSection>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FluidSection {
+    viscosity: Spanned<f64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FlowSection {
+    kind: Spanned<String>,
+    rate: Option<Spanned<f64>>,
+    speed: Option<Spanned<f64>>,
+    radius: Option<Spanned<f64>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CellSection {
+    shape: Spanned<String>,
+    radius: Option<Spanned<f64>>,
+    center: Option<Spanned<[f64; 3]>>,
+    axes: Option<Spanned<[f64; 3]>>,
+    reduced_volume: Option<Spanned<f64>>,
+    orientation: Option<Spanned<[f64; 4]>>,
+    bending_modulus: Option<Spanned<f64>>,
+    shear_modulus: Option<Spanned<f64>>,
+    skalak_c: Option<Spanned<f64>>,
+    viscosity_ratio: Option<Spanned<f64>>,
+    force: Option<Spanned<[f64; 3]>>,
+    count: Option<Spanned<usize>>,
+    placement: Option<Spanned<String>>,
+    spacing: Option<Spanned<f64>>,
+    region: Option<Spanned<[[f64; 3]; 2]>>,
+    seed: Option<u64>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct NumericsSection {
+    order: Option<Spanned<usize>>,
+    upsample: Option<Spanned<usize>>,
+    fmm_digits: Option<Spanned<u32>>,
+    gmres_tol: Option<Spanned<f64>>,
+    dt: Option<Spanned<f64>>,
+    t_end: Option<Spanned<f64>>,
+    scheme: Option<Spanned<String>>,
+    adaptive_dt: Option<bool>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct OutputSection {
+    every: Option<Spanned<u64>>,
+}
+
+/// Background flow.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Flow {
+    /// Quiescent fluid.
+    None,
+    /// `u = (γ̇ y, 0, 0)`.
+    Shear { rate: f64 },
+    /// `u = ε̇ (x, −y, 0)`.
+    Extensional { rate: f64 },
+    /// `u = (U (1 − (y² + z²)/R²), 0, 0)`.
+    Poiseuille { speed: f64, radius: f64 },
+}
+
+impl Flow {
+    /// The background velocity at `x`.
+    pub fn velocity(&self, x: [f64; 3]) -> [f64; 3] {
+        match *self {
+            Flow::None => [0.0; 3],
+            Flow::Shear { rate } => [rate * x[1], 0.0, 0.0],
+            Flow::Extensional { rate } => [rate * x[0], -rate * x[1], 0.0],
+            Flow::Poiseuille { speed, radius } => [
+                speed * (1.0 - (x[1] * x[1] + x[2] * x[2]) / (radius * radius)),
+                0.0,
+                0.0,
+            ],
+        }
+    }
+}
+
+/// Cell shape before scaling and placement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Shape {
+    Sphere,
+    Ellipsoid { axes: [f64; 3] },
+    Rbc,
+    Spheroid { kind: Spheroid, reduced_volume: f64 },
+}
+
+/// One cell of a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CellSpec {
+    pub shape: Shape,
+    /// Equivalent radius (sphere of equal volume).
+    pub radius: f64,
+    /// Centroid.
+    pub center: [f64; 3],
+    /// Rotation matrix applied about the centroid.
+    pub rotation: [[f64; 3]; 3],
+    pub bending_modulus: f64,
+    pub shear_modulus: f64,
+    pub skalak_c: f64,
+    pub viscosity_ratio: f64,
+    /// Body force on the cell.
+    pub force: [f64; 3],
+    /// Radius of a sphere about the centroid that contains the cell.
+    pub bounding_radius: f64,
+    /// Line in the scene file of the `[[cells]]` entry this cell comes from.
+    pub line: usize,
+}
+
+impl CellSpec {
+    /// The cell's surface at SH order `p`.
+    pub fn surface(&self, p: usize) -> Result<Surface, crate::vesicle::VesicleError> {
+        let mut s = unit_shape(&self.shape, p)?;
+        s.scale_to_equivalent_radius(self.radius)?;
+        s.place_centroid([0.0; 3])?;
+        s.rotate(self.rotation)?;
+        s.translate(self.center);
+        Ok(s)
+    }
+}
+
+/// Time-integration scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scheme {
+    /// First-order semi-implicit (Veerapaneni et al. 2011).
+    Euler,
+    /// Second order, BDF2 with extrapolated operators.
+    Bdf2,
+}
+
+/// `[numerics]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Numerics {
+    pub order: usize,
+    pub upsample: usize,
+    pub fmm_digits: u32,
+    pub gmres_tol: f64,
+    pub dt: f64,
+    pub t_end: f64,
+    pub scheme: Scheme,
+    pub adaptive_dt: bool,
+}
+
+/// One assembly decision: whether a piece of physics is built, and why.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Effect {
+    pub name: &'static str,
+    pub enabled: bool,
+    pub reason: String,
+}
+
+/// A validated cell scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CellScene {
+    pub viscosity: f64,
+    pub flow: Flow,
+    pub cells: Vec<CellSpec>,
+    pub numerics: Numerics,
+    /// Steps between saved frames.
+    pub output_every: u64,
+    /// What the scene needs, decided from its contents (see [`effects`]).
+    pub effects: Vec<Effect>,
+}
+
+/// Read and validate a cell scene file.
+pub fn load(file: &Path) -> Result<CellScene, SceneError> {
+    let text = read_scene_file(file)?;
+    parse(file, &text)
+}
+
+fn unit_shape(shape: &Shape, p: usize) -> Result<Surface, crate::vesicle::VesicleError> {
+    match *shape {
+        Shape::Sphere => shapes::sphere(p, 1.0),
+        Shape::Ellipsoid { axes } => shapes::ellipsoid(p, axes),
+        Shape::Rbc => shapes::rbc(p),
+        Shape::Spheroid {
+            kind,
+            reduced_volume,
+        } => shapes::reduced_volume_spheroid(p, reduced_volume, kind, 1.0),
+    }
+}
+
+/// Rotation matrix about `axis` by `deg` degrees (Rodrigues).
+fn rotation(axis: [f64; 3], deg: f64) -> Option<[[f64; 3]; 3]> {
+    let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+    if !(n > 0.0 && n.is_finite() && deg.is_finite()) {
+        return None;
+    }
+    let (x, y, z) = (axis[0] / n, axis[1] / n, axis[2] / n);
+    let (s, c) = deg.to_radians().sin_cos();
+    let t = 1.0 - c;
+    Some([
+        [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+        [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+        [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
+    ])
+}
+
+/// Validate scene text (`file` names the scene in messages).
+pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
+    let f: File = parse_toml(file, text)?;
+    let at = |span: std::ops::Range<usize>, msg: String| SceneError {
+        file: file.to_path_buf(),
+        place: Some(line_col(text, span.start)),
+        message: msg,
+    };
+    let positive = |v: &Spanned<f64>, key: &str| -> Result<f64, SceneError> {
+        let x = *v.get_ref();
+        if x.is_finite() && x > 0.0 {
+            Ok(x)
+        } else {
+            Err(at(
+                v.span(),
+                format!("{key} must be a positive number, got {x}"),
+            ))
+        }
+    };
+    let finite = |v: &Spanned<f64>, key: &str| -> Result<f64, SceneError> {
+        let x = *v.get_ref();
+        if x.is_finite() {
+            Ok(x)
+        } else {
+            Err(at(v.span(), format!("{key} must be finite, got {x}")))
+        }
+    };
+    let viscosity = match &f.fluid {
+        Some(fl) => positive(&fl.viscosity, "[fluid] viscosity")?,
+        None => 1.0,
+    };
+    let flow = match &f.flow {
+        None => Flow::None,
+        Some(fl) => {
+            let need = |v: &Option<Spanned<f64>>, key: &str| -> Result<f64, SceneError> {
+                match v {
+                    Some(v) => finite(v, &format!("[flow] {key}")),
+                    None => Err(at(
+                        fl.kind.span(),
+                        format!("[flow] kind = \"{}\" needs {key}", fl.kind.get_ref()),
+                    )),
+                }
+            };
+            match fl.kind.get_ref().as_str() {
+                "none" => Flow::None,
+                "shear" => Flow::Shear {
+                    rate: need(&fl.rate, "rate")?,
+                },
+                "extensional" => Flow::Extensional {
+                    rate: need(&fl.rate, "rate")?,
+                },
+                "poiseuille" => {
+                    let speed = need(&fl.speed, "speed")?;
+                    let radius = need(&fl.radius, "radius")?;
+                    if radius <= 0.0 {
+                        let sp = fl.radius.as_ref().map_or(fl.kind.span(), |r| r.span());
+                        return Err(at(sp, format!("[flow] radius must be positive, got {radius}")));
+                    }
+                    Flow::Poiseuille { speed, radius }
+                }
+                other => {
+                    return Err(at(
+                        fl.kind.span(),
+                        format!(
+                            "[flow] kind: unknown flow \"{other}\" (none, shear, extensional, poiseuille)"
+                        ),
+                    ))
+                }
+            }
+        }
+    };
+    let n = f.numerics.as_ref();
+    let order = n.and_then(|n| n.order.as_ref());
+    let numerics = Numerics {
+        order: match order {
+            Some(o) if !(2..=64).contains(o.get_ref()) => {
+                return Err(at(
+                    o.span(),
+                    format!(
+                        "[numerics] order must be between 2 and 64, got {}",
+                        o.get_ref()
+                    ),
+                ))
+            }
+            Some(o) => *o.get_ref(),
+            None => 12,
+        },
+        upsample: match n.and_then(|n| n.upsample.as_ref()) {
+            Some(u) if !(1..=4).contains(u.get_ref()) => {
+                return Err(at(
+                    u.span(),
+                    format!("[numerics] upsample must be 1 to 4, got {}", u.get_ref()),
+                ))
+            }
+            Some(u) => *u.get_ref(),
+            None => 2,
+        },
+        fmm_digits: match n.and_then(|n| n.fmm_digits.as_ref()) {
+            Some(d) if !(3..=10).contains(d.get_ref()) => {
+                return Err(at(
+                    d.span(),
+                    format!("[numerics] fmm_digits must be 3 to 10, got {}", d.get_ref()),
+                ))
+            }
+            Some(d) => *d.get_ref(),
+            None => 6,
+        },
+        gmres_tol: match n.and_then(|n| n.gmres_tol.as_ref()) {
+            Some(t) => {
+                let v = positive(t, "[numerics] gmres_tol")?;
+                if v >= 1.0 {
+                    return Err(at(
+                        t.span(),
+                        format!("[numerics] gmres_tol must be below 1, got {v}"),
+                    ));
+                }
+                v
+            }
+            None => 1e-8,
+        },
+        dt: match n.and_then(|n| n.dt.as_ref()) {
+            Some(v) => positive(v, "[numerics] dt")?,
+            None => 0.01,
+        },
+        t_end: match n.and_then(|n| n.t_end.as_ref()) {
+            Some(v) => positive(v, "[numerics] t_end")?,
+            None => 1.0,
+        },
+        scheme: match n.and_then(|n| n.scheme.as_ref()) {
+            None => Scheme::Euler,
+            Some(s) => match s.get_ref().as_str() {
+                "euler" => Scheme::Euler,
+                "bdf2" => Scheme::Bdf2,
+                other => {
+                    return Err(at(
+                        s.span(),
+                        format!("[numerics] scheme: unknown scheme \"{other}\" (euler, bdf2)"),
+                    ))
+                }
+            },
+        },
+        adaptive_dt: n.and_then(|n| n.adaptive_dt).unwrap_or(false),
+    };
+    let output_every = match f.output.as_ref().and_then(|o| o.every.as_ref()) {
+        Some(e) if *e.get_ref() == 0 => {
+            return Err(at(e.span(), "[output] every must be at least 1".into()))
+        }
+        Some(e) => *e.get_ref(),
+        None => 10,
+    };
+    let sections = f.cells.unwrap_or_default();
+    if sections.is_empty() {
+        return Err(SceneError::new(file, "the scene has no [[cells]]"));
+    }
+    let mut cells = Vec::new();
+    for (k, c) in sections.iter().enumerate() {
+        cells.extend(cell_specs(c, k, &at, &positive, &finite, text)?);
+    }
+    check_overlaps(&cells, file)?;
+    let effects = effects(&cells, &flow);
+    Ok(CellScene {
+        viscosity,
+        flow,
+        cells,
+        numerics,
+        output_every,
+        effects,
+    })
+}
+
+type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
+type Check<'a> = dyn Fn(&Spanned<f64>, &str) -> Result<f64, SceneError> + 'a;
+
+fn cell_specs(
+    c: &CellSection,
+    k: usize,
+    at: &At,
+    positive: &Check,
+    finite: &Check,
+    text: &str,
+) -> Result<Vec<CellSpec>, SceneError> {
+    let key = |name: &str| format!("[[cells]] #{} {name}", k + 1);
+    let shape = match c.shape.get_ref().as_str() {
+        "sphere" => Shape::Sphere,
+        "rbc" => Shape::Rbc,
+        "ellipsoid" => {
+            let a = c.axes.as_ref().ok_or_else(|| {
+                at(
+                    c.shape.span(),
+                    format!("{} = \"ellipsoid\" needs axes", key("shape")),
+                )
+            })?;
+            if !a.get_ref().iter().all(|v| v.is_finite() && *v > 0.0) {
+                return Err(at(
+                    a.span(),
+                    format!("{} must be three positive numbers", key("axes")),
+                ));
+            }
+            Shape::Ellipsoid { axes: *a.get_ref() }
+        }
+        s @ ("prolate" | "oblate") => {
+            let v = c.reduced_volume.as_ref().ok_or_else(|| {
+                at(
+                    c.shape.span(),
+                    format!("{} = \"{s}\" needs reduced_volume", key("shape")),
+                )
+            })?;
+            let x = *v.get_ref();
+            if !(x > 0.0 && x < 1.0) {
+                return Err(at(
+                    v.span(),
+                    format!("{} must be in (0, 1), got {x}", key("reduced_volume")),
+                ));
+            }
+            Shape::Spheroid {
+                kind: if s == "prolate" {
+                    Spheroid::Prolate
+                } else {
+                    Spheroid::Oblate
+                },
+                reduced_volume: x,
+            }
+        }
+        other => {
+            return Err(at(
+                c.shape.span(),
+                format!(
+                    "{}: unknown shape \"{other}\" (sphere, ellipsoid, rbc, prolate, oblate)",
+                    key("shape")
+                ),
+            ))
+        }
+    };
+    let get = |v: &Option<Spanned<f64>>, name: &str, default: f64, pos: bool| match v {
+        Some(v) if pos => positive(v, &key(name)),
+        Some(v) => finite(v, &key(name)),
+        None => Ok(default),
+    };
+    let radius = get(&c.radius, "radius", 1.0, true)?;
+    let bending = get(&c.bending_modulus, "bending_modulus", 0.05, true)?;
+    let shear = get(&c.shear_modulus, "shear_modulus", 0.0, false)?;
+    if shear < 0.0 {
+        let sp = c.shear_modulus.as_ref().expect("set").span();
+        return Err(at(
+            sp,
+            format!("{} must not be negative", key("shear_modulus")),
+        ));
+    }
+    let skalak_c = get(&c.skalak_c, "skalak_c", 10.0, true)?;
+    let lambda = get(&c.viscosity_ratio, "viscosity_ratio", 1.0, true)?;
+    let vec3 = |v: &Option<Spanned<[f64; 3]>>, name: &str| -> Result<[f64; 3], SceneError> {
+        match v {
+            Some(v) if v.get_ref().iter().all(|x| x.is_finite()) => Ok(*v.get_ref()),
+            Some(v) => Err(at(v.span(), format!("{} must be finite", key(name)))),
+            None => Ok([0.0; 3]),
+        }
+    };
+    let center = vec3(&c.center, "center")?;
+    let force = vec3(&c.force, "force")?;
+    let rot = match &c.orientation {
+        Some(o) => {
+            let v = o.get_ref();
+            rotation([v[0], v[1], v[2]], v[3]).ok_or_else(|| {
+                at(
+                    o.span(),
+                    format!(
+                        "{} must be [axis_x, axis_y, axis_z, degrees] with a non-zero axis",
+                        key("orientation")
+                    ),
+                )
+            })?
+        }
+        None => [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+    };
+    // Bounding radius from the shape itself (order 12 is plenty for the extent).
+    let unit =
+        unit_shape(&shape, 12).map_err(|e| at(c.shape.span(), format!("{}: {e}", key("shape"))))?;
+    let bounding = bounding_radius(&unit)
+        .map_err(|e| at(c.shape.span(), format!("{}: {e}", key("shape"))))?
+        * radius;
+    let line = line_col(text, c.shape.span().start).0;
+    let base = CellSpec {
+        shape,
+        radius,
+        center,
+        rotation: rot,
+        bending_modulus: bending,
+        shear_modulus: shear,
+        skalak_c,
+        viscosity_ratio: lambda,
+        force,
+        bounding_radius: bounding,
+        line,
+    };
+    let count = match &c.count {
+        Some(n) if *n.get_ref() == 0 => {
+            return Err(at(n.span(), format!("{} must be at least 1", key("count"))))
+        }
+        Some(n) => *n.get_ref(),
+        None => 1,
+    };
+    let placement = c.placement.as_ref().map(|p| p.get_ref().as_str());
+    if count == 1 && placement.is_none() {
+        return Ok(vec![base]);
+    }
+    let spacing = match &c.spacing {
+        Some(s) => positive(s, &key("spacing"))?,
+        None => 2.2 * bounding,
+    };
+    let centers: Vec<[f64; 3]> = match placement.unwrap_or("lattice") {
+        "lattice" => {
+            let side = (count as f64).cbrt().ceil() as usize;
+            let off = (side as f64 - 1.0) / 2.0;
+            (0..count)
+                .map(|i| {
+                    let (a, b, cc) = (i % side, (i / side) % side, i / (side * side));
+                    [
+                        center[0] + spacing * (a as f64 - off),
+                        center[1] + spacing * (b as f64 - off),
+                        center[2] + spacing * (cc as f64 - off),
+                    ]
+                })
+                .collect()
+        }
+        "random" => {
+            let r = c.region.as_ref().ok_or_else(|| {
+                at(
+                    c.placement.as_ref().expect("set").span(),
+                    format!(
+                        "{} = \"random\" needs region = [[x0, y0, z0], [x1, y1, z1]]",
+                        key("placement")
+                    ),
+                )
+            })?;
+            let [lo, hi] = *r.get_ref();
+            if !(0..3).all(|d| hi[d] - lo[d] > 2.0 * bounding) {
+                return Err(at(
+                    r.span(),
+                    format!("{} is too small for one cell", key("region")),
+                ));
+            }
+            let mut rng = StdRng::seed_from_u64(c.seed.unwrap_or(1));
+            let mut out: Vec<[f64; 3]> = Vec::with_capacity(count);
+            let gap = 2.0 * bounding * 1.05;
+            let mut tries = 0usize;
+            while out.len() < count {
+                tries += 1;
+                if tries > 1000 * count {
+                    return Err(at(
+                        r.span(),
+                        format!(
+                            "{}: could only place {} of {count} cells without overlap",
+                            key("region"),
+                            out.len()
+                        ),
+                    ));
+                }
+                let x: [f64; 3] =
+                    std::array::from_fn(|d| rng.random_range(lo[d] + bounding..hi[d] - bounding));
+                if out.iter().all(|y| dist(x, *y) >= gap) {
+                    out.push(x);
+                }
+            }
+            out
+        }
+        other => {
+            return Err(at(
+                c.placement.as_ref().expect("set").span(),
+                format!(
+                    "{}: unknown placement \"{other}\" (lattice, random)",
+                    key("placement")
+                ),
+            ))
+        }
+    };
+    Ok(centers
+        .into_iter()
+        .map(|x| CellSpec {
+            center: x,
+            ..base.clone()
+        })
+        .collect())
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}
+
+/// Largest distance of a grid point of the unit-size shape from its centroid.
+fn bounding_radius(s: &Surface) -> Result<f64, crate::vesicle::VesicleError> {
+    let mut s = s.clone();
+    s.scale_to_equivalent_radius(1.0)?;
+    s.place_centroid([0.0; 3])?;
+    let sht = crate::sph_harmonics::ShTransform::new(s.order())
+        .map_err(crate::vesicle::VesicleError::Sph)?;
+    let g = s.grid_positions(&sht)?;
+    let n = g.len() / 3;
+    Ok((0..n)
+        .map(|j| (g[j].powi(2) + g[n + j].powi(2) + g[2 * n + j].powi(2)).sqrt())
+        .fold(0.0, f64::max))
+}
+
+/// Cells whose bounding spheres intersect are an error naming both.
+fn check_overlaps(cells: &[CellSpec], file: &Path) -> Result<(), SceneError> {
+    for i in 0..cells.len() {
+        for j in 0..i {
+            let d = dist(cells[i].center, cells[j].center);
+            if d < cells[i].bounding_radius + cells[j].bounding_radius {
+                return Err(SceneError {
+                    file: file.to_path_buf(),
+                    place: Some((cells[i].line, 1)),
+                    message: format!(
+                        "cells {} (line {}) and {} (line {}) overlap: centres {:.4} apart, bounding radii {:.4} and {:.4}",
+                        j + 1,
+                        cells[j].line,
+                        i + 1,
+                        cells[i].line,
+                        d,
+                        cells[j].bounding_radius,
+                        cells[i].bounding_radius
+                    ),
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Which physics the scene needs, each with its reason: simulate only what the scene calls for.
+pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
+    let n = cells.len();
+    let contrast: Vec<usize> = (0..n)
+        .filter(|&i| (cells[i].viscosity_ratio - 1.0).abs() > 0.0)
+        .collect();
+    let shear: Vec<usize> = (0..n).filter(|&i| cells[i].shear_modulus > 0.0).collect();
+    let forced: Vec<usize> = (0..n).filter(|&i| cells[i].force != [0.0; 3]).collect();
+    let list = |v: &[usize]| {
+        let s: Vec<String> = v.iter().take(5).map(|i| (i + 1).to_string()).collect();
+        format!("{}{}", s.join(", "), if v.len() > 5 { ", …" } else { "" })
+    };
+    vec![
+        Effect {
+            name: "fmm",
+            enabled: n > 1,
+            reason: if n > 1 {
+                format!("{n} cells interact")
+            } else {
+                "one cell: no other cell to couple to".into()
+            },
+        },
+        Effect {
+            name: "double_layer",
+            enabled: !contrast.is_empty(),
+            reason: if contrast.is_empty() {
+                "every viscosity_ratio is 1".into()
+            } else {
+                format!("viscosity_ratio ≠ 1 for cells {}", list(&contrast))
+            },
+        },
+        Effect {
+            name: "skalak",
+            enabled: !shear.is_empty(),
+            reason: if shear.is_empty() {
+                "every shear_modulus is 0".into()
+            } else {
+                format!("shear_modulus > 0 for cells {}", list(&shear))
+            },
+        },
+        Effect {
+            name: "background_flow",
+            enabled: *flow != Flow::None,
+            reason: match flow {
+                Flow::None => "[flow] kind = \"none\" or absent".into(),
+                f => format!("{f:?}"),
+            },
+        },
+        Effect {
+            name: "body_force",
+            enabled: !forced.is_empty(),
+            reason: if forced.is_empty() {
+                "no cell has a force".into()
+            } else {
+                format!("force set for cells {}", list(&forced))
+            },
+        },
+    ]
+}

@@ -1,0 +1,196 @@
+//! Cell scene files: parsing, defaults, placement of many cells, the assembly decisions, and
+//! located errors for every kind of bad scene.
+
+use std::path::Path;
+
+use mobo::scene::cells::{parse, Flow, Scheme, Shape};
+use mobo::vesicle::geometry::SurfaceCalculus;
+
+const FULL: &str = r#"
+[fluid]
+viscosity = 2.0
+
+[flow]
+kind = "shear"
+rate = 0.5
+
+[[cells]]
+shape = "rbc"
+radius = 1.5
+center = [0.0, 0.0, 0.0]
+bending_modulus = 0.1
+shear_modulus = 0.2
+viscosity_ratio = 5.0
+force = [0.0, 0.0, -1.0]
+
+[[cells]]
+shape = "ellipsoid"
+axes = [1.0, 0.8, 0.6]
+center = [6.0, 0.0, 0.0]
+orientation = [0, 0, 1, 90]
+
+[numerics]
+order = 8
+upsample = 2
+fmm_digits = 5
+gmres_tol = 1e-7
+dt = 0.005
+t_end = 0.5
+scheme = "bdf2"
+adaptive_dt = true
+
+[output]
+every = 4
+"#;
+
+fn file() -> &'static Path {
+    Path::new("scene.toml")
+}
+
+#[test]
+fn a_full_scene_parses_with_its_values_and_effects() {
+    let s = parse(file(), FULL).unwrap();
+    assert_eq!(s.viscosity, 2.0);
+    assert_eq!(s.flow, Flow::Shear { rate: 0.5 });
+    assert_eq!(s.flow.velocity([1.0, 2.0, 3.0]), [1.0, 0.0, 0.0]);
+    assert_eq!(s.cells.len(), 2);
+    assert_eq!(s.cells[0].shape, Shape::Rbc);
+    assert_eq!(s.cells[0].line, 10);
+    assert_eq!(s.cells[1].line, 19);
+    assert_eq!(s.numerics.order, 8);
+    assert_eq!(s.numerics.scheme, Scheme::Bdf2);
+    assert!(s.numerics.adaptive_dt);
+    assert_eq!(s.output_every, 4);
+    let on = |name: &str| s.effects.iter().find(|e| e.name == name).unwrap().enabled;
+    assert!(
+        on("fmm")
+            && on("double_layer")
+            && on("skalak")
+            && on("background_flow")
+            && on("body_force")
+    );
+    // RBC bounding radius: α · radius with α = 1.3858 (unit equivalent radius).
+    assert!(
+        (s.cells[0].bounding_radius / 1.5 - 1.3858).abs() < 2e-3,
+        "{}",
+        s.cells[0].bounding_radius
+    );
+}
+
+#[test]
+fn one_plain_cell_builds_only_what_it_needs() {
+    let s = parse(file(), "[[cells]]\nshape = \"sphere\"\n").unwrap();
+    assert_eq!(s.cells.len(), 1);
+    assert_eq!(s.flow, Flow::None);
+    assert_eq!(s.numerics.order, 12);
+    for e in &s.effects {
+        assert!(!e.enabled, "{} enabled: {}", e.name, e.reason);
+        assert!(!e.reason.is_empty());
+    }
+    let fmm = s.effects.iter().find(|e| e.name == "fmm").unwrap();
+    assert!(fmm.reason.contains("one cell"), "{}", fmm.reason);
+}
+
+#[test]
+fn surfaces_are_scaled_rotated_and_placed() {
+    let s = parse(file(), FULL).unwrap();
+    let mut calc = SurfaceCalculus::new(8).unwrap();
+    // RBC: equivalent radius 1.5 at the origin.
+    let g = calc
+        .geometry(s.cells[0].surface(8).unwrap().coefs())
+        .unwrap();
+    let v = g.volume();
+    assert!(
+        (v - 4.0 / 3.0 * std::f64::consts::PI * 1.5f64.powi(3)).abs() < 1e-6 * v,
+        "{v}"
+    );
+    // Ellipsoid turned by 90° about z: its longest axis lies along y, centred at (6, 0, 0).
+    let g = calc
+        .geometry(s.cells[1].surface(8).unwrap().coefs())
+        .unwrap();
+    let c = g.centroid();
+    assert!(
+        (c[0] - 6.0).abs() < 1e-10 && c[1].abs() < 1e-10 && c[2].abs() < 1e-10,
+        "{c:?}"
+    );
+    let (_, axes) = g.principal_axes();
+    assert!(axes[0][1].abs() > 1.0 - 1e-8, "{axes:?}");
+}
+
+#[test]
+fn many_cells_on_a_lattice_and_at_random_do_not_overlap() {
+    let lat = parse(
+        file(),
+        "[[cells]]\nshape = \"rbc\"\ncount = 10\nplacement = \"lattice\"\n",
+    )
+    .unwrap();
+    assert_eq!(lat.cells.len(), 10);
+    let rnd = parse(
+        file(),
+        "[[cells]]\nshape = \"sphere\"\ncount = 40\nplacement = \"random\"\nregion = [[0, 0, 0], [12, 12, 12]]\nseed = 3\n",
+    )
+    .unwrap();
+    assert_eq!(rnd.cells.len(), 40);
+    for s in [&lat, &rnd] {
+        for i in 0..s.cells.len() {
+            for j in 0..i {
+                let (a, b) = (s.cells[i].center, s.cells[j].center);
+                let d =
+                    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt();
+                assert!(d >= s.cells[i].bounding_radius + s.cells[j].bounding_radius);
+            }
+        }
+    }
+    for c in &rnd.cells {
+        assert!(
+            c.center.iter().all(|&x| (1.0..=11.0).contains(&x)),
+            "{:?}",
+            c.center
+        );
+    }
+    let again = parse(
+        file(),
+        "[[cells]]\nshape = \"sphere\"\ncount = 40\nplacement = \"random\"\nregion = [[0, 0, 0], [12, 12, 12]]\nseed = 3\n",
+    )
+    .unwrap();
+    assert_eq!(rnd, again, "same seed, same placement");
+}
+
+#[test]
+fn bad_scenes_name_the_file_the_line_and_the_problem() {
+    let cases: &[(&str, &str)] = &[
+        ("[[cells]]\nshape = \"sphere\"\ncolour = 1\n", "scene.toml:3"),
+        ("[[cells]]\nshape = \"sphere\"\nradius = \"big\"\n", "scene.toml:3"),
+        ("[[cells]]\nshape = \"sphere\"\nradius = -1.0\n", "radius must be a positive"),
+        ("[[cells]]\nshape = \"cube\"\n", "unknown shape \"cube\""),
+        ("[[cells]]\nshape = \"ellipsoid\"\n", "needs axes"),
+        ("[[cells]]\nshape = \"prolate\"\nreduced_volume = 1.5\n", "reduced_volume must be in (0, 1)"),
+        (
+            "[[cells]]\nshape = \"sphere\"\n\n[[cells]]\nshape = \"sphere\"\ncenter = [1.0, 0, 0]\n",
+            "overlap",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\ncount = 50\nplacement = \"random\"\nregion = [[0, 0, 0], [4, 4, 4]]\n",
+            "could only place",
+        ),
+        ("[[cells]]\nshape = \"sphere\"\n[numerics]\ngmres_tol = 2.0\n", "scene.toml:4"),
+        ("[[cells]]\nshape = \"sphere\"\n[numerics]\norder = 1\n", "order must be between"),
+        ("[[cells]]\nshape = \"sphere\"\n[numerics]\nscheme = \"rk4\"\n", "unknown scheme"),
+        ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"shear\"\n", "needs rate"),
+        ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"vortex\"\nrate = 1.0\n", "unknown flow"),
+        ("[[cells]]\nshape = \"sphere\"\n[output]\nevery = 0\n", "every must be at least 1"),
+        ("[fluid]\nviscosity = 1.0\n", "no [[cells]]"),
+        ("[[cells]]\nshape = \"sphere\"\norientation = [0, 0, 0, 30]\n", "non-zero axis"),
+    ];
+    for (text, want) in cases {
+        let e = parse(file(), text).expect_err(text).to_string();
+        assert!(e.starts_with("scene.toml"), "{e}");
+        assert!(
+            e.contains(want),
+            "expected '{want}' in: {e}\n--- scene:\n{text}"
+        );
+    }
+    // Value errors carry the line of the value.
+    let e = parse(file(), "[[cells]]\nshape = \"sphere\"\nradius = -1.0\n").unwrap_err();
+    assert_eq!(e.place.map(|p| p.0), Some(3));
+}
