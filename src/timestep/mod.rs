@@ -17,6 +17,7 @@
 //! ## Preconditioners ([`Preconditioner`])
 //!
 //! A preconditioner applies `z = M⁻¹ v` for an approximation `M ≈ A`. [`Identity`] is `M = I`;
+//! [`FnPreconditioner`] wraps a closure (matrix-free `M⁻¹`);
 //! [`BlockDiagonal`] is `M = diag(B₁, …, B_K)` with dense square blocks of possibly different sizes,
 //! each factored once as `P_k B_k = L_k U_k` (partial pivoting, [`faer::Mat::partial_piv_lu`]) and
 //! applied per block as `z_k = U_k⁻¹ L_k⁻¹ P_k v_k`, in parallel over blocks (rayon). This is the
@@ -86,7 +87,9 @@ mod gmres;
 mod operator;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};
-pub use operator::{BlockDiagonal, FnOperator, Identity, LinearOperator, Preconditioner};
+pub use operator::{
+    BlockDiagonal, FnOperator, FnPreconditioner, Identity, LinearOperator, Preconditioner,
+};
 
 /// Errors of the time-stepping layer.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -123,6 +123,44 @@ impl<T: Preconditioner + ?Sized> Preconditioner for &T {
     }
 }
 
+/// A preconditioner of size `n` given by a closure `f(v, z)` that writes `z = M⁻¹ v` (for
+/// matrix-free preconditioners, e.g. one diagonal in spherical-harmonic coefficients).
+///
+/// ```
+/// use mobo::timestep::{FnPreconditioner, Preconditioner};
+/// // Jacobi for diag(2, 4): z = v ./ d
+/// let d = [2.0, 4.0];
+/// let m = FnPreconditioner::new(2, |v: &[f64], z: &mut [f64]| {
+///     for ((zi, vi), di) in z.iter_mut().zip(v).zip(&d) {
+///         *zi = vi / di;
+///     }
+/// });
+/// let mut z = [0.0; 2];
+/// m.apply(&[1.0, 1.0], &mut z);
+/// assert_eq!(z, [0.5, 0.25]);
+/// ```
+#[derive(Clone, Copy, Debug)]
+pub struct FnPreconditioner<F> {
+    n: usize,
+    f: F,
+}
+
+impl<F: Fn(&[f64], &mut [f64]) + Sync> FnPreconditioner<F> {
+    /// Wrap `f` as an `n × n` preconditioner.
+    pub fn new(n: usize, f: F) -> Self {
+        Self { n, f }
+    }
+}
+
+impl<F: Fn(&[f64], &mut [f64]) + Sync> Preconditioner for FnPreconditioner<F> {
+    fn nrows(&self) -> usize {
+        self.n
+    }
+    fn apply(&self, v: &[f64], z: &mut [f64]) {
+        (self.f)(v, z)
+    }
+}
+
 /// No preconditioning, `M = I` of size `n`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Identity {
