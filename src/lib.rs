@@ -14,4 +14,5 @@ pub mod fmm;
 pub mod io;
 pub mod scene;
 pub mod sph_harmonics;
+pub mod timestep;
 pub mod vesicle;
