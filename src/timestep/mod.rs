@@ -1,4 +1,6 @@
-//! Time stepping: for now, its Krylov layer (linear operators, preconditioners, restarted GMRES).
+//! Time stepping: the Krylov layer (linear operators, preconditioners, restarted GMRES) and the
+//! first-order semi-implicit step of one vesicle ([`semi_implicit`]); many cells coupled by the
+//! FMM, BDF2, adaptive `dt` and the scenes come next.
 //!
 //! The semi-implicit step of Veerapaneni, Rahimian, Biros & Zorin (*A fast algorithm for
 //! simulating vesicle flows in three dimensions*, J. Comput. Phys. 230, 2011) freezes the
@@ -85,6 +87,7 @@
 
 mod gmres;
 mod operator;
+pub mod semi_implicit;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};
 pub use operator::{
@@ -94,6 +97,9 @@ pub use operator::{
 /// Errors of the time-stepping layer.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TimestepError {
+    /// An error of the cell geometry, forces or layer potentials (its message).
+    #[error("{0}")]
+    Vesicle(String),
     /// A vector or operator whose size does not match the system.
     #[error("size mismatch: {what} has size {got}, expected {expected}")]
     DimensionMismatch {
@@ -168,5 +174,11 @@ impl TimestepError {
             TimestepError::NotConverged(r) | TimestepError::Breakdown(r) => Some(r),
             _ => None,
         }
+    }
+}
+
+impl From<crate::vesicle::VesicleError> for TimestepError {
+    fn from(e: crate::vesicle::VesicleError) -> Self {
+        TimestepError::Vesicle(e.to_string())
     }
 }

@@ -1,0 +1,211 @@
+//! The first-order semi-implicit step of one vesicle (Veerapaneni, Rahimian, Biros & Zorin,
+//! J. Comput. Phys. 230, 2011), viscosity ratio 1, in a background flow with a body force.
+//!
+//! With the geometry frozen at `Xⁿ` (single layer `S`, linearised bending `B`, tension `T`,
+//! surface divergence `Div`, all of `Xⁿ`), the new positions and tension solve
+//!
+//! ```text
+//!     X − Δt S (B X + T σ) = Xⁿ + Δt (u_∞(Xⁿ) + S f_ext)
+//!     Div X                = Div Xⁿ              (∇ₛⁿ·(X − Xⁿ) = 0, inextensibility)
+//! ```
+//!
+//! a nonsymmetric system in `4n` unknowns (`n = 2p(p+1)` grid points) solved by GMRES. `S` is
+//! assembled once per step as the dense self-interaction operator and applied as a GEMV in
+//! every iteration; `B X` and `T σ` are applied matrix-free on the upsampled grid. Bending is
+//! implicit, so `Δt` is not bound by the explicit stiffness limit `Δt ~ μ h³/κ`.
+
+use std::sync::Mutex;
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+
+use super::TimestepError;
+use super::{gmres, FnOperator, GmresParams, GmresReport, GmresWorkspace, Identity};
+use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
+use crate::vesicle::membrane::Membrane;
+
+/// Physical and numerical parameters of a vesicle step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VesicleParams {
+    /// Bending modulus `κ_b`.
+    pub bending_modulus: f64,
+    /// Viscosity `μ` (inside and outside).
+    pub viscosity: f64,
+    /// Body force on the cell (spread as a uniform traction `F / A`).
+    pub force: [f64; 3],
+    /// Time step.
+    pub dt: f64,
+    /// Quadrature order of the forces and the singular integrals (`q ≥ p`, usually `2p`).
+    pub upsampled_order: usize,
+    /// Linear solver settings.
+    pub gmres: GmresParams,
+}
+
+/// What one step did.
+#[derive(Clone, Debug)]
+pub struct StepReport {
+    /// The GMRES solve.
+    pub gmres: GmresReport,
+}
+
+/// Steps one vesicle of SH order `p`.
+pub struct VesicleStepper {
+    p: usize,
+    params: VesicleParams,
+    membrane: Mutex<Membrane>,
+    layer: SelfInteraction,
+    sht: ShTransform,
+    ws: ShWorkspace,
+    /// Dense single layer, `3n × 3n`, column-major.
+    s_op: Vec<f64>,
+    /// Tension of the last step (initial guess of the next).
+    pub sigma: Vec<f64>,
+    gmres_ws: GmresWorkspace,
+}
+
+fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
+    if v.is_finite() && v > 0.0 {
+        Ok(())
+    } else {
+        Err(TimestepError::InvalidParameter {
+            name,
+            value: format!("{v}"),
+            reason: "must be positive and finite",
+        })
+    }
+}
+
+impl VesicleStepper {
+    /// Plans for order `p`.
+    pub fn new(p: usize, params: VesicleParams) -> Result<Self, TimestepError> {
+        check("bending_modulus", params.bending_modulus)?;
+        check("viscosity", params.viscosity)?;
+        check("dt", params.dt)?;
+        if !params.force.iter().all(|f| f.is_finite()) {
+            return Err(TimestepError::NonFinite { what: "force" });
+        }
+        params.gmres.validate()?;
+        let q = params.upsampled_order.max(p);
+        let sht = ShTransform::new(p).map_err(crate::vesicle::VesicleError::from)?;
+        let ws = sht.workspace();
+        let n = sht.n_points();
+        Ok(VesicleStepper {
+            p,
+            params,
+            membrane: Mutex::new(Membrane::new(p, q)?),
+            layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
+            sht,
+            ws,
+            s_op: vec![0.0; 9 * n * n],
+            sigma: vec![0.0; n],
+            gmres_ws: GmresWorkspace::new(4 * n, params.gmres.restart),
+        })
+    }
+
+    /// SH order.
+    pub fn order(&self) -> usize {
+        self.p
+    }
+
+    /// Advance the surface with coefficients `coefs` (x, y, z at order `p`) by one step in the
+    /// background flow `u_inf`.
+    pub fn step(
+        &mut self,
+        coefs: &mut [f64],
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    ) -> Result<StepReport, TimestepError> {
+        let n = self.sht.n_points();
+        let (dt, kappa) = (self.params.dt, self.params.bending_modulus);
+        let mut xg = vec![0.0; 3 * n];
+        self.sht
+            .inverse(coefs, &mut xg, &mut self.ws)
+            .map_err(crate::vesicle::VesicleError::from)?;
+        let area = {
+            let mut m = self.membrane.lock().expect("membrane lock");
+            m.set_geometry(coefs)?;
+            m.geometry()?.area()
+        };
+        self.layer.assemble(
+            LayerKernel::SingleLayer {
+                viscosity: self.params.viscosity,
+            },
+            coefs,
+            &mut self.s_op,
+        )?;
+        let s_op = MatRef::from_column_major_slice(&self.s_op, 3 * n, 3 * n);
+        let gemv = |x: &[f64], y: &mut [f64], beta: f64| {
+            // y ← y + beta · S x
+            matmul(
+                MatMut::from_column_major_slice_mut(y, 3 * n, 1),
+                Accum::Add,
+                s_op,
+                MatRef::from_column_major_slice(x, 3 * n, 1),
+                beta,
+                Par::Seq,
+            );
+        };
+        // Right-hand side.
+        let mut b = vec![0.0; 4 * n];
+        let mut fext = vec![0.0; 3 * n];
+        for c in 0..3 {
+            fext[c * n..(c + 1) * n].fill(self.params.force[c] / area);
+        }
+        for j in 0..n {
+            let u = u_inf([xg[j], xg[n + j], xg[2 * n + j]]);
+            for c in 0..3 {
+                b[c * n + j] = xg[c * n + j] + dt * u[c];
+            }
+        }
+        gemv(&fext, &mut b[..3 * n], dt);
+        self.membrane
+            .lock()
+            .expect("membrane lock")
+            .surface_divergence(&xg, &mut b[3 * n..])?;
+        // The operator [X; σ] ↦ [X − Δt S (B X + T σ); Div X].
+        let membrane = &self.membrane;
+        let failure: Mutex<Option<crate::vesicle::VesicleError>> = Mutex::new(None);
+        let op = FnOperator::new(4 * n, |z: &[f64], y: &mut [f64]| {
+            let (x, sigma) = z.split_at(3 * n);
+            let mut fb = vec![0.0; 3 * n];
+            let mut ft = vec![0.0; 3 * n];
+            let mut m = membrane.lock().expect("membrane lock");
+            let r = m
+                .bending_linear(kappa, x, &mut fb)
+                .and_then(|_| m.tension_force(sigma, &mut ft))
+                .and_then(|_| m.surface_divergence(x, &mut y[3 * n..]));
+            if let Err(e) = r {
+                *failure.lock().expect("failure lock") = Some(e);
+                y.fill(f64::NAN);
+                return;
+            }
+            for (a, t) in fb.iter_mut().zip(&ft) {
+                *a += t;
+            }
+            y[..3 * n].copy_from_slice(x);
+            gemv(&fb, &mut y[..3 * n], -dt);
+        });
+        let mut z0 = vec![0.0; 4 * n];
+        z0[..3 * n].copy_from_slice(&xg);
+        z0[3 * n..].copy_from_slice(&self.sigma);
+        let mut z = vec![0.0; 4 * n];
+        let report = gmres(
+            &op,
+            &Identity::new(4 * n),
+            &b,
+            Some(&z0),
+            &mut z,
+            &self.params.gmres,
+            &mut self.gmres_ws,
+        );
+        if let Some(e) = failure.into_inner().expect("failure lock") {
+            return Err(e.into());
+        }
+        let report = report?;
+        self.sigma.copy_from_slice(&z[3 * n..]);
+        self.sht
+            .forward(&z[..3 * n], coefs, &mut self.ws)
+            .map_err(crate::vesicle::VesicleError::from)?;
+        Ok(StepReport { gmres: report })
+    }
+}
