@@ -13,6 +13,10 @@
 //! assembled once per step as the dense self-interaction operator and applied as a GEMV in
 //! every iteration; `B X` and `T σ` are applied matrix-free on the upsampled grid. Bending is
 //! implicit, so `Δt` is not bound by the explicit stiffness limit `Δt ~ μ h³/κ`.
+//!
+//! The linearised constraint keeps the area to first order only; with `correct_drift` each
+//! step ends with a normal displacement `(α + β H) n` whose `α, β` restore the area and volume
+//! of the first step (Newton on `δV = ∫ φ dA`, `δA = −2 ∫ H φ dA` for `φ = α + β H`).
 
 use std::sync::Mutex;
 
@@ -22,6 +26,7 @@ use faer::{Accum, MatMut, MatRef, Par};
 use super::TimestepError;
 use super::{gmres, FnOperator, GmresParams, GmresReport, GmresWorkspace, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
 
@@ -40,6 +45,8 @@ pub struct VesicleParams {
     pub upsampled_order: usize,
     /// Linear solver settings.
     pub gmres: GmresParams,
+    /// Restore the initial area and volume after every step.
+    pub correct_drift: bool,
 }
 
 /// What one step did.
@@ -62,6 +69,9 @@ pub struct VesicleStepper {
     /// Tension of the last step (initial guess of the next).
     pub sigma: Vec<f64>,
     gmres_ws: GmresWorkspace,
+    calc: SurfaceCalculus,
+    /// Area and volume to restore (those of the first step's surface).
+    targets: Option<(f64, f64)>,
 }
 
 fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
@@ -100,6 +110,8 @@ impl VesicleStepper {
             s_op: vec![0.0; 9 * n * n],
             sigma: vec![0.0; n],
             gmres_ws: GmresWorkspace::new(4 * n, params.gmres.restart),
+            calc: SurfaceCalculus::new(p)?,
+            targets: None,
         })
     }
 
@@ -117,6 +129,10 @@ impl VesicleStepper {
     ) -> Result<StepReport, TimestepError> {
         let n = self.sht.n_points();
         let (dt, kappa) = (self.params.dt, self.params.bending_modulus);
+        if self.targets.is_none() {
+            let g = self.calc.geometry(coefs)?;
+            self.targets = Some((g.area(), g.volume()));
+        }
         let mut xg = vec![0.0; 3 * n];
         self.sht
             .inverse(coefs, &mut xg, &mut self.ws)
@@ -206,6 +222,51 @@ impl VesicleStepper {
         self.sht
             .forward(&z[..3 * n], coefs, &mut self.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
+        if self.params.correct_drift {
+            let (area, volume) = self.targets.expect("set above");
+            self.correct_area_volume(coefs, area, volume)?;
+        }
         Ok(StepReport { gmres: report })
+    }
+
+    /// Move the surface along its normal by `(α + β H) n` so that its area and volume become
+    /// `area` and `volume` (three Newton steps; quadratic convergence from a small drift).
+    pub fn correct_area_volume(
+        &mut self,
+        coefs: &mut [f64],
+        area: f64,
+        volume: f64,
+    ) -> Result<(), TimestepError> {
+        let n = self.sht.n_points();
+        let mut xg = vec![0.0; 3 * n];
+        for _ in 0..3 {
+            let g = self.calc.geometry(coefs)?;
+            let (da, dv) = (area - g.area(), volume - g.volume());
+            if da.abs() <= 1e-14 * area && dv.abs() <= 1e-14 * volume {
+                break;
+            }
+            let hh: Vec<f64> = g.h.iter().map(|h| h * h).collect();
+            let (i0, i1, i2) = (g.area(), g.integrate(&g.h), g.integrate(&hh));
+            // [i0 i1; −2 i1 −2 i2] [α; β] = [δV; δA]
+            let det = -2.0 * i0 * i2 + 2.0 * i1 * i1;
+            if det.abs() < 1e-300 {
+                break;
+            }
+            let alpha = (-2.0 * i2 * dv - i1 * da) / det;
+            let beta = (i0 * da + 2.0 * i1 * dv) / det;
+            self.sht
+                .inverse(coefs, &mut xg, &mut self.ws)
+                .map_err(crate::vesicle::VesicleError::from)?;
+            for j in 0..n {
+                let phi = alpha + beta * g.h[j];
+                for c in 0..3 {
+                    xg[c * n + j] += phi * g.normal[j][c];
+                }
+            }
+            self.sht
+                .forward(&xg, coefs, &mut self.ws)
+                .map_err(crate::vesicle::VesicleError::from)?;
+        }
+        Ok(())
     }
 }
