@@ -4,6 +4,7 @@
 use mobo::timestep::semi_implicit::{VesicleParams, VesicleStepper};
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
+use mobo::vesicle::reparam::ReparamParams;
 use mobo::vesicle::shapes::{self, Spheroid};
 
 fn main() {
@@ -36,6 +37,12 @@ fn main() {
             max_iters: 2000,
         },
         correct_drift: std::env::var("MOBO_NO_DRIFT_CORRECTION").is_err(),
+        reparametrize: std::env::var("MOBO_NO_REPARAM")
+            .is_err()
+            .then(|| ReparamParams {
+                max_iterations: 10,
+                ..Default::default()
+            }),
     };
     let mut st = VesicleStepper::new(p, params).unwrap();
     let mut coefs = s.coefs().to_vec();

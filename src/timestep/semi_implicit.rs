@@ -14,7 +14,9 @@
 //! every iteration; `B X` and `T σ` are applied matrix-free on the upsampled grid. Bending is
 //! implicit, so `Δt` is not bound by the explicit stiffness limit `Δt ~ μ h³/κ`.
 //!
-//! The linearised constraint keeps the area to first order only; with `correct_drift` each
+//! Optionally the grid is reparametrised after each step (tank-treading carries grid points
+//! along the membrane and degrades the parametrisation; without it long runs at large `Δt`
+//! degenerate). The linearised constraint keeps the area to first order only; with `correct_drift` each
 //! step ends with a normal displacement `(α + β H) n` whose `α, β` restore the area and volume
 //! of the first step (Newton on `δV = ∫ φ dA`, `δA = −2 ∫ H φ dA` for `φ = α + β H`).
 
@@ -29,6 +31,8 @@ use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
+use crate::vesicle::reparam::{reparametrize, ReparamParams};
+use crate::vesicle::shapes::Surface;
 
 /// Physical and numerical parameters of a vesicle step.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -47,6 +51,9 @@ pub struct VesicleParams {
     pub gmres: GmresParams,
     /// Restore the initial area and volume after every step.
     pub correct_drift: bool,
+    /// Reparametrise the grid after every step (remove tangential drift; Veerapaneni et al.
+    /// 2011 §3.4), before the drift correction.
+    pub reparametrize: Option<ReparamParams>,
 }
 
 /// What one step did.
@@ -222,6 +229,11 @@ impl VesicleStepper {
         self.sht
             .forward(&z[..3 * n], coefs, &mut self.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
+        if let Some(rp) = &self.params.reparametrize {
+            let mut surf = Surface::from_coefs(self.p, coefs.to_vec())?;
+            reparametrize(&mut surf, rp)?;
+            coefs.copy_from_slice(surf.coefs());
+        }
         if self.params.correct_drift {
             let (area, volume) = self.targets.expect("set above");
             self.correct_area_volume(coefs, area, volume)?;
