@@ -6,6 +6,7 @@
 pub mod brownian;
 pub mod brownian_run;
 pub mod cells;
+pub mod cells_run;
 
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,137 @@
+//! `mobo run` on cell scenes: a sedimenting spherical vesicle moves at `F/(6πμa)`, a vesicle in
+//! shear writes its frames and summary, and scenes that need what is not built yet are refused
+//! with a clear message.
+
+mod common;
+use common::{mobo, tmpdir};
+
+fn write(dir: &std::path::Path, name: &str, text: &str) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p.to_str().unwrap().to_string()
+}
+
+fn summary(dir: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn a_sedimenting_vesicle_scene_moves_at_the_stokes_speed() {
+    let dir = tmpdir("run-sed");
+    let scene = write(
+        &dir,
+        "sed.toml",
+        r#"
+[fluid]
+viscosity = 2.0
+[[cells]]
+shape = "sphere"
+radius = 0.8
+force = [0.0, 0.0, -3.0]
+[numerics]
+order = 8
+dt = 0.1
+t_end = 0.3
+gmres_tol = 1e-11
+"#,
+    );
+    let out = dir.join("out");
+    let o = mobo(&["run", &scene, "--out", out.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&out);
+    let v = s["centroid_velocity"][2].as_f64().unwrap();
+    let want = -3.0 / (6.0 * std::f64::consts::PI * 2.0 * 0.8);
+    assert!((v - want).abs() < 1e-4 * want.abs(), "{v} vs {want}");
+    let on: Vec<&str> = s["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["enabled"].as_bool().unwrap())
+        .map(|e| e["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(on, vec!["body_force"], "only the body force is built");
+}
+
+#[test]
+fn a_vesicle_in_shear_writes_frames_and_a_summary() {
+    let dir = tmpdir("run-shear");
+    let scene = write(
+        &dir,
+        "shear.toml",
+        r#"
+[flow]
+kind = "shear"
+rate = 1.0
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+bending_modulus = 1.0
+[numerics]
+order = 6
+dt = 0.1
+t_end = 2.0
+[output]
+every = 5
+"#,
+    );
+    let out = dir.join("out");
+    let o = mobo(&["run", &scene, "--out", out.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&out);
+    assert_eq!(s["steps"].as_u64(), Some(20));
+    assert_eq!(s["frames"].as_u64(), Some(5));
+    for key in [
+        "area_drift",
+        "volume_drift",
+        "gmres_iterations_mean",
+        "inclination_deg",
+        "wall_s",
+        "step_s",
+        "final_time",
+    ] {
+        assert!(s[key].is_number(), "{key} missing: {s}");
+    }
+    assert!(s["area_drift"].as_f64().unwrap().abs() < 1e-6);
+    let (shape, times) = mobo::io::npy::read_f64(&out.join("frames/times.npy")).unwrap();
+    assert_eq!(shape, vec![5]);
+    assert_eq!(times, vec![0.0, 0.5, 1.0, 1.5, 2.0]);
+    let (shape, _) =
+        mobo::io::npy::read_f64(&out.join("frames/frame_00004_positions.npy")).unwrap();
+    assert_eq!(shape, vec![3, 2 * 6 * 7]);
+    let (shape, _) = mobo::io::npy::read_f64(&out.join("frames/frame_00004_tension.npy")).unwrap();
+    assert_eq!(shape, vec![2 * 6 * 7]);
+}
+
+#[test]
+fn scenes_beyond_what_is_built_are_refused_clearly() {
+    let dir = tmpdir("run-refuse");
+    let cases = [
+        (
+            "[[cells]]\nshape = \"sphere\"\ncount = 2\nplacement = \"lattice\"\n",
+            "2 cells",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\nviscosity_ratio = 5.0\n",
+            "viscosity_ratio",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\n[numerics]\nscheme = \"bdf2\"\n",
+            "bdf2",
+        ),
+        ("[[cells]]\nshape = \"sphere\"\nradius = -2\n", "bad.toml:3"),
+    ];
+    for (text, want) in cases {
+        let scene = write(&dir, "bad.toml", text);
+        let o = mobo(&[
+            "run",
+            &scene,
+            "--out",
+            dir.join("o").to_str().unwrap(),
+            "--quiet",
+        ]);
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success(), "{text} succeeded");
+        assert!(err.contains(want), "{want} not in: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+}
