@@ -2,7 +2,9 @@
 //! prolate vesicle relaxing at a large time step keeps its area and volume and loses bending
 //! energy monotonically.
 
-use mobo::timestep::semi_implicit::{VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{
+    explicit_is_stable, ExplicitStepper, VesicleParams, VesicleStepper,
+};
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::membrane::Membrane;
@@ -106,52 +108,25 @@ fn a_prolate_vesicle_relaxes_at_a_large_step_keeping_area_and_volume() {
 /// unstable: the time step of the implicit test is above the explicit stiffness limit.
 #[test]
 fn the_same_step_taken_explicitly_blows_up() {
-    use mobo::sph_harmonics::ShTransform;
-    use mobo::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
     let p = 8;
     let s = shapes::reduced_volume_spheroid(p, 0.9, Spheroid::Prolate, 1.0).unwrap();
-    let sht = ShTransform::new(p).unwrap();
-    let mut ws = sht.workspace();
-    let n = sht.n_points();
-    let mut m = Membrane::new(p, 2 * p).unwrap();
-    let mut layer = SelfInteraction::new(p, 2 * p, RotationAlgorithm::Direct).unwrap();
-    let mut coefs = s.coefs().to_vec();
-    let (mut x, mut fb, mut u) = (vec![0.0; 3 * n], vec![0.0; 3 * n], vec![0.0; 3 * n]);
-    m.set_geometry(&coefs).unwrap();
-    let e0 = m.bending_energy(0.1).unwrap();
-    let mut e = e0;
-    for _ in 0..30 {
-        m.set_geometry(&coefs).unwrap();
-        m.bending_force(0.1, &mut fb).unwrap();
-        layer
-            .evaluate(
-                LayerKernel::SingleLayer { viscosity: 1.0 },
-                &coefs,
-                &fb,
-                &mut u,
-            )
-            .unwrap();
-        sht.inverse(&coefs, &mut x, &mut ws).unwrap();
-        for (xi, ui) in x.iter_mut().zip(&u) {
-            *xi += 0.5 * ui;
-        }
-        sht.forward(&x, &mut coefs, &mut ws).unwrap();
-        match m.set_geometry(&coefs).and_then(|_| m.bending_energy(0.1)) {
-            Ok(v) if v.is_finite() => e = v,
-            _ => {
-                e = f64::INFINITY;
-                break;
-            }
-        }
-        if e > 100.0 * e0 {
-            break;
-        }
-    }
-    println!("explicit: bending energy {e0:.4} -> {e:.4e}");
-    assert!(
-        e > 10.0 * e0,
-        "explicit stepping stayed stable: {e0} -> {e}"
-    );
+    let mut st = ExplicitStepper::new(p, 2 * p, 0.1, 1.0, 0.5).unwrap();
+    assert!(!explicit_is_stable(
+        &mut st,
+        s.coefs(),
+        30,
+        10.0,
+        &|_| [0.0; 3]
+    ));
+    // ... while a step 50 times smaller is stable over the same time.
+    let mut st = ExplicitStepper::new(p, 2 * p, 0.1, 1.0, 0.01).unwrap();
+    assert!(explicit_is_stable(
+        &mut st,
+        s.coefs(),
+        100,
+        10.0,
+        &|_| [0.0; 3]
+    ));
 }
 
 /// Inclination angle (degrees) of the longest inertia axis in the flow (x–y) plane.
@@ -224,52 +199,11 @@ fn a_vesicle_in_shear_tank_treads_stably_at_a_large_step() {
     let (_, _, angle97, _) = shear_run(p, 0.97, DT, 400, KAPPA);
     println!("v = 0.97: inclination {angle97:.2}°");
     assert!(angle97 > angle && angle97 < 45.0, "{angle97} vs {angle}");
-    // Explicit stepping (shear + bending through the single layer, no constraint) diverges at
-    // Δt = 0.015.
-    use mobo::sph_harmonics::ShTransform;
-    use mobo::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
+    // Forward Euler diverges at Δt = 0.015 and is stable at 0.014 (over 2 time units).
     let s = shapes::reduced_volume_spheroid(p, 0.9, Spheroid::Prolate, 1.0).unwrap();
-    let sht = ShTransform::new(p).unwrap();
-    let mut ws = sht.workspace();
-    let nn = sht.n_points();
-    let mut m = Membrane::new(p, 2 * p).unwrap();
-    let mut layer = SelfInteraction::new(p, 2 * p, RotationAlgorithm::Direct).unwrap();
-    let mut coefs = s.coefs().to_vec();
-    let (mut x, mut fb, mut u) = (vec![0.0; 3 * nn], vec![0.0; 3 * nn], vec![0.0; 3 * nn]);
-    m.set_geometry(&coefs).unwrap();
-    let e0 = m.bending_energy(KAPPA).unwrap();
-    let mut e = e0;
-    let dt = DT_EXPLICIT;
-    for _ in 0..200 {
-        m.set_geometry(&coefs).unwrap();
-        m.bending_force(KAPPA, &mut fb).unwrap();
-        layer
-            .evaluate(
-                LayerKernel::SingleLayer { viscosity: 1.0 },
-                &coefs,
-                &fb,
-                &mut u,
-            )
-            .unwrap();
-        sht.inverse(&coefs, &mut x, &mut ws).unwrap();
-        for j in 0..nn {
-            let y = x[nn + j];
-            x[j] += dt * (u[j] + y);
-            x[nn + j] += dt * u[nn + j];
-            x[2 * nn + j] += dt * u[2 * nn + j];
-        }
-        sht.forward(&x, &mut coefs, &mut ws).unwrap();
-        match m.set_geometry(&coefs).and_then(|_| m.bending_energy(KAPPA)) {
-            Ok(v) if v.is_finite() && v < 100.0 * e0 => e = v,
-            _ => {
-                e = f64::INFINITY;
-                break;
-            }
-        }
-    }
-    println!("explicit at dt = {dt}: bending energy {e0:.3} -> {e:.3e}");
-    assert!(
-        e > 10.0 * e0,
-        "explicit stepping at {dt} stayed stable: {e0} -> {e}"
-    );
+    let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
+    let mut st = ExplicitStepper::new(p, 2 * p, KAPPA, 1.0, DT_EXPLICIT).unwrap();
+    assert!(!explicit_is_stable(&mut st, s.coefs(), 134, 10.0, &shear));
+    let mut st = ExplicitStepper::new(p, 2 * p, KAPPA, 1.0, 0.014).unwrap();
+    assert!(explicit_is_stable(&mut st, s.coefs(), 143, 10.0, &shear));
 }

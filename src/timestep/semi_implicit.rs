@@ -282,3 +282,111 @@ impl VesicleStepper {
         Ok(())
     }
 }
+
+/// Forward Euler of bending-driven flow, `X ← X + Δt (u_∞(X) + S[f_b(X)])`, without the
+/// inextensibility constraint: the explicit reference whose stiffness limit `Δt ~ μh³/κ` the
+/// semi-implicit step removes (used to measure that limit).
+pub struct ExplicitStepper {
+    kappa: f64,
+    viscosity: f64,
+    dt: f64,
+    membrane: Membrane,
+    layer: SelfInteraction,
+    sht: ShTransform,
+    ws: ShWorkspace,
+    x: Vec<f64>,
+    fb: Vec<f64>,
+    u: Vec<f64>,
+}
+
+impl ExplicitStepper {
+    /// Plan for order `p`, forces and quadrature at order `q`.
+    pub fn new(
+        p: usize,
+        q: usize,
+        kappa: f64,
+        viscosity: f64,
+        dt: f64,
+    ) -> Result<Self, TimestepError> {
+        check("bending_modulus", kappa)?;
+        check("viscosity", viscosity)?;
+        check("dt", dt)?;
+        let sht = ShTransform::new(p).map_err(crate::vesicle::VesicleError::from)?;
+        let n = sht.n_points();
+        Ok(ExplicitStepper {
+            kappa,
+            viscosity,
+            dt,
+            membrane: Membrane::new(p, q)?,
+            layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
+            ws: sht.workspace(),
+            sht,
+            x: vec![0.0; 3 * n],
+            fb: vec![0.0; 3 * n],
+            u: vec![0.0; 3 * n],
+        })
+    }
+
+    /// The bending energy `(κ/2)∫(2H)² dA` of a surface.
+    pub fn bending_energy(&mut self, coefs: &[f64]) -> Result<f64, TimestepError> {
+        self.membrane.set_geometry(coefs)?;
+        Ok(self.membrane.bending_energy(self.kappa)?)
+    }
+
+    /// One explicit step.
+    pub fn step(
+        &mut self,
+        coefs: &mut [f64],
+        u_inf: &dyn Fn([f64; 3]) -> [f64; 3],
+    ) -> Result<(), TimestepError> {
+        let n = self.sht.n_points();
+        self.membrane.set_geometry(coefs)?;
+        self.membrane.bending_force(self.kappa, &mut self.fb)?;
+        self.layer.evaluate(
+            LayerKernel::SingleLayer {
+                viscosity: self.viscosity,
+            },
+            coefs,
+            &self.fb,
+            &mut self.u,
+        )?;
+        self.sht
+            .inverse(coefs, &mut self.x, &mut self.ws)
+            .map_err(crate::vesicle::VesicleError::from)?;
+        for j in 0..n {
+            let b = u_inf([self.x[j], self.x[n + j], self.x[2 * n + j]]);
+            for (c, bc) in b.iter().enumerate() {
+                self.x[c * n + j] += self.dt * (self.u[c * n + j] + bc);
+            }
+        }
+        self.sht
+            .forward(&self.x, coefs, &mut self.ws)
+            .map_err(crate::vesicle::VesicleError::from)?;
+        Ok(())
+    }
+}
+
+/// Whether forward Euler at step `dt` keeps the bending energy below `growth` times its start
+/// for `steps` steps (an error or a non-finite energy counts as divergence).
+pub fn explicit_is_stable(
+    stepper: &mut ExplicitStepper,
+    coefs: &[f64],
+    steps: usize,
+    growth: f64,
+    u_inf: &dyn Fn([f64; 3]) -> [f64; 3],
+) -> bool {
+    let mut c = coefs.to_vec();
+    let Ok(e0) = stepper.bending_energy(&c) else {
+        return false;
+    };
+    for _ in 0..steps {
+        if stepper.step(&mut c, u_inf).is_err() {
+            return false;
+        }
+        match stepper.bending_energy(&c) {
+            Ok(e) if e.is_finite() && e < growth * e0 => {}
+            _ => return false,
+        }
+    }
+    true
+}
