@@ -321,7 +321,7 @@ impl Fmm {
         let ds = self.near.density_dim();
         let dt = self.near.output_dim();
         self.sources
-            .set_density(density, ds, &self.tree.source_perm.clone());
+            .set_density(density, ds, &self.tree.source_perm);
         let view = self.sources.all();
         let near = &self.near;
         let tree = &self.tree;
@@ -342,9 +342,8 @@ impl Fmm {
         self.check_sizes(density, out)?;
         let t0 = Instant::now();
         let ds = self.near.density_dim();
-        let perm = std::mem::take(&mut self.tree.source_perm);
-        self.sources.set_density(density, ds, &perm);
-        self.tree.source_perm = perm;
+        self.sources
+            .set_density(density, ds, &self.tree.source_perm);
         let clock = PhaseClock::new();
         let up = self.upward(&clock);
         let down = self.downward(&up, &clock);

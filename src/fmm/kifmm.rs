@@ -31,32 +31,16 @@ use super::kernels::Kernel;
 use super::octree::{Lists, Octree};
 use super::FmmError;
 
-/// Radius factor of the upward equivalent and downward check surfaces.
-pub const INNER: f64 = 1.05;
-/// Radius factor of the upward check surface.
-pub const UP_CHECK: f64 = 2.95;
-/// Radius factor of the downward equivalent surface: between the downward check surface and the
-/// nearest far sources (V-list equivalent points lie at `4h − 1.05h = 2.95h`).
-pub const DOWN_EQUIV: f64 = 2.5;
-/// Relative cut-off of the truncated-SVD pseudo-inverses (1e-10 measured best: 1e-12 and 1e-14
-/// amplify round-off so that errors grow with the order beyond p = 8).
+pub use super::operators::{DOWN_EQUIV, INNER, UP_CHECK};
+
+/// Relative cut-off of the truncated-SVD pseudo-inverses (1e-10 measured best for this
+/// explicit-inverse version: 1e-12 and 1e-14 amplify round-off so that errors grow with the
+/// order beyond p = 8; the fast FMM keeps the inverse factored instead).
 pub const RCOND: f64 = 1e-10;
 
 /// Points of the surface of the cube `[-1, 1]³` with `p ≥ 2` points per edge.
 pub fn cube_surface(p: usize) -> Vec<[f64; 3]> {
-    let c = |t: usize| -1.0 + 2.0 * t as f64 / (p - 1) as f64;
-    let mut out = Vec::new();
-    for i in 0..p {
-        for j in 0..p {
-            for k in 0..p {
-                let edge = |t: usize| t == 0 || t == p - 1;
-                if edge(i) || edge(j) || edge(k) {
-                    out.push([c(i), c(j), c(k)]);
-                }
-            }
-        }
-    }
-    out
+    super::surface::CubeSurface::new(p).points
 }
 
 /// Truncated-SVD pseudo-inverse (singular values below `rcond · σ_max` dropped).

@@ -187,9 +187,11 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
     let start = Instant::now();
     let mut step_s = 0.0;
     let (mut iters_sum, mut iters_max) = (0usize, 0usize);
-    let mut last_centroid = g0.centroid();
-    let mut velocity = [0.0; 3];
+    let mut before_last = g0.centroid();
     for k in 1..=steps {
+        if k == steps {
+            before_last = calc.geometry(&coefs)?.centroid();
+        }
         let t = Instant::now();
         let report = stepper
             .step(&mut coefs, &|x| flow.velocity(x))
@@ -207,17 +209,14 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
         bar.set_message(format!("t {:.3} dt {dt} gmres {it}", k as f64 * dt));
         bar.inc(1);
         if k == steps || k as u64 % scene.output_every == 0 {
-            let c = calc.geometry(&coefs)?.centroid();
-            velocity = std::array::from_fn(|d| (c[d] - last_centroid[d]) / dt);
             save(k, &coefs, &stepper.sigma.clone(), &mut times)?;
-        }
-        if k == steps - 1 {
-            last_centroid = calc.geometry(&coefs)?.centroid();
         }
     }
     bar.finish_and_clear();
     let g = calc.geometry(&coefs)?;
     let (_, axes) = g.principal_axes();
+    let c = g.centroid();
+    let velocity: [f64; 3] = std::array::from_fn(|d| (c[d] - before_last[d]) / dt);
     let wall = start.elapsed().as_secs_f64();
     let summary = CellRunSummary {
         cells: 1,
@@ -237,7 +236,7 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
         gmres_iterations_max: iters_max,
         area_drift: (g.area() - a0) / a0,
         volume_drift: (g.volume() - v0) / v0,
-        centroid: g.centroid(),
+        centroid: c,
         centroid_velocity: velocity,
         inclination_deg: (axes[0][1] / axes[0][0]).atan().to_degrees(),
         frames: times.len(),
