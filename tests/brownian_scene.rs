@@ -56,35 +56,13 @@ fn read_npy(path: &Path) -> (Vec<usize>, Vec<f64>) {
 
 #[test]
 fn every_example_scene_runs() {
-    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scenes");
-    let mut ran = 0;
-    for entry in std::fs::read_dir(&dir).unwrap() {
-        let path = entry.unwrap().path();
-        let text = std::fs::read_to_string(&path).unwrap();
-        if !text.contains("[brownian]") {
-            continue;
-        }
-        let out = tmpdir(&format!("ex{ran}"));
-        let o = mobo(&[
-            "brownian",
-            path.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ]);
-        assert!(
-            o.status.success(),
-            "{}: {}",
-            path.display(),
-            String::from_utf8_lossy(&o.stderr)
-        );
+    let ran = run_example_scenes("[brownian]", "brownian", |_, out| {
         let summary = std::fs::read_to_string(out.join("summary.json")).unwrap();
         assert!(summary.contains("\"effects\""));
         let (shape, data) = read_npy(&out.join("trajectory.npy"));
         assert_eq!(shape.len(), 3);
         assert!(data.iter().all(|v| v.is_finite()));
-        ran += 1;
-    }
+    });
     assert!(ran >= 2, "expected the Brownian example scenes");
 }
 

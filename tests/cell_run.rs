@@ -3,7 +3,7 @@
 //! with a clear message.
 
 mod common;
-use common::{mobo, tmpdir};
+use common::{mobo, run_example_scenes, tmpdir};
 
 fn write(dir: &std::path::Path, name: &str, text: &str) -> String {
     let p = dir.join(name);
@@ -138,36 +138,13 @@ fn scenes_beyond_what_is_built_are_refused_clearly() {
 
 #[test]
 fn every_example_cell_scene_runs() {
-    let dir = tmpdir("run-examples");
-    let scenes = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scenes");
-    let mut ran = 0;
-    for entry in std::fs::read_dir(&scenes).unwrap() {
-        let path = entry.unwrap().path();
-        let text = std::fs::read_to_string(&path).unwrap();
-        if !text.contains("[[cells]]") {
-            continue; // Brownian scenes: tests/brownian_scene.rs
-        }
-        let out = dir.join(path.file_stem().unwrap());
-        let o = mobo(&[
-            "run",
-            path.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ]);
-        assert!(
-            o.status.success(),
-            "{}: {}",
-            path.display(),
-            String::from_utf8_lossy(&o.stderr)
-        );
-        let s = summary(&out);
+    let ran = run_example_scenes("[[cells]]", "run", |path, out| {
+        let s = summary(out);
         assert!(
             s["area_drift"].as_f64().unwrap().abs() < 1e-6,
             "{}: {s}",
             path.display()
         );
-        ran += 1;
-    }
+    });
     assert!(ran >= 2, "only {ran} cell scenes found");
 }
