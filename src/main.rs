@@ -12,7 +12,7 @@ use mobo::sph_harmonics::{Deriv, ShTransform, SphError};
     version,
     about = "Deformable cells in Stokes flow: spherical-harmonic surfaces, boundary integrals, FMM",
     long_about = "Deformable cells in Stokes flow: spherical-harmonic surfaces, boundary integrals and a \
-kernel-independent FMM.\n\nWith no subcommand, runs the built-in demo."
+kernel-independent FMM.\n\nWith no subcommand, runs the built-in demo scene (mobo run: one red blood cell in shear)."
 )]
 struct Cli {
     #[command(subcommand)]
@@ -102,7 +102,11 @@ enum CliError {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let result = match cli.command.unwrap_or(Command::Demo { order: 16 }) {
+    let result = match cli.command.unwrap_or(Command::Run {
+        scene: None,
+        out: None,
+        quiet: false,
+    }) {
         Command::Demo { order } => demo(order),
         Command::Brownian { scene, out, quiet } => brownian(&scene, out, quiet),
         Command::Fmm(args) => fmm(args),

@@ -148,3 +148,18 @@ fn every_example_cell_scene_runs() {
     });
     assert!(ran >= 2, "only {ran} cell scenes found");
 }
+
+#[test]
+fn mobo_without_arguments_runs_the_demo_scene() {
+    let dir = tmpdir("run-demo");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_mobo"))
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&dir.join("out/demo"));
+    assert_eq!(s["steps"].as_u64(), Some(200));
+    assert!(s["area_drift"].as_f64().unwrap().abs() < 1e-6);
+    let inc = s["inclination_deg"].as_f64().unwrap();
+    assert!(inc > 0.0 && inc < 45.0, "{inc}");
+}
