@@ -6,11 +6,11 @@
 Prints a Markdown table: setup (tree + operators in a fresh process), one evaluation, and the
 evaluation time per point, which stays flat when the cost grows linearly with N.
 """
-import argparse, json, os, subprocess, sys, tempfile
+import argparse, os, sys, tempfile
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from fmm_vs_fmm3d import MOBO, cloud  # noqa: E402
+from fmm_vs_fmm3d import cloud, run_mobo  # noqa: E402
 
 
 def main():
@@ -30,16 +30,7 @@ def main():
                 for n in map(int, a.sizes.split(",")):
                     src = cloud(ck, n, rng)
                     dens = rng.uniform(-1, 1, n if kind == "laplace" else (n, 3))
-                    np.save(os.path.join(tmp, "s.npy"), src)
-                    np.save(os.path.join(tmp, "q.npy"), dens)
-                    o = subprocess.run([MOBO, "fmm", "--kernel", kind, "--sources",
-                                        os.path.join(tmp, "s.npy"), "--density",
-                                        os.path.join(tmp, "q.npy"), "--digits", str(a.digits),
-                                        "--out", os.path.join(tmp, "u.npy")],
-                                       capture_output=True, text=True)
-                    if o.returncode != 0:
-                        sys.exit(o.stderr)
-                    i = json.loads(o.stdout)
+                    _, i, _ = run_mobo(kind, src, dens, a.digits, tmp)
                     ev = i["eval_s"]
                     print(f"| {kind} | {ck} | {n} | {i['order']} | {i['tree_depth']} | {i['boxes']} | {i['setup_s']:.2f} | {ev:.3f} | {1e6 * ev / n:.2f} | {n / ev / i['threads']:.0f} |", flush=True)
 

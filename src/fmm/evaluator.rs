@@ -574,7 +574,6 @@ impl Fmm {
     /// Leaves: L2P, M2P and P2P into the targets' values in Morton order.
     fn leaves(&self, up: &[f64], down: &[f64], clock: &PhaseClock) -> Vec<f64> {
         let dt = self.near.output_dim();
-        let de = self.ops.degrees.len();
         let ne = self.ops.n_equiv();
         let mut leaves: Vec<usize> = (0..self.tree.nodes.len())
             .filter(|&b| self.tree.nodes[b].is_leaf() && !self.tree.nodes[b].targets.is_empty())
@@ -601,12 +600,14 @@ impl Fmm {
                 // L2P
                 if node.level >= 2 {
                     let p = self.pos[bx];
-                    self.physical(&down[p * ne..(p + 1) * ne], node.half, &mut s.dens[..ne]);
-                    self.ops
-                        .surf
-                        .place(node.center, node.half, DOWN_EQUIV, &mut s.pts);
-                    s.block.set_points(&s.pts, &s.dens[..ne], de);
-                    self.far_target.eval_block(tgts, &s.block.all(), vals);
+                    self.equivalent_to_targets(
+                        s,
+                        &down[p * ne..(p + 1) * ne],
+                        bx,
+                        DOWN_EQUIV,
+                        tgts,
+                        vals,
+                    );
                 }
                 t = clock.add(6, t);
                 // M2P, or P2P where the box has fewer sources than surface points.
@@ -621,10 +622,7 @@ impl Fmm {
                         continue;
                     }
                     let p = self.pos[w];
-                    self.physical(&up[p * ne..(p + 1) * ne], wn.half, &mut s.dens[..ne]);
-                    self.ops.surf.place(wn.center, wn.half, INNER, &mut s.pts);
-                    s.block.set_points(&s.pts, &s.dens[..ne], de);
-                    self.far_target.eval_block(tgts, &s.block.all(), vals);
+                    self.equivalent_to_targets(s, &up[p * ne..(p + 1) * ne], w, INNER, tgts, vals);
                 }
                 t = clock.add(7, t);
                 // P2P: U list, and the X list of a small leaf (instead of P2L).
@@ -655,13 +653,30 @@ impl Fmm {
         node.is_leaf() && node.targets.len() <= self.ops.surf.len()
     }
 
-    /// Undo the normalisation of an equivalent density of a box of half-width `h`.
-    fn physical(&self, normalised: &[f64], h: f64, out: &mut [f64]) {
+    /// Add the field of box `b`'s normalised equivalent density (on its surface of radius
+    /// factor `radius`) at `tgts` (L2P, M2P): undo the normalisation, place the surface, evaluate
+    /// with the far target kernel.
+    fn equivalent_to_targets(
+        &self,
+        s: &mut Scratch,
+        normalised: &[f64],
+        b: usize,
+        radius: f64,
+        tgts: &[[f64; 3]],
+        vals: &mut [f64],
+    ) {
+        let node = &self.tree.nodes[b];
         let de = self.ops.degrees.len();
-        let scale = self.ops.scale(h);
-        for (o, (v, k)) in out.iter_mut().zip(normalised.iter().zip((0..de).cycle())) {
+        let scale = self.ops.scale(node.half);
+        let dens = &mut s.dens[..normalised.len()];
+        for (o, (v, k)) in dens.iter_mut().zip(normalised.iter().zip((0..de).cycle())) {
             *o = v / scale[k];
         }
+        self.ops
+            .surf
+            .place(node.center, node.half, radius, &mut s.pts);
+        s.block.set_points(&s.pts, dens, de);
+        self.far_target.eval_block(tgts, &s.block.all(), vals);
     }
 }
 

@@ -169,7 +169,7 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
         output_s += t0.elapsed().as_secs_f64();
         Ok(())
     };
-    save(0, &coefs, &stepper.sigma.clone(), &mut times)?;
+    save(0, &coefs, &stepper.sigma, &mut times)?;
     let bar = if quiet {
         ProgressBar::hidden()
     } else {
@@ -209,7 +209,7 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
         bar.set_message(format!("t {:.3} dt {dt} gmres {it}", k as f64 * dt));
         bar.inc(1);
         if k == steps || k as u64 % scene.output_every == 0 {
-            save(k, &coefs, &stepper.sigma.clone(), &mut times)?;
+            save(k, &coefs, &stepper.sigma, &mut times)?;
         }
     }
     bar.finish_and_clear();

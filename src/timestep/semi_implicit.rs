@@ -63,11 +63,20 @@ pub struct StepReport {
     pub gmres: GmresReport,
 }
 
+/// What one application of the step operator needs, reused across GMRES iterations.
+struct OperatorWork {
+    membrane: Membrane,
+    /// Bending and tension forces (`3n` each).
+    fb: Vec<f64>,
+    ft: Vec<f64>,
+}
+
 /// Steps one vesicle of SH order `p`.
 pub struct VesicleStepper {
     p: usize,
     params: VesicleParams,
-    membrane: Mutex<Membrane>,
+    /// The membrane engine and the force scratch of the operator (locked while applied).
+    work: Mutex<OperatorWork>,
     layer: SelfInteraction,
     sht: ShTransform,
     ws: ShWorkspace,
@@ -110,7 +119,11 @@ impl VesicleStepper {
         Ok(VesicleStepper {
             p,
             params,
-            membrane: Mutex::new(Membrane::new(p, q)?),
+            work: Mutex::new(OperatorWork {
+                membrane: Membrane::new(p, q)?,
+                fb: vec![0.0; 3 * n],
+                ft: vec![0.0; 3 * n],
+            }),
             layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
             sht,
             ws,
@@ -145,9 +158,9 @@ impl VesicleStepper {
             .inverse(coefs, &mut xg, &mut self.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
         let area = {
-            let mut m = self.membrane.lock().expect("membrane lock");
-            m.set_geometry(coefs)?;
-            m.geometry()?.area()
+            let mut w = self.work.lock().expect("operator lock");
+            w.membrane.set_geometry(coefs)?;
+            w.membrane.geometry()?.area()
         };
         self.layer.assemble(
             LayerKernel::SingleLayer {
@@ -181,32 +194,32 @@ impl VesicleStepper {
             }
         }
         gemv(&fext, &mut b[..3 * n], dt);
-        self.membrane
+        self.work
             .lock()
-            .expect("membrane lock")
+            .expect("operator lock")
+            .membrane
             .surface_divergence(&xg, &mut b[3 * n..])?;
         // The operator [X; σ] ↦ [X − Δt S (B X + T σ); Div X].
-        let membrane = &self.membrane;
+        let work = &self.work;
         let failure: Mutex<Option<crate::vesicle::VesicleError>> = Mutex::new(None);
         let op = FnOperator::new(4 * n, |z: &[f64], y: &mut [f64]| {
             let (x, sigma) = z.split_at(3 * n);
-            let mut fb = vec![0.0; 3 * n];
-            let mut ft = vec![0.0; 3 * n];
-            let mut m = membrane.lock().expect("membrane lock");
-            let r = m
-                .bending_linear(kappa, x, &mut fb)
-                .and_then(|_| m.tension_force(sigma, &mut ft))
-                .and_then(|_| m.surface_divergence(x, &mut y[3 * n..]));
+            let mut guard = work.lock().expect("operator lock");
+            let OperatorWork { membrane, fb, ft } = &mut *guard;
+            let r = membrane
+                .bending_linear(kappa, x, fb)
+                .and_then(|_| membrane.tension_force(sigma, ft))
+                .and_then(|_| membrane.surface_divergence(x, &mut y[3 * n..]));
             if let Err(e) = r {
                 *failure.lock().expect("failure lock") = Some(e);
                 y.fill(f64::NAN);
                 return;
             }
-            for (a, t) in fb.iter_mut().zip(&ft) {
+            for (a, t) in fb.iter_mut().zip(ft.iter()) {
                 *a += t;
             }
             y[..3 * n].copy_from_slice(x);
-            gemv(&fb, &mut y[..3 * n], -dt);
+            gemv(fb, &mut y[..3 * n], -dt);
         });
         let mut z0 = vec![0.0; 4 * n];
         z0[..3 * n].copy_from_slice(&xg);
