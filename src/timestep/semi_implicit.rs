@@ -33,6 +33,7 @@ use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
 use crate::vesicle::reparam::{reparametrize, ReparamParams};
 use crate::vesicle::shapes::Surface;
+use crate::vesicle::skalak::SkalakParams;
 
 /// Physical and numerical parameters of a vesicle step.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -54,6 +55,17 @@ pub struct VesicleParams {
     /// Reparametrise the grid after every step (remove tangential drift; Veerapaneni et al.
     /// 2011 §3.4), before the drift correction.
     pub reparametrize: Option<ReparamParams>,
+}
+
+/// Explicit terms of one step (other cells, elastic forces computed at `Xⁿ`).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ExplicitTerms<'a> {
+    /// A velocity on the order-`p` grid (`3n`, component-major) added to `u_∞(Xⁿ)`: the
+    /// velocity induced by the other cells.
+    pub velocity: Option<&'a [f64]>,
+    /// A traction on the order-`p` grid (`3n`) added to the body-force traction and applied
+    /// through the cell's own single layer (e.g. a contact repulsion).
+    pub traction: Option<&'a [f64]>,
 }
 
 /// What one step did.
@@ -88,6 +100,8 @@ pub struct VesicleStepper {
     calc: SurfaceCalculus,
     /// Area and volume to restore (those of the first step's surface).
     targets: Option<(f64, f64)>,
+    /// Shear elasticity (explicit, relative to the reference set by [`VesicleStepper::set_skalak`]).
+    skalak: Option<SkalakParams>,
 }
 
 fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
@@ -132,7 +146,75 @@ impl VesicleStepper {
             gmres_ws: GmresWorkspace::new(4 * n, params.gmres.restart),
             calc: SurfaceCalculus::new(p)?,
             targets: None,
+            skalak: None,
         })
+    }
+
+    /// Add Skalak shear elasticity (explicit in time) relative to the stress-free surface
+    /// `reference` (order-`p` coefficients, same parametrisation as the stepped surface).
+    pub fn set_skalak(
+        &mut self,
+        params: SkalakParams,
+        reference: &[f64],
+    ) -> Result<(), TimestepError> {
+        self.work
+            .lock()
+            .expect("operator lock")
+            .membrane
+            .set_reference(reference)?;
+        self.skalak = Some(params);
+        Ok(())
+    }
+
+    /// The area and volume the drift correction restores (set at the first step).
+    pub fn drift_targets(&self) -> Option<(f64, f64)> {
+        self.targets
+    }
+
+    /// Set the area and volume the drift correction restores (a restarted run keeps those of
+    /// its first step).
+    pub fn set_drift_targets(&mut self, targets: Option<(f64, f64)>) {
+        self.targets = targets;
+    }
+
+    /// Parameters.
+    pub fn params(&self) -> &VesicleParams {
+        &self.params
+    }
+
+    /// The traction the membrane exerts on the fluid at the surface `coefs`, with the tension
+    /// of the last step: `f_b(X) + f_σ(σ) + f_Skalak(X) + F/A` on the order-`p` grid (`3n`).
+    /// This is the density whose single layer the other cells feel (explicit coupling).
+    pub fn traction(&mut self, coefs: &[f64], out: &mut [f64]) -> Result<(), TimestepError> {
+        let n = self.sht.n_points();
+        if out.len() != 3 * n {
+            return Err(TimestepError::DimensionMismatch {
+                what: "traction",
+                expected: 3 * n,
+                got: out.len(),
+            });
+        }
+        let mut guard = self.work.lock().expect("operator lock");
+        let OperatorWork { membrane, fb, ft } = &mut *guard;
+        membrane.set_geometry(coefs)?;
+        let area = membrane.geometry()?.area();
+        membrane.bending_force(self.params.bending_modulus, out)?;
+        membrane.tension_force(&self.sigma, ft)?;
+        for (o, t) in out.iter_mut().zip(ft.iter()) {
+            *o += t;
+        }
+        if let Some(sk) = &self.skalak {
+            membrane.skalak_force(sk, fb)?;
+            for (o, t) in out.iter_mut().zip(fb.iter()) {
+                *o += t;
+            }
+        }
+        for c in 0..3 {
+            for o in &mut out[c * n..(c + 1) * n] {
+                *o += self.params.force[c] / area;
+            }
+        }
+        Ok(())
     }
 
     /// SH order.
@@ -147,7 +229,28 @@ impl VesicleStepper {
         coefs: &mut [f64],
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
     ) -> Result<StepReport, TimestepError> {
+        self.step_with(coefs, u_inf, ExplicitTerms::default())
+    }
+
+    /// One step with explicit terms (the velocity induced by other cells, extra tractions).
+    pub fn step_with(
+        &mut self,
+        coefs: &mut [f64],
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        extra: ExplicitTerms<'_>,
+    ) -> Result<StepReport, TimestepError> {
         let n = self.sht.n_points();
+        for (what, v) in [("velocity", extra.velocity), ("traction", extra.traction)] {
+            if let Some(v) = v {
+                if v.len() != 3 * n {
+                    return Err(TimestepError::DimensionMismatch {
+                        what,
+                        expected: 3 * n,
+                        got: v.len(),
+                    });
+                }
+            }
+        }
         let (dt, kappa) = (self.params.dt, self.params.bending_modulus);
         if self.targets.is_none() {
             let g = self.calc.geometry(coefs)?;
@@ -157,11 +260,22 @@ impl VesicleStepper {
         self.sht
             .inverse(coefs, &mut xg, &mut self.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
+        let mut fext = vec![0.0; 3 * n];
         let area = {
-            let mut w = self.work.lock().expect("operator lock");
-            w.membrane.set_geometry(coefs)?;
-            w.membrane.geometry()?.area()
+            let mut guard = self.work.lock().expect("operator lock");
+            let OperatorWork { membrane, fb, .. } = &mut *guard;
+            membrane.set_geometry(coefs)?;
+            if let Some(sk) = &self.skalak {
+                membrane.skalak_force(sk, fb)?;
+                fext.copy_from_slice(fb);
+            }
+            membrane.geometry()?.area()
         };
+        if let Some(t) = extra.traction {
+            for (a, b) in fext.iter_mut().zip(t) {
+                *a += b;
+            }
+        }
         self.layer.assemble(
             LayerKernel::SingleLayer {
                 viscosity: self.params.viscosity,
@@ -183,14 +297,16 @@ impl VesicleStepper {
         };
         // Right-hand side.
         let mut b = vec![0.0; 4 * n];
-        let mut fext = vec![0.0; 3 * n];
         for c in 0..3 {
-            fext[c * n..(c + 1) * n].fill(self.params.force[c] / area);
+            for f in &mut fext[c * n..(c + 1) * n] {
+                *f += self.params.force[c] / area;
+            }
         }
         for j in 0..n {
             let u = u_inf([xg[j], xg[n + j], xg[2 * n + j]]);
             for c in 0..3 {
-                b[c * n + j] = xg[c * n + j] + dt * u[c];
+                let other = extra.velocity.map_or(0.0, |v| v[c * n + j]);
+                b[c * n + j] = xg[c * n + j] + dt * (u[c] + other);
             }
         }
         gemv(&fext, &mut b[..3 * n], dt);
