@@ -85,9 +85,11 @@
 //! }
 //! ```
 
+pub mod coupling;
 mod gmres;
 mod operator;
 pub mod semi_implicit;
+pub mod suspension;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};
 pub use operator::{

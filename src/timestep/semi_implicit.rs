@@ -222,6 +222,11 @@ impl VesicleStepper {
         self.p
     }
 
+    /// Grid points per cell, `n = 2p(p+1)`.
+    pub fn n_points(&self) -> usize {
+        self.sht.n_points()
+    }
+
     /// Advance the surface with coefficients `coefs` (x, y, z at order `p`) by one step in the
     /// background flow `u_inf`.
     pub fn step(

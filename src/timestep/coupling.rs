@@ -1,0 +1,387 @@
+//! Hydrodynamic coupling between cells: the velocity each cell's membrane traction induces on
+//! the grid points of every *other* cell.
+//!
+//! For cells `j` with traction `f_j` (order-`p` grid), the velocity at a point `x` of cell `i`
+//! is `u_i(x) = Σ_{j≠i} S_j[f_j](x)`, `S_j[f](x) = (1/8πμ) ∫_{Γ_j} (I/r + r⊗r/r³) f dA`.
+//! It is evaluated in three parts (Rahimian et al., SC'10 (MOBO), §3; Veerapaneni et al.,
+//! J. Comput. Phys. 230 (2011) §4):
+//!
+//! 1. **All pairs by the FMM**: the smooth quadrature of every cell on its upsampled grid of
+//!    order `q` (traction interpolated spectrally, weights `dA_k`), as Stokeslet point forces
+//!    `f(y_k) dA_k / μ`, summed at the order-`p` grid points of all cells by [`Fmm`] (one tree
+//!    over all points; for small scenes the tree is a single leaf and this is a direct sum).
+//! 2. **Minus each cell's own smooth quadrature** at its own points (a direct sum per cell):
+//!    a cell's self-interaction is singular and is handled implicitly by the time step.
+//! 3. **Near-singular corrections**: a point closer than `δ_j = c_near R_j / √p` to another cell
+//!    `j` (`R_j` its equivalent radius) gets, instead of cell `j`'s smooth quadrature, the
+//!    near-singular value of [`OffSurface`] (check points along the normal, smooth quadrature at
+//!    order `6p`, interpolation to the point). The default `c_near = 2` (design.md 3.3) keeps
+//!    the order-`q` quadrature accurate beyond `δ` (`δ/h_q = 4√p/π` grid spacings).
+//!
+//! The distance of every near point to the other cell's surface is recorded: the smallest gap
+//! is the minimum-distance monitor of the run.
+
+use std::sync::Mutex;
+use std::time::Instant;
+
+use rayon::prelude::*;
+
+use super::TimestepError;
+use crate::fmm::blocks::SourceBlock;
+use crate::fmm::{order_for_digits, Fmm, FmmKernel, Kernel, Stokeslet};
+use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::vesicle::layer::LayerKernel;
+use crate::vesicle::membrane::Membrane;
+use crate::vesicle::near::{NearParams, OffSurface};
+use crate::vesicle::VesicleError;
+
+/// Settings of the inter-cell coupling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CouplingParams {
+    /// Fluid viscosity `μ`.
+    pub viscosity: f64,
+    /// FMM accuracy in digits (3…10).
+    pub fmm_digits: u32,
+    /// Near zone `δ = near_factor · R / √p`.
+    pub near_factor: f64,
+}
+
+impl Default for CouplingParams {
+    fn default() -> Self {
+        CouplingParams {
+            viscosity: 1.0,
+            fmm_digits: 6,
+            near_factor: 2.0,
+        }
+    }
+}
+
+/// Counters and phase times of the coupling (cumulative over calls).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct CouplingStats {
+    /// FMM trees built (one per evaluation: the points move every step).
+    pub fmm_builds: usize,
+    /// Points that received a near-singular correction.
+    pub near_points: usize,
+    /// Ordered cell pairs `(target cell, source cell)` with near points.
+    pub near_pairs: usize,
+    /// Smallest distance of a point of one cell to another cell's surface at the last call
+    /// (`∞` when no point is in another cell's near zone).
+    pub min_gap: f64,
+    /// Seconds: quadrature setup, FMM (build + evaluation), self subtraction, near corrections.
+    pub setup_s: f64,
+    pub fmm_s: f64,
+    pub self_s: f64,
+    pub near_s: f64,
+}
+
+/// A near-singular correction: target cell, its grid point, the velocity change, the distance
+/// of the point to the source cell's surface.
+type NearCorrection = (usize, usize, [f64; 3], f64);
+
+/// Per-thread engines.
+struct Engine {
+    membrane: Membrane,
+    near: OffSurface,
+    sht: ShTransform,
+    ws: ShWorkspace,
+    fq: Vec<f64>,
+    block: SourceBlock,
+}
+
+/// One cell's quadrature: upsampled sources and order-`p` targets.
+#[derive(Default)]
+struct CellQuadrature {
+    sources: Vec<[f64; 3]>,
+    /// `f dA / μ`, interleaved (3 per source).
+    density: Vec<f64>,
+    targets: Vec<[f64; 3]>,
+    centroid: [f64; 3],
+    /// Largest distance from the centroid to a grid point.
+    radius: f64,
+    /// Near-zone distance.
+    delta: f64,
+}
+
+/// The inter-cell velocity evaluator for cells of order `p` with upsampled quadrature `q`.
+pub struct Coupling {
+    p: usize,
+    params: CouplingParams,
+    fmm_order: usize,
+    engines: Vec<Mutex<Engine>>,
+    cells: Vec<CellQuadrature>,
+    /// Cumulative counters.
+    pub stats: CouplingStats,
+}
+
+fn vesicle(e: VesicleError) -> TimestepError {
+    e.into()
+}
+
+impl Coupling {
+    /// Plan for cells of order `p`, far-field quadrature of order `q ≥ p`.
+    pub fn new(p: usize, q: usize, params: CouplingParams) -> Result<Self, TimestepError> {
+        if !(params.viscosity.is_finite() && params.viscosity > 0.0) {
+            return Err(TimestepError::InvalidParameter {
+                name: "viscosity",
+                value: format!("{}", params.viscosity),
+                reason: "must be positive and finite",
+            });
+        }
+        if !(params.near_factor.is_finite() && params.near_factor > 0.0) {
+            return Err(TimestepError::InvalidParameter {
+                name: "near_factor",
+                value: format!("{}", params.near_factor),
+                reason: "must be positive and finite",
+            });
+        }
+        let fmm_order = order_for_digits(FmmKernel::Stokeslet, params.fmm_digits).map_err(|e| {
+            TimestepError::InvalidParameter {
+                name: "fmm_digits",
+                value: format!("{}", params.fmm_digits),
+                reason: if e.to_string().contains("between") {
+                    "must be between 3 and 10"
+                } else {
+                    "no FMM order for it"
+                },
+            }
+        })?;
+        let threads = rayon::current_num_threads().max(1);
+        let engines = (0..threads)
+            .map(|_| -> Result<_, TimestepError> {
+                let sht = ShTransform::new(p).map_err(VesicleError::from)?;
+                Ok(Mutex::new(Engine {
+                    membrane: Membrane::new(p, q)?,
+                    near: OffSurface::new(p, NearParams::default())?,
+                    ws: sht.workspace(),
+                    sht,
+                    fq: Vec::new(),
+                    block: SourceBlock::default(),
+                }))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Coupling {
+            p,
+            params,
+            fmm_order,
+            engines,
+            cells: Vec::new(),
+            stats: CouplingStats {
+                min_gap: f64::INFINITY,
+                ..Default::default()
+            },
+        })
+    }
+
+    fn engine(&self) -> std::sync::MutexGuard<'_, Engine> {
+        let i = rayon::current_thread_index().unwrap_or(0) % self.engines.len();
+        self.engines[i].lock().expect("coupling engine lock")
+    }
+
+    /// The velocity induced on each cell by all the others. `coefs[i]` are cell `i`'s
+    /// order-`p` coefficients, `tractions[i]` its traction on the order-`p` grid (`3n`,
+    /// component-major); the result is component-major on each cell's order-`p` grid.
+    pub fn velocities(
+        &mut self,
+        coefs: &[&[f64]],
+        tractions: &[&[f64]],
+    ) -> Result<Vec<Vec<f64>>, TimestepError> {
+        let nc = coefs.len();
+        if tractions.len() != nc {
+            return Err(TimestepError::DimensionMismatch {
+                what: "tractions (one per cell)",
+                expected: nc,
+                got: tractions.len(),
+            });
+        }
+        let t0 = Instant::now();
+        let mu = self.params.viscosity;
+        let (p, near_factor) = (self.p, self.params.near_factor);
+        // 1. Quadrature of every cell.
+        let cells: Vec<CellQuadrature> = (0..nc)
+            .into_par_iter()
+            .map(|i| -> Result<CellQuadrature, TimestepError> {
+                let mut guard = self.engine();
+                let e = &mut *guard;
+                e.membrane.set_geometry(coefs[i]).map_err(vesicle)?;
+                let nq = e.membrane.n_points_upsampled();
+                e.fq.resize(3 * nq, 0.0);
+                e.membrane
+                    .upsample(tractions[i], &mut e.fq)
+                    .map_err(vesicle)?;
+                let g = e.membrane.geometry().map_err(vesicle)?;
+                let centroid = g.centroid();
+                let radius = g.x.iter().map(|x| dist(*x, centroid)).fold(0.0, f64::max);
+                let delta = near_factor * g.equivalent_radius() / (p as f64).sqrt();
+                let mut density = Vec::with_capacity(3 * nq);
+                for k in 0..nq {
+                    for c in 0..3 {
+                        density.push(e.fq[c * nq + k] * g.da[k] / mu);
+                    }
+                }
+                let sources = g.x.clone();
+                let np = e.sht.n_points();
+                let mut xg = vec![0.0; 3 * np];
+                e.sht
+                    .inverse(coefs[i], &mut xg, &mut e.ws)
+                    .map_err(VesicleError::from)?;
+                // Grid points that coincide with quadrature points up to round-off (the equator
+                // and shared meridians when the orders allow) are snapped onto them, so that
+                // the kernel's `r = 0` rule drops the pair exactly, in the FMM and in the
+                // subtraction alike (a pair at `r ~ 1e-16` would add `~1e16` to both).
+                let tol2 = (1e-9 * radius).powi(2);
+                let targets = (0..np)
+                    .map(|k| {
+                        let x = [xg[k], xg[np + k], xg[2 * np + k]];
+                        g.x.iter()
+                            .find(|y| dist2(x, **y) < tol2)
+                            .copied()
+                            .unwrap_or(x)
+                    })
+                    .collect();
+                Ok(CellQuadrature {
+                    sources,
+                    density,
+                    targets,
+                    centroid,
+                    radius,
+                    delta,
+                })
+            })
+            .collect::<Result<_, _>>()?;
+        self.cells = cells;
+        let t1 = Instant::now();
+        self.stats.setup_s += (t1 - t0).as_secs_f64();
+        // 2. All pairs by the FMM.
+        let sources: Vec<[f64; 3]> = self.cells.iter().flat_map(|c| c.sources.clone()).collect();
+        let density: Vec<f64> = self.cells.iter().flat_map(|c| c.density.clone()).collect();
+        let targets: Vec<[f64; 3]> = self.cells.iter().flat_map(|c| c.targets.clone()).collect();
+        let kind = FmmKernel::Stokeslet;
+        let mut fmm = Fmm::new(
+            kind,
+            &sources,
+            None,
+            &targets,
+            self.fmm_order,
+            kind.default_leaf_size(self.fmm_order),
+        )
+        .map_err(|e| TimestepError::Vesicle(format!("FMM: {e}")))?;
+        self.stats.fmm_builds += 1;
+        let mut u_all = vec![0.0; 3 * targets.len()];
+        fmm.evaluate(&density, &mut u_all)
+            .map_err(|e| TimestepError::Vesicle(format!("FMM: {e}")))?;
+        let t2 = Instant::now();
+        self.stats.fmm_s += (t2 - t1).as_secs_f64();
+        // 3. Minus each cell's own smooth quadrature; to component-major per cell.
+        let np = self.cells.first().map_or(0, |c| c.targets.len());
+        let mut out: Vec<Vec<f64>> = (0..nc)
+            .into_par_iter()
+            .map(|i| {
+                let c = &self.cells[i];
+                let mut own = vec![0.0; 3 * np];
+                {
+                    let mut guard = self.engine();
+                    let e = &mut *guard;
+                    e.block.set_points(&c.sources, &c.density, 3);
+                    Stokeslet.eval_block(&c.targets, &e.block.all(), &mut own);
+                }
+                let base = 3 * i * np;
+                let mut u = vec![0.0; 3 * np];
+                for k in 0..np {
+                    for d in 0..3 {
+                        u[d * np + k] = u_all[base + 3 * k + d] - own[3 * k + d];
+                    }
+                }
+                u
+            })
+            .collect();
+        let t3 = Instant::now();
+        self.stats.self_s += (t3 - t2).as_secs_f64();
+        // 4. Near-singular corrections: for each source cell j, the points of other cells in
+        //    its near zone.
+        let corrections: Vec<Vec<NearCorrection>> = (0..nc)
+            .into_par_iter()
+            .map(|j| -> Result<_, TimestepError> {
+                let cj = &self.cells[j];
+                let reach = cj.radius + cj.delta;
+                let mut cand: Vec<(usize, usize)> = Vec::new();
+                for (i, ci) in self.cells.iter().enumerate() {
+                    if i == j || dist(ci.centroid, cj.centroid) > ci.radius + reach {
+                        continue;
+                    }
+                    for (k, &x) in ci.targets.iter().enumerate() {
+                        if dist(x, cj.centroid) <= reach {
+                            cand.push((i, k));
+                        }
+                    }
+                }
+                if cand.is_empty() {
+                    return Ok(Vec::new());
+                }
+                let mut guard = self.engine();
+                let e = &mut *guard;
+                e.near.set_surface(coefs[j]).map_err(vesicle)?;
+                let mut near: Vec<(usize, usize, f64)> = Vec::new();
+                for &(i, k) in &cand {
+                    let x = self.cells[i].targets[k];
+                    let info = e.near.classify(x).map_err(vesicle)?;
+                    if info.distance < cj.delta {
+                        near.push((i, k, info.distance));
+                    }
+                }
+                if near.is_empty() {
+                    return Ok(Vec::new());
+                }
+                let pts: Vec<[f64; 3]> = near
+                    .iter()
+                    .map(|&(i, k, _)| self.cells[i].targets[k])
+                    .collect();
+                let mut u_near = vec![0.0; 3 * pts.len()];
+                e.near
+                    .evaluate(
+                        LayerKernel::SingleLayer { viscosity: mu },
+                        tractions[j],
+                        &pts,
+                        &mut u_near,
+                    )
+                    .map_err(vesicle)?;
+                let mut smooth = vec![0.0; 3 * pts.len()];
+                e.block.set_points(&cj.sources, &cj.density, 3);
+                Stokeslet.eval_block(&pts, &e.block.all(), &mut smooth);
+                let m = pts.len();
+                Ok(near
+                    .iter()
+                    .enumerate()
+                    .map(|(t, &(i, k, d))| {
+                        let du = std::array::from_fn(|c| u_near[c * m + t] - smooth[3 * t + c]);
+                        (i, k, du, d)
+                    })
+                    .collect())
+            })
+            .collect::<Result<_, _>>()?;
+        let mut min_gap = f64::INFINITY;
+        for list in &corrections {
+            let mut pairs = std::collections::BTreeSet::new();
+            for &(i, k, du, d) in list {
+                for c in 0..3 {
+                    out[i][c * np + k] += du[c];
+                }
+                min_gap = min_gap.min(d);
+                pairs.insert(i);
+                self.stats.near_points += 1;
+            }
+            self.stats.near_pairs += pairs.len();
+        }
+        self.stats.min_gap = min_gap;
+        self.stats.near_s += t3.elapsed().as_secs_f64();
+        Ok(out)
+    }
+}
+
+fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
+
+fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
+    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+}

@@ -1,0 +1,189 @@
+//! Many cells in one flow: each cell advanced by its own semi-implicit step
+//! ([`VesicleStepper`]: bending, tension and self-interaction implicit), the cells coupled
+//! explicitly through the velocity their membrane tractions at `Xⁿ` induce on each other
+//! ([`Coupling`]: FMM, minus each cell's own smooth quadrature, plus near-singular corrections).
+//!
+//! This is the splitting of Veerapaneni et al. (J. Comput. Phys. 230, 2011, §3.3) and of MOBO
+//! (Rahimian et al., SC'10): per step one FMM evaluation for the inter-cell velocities, then
+//! independent per-cell solves (in parallel over cells; each cell's dense operators are applied
+//! serially). A scene of one cell builds no [`Coupling`] and no FMM.
+
+use rayon::prelude::*;
+
+use super::coupling::{Coupling, CouplingParams, CouplingStats};
+use super::semi_implicit::{ExplicitTerms, StepReport, VesicleParams, VesicleStepper};
+use super::TimestepError;
+use crate::vesicle::skalak::SkalakParams;
+
+/// One cell of a suspension: its initial surface and parameters.
+#[derive(Clone, Debug)]
+pub struct CellSetup {
+    /// Order-`p` SH coefficients (x, y, z).
+    pub coefs: Vec<f64>,
+    /// Step parameters of this cell (moduli, force, `dt`, …; `dt` must agree between cells).
+    pub params: VesicleParams,
+    /// Shear elasticity and the stress-free reference surface (coefficients).
+    pub skalak: Option<(SkalakParams, Vec<f64>)>,
+}
+
+/// A failure of one cell's step.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {source}", match .cell { Some(c) => format!("cell {c}"), None => "inter-cell coupling".to_string() })]
+pub struct CellStepError {
+    /// Index of the cell (`None`: the coupling).
+    pub cell: Option<usize>,
+    /// What went wrong.
+    pub source: TimestepError,
+}
+
+/// What one step of the suspension did.
+#[derive(Clone, Debug)]
+pub struct SuspensionReport {
+    /// Per cell: the GMRES solve.
+    pub cells: Vec<StepReport>,
+}
+
+/// Cells of order `p`, stepped together.
+pub struct Suspension {
+    steppers: Vec<VesicleStepper>,
+    coefs: Vec<Vec<f64>>,
+    coupling: Option<Coupling>,
+    /// Inter-cell velocities of the last step (per cell, order-`p` grid), kept for output.
+    velocities: Vec<Vec<f64>>,
+}
+
+impl Suspension {
+    /// Set up the cells (all of order `p`). With two or more cells the coupling is built with
+    /// `coupling` (its far-field quadrature at each cell's upsampled order); with one cell
+    /// nothing is coupled and no FMM is ever built.
+    pub fn new(
+        p: usize,
+        cells: Vec<CellSetup>,
+        coupling: CouplingParams,
+    ) -> Result<Self, CellStepError> {
+        let mut steppers = Vec::with_capacity(cells.len());
+        let mut coefs = Vec::with_capacity(cells.len());
+        let dt0 = cells.first().map(|c| c.params.dt);
+        for (i, c) in cells.into_iter().enumerate() {
+            let err = |source| CellStepError {
+                cell: Some(i),
+                source,
+            };
+            if Some(c.params.dt) != dt0 {
+                return Err(err(TimestepError::InvalidParameter {
+                    name: "dt",
+                    value: format!("{}", c.params.dt),
+                    reason: "all cells of a suspension share one time step",
+                }));
+            }
+            let mut st = VesicleStepper::new(p, c.params).map_err(err)?;
+            if let Some((sk, reference)) = &c.skalak {
+                st.set_skalak(*sk, reference).map_err(err)?;
+            }
+            steppers.push(st);
+            coefs.push(c.coefs);
+        }
+        let coupling = if steppers.len() > 1 {
+            let q = steppers[0].params().upsampled_order.max(p);
+            Some(
+                Coupling::new(p, q, coupling)
+                    .map_err(|source| CellStepError { cell: None, source })?,
+            )
+        } else {
+            None
+        };
+        Ok(Suspension {
+            steppers,
+            coefs,
+            coupling,
+            velocities: Vec::new(),
+        })
+    }
+
+    /// Number of cells.
+    pub fn len(&self) -> usize {
+        self.steppers.len()
+    }
+
+    /// Whether there are no cells.
+    pub fn is_empty(&self) -> bool {
+        self.steppers.is_empty()
+    }
+
+    /// Each cell's SH coefficients.
+    pub fn coefs(&self) -> &[Vec<f64>] {
+        &self.coefs
+    }
+
+    /// Replace the coefficients of every cell (restart).
+    pub fn coefs_mut(&mut self) -> &mut [Vec<f64>] {
+        &mut self.coefs
+    }
+
+    /// The per-cell steppers (tension, drift targets).
+    pub fn steppers(&self) -> &[VesicleStepper] {
+        &self.steppers
+    }
+
+    /// Mutable per-cell steppers (restart).
+    pub fn steppers_mut(&mut self) -> &mut [VesicleStepper] {
+        &mut self.steppers
+    }
+
+    /// Counters of the coupling (`None` for one cell: nothing coupled, no FMM).
+    pub fn coupling_stats(&self) -> Option<CouplingStats> {
+        self.coupling.as_ref().map(|c| c.stats)
+    }
+
+    /// The velocity the other cells induced on each cell in the last step.
+    pub fn inter_cell_velocities(&self) -> &[Vec<f64>] {
+        &self.velocities
+    }
+
+    /// Advance every cell by one step in the background flow `u_inf`.
+    pub fn step(
+        &mut self,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    ) -> Result<SuspensionReport, CellStepError> {
+        if let Some(coupling) = &mut self.coupling {
+            let tractions: Vec<Vec<f64>> = self
+                .steppers
+                .par_iter_mut()
+                .zip(self.coefs.par_iter())
+                .enumerate()
+                .map(|(i, (st, c))| {
+                    let mut f = vec![0.0; 3 * st.n_points()];
+                    st.traction(c, &mut f).map_err(|source| CellStepError {
+                        cell: Some(i),
+                        source,
+                    })?;
+                    Ok(f)
+                })
+                .collect::<Result<_, _>>()?;
+            let cref: Vec<&[f64]> = self.coefs.iter().map(|c| c.as_slice()).collect();
+            let fref: Vec<&[f64]> = tractions.iter().map(|c| c.as_slice()).collect();
+            self.velocities = coupling
+                .velocities(&cref, &fref)
+                .map_err(|source| CellStepError { cell: None, source })?;
+        }
+        let velocities = &self.velocities;
+        let reports = self
+            .steppers
+            .par_iter_mut()
+            .zip(self.coefs.par_iter_mut())
+            .enumerate()
+            .map(|(i, (st, c))| {
+                let extra = ExplicitTerms {
+                    velocity: velocities.get(i).map(|v| v.as_slice()),
+                    traction: None,
+                };
+                st.step_with(c, u_inf, extra)
+                    .map_err(|source| CellStepError {
+                        cell: Some(i),
+                        source,
+                    })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(SuspensionReport { cells: reports })
+    }
+}

@@ -1,0 +1,246 @@
+//! Cells coupled through the FMM: the inter-cell velocity against a high-order direct
+//! quadrature (far apart and near contact), and two sedimenting spherical vesicles against the
+//! two-sphere mobility (speed-up `1 + 3a/2d` in line, `1 + 3a/4d` side by side).
+
+use std::f64::consts::PI;
+
+use mobo::sph_harmonics::ShTransform;
+use mobo::timestep::coupling::{Coupling, CouplingParams};
+use mobo::timestep::semi_implicit::VesicleParams;
+use mobo::timestep::suspension::{CellSetup, Suspension};
+use mobo::timestep::GmresParams;
+use mobo::vesicle::membrane::Membrane;
+use mobo::vesicle::shapes::{ellipsoid, sphere};
+use mobo::vesicle::SurfaceCalculus;
+
+/// A smooth traction on the order-`p` grid of the surface `coefs`.
+fn traction(p: usize, coefs: &[f64], seed: f64) -> Vec<f64> {
+    let sht = ShTransform::new(p).unwrap();
+    let n = sht.n_points();
+    let mut x = vec![0.0; 3 * n];
+    sht.inverse(coefs, &mut x, &mut sht.workspace()).unwrap();
+    let mut f = vec![0.0; 3 * n];
+    for j in 0..n {
+        let (a, b, c) = (x[j], x[n + j], x[2 * n + j]);
+        f[j] = (a + seed * b).sin() + 0.3;
+        f[n + j] = (c - seed).cos() * a;
+        f[2 * n + j] = a * b + seed * c;
+    }
+    f
+}
+
+/// `Σ_{j≠i} S_j[f_j]` at cell `i`'s grid points by the smooth quadrature of order `big_q`.
+fn reference(p: usize, big_q: usize, coefs: &[Vec<f64>], f: &[Vec<f64>], mu: f64) -> Vec<Vec<f64>> {
+    let sht = ShTransform::new(p).unwrap();
+    let n = sht.n_points();
+    let mut mem = Membrane::new(p, big_q).unwrap();
+    let nq = mem.n_points_upsampled();
+    // Per cell: quadrature points and weighted tractions.
+    type Quadrature = (Vec<[f64; 3]>, Vec<[f64; 3]>);
+    let mut src: Vec<Quadrature> = Vec::new();
+    for (c, fc) in coefs.iter().zip(f) {
+        mem.set_geometry(c).unwrap();
+        let mut fq = vec![0.0; 3 * nq];
+        mem.upsample(fc, &mut fq).unwrap();
+        let g = mem.geometry().unwrap();
+        let w: Vec<[f64; 3]> = (0..nq)
+            .map(|k| std::array::from_fn(|d| fq[d * nq + k] * g.da[k]))
+            .collect();
+        src.push((g.x.clone(), w));
+    }
+    coefs
+        .iter()
+        .enumerate()
+        .map(|(i, c)| {
+            let mut x = vec![0.0; 3 * n];
+            sht.inverse(c, &mut x, &mut sht.workspace()).unwrap();
+            let mut u = vec![0.0; 3 * n];
+            for t in 0..n {
+                let xt = [x[t], x[n + t], x[2 * n + t]];
+                let mut acc = [0.0; 3];
+                for (j, (ys, ws)) in src.iter().enumerate() {
+                    if j == i {
+                        continue;
+                    }
+                    for (y, w) in ys.iter().zip(ws) {
+                        let r = [xt[0] - y[0], xt[1] - y[1], xt[2] - y[2]];
+                        let r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
+                        let ri = 1.0 / r2.sqrt();
+                        let rw = (r[0] * w[0] + r[1] * w[1] + r[2] * w[2]) * ri * ri * ri;
+                        for d in 0..3 {
+                            acc[d] += w[d] * ri + rw * r[d];
+                        }
+                    }
+                }
+                for d in 0..3 {
+                    u[d * n + t] = acc[d] / (8.0 * PI * mu);
+                }
+            }
+            u
+        })
+        .collect()
+}
+
+fn max_rel(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let scale = b.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    a.iter()
+        .flatten()
+        .zip(b.iter().flatten())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+        / scale
+}
+
+fn ellipsoids(p: usize, gap: f64) -> Vec<Vec<f64>> {
+    // Axes 1:0.8:0.6; the second cell is rotated and placed `gap` beyond the first along x.
+    let mut a = ellipsoid(p, [1.0, 0.8, 0.6]).unwrap();
+    a.translate([0.0, 0.1, -0.05]);
+    let mut b = ellipsoid(p, [0.6, 0.8, 1.0]).unwrap();
+    b.translate([1.0 + gap + 0.6, 0.0, 0.0]);
+    let mut c = sphere(p, 0.7).unwrap();
+    c.translate([0.2, 2.5 + gap, 0.3]);
+    vec![a.coefs().to_vec(), b.coefs().to_vec(), c.coefs().to_vec()]
+}
+
+fn coupling_error(p: usize, gap: f64, digits: u32) -> (f64, usize) {
+    let coefs = ellipsoids(p, gap);
+    let f: Vec<Vec<f64>> = coefs
+        .iter()
+        .enumerate()
+        .map(|(i, c)| traction(p, c, 0.7 * i as f64 + 0.2))
+        .collect();
+    let mu = 1.3;
+    let mut cpl = Coupling::new(
+        p,
+        2 * p,
+        CouplingParams {
+            viscosity: mu,
+            fmm_digits: digits,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let cref: Vec<&[f64]> = coefs.iter().map(|c| c.as_slice()).collect();
+    let fref: Vec<&[f64]> = f.iter().map(|c| c.as_slice()).collect();
+    let u = cpl.velocities(&cref, &fref).unwrap();
+    let want = reference(p, 160, &coefs, &f, mu);
+    assert_eq!(cpl.stats.fmm_builds, 1);
+    (max_rel(&u, &want), cpl.stats.near_points)
+}
+
+#[test]
+fn inter_cell_velocity_of_separated_cells_matches_a_fine_direct_quadrature() {
+    let (err, near) = coupling_error(8, 1.5, 7);
+    println!("gap 1.5: max relative error {err:.2e}, {near} near points");
+    assert_eq!(near, 0, "no point is near at gap 1.5");
+    assert!(err < 1e-6, "{err}");
+}
+
+#[test]
+fn inter_cell_velocity_near_contact_is_corrected_to_the_fine_quadrature() {
+    for gap in [0.3, 0.1] {
+        let (err, near) = coupling_error(8, gap, 7);
+        println!("gap {gap}: max relative error {err:.2e}, {near} near points");
+        assert!(near > 0, "points within the near zone at gap {gap}");
+        assert!(err < 1e-5, "gap {gap}: {err}");
+    }
+}
+
+/// Centroid velocities of spherical vesicles of radius `a` under force `F = (0, 0, −1)`,
+/// centres at `centres`, after one step.
+fn sedimentation(p: usize, a: f64, centres: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let dt = 0.01;
+    let cells = centres
+        .iter()
+        .map(|&c| {
+            let mut s = sphere(p, a).unwrap();
+            s.translate(c);
+            CellSetup {
+                coefs: s.coefs().to_vec(),
+                params: VesicleParams {
+                    bending_modulus: 1.0,
+                    viscosity: 1.0,
+                    force: [0.0, 0.0, -1.0],
+                    dt,
+                    upsampled_order: 2 * p,
+                    gmres: GmresParams {
+                        tol: 1e-12,
+                        restart: 200,
+                        max_iters: 2000,
+                    },
+                    correct_drift: false,
+                    reparametrize: None,
+                },
+                skalak: None,
+            }
+        })
+        .collect();
+    let mut susp = Suspension::new(
+        p,
+        cells,
+        CouplingParams {
+            fmm_digits: 7,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut calc = SurfaceCalculus::new(p).unwrap();
+    let before: Vec<[f64; 3]> = susp
+        .coefs()
+        .iter()
+        .map(|c| calc.geometry(c).unwrap().centroid())
+        .collect();
+    susp.step(&|_| [0.0; 3]).unwrap();
+    susp.coefs()
+        .iter()
+        .zip(&before)
+        .map(|(c, b)| {
+            let x = calc.geometry(c).unwrap().centroid();
+            std::array::from_fn(|d| (x[d] - b[d]) / dt)
+        })
+        .collect()
+}
+
+#[test]
+fn two_sedimenting_spheres_speed_up_as_the_two_sphere_mobility_says() {
+    let (p, a) = (8, 1.0);
+    let u0 = 1.0 / (6.0 * PI * a);
+    for d in [5.0, 10.0] {
+        let s = a / d;
+        // In line (along gravity): 1 + 3a/2d − a³/d³ (+ O(a⁴/d⁴)).
+        let v = sedimentation(p, a, &[[0.0, 0.0, 0.0], [0.0, 0.0, d]]);
+        let lead = 1.0 + 1.5 * s;
+        let rp = lead - s.powi(3);
+        for u in &v {
+            let ratio = -u[2] / u0;
+            println!("in line d = {d}: U/U0 = {ratio:.6} (1 + 3a/2d = {lead:.6}, RPY {rp:.6})");
+            assert!(
+                (ratio - lead).abs() < 2.0 * s.powi(3),
+                "in line d = {d}: {ratio}"
+            );
+            assert!(
+                (ratio - rp).abs() < 5.0 * s.powi(4),
+                "in line d = {d}: {ratio} vs {rp}"
+            );
+            assert!(u[0].abs() < 1e-6 * u0 && u[1].abs() < 1e-6 * u0);
+        }
+        // Side by side: 1 + 3a/4d + a³/2d³.
+        let v = sedimentation(p, a, &[[0.0, 0.0, 0.0], [d, 0.0, 0.0]]);
+        let lead = 1.0 + 0.75 * s;
+        let rp = lead + 0.5 * s.powi(3);
+        for u in &v {
+            let ratio = -u[2] / u0;
+            println!(
+                "side by side d = {d}: U/U0 = {ratio:.6} (1 + 3a/4d = {lead:.6}, RPY {rp:.6})"
+            );
+            assert!(
+                (ratio - lead).abs() < 2.0 * s.powi(3),
+                "side by side d = {d}: {ratio}"
+            );
+            assert!(
+                (ratio - rp).abs() < 5.0 * s.powi(4),
+                "side by side d = {d}: {ratio} vs {rp}"
+            );
+        }
+    }
+}
