@@ -241,3 +241,53 @@ fn hdf5_without_the_feature_is_a_clear_error() {
     );
     let _ = std::fs::remove_dir_all(&d);
 }
+
+#[test]
+fn resume_keeps_the_frames_before_the_checkpoint() {
+    let p = 3;
+    let d = tmpdir("resume");
+    let fmt = FrameFormats {
+        npy: true,
+        hdf5: false,
+        vtp: Some(0),
+    };
+    let mut w = FrameWriter::new(&d, fmt).unwrap();
+    let all: Vec<Vec<Cell>> = (0..4).map(|f| cells(p, f)).collect();
+    for (f, cs) in all.iter().enumerate().take(3) {
+        w.write_frame(f, f as f64, &frames_of(cs, p)).unwrap();
+    }
+    drop(w); // the run dies after frame 2; its checkpoint was taken after frame 1
+
+    // Resuming after more frames than exist is refused before anything is touched.
+    let e = FrameWriter::resume(&d, fmt, &[0.0, 1.0, 2.0, 3.0]).unwrap_err();
+    assert!(
+        e.to_string().contains("frame_00003_coefs.npy is missing"),
+        "{e}"
+    );
+    assert!(d.join("frames/frame_00002_coefs.npy").exists());
+
+    let mut w = FrameWriter::resume(&d, fmt, &[0.0, 1.0]).unwrap();
+    assert!(!d.join("frames/frame_00002_coefs.npy").exists());
+    assert!(!d.join("vtk/frame_00002.vtp").exists());
+    let (_, t) = npy::read_f64(&d.join("frames/times.npy")).unwrap();
+    assert_eq!(t, vec![0.0, 1.0]);
+    let pvd = std::fs::read_to_string(d.join("vtk/frames.pvd")).unwrap();
+    assert_eq!(pvd.matches("<DataSet ").count(), 2);
+    // Frame 1's files are untouched; the new frame 2 holds the new data.
+    let (_, c1) = npy::read_f64(&d.join("frames/frame_00001_coefs.npy")).unwrap();
+    assert_eq!(bits(&c1), stacked(&all[1], |c| c.surface.coefs()));
+    w.write_frame(2, 2.5, &frames_of(&all[3], p)).unwrap();
+    w.finish().unwrap();
+    let (_, c2) = npy::read_f64(&d.join("frames/frame_00002_coefs.npy")).unwrap();
+    assert_eq!(bits(&c2), stacked(&all[3], |c| c.surface.coefs()));
+    let (_, t) = npy::read_f64(&d.join("frames/times.npy")).unwrap();
+    assert_eq!(t, vec![0.0, 1.0, 2.5]);
+
+    // A new run in the same directory starts from nothing.
+    let mut w = FrameWriter::new(&d, fmt).unwrap();
+    assert!(names(&d.join("frames")).is_empty());
+    assert!(names(&d.join("vtk")).is_empty());
+    w.write_frame(0, 7.0, &frames_of(&all[0], p)).unwrap();
+    assert_eq!(names(&d.join("vtk")), vec!["frame_00000.vtp", "frames.pvd"]);
+    std::fs::remove_dir_all(&d).unwrap();
+}

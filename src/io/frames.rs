@@ -30,6 +30,10 @@
 //! `DIR/frames.h5` (see [`super::hdf5`]; needs the cargo feature `hdf5`, otherwise
 //! [`FrameWriter::new`] fails with [`IoError::Hdf5Unavailable`]).
 //!
+//! [`FrameWriter::new`] deletes the frame output of an earlier run in `DIR` (the files named
+//! above, `frames.h5` and `frames.h5.partial`);
+//! [`FrameWriter::resume`] keeps the frames before a checkpoint and continues after them.
+//!
 //! Every file is written atomically. Within a frame the data files come first and the indexes
 //! (`times.npy`, `frames.pvd`) last, so an index never lists a frame whose files are missing.
 
@@ -241,6 +245,49 @@ impl VtpState {
     }
 }
 
+/// The frame index of a file named `frame_NNNNN_<what>.npy` or `frame_NNNNN.vtp`.
+fn frame_index(name: &str) -> Option<usize> {
+    let rest = name.strip_prefix("frame_")?;
+    let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
+    let tail = &rest[digits..];
+    let known = ["_coefs.npy", "_positions.npy", "_tension.npy", ".vtp"];
+    (digits >= 5 && known.contains(&tail))
+        .then(|| rest[..digits].parse().ok())
+        .flatten()
+}
+
+fn remove_if_present(path: &Path) -> Result<(), IoError> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(IoError::File {
+            path: path.to_path_buf(),
+            source: e,
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Delete the frame files of frames `keep..` in `dir` (if it exists).
+fn remove_frames_from(dir: &Path, keep: usize) -> Result<(), IoError> {
+    let err = |source| IoError::File {
+        path: dir.to_path_buf(),
+        source,
+    };
+    let entries = match std::fs::read_dir(dir) {
+        Ok(e) => e,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(err(e)),
+    };
+    for entry in entries {
+        let entry = entry.map_err(err)?;
+        let name = entry.file_name();
+        if frame_index(&name.to_string_lossy()).is_some_and(|i| i >= keep) {
+            let path = entry.path();
+            std::fs::remove_file(&path).map_err(|source| IoError::File { path, source })?;
+        }
+    }
+    Ok(())
+}
+
 /// Writes the frames of a run into an output directory (see the module documentation).
 pub struct FrameWriter {
     dir: PathBuf,
@@ -261,27 +308,77 @@ impl std::fmt::Debug for FrameWriter {
 }
 
 impl FrameWriter {
-    /// A writer for the output directory `dir` (created if missing). Fails with
+    /// A writer for a new run in the output directory `dir` (created if missing). The frame
+    /// output of an earlier run in `dir` (the files named in the module documentation) is
+    /// deleted. Fails with
     /// [`IoError::Hdf5Unavailable`] when `formats.hdf5` is asked of a build without the `hdf5`
     /// feature, and with [`IoError::Frame`] for more than
     /// [`crate::vesicle::mesh::MAX_SUBDIVISIONS`] mesh subdivisions.
     pub fn new(dir: impl AsRef<Path>, formats: FrameFormats) -> Result<Self, IoError> {
-        let dir = dir.as_ref().to_path_buf();
+        Self::open(dir.as_ref(), formats, &[])
+    }
+
+    /// Continue the frames of a run restarted from a checkpoint: `times` are the times of the
+    /// frames written before the checkpoint (frames `0 .. times.len()`, e.g. saved in the
+    /// checkpoint), whose files must exist in `dir` for every enabled format; files of later
+    /// frames (written after the checkpoint) are deleted, `times.npy` and `frames.pvd` are
+    /// rewritten for the kept frames, and the next frame is `times.len()`. For HDF5 see
+    /// [`H5FrameWriter::resume`].
+    pub fn resume(
+        dir: impl AsRef<Path>,
+        formats: FrameFormats,
+        times: &[f64],
+    ) -> Result<Self, IoError> {
+        Self::open(dir.as_ref(), formats, times)
+    }
+
+    fn open(dir: &Path, formats: FrameFormats, times: &[f64]) -> Result<Self, IoError> {
+        let dir = dir.to_path_buf();
+        let keep = times.len();
+        let err = |message: String| IoError::Frame {
+            dir: dir.clone(),
+            message,
+        };
         if let Some(k) = formats.vtp {
             if k > crate::vesicle::mesh::MAX_SUBDIVISIONS {
-                return Err(IoError::Frame {
-                    dir,
-                    message: format!(
-                        "{k} mesh subdivisions asked; at most {}",
-                        crate::vesicle::mesh::MAX_SUBDIVISIONS
-                    ),
-                });
+                return Err(err(format!(
+                    "{k} mesh subdivisions asked; at most {}",
+                    crate::vesicle::mesh::MAX_SUBDIVISIONS
+                )));
             }
         }
-        let h5 = if formats.hdf5 {
-            Some(H5FrameWriter::create(&dir)?)
-        } else {
-            None
+        // Check the kept frames before touching anything.
+        for i in 0..keep {
+            let mut needed = Vec::new();
+            if formats.npy {
+                for what in ["coefs", "positions", "tension"] {
+                    needed.push(dir.join("frames").join(format!("frame_{i:05}_{what}.npy")));
+                }
+            }
+            if formats.vtp.is_some() {
+                needed.push(dir.join("vtk").join(format!("frame_{i:05}.vtp")));
+            }
+            if let Some(f) = needed.iter().find(|f| !f.is_file()) {
+                return Err(err(format!(
+                    "cannot resume after {keep} frames: {} is missing",
+                    f.display()
+                )));
+            }
+        }
+        if keep == 0 {
+            for f in [
+                "frames/times.npy",
+                "vtk/frames.pvd",
+                super::hdf5::FILE_NAME,
+                super::hdf5::PARTIAL_NAME,
+            ] {
+                remove_if_present(&dir.join(f))?;
+            }
+        }
+        let h5 = match (formats.hdf5, keep) {
+            (false, _) => None,
+            (true, 0) => Some(H5FrameWriter::create(&dir)?),
+            (true, _) => Some(H5FrameWriter::resume(&dir, keep)?),
         };
         for (on, sub) in [(formats.npy, "frames"), (formats.vtp.is_some(), "vtk")] {
             if on {
@@ -289,13 +386,19 @@ impl FrameWriter {
                 std::fs::create_dir_all(&d).map_err(|source| IoError::File { path: d, source })?;
             }
         }
-        Ok(FrameWriter {
+        remove_frames_from(&dir.join("frames"), keep)?;
+        remove_frames_from(&dir.join("vtk"), keep)?;
+        let w = FrameWriter {
             dir,
             formats,
-            times: Vec::new(),
+            times: times.to_vec(),
             vtp: None,
             h5,
-        })
+        };
+        if keep > 0 {
+            w.write_indexes()?;
+        }
+        Ok(w)
     }
 
     /// The output directory.
@@ -375,6 +478,11 @@ impl FrameWriter {
             )?;
         }
         self.times.push(time);
+        self.write_indexes()
+    }
+
+    /// Rewrite `times.npy` and `frames.pvd` for the frames written so far.
+    fn write_indexes(&self) -> Result<(), IoError> {
         if self.formats.npy {
             npy::write_f64(
                 &self.dir.join("frames").join("times.npy"),

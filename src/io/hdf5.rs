@@ -20,8 +20,9 @@
 //! before [`H5FrameWriter::write_frame`] returns, so a crashed run leaves a readable
 //! `frames.h5.partial` holding every completed frame. [`H5FrameWriter::finish`] closes the file
 //! and renames it to `DIR/frames.h5`; a `frames.h5` therefore always is a complete run's output.
-//! Creating a writer truncates an old `frames.h5.partial`; an old `frames.h5` stays until
-//! `finish` replaces it.
+//! [`H5FrameWriter::create`] truncates an old `frames.h5.partial` (an old `frames.h5` stays
+//! until `finish` replaces it; [`super::frames::FrameWriter::new`] deletes it first);
+//! [`H5FrameWriter::resume`] continues a run restarted from a checkpoint.
 //!
 //! Without the `hdf5` feature every function returns [`IoError::Hdf5Unavailable`].
 
@@ -84,6 +85,76 @@ impl H5FrameWriter {
         #[cfg(not(feature = "hdf5"))]
         {
             let _ = partial;
+            Err(IoError::Hdf5Unavailable { path: target })
+        }
+    }
+
+    /// Continue the file of an interrupted (or finished) run in `dir` after its first `keep`
+    /// frames: reopens `frames.h5.partial`, or else renames `frames.h5` back to it, checks that
+    /// groups `frame_00000 .. frame_{keep-1}` exist, and deletes the groups of later frames (those
+    /// written after the checkpoint the run restarts from).
+    pub fn resume(dir: &Path, keep: usize) -> Result<Self, IoError> {
+        let partial = dir.join(PARTIAL_NAME);
+        let target = dir.join(FILE_NAME);
+        #[cfg(feature = "hdf5")]
+        {
+            let source = if partial.exists() {
+                partial.clone()
+            } else if target.exists() {
+                target.clone()
+            } else if keep == 0 {
+                return Self::create(dir);
+            } else {
+                return Err(IoError::Hdf5 {
+                    path: target,
+                    message: format!(
+                        "cannot resume after {keep} frames: neither this file nor {PARTIAL_NAME} exists"
+                    ),
+                });
+            };
+            // Check the kept frames (read-only) before changing anything.
+            {
+                let file = ::hdf5::File::open(&source).map_err(h5err(&source))?;
+                if let Some(name) = (0..keep)
+                    .map(|i| format!("frame_{i:05}"))
+                    .find(|name| !file.link_exists(name))
+                {
+                    return Err(IoError::Hdf5 {
+                        path: source.clone(),
+                        message: format!(
+                            "cannot resume after {keep} frames: group {name} is missing"
+                        ),
+                    });
+                }
+            }
+            if source == target {
+                std::fs::rename(&target, &partial).map_err(|source| IoError::File {
+                    path: target.clone(),
+                    source,
+                })?;
+            }
+            let e = h5err(&partial);
+            let file = ::hdf5::File::open_rw(&partial).map_err(&e)?;
+            for name in file.member_names().map_err(&e)? {
+                let later = name
+                    .strip_prefix("frame_")
+                    .and_then(|n| n.parse::<usize>().ok())
+                    .is_some_and(|n| n >= keep);
+                if later {
+                    file.unlink(&name).map_err(&e)?;
+                }
+            }
+            file.flush().map_err(&e)?;
+            drop(e);
+            Ok(H5FrameWriter {
+                partial,
+                target,
+                file,
+            })
+        }
+        #[cfg(not(feature = "hdf5"))]
+        {
+            let _ = (partial, keep);
             Err(IoError::Hdf5Unavailable { path: target })
         }
     }
