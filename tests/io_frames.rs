@@ -225,6 +225,9 @@ fn bad_frames_are_errors_that_write_nothing() {
 #[test]
 fn hdf5_without_the_feature_is_a_clear_error() {
     let d = tmpdir("noh5");
+    std::fs::create_dir_all(d.join("frames")).unwrap();
+    let old = d.join("frames/frame_00000_coefs.npy");
+    std::fs::write(&old, b"an earlier run's frame").unwrap();
     let e = FrameWriter::new(
         &d,
         FrameFormats {

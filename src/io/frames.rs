@@ -339,6 +339,11 @@ impl FrameWriter {
             dir: dir.clone(),
             message,
         };
+        if formats.hdf5 && !super::hdf5::AVAILABLE {
+            return Err(IoError::Hdf5Unavailable {
+                path: dir.join(super::hdf5::FILE_NAME),
+            });
+        }
         if let Some(k) = formats.vtp {
             if k > crate::vesicle::mesh::MAX_SUBDIVISIONS {
                 return Err(err(format!(
