@@ -158,8 +158,8 @@ struct VtpState {
     basis: Option<Vec<f64>>,
 }
 
-/// Keep the basis at the mesh vertices when it takes at most this many values (256 MiB).
-const BASIS_CACHE_VALUES: usize = 1 << 25;
+/// Keep the basis at the mesh vertices when it takes at most this many values (32 MiB).
+const BASIS_CACHE_VALUES: usize = 1 << 22;
 
 impl VtpState {
     fn new(order: usize, subdivisions: u32) -> Result<Self, String> {
