@@ -1,9 +1,22 @@
-//! Output files: atomic writes, `.npy` arrays, JSON summaries.
+//! Output files: atomic writes, `.npy` arrays, JSON summaries, frames, VTK, checkpoints, HDF5.
 //!
 //! Every file is written to a temporary name in the same directory and renamed into place, so a
-//! crashed run never leaves a half-written file under the final name.
+//! crashed run never leaves a half-written file under the final name. The one exception is the
+//! HDF5 frame file, which grows frame by frame under a `.partial` name (see [`hdf5`]).
+//!
+//! * [`npy`]: `.npy` arrays.
+//! * [`frames`]: the per-frame output of a run ([`frames::FrameWriter`]).
+//! * [`vtk`]: VTK XML PolyData (`.vtp`) meshes and ParaView collections (`.pvd`).
+//! * [`checkpoint`]: the binary checkpoint container that restarts runs bit-for-bit.
+//! * [`hdf5`]: `frames.h5` (cargo feature `hdf5`).
 
+pub mod checkpoint;
+pub mod frames;
+pub mod hdf5;
 pub mod npy;
+pub mod vtk;
+
+pub use checkpoint::CheckpointFault;
 
 use std::fs;
 use std::io::Write;
@@ -21,6 +34,27 @@ pub enum IoError {
     /// A malformed `.npy` file.
     #[error("{path}: {message}")]
     Npy { path: PathBuf, message: String },
+    /// A checkpoint that cannot be written or read back.
+    #[error("checkpoint {path}: {fault}")]
+    Checkpoint {
+        path: PathBuf,
+        fault: CheckpointFault,
+    },
+    /// A mesh or collection that cannot be written as VTK.
+    #[error("{path}: {message}")]
+    Vtk { path: PathBuf, message: String },
+    /// Frame data that does not fit the frame layout (wrong lengths, mixed orders, ...).
+    #[error("frames in {dir}: {message}")]
+    Frame { dir: PathBuf, message: String },
+    /// An error of the HDF5 library.
+    #[error("{path}: HDF5: {message}")]
+    Hdf5 { path: PathBuf, message: String },
+    /// HDF5 output was asked for but this build has no HDF5 support.
+    #[error(
+        "{path}: mobo was built without the hdf5 feature (rebuild with `cargo build --features hdf5`; \
+         needs apt `libhdf5-dev pkg-config`)"
+    )]
+    Hdf5Unavailable { path: PathBuf },
 }
 
 /// Write `bytes` to `path` atomically (temporary file in the same directory, then rename).
