@@ -44,14 +44,21 @@ enum Command {
     /// FMM (or --direct); prints one JSON line with the settings and timings.
     Fmm(FmmArgs),
     /// Run a cell scene (TOML); without a scene, the built-in demo (one red blood cell in shear).
-    /// Writes summary.json and frames/ into the output directory. So far: one cell, viscosity
-    /// ratio 1, no shear elasticity, first-order scheme.
+    /// Writes summary.json, frames (frames/*.npy, vtk/*.vtp, frames.h5 as the scene's [output]
+    /// asks), scene.toml and checkpoint.bin into the output directory. Ctrl-C stops after the
+    /// current step with a checkpoint; `mobo run --resume DIR` continues bit-for-bit.
     Run {
         /// The scene file (TOML); omitted: the built-in demo scene.
         scene: Option<std::path::PathBuf>,
         /// Output directory (default: out/<scene name>, out/demo for the demo).
         #[arg(long)]
         out: Option<std::path::PathBuf>,
+        /// Continue the run in DIR from its checkpoint (its scene.toml is the scene).
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["scene", "out"])]
+        resume: Option<std::path::PathBuf>,
+        /// Stop after this many steps (with a checkpoint); continue later with --resume.
+        #[arg(long)]
+        max_steps: Option<usize>,
         /// No progress bar.
         #[arg(long)]
         quiet: bool,
@@ -98,6 +105,8 @@ enum CliError {
     Run(#[from] mobo::scene::brownian_run::RunError),
     #[error("{0}")]
     CellRun(#[from] mobo::scene::cells_run::CellRunError),
+    #[error("interrupted")]
+    Interrupted,
 }
 
 fn main() -> ExitCode {
@@ -105,12 +114,20 @@ fn main() -> ExitCode {
     let result = match cli.command.unwrap_or(Command::Run {
         scene: None,
         out: None,
+        resume: None,
+        max_steps: None,
         quiet: false,
     }) {
         Command::Demo { order } => demo(order),
         Command::Brownian { scene, out, quiet } => brownian(&scene, out, quiet),
         Command::Fmm(args) => fmm(args),
-        Command::Run { scene, out, quiet } => run(scene, out, quiet),
+        Command::Run {
+            scene,
+            out,
+            resume,
+            max_steps,
+            quiet,
+        } => run(scene, out, resume, max_steps, quiet),
         Command::BenchSht {
             order,
             surfaces,
@@ -120,6 +137,7 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
+        Err(CliError::Interrupted) => ExitCode::from(130),
         Err(e) => {
             eprintln!("mobo: error: {e}");
             ExitCode::FAILURE
@@ -271,23 +289,53 @@ fn bench_sht(order: usize, surfaces: usize, threads: usize, reps: usize) -> Resu
 fn run(
     scene: Option<std::path::PathBuf>,
     out: Option<std::path::PathBuf>,
+    resume: Option<std::path::PathBuf>,
+    max_steps: Option<usize>,
     quiet: bool,
 ) -> Result<(), CliError> {
-    use mobo::scene::{cells, cells_run};
-    let (sc, name) = match &scene {
-        Some(path) => (
-            cells::load(path)?,
-            path.file_stem().unwrap_or_default().to_os_string(),
-        ),
+    use mobo::scene::{cells, cells_run, read_scene_file};
+    let scene = scene.or_else(|| resume.as_ref().map(|d| d.join(cells_run::SCENE_COPY)));
+    let (sc, text, name) = match &scene {
+        Some(path) => {
+            let text = read_scene_file(path)?;
+            (
+                cells::parse(path, &text)?,
+                text,
+                path.file_stem().unwrap_or_default().to_os_string(),
+            )
+        }
         None => (
             cells::parse(
                 std::path::Path::new("<built-in demo>"),
                 cells_run::DEMO_SCENE,
             )?,
+            cells_run::DEMO_SCENE.to_string(),
             "demo".into(),
         ),
     };
-    let out = out.unwrap_or_else(|| std::path::Path::new("out").join(name));
+    let out = resume
+        .clone()
+        .or(out)
+        .unwrap_or_else(|| std::path::Path::new("out").join(name));
+    let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+    {
+        let stop = stop.clone();
+        // A second Ctrl-C (or no handler) falls back to the default: the process ends.
+        let _ = ctrlc::set_handler(move || {
+            if stop.swap(true, std::sync::atomic::Ordering::Relaxed) {
+                std::process::exit(130);
+            }
+            eprintln!(
+                "\nmobo run: stopping after this step (checkpoint follows); Ctrl-C again to abort"
+            );
+        });
+    }
+    let options = cells_run::RunOptions {
+        quiet,
+        resume: resume.is_some(),
+        max_steps,
+        stop: Some(stop.clone()),
+    };
     if !quiet {
         eprintln!(
             "mobo run: {} ({} cells, p = {}, dt = {}, t_end = {}) -> {}",
@@ -309,7 +357,21 @@ fn run(
             );
         }
     }
-    let s = cells_run::run(&sc, &out, quiet)?;
+    let s = cells_run::run(&sc, &text, &out, &options)?;
+    if !s.completed {
+        println!(
+            "stopped at step {} (t = {}): checkpoint in {}; continue with `mobo run --resume {}`",
+            s.steps,
+            s.final_time,
+            out.display(),
+            out.display()
+        );
+        return if stop.load(std::sync::atomic::Ordering::Relaxed) {
+            Err(CliError::Interrupted)
+        } else {
+            Ok(())
+        };
+    }
     println!(
         "{} steps to t = {} in {:.2} s ({:.1} cell-steps/s); GMRES {:.1} iterations per step (max {}); area drift {:.1e}, volume drift {:.1e}; inclination {:.2}°; results in {}",
         s.steps,

@@ -164,3 +164,127 @@ fn mobo_without_arguments_runs_the_demo_scene() {
     let inc = s["inclination_deg"].as_f64().unwrap();
     assert!(inc > 0.0 && inc < 45.0, "{inc}");
 }
+
+const TWO_CELLS: &str = r#"
+[flow]
+kind = "shear"
+rate = 1.0
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+bending_modulus = 0.5
+center = [-1.3, 0.4, 0.0]
+[[cells]]
+shape = "sphere"
+center = [1.3, -0.4, 0.0]
+bending_modulus = 0.5
+[numerics]
+order = 6
+dt = 0.05
+t_end = 1.2
+[output]
+every = 4
+vtk = false
+"#;
+
+fn frames_of(out: &std::path::Path) -> Vec<Vec<u64>> {
+    let mut all = Vec::new();
+    for f in 0.. {
+        let path = out.join(format!("frames/frame_{f:05}_coefs.npy"));
+        if !path.exists() {
+            break;
+        }
+        let (_, c) = mobo::io::npy::read_f64(&path).unwrap();
+        let (_, t) =
+            mobo::io::npy::read_f64(&out.join(format!("frames/frame_{f:05}_tension.npy"))).unwrap();
+        all.push(c.iter().chain(&t).map(|v| v.to_bits()).collect());
+    }
+    all
+}
+
+#[test]
+fn a_stopped_or_interrupted_run_resumes_to_bit_identical_results() {
+    let dir = tmpdir("run-resume");
+    let scene = write(&dir, "two.toml", TWO_CELLS);
+    let full = dir.join("full");
+    let o = mobo(&["run", &scene, "--out", full.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&full);
+    assert_eq!(s["steps"].as_u64(), Some(24));
+    assert_eq!(
+        s["counters"]["fmm_builds"].as_u64(),
+        Some(24),
+        "two cells: one FMM per step"
+    );
+    let want = frames_of(&full);
+    assert_eq!(want.len(), 7);
+
+    // Stopped by --max-steps, then resumed.
+    let part = dir.join("part");
+    let o = mobo(&[
+        "run",
+        &scene,
+        "--out",
+        part.to_str().unwrap(),
+        "--quiet",
+        "--max-steps",
+        "10",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&part);
+    assert_eq!(s["completed"].as_bool(), Some(false));
+    assert_eq!(s["steps"].as_u64(), Some(10));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("--resume"));
+    let o = mobo(&["run", "--resume", part.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(summary(&part)["completed"].as_bool(), Some(true));
+    assert_eq!(
+        frames_of(&part),
+        want,
+        "stop at 10 + resume = one run, bit for bit"
+    );
+
+    // Interrupted by SIGINT (Ctrl-C) once the first checkpoint exists, then resumed.
+    let intr = dir.join("intr");
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_mobo"))
+        .args(["run", &scene, "--out", intr.to_str().unwrap(), "--quiet"])
+        .spawn()
+        .unwrap();
+    let ck = intr.join("checkpoint.bin");
+    let t0 = std::time::Instant::now();
+    while !ck.exists() && t0.elapsed().as_secs() < 60 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let kill = std::process::Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(kill.success());
+    let status = child.wait().unwrap();
+    let s = summary(&intr);
+    if s["completed"].as_bool() == Some(false) {
+        assert_eq!(status.code(), Some(130), "interrupted runs exit with 130");
+        let o = mobo(&["run", "--resume", intr.to_str().unwrap(), "--quiet"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    } else {
+        // The run finished before the signal arrived; nothing to resume.
+        assert!(status.success());
+    }
+    assert_eq!(
+        frames_of(&intr),
+        want,
+        "interrupt + resume = one run, bit for bit"
+    );
+
+    // A damaged checkpoint is refused with a message naming it.
+    let bytes = std::fs::read(part.join("checkpoint.bin")).unwrap();
+    std::fs::write(part.join("checkpoint.bin"), &bytes[..bytes.len() / 2]).unwrap();
+    let o = mobo(&["run", "--resume", part.to_str().unwrap(), "--quiet"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("checkpoint.bin") && err.contains("truncated"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+}

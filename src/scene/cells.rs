@@ -37,6 +37,11 @@
 //!
 //! [output]
 //! every = 10                      # steps between saved frames
+//! npy = true                      # DIR/frames/*.npy
+//! vtk = true                      # DIR/vtk/frame_NNNNN.vtp + frames.pvd (ParaView)
+//! mesh_subdivisions = 3           # icosphere subdivisions of the VTK meshes
+//! hdf5 = false                    # DIR/frames.h5 (needs the hdf5 feature)
+//! checkpoint_every = 10           # steps between checkpoints (default: every)
 //! ```
 
 use std::path::Path;
@@ -112,6 +117,25 @@ struct NumericsSection {
 #[serde(deny_unknown_fields)]
 struct OutputSection {
     every: Option<Spanned<u64>>,
+    npy: Option<bool>,
+    vtk: Option<bool>,
+    hdf5: Option<bool>,
+    mesh_subdivisions: Option<Spanned<u32>>,
+    checkpoint_every: Option<Spanned<u64>>,
+}
+
+/// `[output]`: what is written besides `summary.json`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutputSettings {
+    /// Frames as `.npy` arrays in `DIR/frames/` (default on).
+    pub npy: bool,
+    /// Frames as ParaView meshes in `DIR/vtk/` with this many icosphere subdivisions (default
+    /// on, 3 subdivisions: 642 vertices per cell).
+    pub vtk: Option<u32>,
+    /// Frames in `DIR/frames.h5` (needs the `hdf5` feature; default off).
+    pub hdf5: bool,
+    /// Steps between checkpoints (default: `every`).
+    pub checkpoint_every: u64,
 }
 
 /// Background flow.
@@ -225,6 +249,8 @@ pub struct CellScene {
     pub numerics: Numerics,
     /// Steps between saved frames.
     pub output_every: u64,
+    /// Formats and checkpoints.
+    pub output: OutputSettings,
     /// What the scene needs, decided from its contents (see [`effects`]).
     pub effects: Vec<Effect>,
 }
@@ -413,6 +439,36 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         Some(e) => *e.get_ref(),
         None => 10,
     };
+    let o = f.output.as_ref();
+    let mesh_subdivisions = match o.and_then(|o| o.mesh_subdivisions.as_ref()) {
+        Some(m) if *m.get_ref() > 6 => {
+            return Err(at(
+                m.span(),
+                "[output] mesh_subdivisions must be at most 6 (20·4⁶ triangles per cell)".into(),
+            ))
+        }
+        Some(m) => *m.get_ref(),
+        None => 3,
+    };
+    let checkpoint_every = match o.and_then(|o| o.checkpoint_every.as_ref()) {
+        Some(e) if *e.get_ref() == 0 => {
+            return Err(at(
+                e.span(),
+                "[output] checkpoint_every must be at least 1".into(),
+            ))
+        }
+        Some(e) => *e.get_ref(),
+        None => output_every,
+    };
+    let output = OutputSettings {
+        npy: o.and_then(|o| o.npy).unwrap_or(true),
+        vtk: o
+            .and_then(|o| o.vtk)
+            .unwrap_or(true)
+            .then_some(mesh_subdivisions),
+        hdf5: o.and_then(|o| o.hdf5).unwrap_or(false),
+        checkpoint_every,
+    };
     let sections = f.cells.unwrap_or_default();
     if sections.is_empty() {
         return Err(SceneError::new(file, "the scene has no [[cells]]"));
@@ -429,6 +485,7 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         cells,
         numerics,
         output_every,
+        output,
         effects,
     })
 }

@@ -12,14 +12,18 @@
 //! scheme. Other scenes are refused with a message that says what is missing.
 
 use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use super::cells::{CellScene, Effect, Scheme};
-use crate::io::{npy, write_atomic, IoError};
-use crate::sph_harmonics::ShTransform;
+use crate::io::checkpoint::Checkpoint;
+use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
+use crate::io::{write_atomic, IoError};
+use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::VesicleParams;
 use crate::timestep::suspension::{CellSetup, CellStepError, Suspension};
@@ -49,6 +53,9 @@ pub enum CellRunError {
     /// Output could not be written.
     #[error("{0}")]
     Io(#[from] IoError),
+    /// A checkpoint does not fit the scene.
+    #[error("cannot resume: {0}")]
+    Resume(String),
 }
 
 /// Per-cell observables at the end of the run.
@@ -72,6 +79,8 @@ pub struct CellRunSummary {
     pub dt: f64,
     pub steps: usize,
     pub final_time: f64,
+    /// Whether the run reached `t_end` (false: stopped early with a checkpoint).
+    pub completed: bool,
     pub scheme: &'static str,
     pub gmres_tol: f64,
     pub fmm_digits: Option<u32>,
@@ -121,8 +130,188 @@ fn observe(
     ))
 }
 
-/// Run `scene`, writing into `out`.
-pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary, CellRunError> {
+/// How a run is started and when it stops early.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// No progress bar.
+    pub quiet: bool,
+    /// Continue from `out/checkpoint.bin` (written by an earlier run of the same scene).
+    pub resume: bool,
+    /// Stop after this many steps of this invocation (with a checkpoint), e.g. to fit a job's
+    /// wall-time limit; the run is then continued with `resume`.
+    pub max_steps: Option<usize>,
+    /// Set (e.g. by a Ctrl-C handler) to stop cleanly after the current step, with a
+    /// checkpoint.
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+/// The checkpoint file in the output directory.
+pub const CHECKPOINT: &str = "checkpoint.bin";
+/// The copy of the scene in the output directory (what `--resume` runs).
+pub const SCENE_COPY: &str = "scene.toml";
+
+/// Everything a run carries from step to step besides the cells' own state.
+#[derive(Clone, Debug, Default)]
+struct Progress {
+    step: usize,
+    frame_times: Vec<f64>,
+    iters_sum: usize,
+    iters_max: usize,
+    step_s: f64,
+    output_s: f64,
+    wall_s: f64,
+    min_gap: f64,
+    /// Per cell: centroid (3), area, volume, inclination at the start of the run.
+    start_obs: Vec<[f64; 6]>,
+}
+
+fn checkpoint_error(out: &Path, what: String) -> CellRunError {
+    CellRunError::Resume(format!("{}: {what}", out.join(CHECKPOINT).display()))
+}
+
+fn save_checkpoint(out: &Path, susp: &Suspension, prog: &Progress) -> Result<(), CellRunError> {
+    let nc = susp.len();
+    let mut ck = Checkpoint::new(serde_json::json!({
+        "format": "mobo cell-run checkpoint",
+        "step": prog.step,
+        "iters_sum": prog.iters_sum,
+        "iters_max": prog.iters_max,
+        "cells": nc,
+    }));
+    let coefs: Vec<f64> = susp.coefs().iter().flatten().copied().collect();
+    let ncoef = coefs.len() / nc;
+    ck.push("coefs", vec![nc, ncoef], coefs);
+    let sigma: Vec<f64> = susp
+        .steppers()
+        .iter()
+        .flat_map(|s| s.sigma.iter().copied())
+        .collect();
+    let n = sigma.len() / nc;
+    ck.push("sigma", vec![nc, n], sigma);
+    let targets: Vec<f64> = susp
+        .steppers()
+        .iter()
+        .flat_map(|s| {
+            let (a, v) = s.drift_targets().unwrap_or((f64::NAN, f64::NAN));
+            [a, v]
+        })
+        .collect();
+    ck.push("drift_targets", vec![nc, 2], targets);
+    ck.push(
+        "start_observables",
+        vec![nc, 6],
+        prog.start_obs.iter().flatten().copied().collect(),
+    );
+    ck.push(
+        "frame_times",
+        vec![prog.frame_times.len()],
+        prog.frame_times.clone(),
+    );
+    ck.push(
+        "clocks",
+        vec![4],
+        vec![prog.step_s, prog.output_s, prog.wall_s, prog.min_gap],
+    );
+    ck.write(&out.join(CHECKPOINT))?;
+    Ok(())
+}
+
+fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRunError> {
+    let ck = Checkpoint::read(&out.join(CHECKPOINT))?;
+    let nc = susp.len();
+    let get = |name: &str, len: usize| -> Result<&[f64], CellRunError> {
+        let a = ck
+            .get(name)
+            .ok_or_else(|| checkpoint_error(out, format!("no array \"{name}\"")))?;
+        if a.data.len() != len {
+            return Err(checkpoint_error(
+                out,
+                format!(
+                    "array \"{name}\" has {} values, the scene needs {len} (is this the same scene?)",
+                    a.data.len()
+                ),
+            ));
+        }
+        Ok(&a.data)
+    };
+    let ncoef = susp.coefs()[0].len();
+    let n = susp.steppers()[0].sigma.len();
+    let coefs = get("coefs", nc * ncoef)?;
+    let sigma = get("sigma", nc * n)?;
+    let targets = get("drift_targets", nc * 2)?;
+    let start = get("start_observables", nc * 6)?;
+    let clocks = get("clocks", 4)?;
+    let frame_times = ck
+        .get("frame_times")
+        .ok_or_else(|| checkpoint_error(out, "no array \"frame_times\"".into()))?
+        .data
+        .clone();
+    for i in 0..nc {
+        susp.coefs_mut()[i].copy_from_slice(&coefs[i * ncoef..(i + 1) * ncoef]);
+        let st = &mut susp.steppers_mut()[i];
+        st.sigma.copy_from_slice(&sigma[i * n..(i + 1) * n]);
+        let (a, v) = (targets[2 * i], targets[2 * i + 1]);
+        st.set_drift_targets((a.is_finite() && v.is_finite()).then_some((a, v)));
+    }
+    let meta = |key: &str| -> Result<usize, CellRunError> {
+        ck.meta[key]
+            .as_u64()
+            .map(|v| v as usize)
+            .ok_or_else(|| checkpoint_error(out, format!("header has no \"{key}\"")))
+    };
+    Ok(Progress {
+        step: meta("step")?,
+        frame_times,
+        iters_sum: meta("iters_sum")?,
+        iters_max: meta("iters_max")?,
+        step_s: clocks[0],
+        output_s: clocks[1],
+        wall_s: clocks[2],
+        min_gap: clocks[3],
+        start_obs: start
+            .chunks_exact(6)
+            .map(|c| std::array::from_fn(|k| c[k]))
+            .collect(),
+    })
+}
+
+fn write_frame(
+    frames: &mut FrameWriter,
+    susp: &Suspension,
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    time: f64,
+) -> Result<(), CellRunError> {
+    let n = sht.n_points();
+    let mut x = vec![0.0; 3 * n * susp.len()];
+    for (i, c) in susp.coefs().iter().enumerate() {
+        sht.inverse(c, &mut x[3 * n * i..3 * n * (i + 1)], ws)
+            .map_err(VesicleError::from)?;
+    }
+    let cells: Vec<CellFrame<'_>> = susp
+        .coefs()
+        .iter()
+        .zip(susp.steppers())
+        .enumerate()
+        .map(|(i, (c, st))| CellFrame {
+            order: sht.order(),
+            coefs: c,
+            positions: &x[3 * n * i..3 * n * (i + 1)],
+            tension: &st.sigma,
+        })
+        .collect();
+    let index = frames.times().len();
+    frames.write_frame(index, time, &cells)?;
+    Ok(())
+}
+
+/// Run `scene` (whose text is `scene_text`), writing into `out`.
+pub fn run(
+    scene: &CellScene,
+    scene_text: &str,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<CellRunSummary, CellRunError> {
     for (i, cell) in scene.cells.iter().enumerate() {
         if cell.viscosity_ratio != 1.0 {
             return Err(CellRunError::Unsupported(format!(
@@ -193,54 +382,33 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
     let mut calc = SurfaceCalculus::new(p)?;
     let sht = ShTransform::new(p).map_err(VesicleError::from)?;
     let mut ws = sht.workspace();
-    let mut start_obs = Vec::with_capacity(nc);
-    for c in susp.coefs() {
-        start_obs.push(observe(&mut calc, c)?);
-    }
-    let frames_dir = out.join("frames");
-    std::fs::create_dir_all(&frames_dir).map_err(|source| IoError::File {
-        path: frames_dir.clone(),
-        source,
-    })?;
-    let mut times = Vec::new();
-    let mut output_s = 0.0;
-    let mut save =
-        |k: usize, susp: &Suspension, times: &mut Vec<f64>| -> Result<(), CellRunError> {
-            let t0 = Instant::now();
-            let n = sht.n_points();
-            let ncoef = sht.n_coefs();
-            let mut coefs = Vec::with_capacity(3 * ncoef * nc);
-            let mut x = vec![0.0; 3 * n * nc];
-            let mut sigma = Vec::with_capacity(n * nc);
-            for (i, (c, st)) in susp.coefs().iter().zip(susp.steppers()).enumerate() {
-                coefs.extend_from_slice(c);
-                sht.inverse(c, &mut x[3 * n * i..3 * n * (i + 1)], &mut ws)
-                    .map_err(VesicleError::from)?;
-                sigma.extend_from_slice(&st.sigma);
-            }
-            let f = times.len();
-            npy::write_f64(
-                &frames_dir.join(format!("frame_{f:05}_coefs.npy")),
-                &[nc, 3, ncoef],
-                &coefs,
-            )?;
-            npy::write_f64(
-                &frames_dir.join(format!("frame_{f:05}_positions.npy")),
-                &[nc, 3, n],
-                &x,
-            )?;
-            npy::write_f64(
-                &frames_dir.join(format!("frame_{f:05}_tension.npy")),
-                &[nc, n],
-                &sigma,
-            )?;
-            times.push(k as f64 * dt);
-            npy::write_f64(&frames_dir.join("times.npy"), &[times.len()], times)?;
-            output_s += t0.elapsed().as_secs_f64();
-            Ok(())
+    let formats = FrameFormats {
+        npy: scene.output.npy,
+        hdf5: scene.output.hdf5,
+        vtp: scene.output.vtk,
+    };
+    let (mut prog, mut frames) = if options.resume {
+        let prog = load_checkpoint(out, &mut susp)?;
+        let frames = FrameWriter::resume(out, formats, &prog.frame_times)?;
+        (prog, frames)
+    } else {
+        let mut prog = Progress {
+            min_gap: f64::INFINITY,
+            ..Default::default()
         };
-    save(0, &susp, &mut times)?;
-    let bar = if quiet {
+        for c in susp.coefs() {
+            let (x, a, v, inc) = observe(&mut calc, c)?;
+            prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
+        }
+        write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
+        let mut frames = FrameWriter::new(out, formats)?;
+        let t0 = Instant::now();
+        write_frame(&mut frames, &susp, &sht, &mut ws, 0.0)?;
+        prog.output_s += t0.elapsed().as_secs_f64();
+        prog.frame_times = frames.times().to_vec();
+        (prog, frames)
+    };
+    let bar = if options.quiet {
         ProgressBar::hidden()
     } else {
         let b = ProgressBar::new(steps as u64);
@@ -251,25 +419,27 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
             .expect("valid template")
             .progress_chars("=> "),
         );
+        b.set_position(prog.step as u64);
         b
     };
     let flow = scene.flow;
     let start = Instant::now();
-    let mut step_s = 0.0;
-    let (mut iters_sum, mut iters_max) = (0usize, 0usize);
-    let mut before_last: Vec<[f64; 3]> = start_obs.iter().map(|o| o.0).collect();
-    let mut min_gap = f64::INFINITY;
-    for k in 1..=steps {
+    let wall0 = prog.wall_s;
+    let mut before_last: Vec<[f64; 3]> = Vec::new();
+    let first = prog.step + 1;
+    let mut stopped = false;
+    for k in first..=steps {
         if k == steps {
-            for (b, c) in before_last.iter_mut().zip(susp.coefs()) {
-                *b = observe(&mut calc, c)?.0;
+            before_last.clear();
+            for c in susp.coefs() {
+                before_last.push(observe(&mut calc, c)?.0);
             }
         }
         let t = Instant::now();
         let report = susp
             .step(&|x| flow.velocity(x))
             .map_err(|e| step_err(k, e))?;
-        step_s += t.elapsed().as_secs_f64();
+        prog.step_s += t.elapsed().as_secs_f64();
         for (i, c) in susp.coefs().iter().enumerate() {
             if let Some(j) = c.iter().position(|c| !c.is_finite()) {
                 return Err(CellRunError::Step {
@@ -277,7 +447,9 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
                     time: k as f64 * dt,
                     cell: Some(i + 1),
                     source: Box::new(TimestepError::Vesicle(format!(
-                        "non-finite coefficient {j} after the step"
+                        "non-finite coefficient {j} after the step (the last checkpoint, \
+                         step {}, is kept)",
+                        prog.step
                     ))),
                 });
             }
@@ -288,32 +460,56 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
             .map(|r| r.gmres.iterations)
             .max()
             .unwrap_or(0);
-        iters_sum += report
+        prog.iters_sum += report
             .cells
             .iter()
             .map(|r| r.gmres.iterations)
             .sum::<usize>();
-        iters_max = iters_max.max(it);
+        prog.iters_max = prog.iters_max.max(it);
         if let Some(st) = susp.coupling_stats() {
-            min_gap = min_gap.min(st.min_gap);
+            prog.min_gap = prog.min_gap.min(st.min_gap);
         }
         bar.set_message(format!("t {:.3} dt {dt} gmres {it}", k as f64 * dt));
         bar.inc(1);
+        prog.step = k;
+        let interrupted = options
+            .stop
+            .as_ref()
+            .is_some_and(|s| s.load(Ordering::Relaxed));
+        let limited = options.max_steps.is_some_and(|m| k + 1 - first >= m);
+        stopped = k < steps && (interrupted || limited);
+        let t0 = Instant::now();
         if k == steps || k as u64 % scene.output_every == 0 {
-            save(k, &susp, &mut times)?;
+            write_frame(&mut frames, &susp, &sht, &mut ws, k as f64 * dt)?;
+            prog.frame_times = frames.times().to_vec();
+        }
+        if stopped || k == steps || k as u64 % scene.output.checkpoint_every == 0 {
+            prog.wall_s = wall0 + start.elapsed().as_secs_f64();
+            save_checkpoint(out, &susp, &prog)?;
+        }
+        prog.output_s += t0.elapsed().as_secs_f64();
+        if stopped {
+            break;
         }
     }
     bar.finish_and_clear();
-    let wall = start.elapsed().as_secs_f64();
+    if !stopped {
+        frames.finish()?;
+    }
+    prog.wall_s = wall0 + start.elapsed().as_secs_f64();
     let mut per_cell = Vec::with_capacity(nc);
     for (i, c) in susp.coefs().iter().enumerate() {
         let (centroid, area, volume, inclination) = observe(&mut calc, c)?;
-        let (_, a0, v0, _) = start_obs[i];
+        let s0 = prog.start_obs[i];
+        let velocity = match before_last.get(i) {
+            Some(b) => std::array::from_fn(|d| (centroid[d] - b[d]) / dt),
+            None => [f64::NAN; 3],
+        };
         per_cell.push(CellSummary {
-            area_drift: (area - a0) / a0,
-            volume_drift: (volume - v0) / v0,
+            area_drift: (area - s0[3]) / s0[3],
+            volume_drift: (volume - s0[4]) / s0[4],
             centroid,
-            centroid_velocity: std::array::from_fn(|d| (centroid[d] - before_last[i][d]) / dt),
+            centroid_velocity: velocity,
             inclination_deg: inclination,
         });
     }
@@ -334,25 +530,27 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
     };
     let stats = susp.coupling_stats().unwrap_or_default();
     let threads = rayon::current_num_threads();
+    let done = prog.step;
     let summary = CellRunSummary {
         cells: nc,
         order: p,
         upsampled_order: q,
         dt,
-        steps,
-        final_time: steps as f64 * dt,
+        steps: done,
+        final_time: done as f64 * dt,
+        completed: done == steps,
         scheme: "euler",
         gmres_tol: scene.numerics.gmres_tol,
         fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
         effects: scene.effects.clone(),
-        wall_s: wall,
-        step_s,
+        wall_s: prog.wall_s,
+        step_s: prog.step_s,
         coupling_s: stats.setup_s + stats.fmm_s + stats.self_s + stats.near_s,
-        output_s,
+        output_s: prog.output_s,
         threads,
-        cell_steps_per_core_second: (steps * nc) as f64 / (step_s * threads as f64).max(1e-12),
-        gmres_iterations_mean: iters_sum as f64 / (steps * nc) as f64,
-        gmres_iterations_max: iters_max,
+        cell_steps_per_core_second: (done * nc) as f64 / (prog.step_s * threads as f64).max(1e-12),
+        gmres_iterations_mean: prog.iters_sum as f64 / (done * nc).max(1) as f64,
+        gmres_iterations_max: prog.iters_max,
         counters: Counters {
             fmm_builds: stats.fmm_builds,
             near_points: stats.near_points,
@@ -367,9 +565,9 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
         } else {
             per_cell.iter().map(|c| c.inclination_deg).sum::<f64>() / nc as f64
         },
-        min_gap: min_gap.is_finite().then_some(min_gap),
+        min_gap: prog.min_gap.is_finite().then_some(prog.min_gap),
         per_cell,
-        frames: times.len(),
+        frames: prog.frame_times.len(),
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     write_atomic(&out.join("summary.json"), json.as_bytes())?;
