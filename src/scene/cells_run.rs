@@ -305,32 +305,14 @@ fn write_frame(
     Ok(())
 }
 
-/// Run `scene` (whose text is `scene_text`), writing into `out`.
-pub fn run(
-    scene: &CellScene,
-    scene_text: &str,
-    out: &Path,
-    options: &RunOptions,
-) -> Result<CellRunSummary, CellRunError> {
-    for (i, cell) in scene.cells.iter().enumerate() {
-        if cell.viscosity_ratio != 1.0 {
-            return Err(CellRunError::Unsupported(format!(
-                "cell {} (line {}): viscosity_ratio ≠ 1 (the double-layer step is not built yet)",
-                i + 1,
-                cell.line
-            )));
-        }
-    }
-    if scene.numerics.scheme != Scheme::Euler {
-        return Err(CellRunError::Unsupported("scheme = \"bdf2\"".into()));
-    }
-    if scene.numerics.adaptive_dt {
-        return Err(CellRunError::Unsupported("adaptive_dt = true".into()));
-    }
+/// The cells of `scene` as a [`Suspension`] ready to step (the settings `mobo run` uses:
+/// drift correction and reparametrisation every step, GMRES restart 200). Library users and
+/// studies (`mobo report`) step it themselves.
+pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
+    check_supported(scene)?;
     let p = scene.numerics.order;
     let q = scene.numerics.upsample * p;
     let dt = scene.numerics.dt;
-    let steps = (scene.numerics.t_end / dt).round().max(1.0) as usize;
     let nc = scene.cells.len();
     let mut setups = Vec::with_capacity(nc);
     for cell in &scene.cells {
@@ -367,18 +349,58 @@ pub fn run(
             skalak,
         });
     }
+    let coupling = CouplingParams {
+        viscosity: scene.viscosity,
+        fmm_digits: scene.numerics.fmm_digits,
+        ..Default::default()
+    };
+    Suspension::new(p, setups, coupling).map_err(|e| CellRunError::Step {
+        step: 0,
+        time: 0.0,
+        cell: e.cell.map(|c| c + 1),
+        source: Box::new(e.source),
+    })
+}
+
+/// Refuse what the runner does not do yet, with what is missing.
+fn check_supported(scene: &CellScene) -> Result<(), CellRunError> {
+    for (i, cell) in scene.cells.iter().enumerate() {
+        if cell.viscosity_ratio != 1.0 {
+            return Err(CellRunError::Unsupported(format!(
+                "cell {} (line {}): viscosity_ratio ≠ 1 (the double-layer step is not built yet)",
+                i + 1,
+                cell.line
+            )));
+        }
+    }
+    if scene.numerics.scheme != Scheme::Euler {
+        return Err(CellRunError::Unsupported("scheme = \"bdf2\"".into()));
+    }
+    if scene.numerics.adaptive_dt {
+        return Err(CellRunError::Unsupported("adaptive_dt = true".into()));
+    }
+    Ok(())
+}
+
+/// Run `scene` (whose text is `scene_text`), writing into `out`.
+pub fn run(
+    scene: &CellScene,
+    scene_text: &str,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<CellRunSummary, CellRunError> {
+    let p = scene.numerics.order;
+    let q = scene.numerics.upsample * p;
+    let dt = scene.numerics.dt;
+    let steps = (scene.numerics.t_end / dt).round().max(1.0) as usize;
+    let nc = scene.cells.len();
     let step_err = |step: usize, e: CellStepError| CellRunError::Step {
         step,
         time: step as f64 * dt,
         cell: e.cell.map(|c| c + 1),
         source: Box::new(e.source),
     };
-    let coupling = CouplingParams {
-        viscosity: scene.viscosity,
-        fmm_digits: scene.numerics.fmm_digits,
-        ..Default::default()
-    };
-    let mut susp = Suspension::new(p, setups, coupling).map_err(|e| step_err(0, e))?;
+    let mut susp = build(scene)?;
     let mut calc = SurfaceCalculus::new(p)?;
     let sht = ShTransform::new(p).map_err(VesicleError::from)?;
     let mut ws = sht.workspace();
