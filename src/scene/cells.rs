@@ -34,6 +34,8 @@
 //! t_end = 1.0
 //! scheme = "euler"                # "euler" | "bdf2"
 //! adaptive_dt = false
+//! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
+//! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
 //!
 //! [output]
 //! every = 10                      # steps between saved frames
@@ -111,6 +113,8 @@ struct NumericsSection {
     t_end: Option<Spanned<f64>>,
     scheme: Option<Spanned<String>>,
     adaptive_dt: Option<bool>,
+    repulsion_range: Option<Spanned<f64>>,
+    repulsion_strength: Option<Spanned<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -230,6 +234,11 @@ pub struct Numerics {
     pub t_end: f64,
     pub scheme: Scheme,
     pub adaptive_dt: bool,
+    /// Contact repulsion range as a fraction of the equivalent radius (0: off).
+    pub repulsion_range: f64,
+    /// Contact repulsion strength (traction); `None`: `10 · max(κ_b/R³, μ γ̇, |F|/4πR²)`
+    /// over the cells, `γ̇` the flow's rate scale.
+    pub repulsion_strength: Option<f64>,
 }
 
 /// One assembly decision: whether a piece of physics is built, and why.
@@ -431,6 +440,32 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
             },
         },
         adaptive_dt: n.and_then(|n| n.adaptive_dt).unwrap_or(false),
+        repulsion_range: match n.and_then(|n| n.repulsion_range.as_ref()) {
+            Some(v) if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0 && *v.get_ref() <= 1.0) => {
+                return Err(at(
+                    v.span(),
+                    format!(
+                        "[numerics] repulsion_range must be between 0 and 1 (a fraction of the cell radius), got {}",
+                        v.get_ref()
+                    ),
+                ))
+            }
+            Some(v) => *v.get_ref(),
+            None => 0.05,
+        },
+        repulsion_strength: match n.and_then(|n| n.repulsion_strength.as_ref()) {
+            Some(v) if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0) => {
+                return Err(at(
+                    v.span(),
+                    format!(
+                        "[numerics] repulsion_strength must be a non-negative number, got {}",
+                        v.get_ref()
+                    ),
+                ))
+            }
+            Some(v) => Some(*v.get_ref()),
+            None => None,
+        },
     };
     let output_every = match f.output.as_ref().and_then(|o| o.every.as_ref()) {
         Some(e) if *e.get_ref() == 0 => {

@@ -19,7 +19,7 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
-use super::cells::{CellScene, Effect, Scheme};
+use super::cells::{CellScene, Effect, Flow, Scheme};
 use crate::io::checkpoint::Checkpoint;
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
@@ -111,6 +111,8 @@ pub struct CellRunSummary {
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct Counters {
     pub fmm_builds: usize,
+    /// Point–cell pairs pushed apart by the contact repulsion.
+    pub repulsion_points: usize,
     pub near_points: usize,
     pub near_pairs: usize,
 }
@@ -349,9 +351,28 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
             skalak,
         });
     }
+    let rate = match scene.flow {
+        Flow::None => 0.0,
+        Flow::Shear { rate } | Flow::Extensional { rate } => rate.abs(),
+        Flow::Poiseuille { speed, radius } => (speed / radius).abs(),
+    };
+    let auto_strength = scene
+        .cells
+        .iter()
+        .map(|c| {
+            let r = c.radius;
+            let f = c.force.iter().map(|v| v * v).sum::<f64>().sqrt();
+            (c.bending_modulus / r.powi(3))
+                .max(scene.viscosity * rate)
+                .max(f / (4.0 * std::f64::consts::PI * r * r))
+        })
+        .fold(0.0, f64::max)
+        * 10.0;
     let coupling = CouplingParams {
         viscosity: scene.viscosity,
         fmm_digits: scene.numerics.fmm_digits,
+        repulsion_range: scene.numerics.repulsion_range,
+        repulsion_strength: scene.numerics.repulsion_strength.unwrap_or(auto_strength),
         ..Default::default()
     };
     Suspension::new(p, setups, coupling).map_err(|e| CellRunError::Step {
@@ -575,6 +596,7 @@ pub fn run(
         gmres_iterations_max: prog.iters_max,
         counters: Counters {
             fmm_builds: stats.fmm_builds,
+            repulsion_points: stats.repulsion_points,
             near_points: stats.near_points,
             near_pairs: stats.near_pairs,
         },

@@ -19,7 +19,13 @@
 //!    the order-`q` quadrature accurate beyond `δ` (`δ/h_q = 4√p/π` grid spacings).
 //!
 //! The distance of every near point to the other cell's surface is recorded: the smallest gap
-//! is the minimum-distance monitor of the run.
+//! is the minimum-distance monitor of the run. Points closer than `d_r` to another cell (or
+//! inside it) feel a **contact repulsion** traction along that cell's outward normal,
+//! `s (1 − d/d_r)²` (`s (1 − d/d_r)` for an overlap, `d < 0`), returned by
+//! [`Coupling::repulsion`] and applied explicitly through the cell's own single layer; it is
+//! off by default (`s = 0`) and switched on by the scene runner. This is a penalty, not a
+//! contact solver (Lu, Rahimian & Zorin, J. Comput. Phys. 347 (2017) is the method that
+//! guarantees no overlap); its range and strength are scene parameters.
 
 use std::sync::Mutex;
 use std::time::Instant;
@@ -44,6 +50,13 @@ pub struct CouplingParams {
     pub fmm_digits: u32,
     /// Near zone `δ = near_factor · R / √p`.
     pub near_factor: f64,
+    /// Contact repulsion range as a fraction of the source cell's equivalent radius `R`
+    /// (capped at the near zone `δ`); 0 switches the repulsion off.
+    pub repulsion_range: f64,
+    /// Contact repulsion strength `s` (a traction, force per area): a point at distance
+    /// `d < d_r` from another cell feels `s (1 − d/d_r)²` along that cell's outward normal,
+    /// and `s (1 + d/d_r)` when it is inside that cell (overlap).
+    pub repulsion_strength: f64,
 }
 
 impl Default for CouplingParams {
@@ -52,6 +65,8 @@ impl Default for CouplingParams {
             viscosity: 1.0,
             fmm_digits: 6,
             near_factor: 2.0,
+            repulsion_range: 0.05,
+            repulsion_strength: 0.0,
         }
     }
 }
@@ -66,8 +81,11 @@ pub struct CouplingStats {
     /// Ordered cell pairs `(target cell, source cell)` with near points.
     pub near_pairs: usize,
     /// Smallest distance of a point of one cell to another cell's surface at the last call
-    /// (`∞` when no point is in another cell's near zone).
+    /// (`∞` when no point is in another cell's near zone; negative: the point is inside the
+    /// other cell, an overlap).
     pub min_gap: f64,
+    /// Point–cell pairs that felt the contact repulsion (cumulative).
+    pub repulsion_points: usize,
     /// Seconds: quadrature setup, FMM (build + evaluation), self subtraction, near corrections.
     pub setup_s: f64,
     pub fmm_s: f64,
@@ -93,6 +111,10 @@ struct Engine {
 #[derive(Default)]
 struct CellQuadrature {
     sources: Vec<[f64; 3]>,
+    /// Outward normals at the sources.
+    normals: Vec<[f64; 3]>,
+    /// Equivalent radius.
+    r_eq: f64,
     /// `f dA / μ`, interleaved (3 per source).
     density: Vec<f64>,
     targets: Vec<[f64; 3]>,
@@ -110,6 +132,9 @@ pub struct Coupling {
     fmm_order: usize,
     engines: Vec<Mutex<Engine>>,
     cells: Vec<CellQuadrature>,
+    /// Contact-repulsion tractions of the last call (per cell, order-`p` grid; empty when
+    /// no point was within range).
+    repulsion: Vec<Vec<f64>>,
     /// Cumulative counters.
     pub stats: CouplingStats,
 }
@@ -166,6 +191,7 @@ impl Coupling {
             fmm_order,
             engines,
             cells: Vec::new(),
+            repulsion: Vec::new(),
             stats: CouplingStats {
                 min_gap: f64::INFINITY,
                 ..Default::default()
@@ -220,6 +246,8 @@ impl Coupling {
                     }
                 }
                 let sources = g.x.clone();
+                let normals = g.normal.clone();
+                let r_eq = g.equivalent_radius();
                 let np = e.sht.n_points();
                 let mut xg = vec![0.0; 3 * np];
                 e.sht
@@ -241,6 +269,8 @@ impl Coupling {
                     .collect();
                 Ok(CellQuadrature {
                     sources,
+                    normals,
+                    r_eq,
                     density,
                     targets,
                     centroid,
@@ -299,6 +329,7 @@ impl Coupling {
         self.stats.self_s += (t3 - t2).as_secs_f64();
         // 4. Near-singular corrections: for each source cell j, the points of other cells in
         //    its near zone.
+        let repulsion: Mutex<Vec<(usize, usize, [f64; 3])>> = Mutex::new(Vec::new());
         let corrections: Vec<Vec<NearCorrection>> = (0..nc)
             .into_par_iter()
             .map(|j| -> Result<_, TimestepError> {
@@ -322,12 +353,42 @@ impl Coupling {
                 let e = &mut *guard;
                 e.near.set_surface(coefs[j]).map_err(vesicle)?;
                 let mut near: Vec<(usize, usize, f64)> = Vec::new();
+                let mut push: Vec<(usize, usize, [f64; 3])> = Vec::new();
+                let (range, strength) = (
+                    (self.params.repulsion_range * cj.r_eq).min(cj.delta),
+                    self.params.repulsion_strength,
+                );
                 for &(i, k) in &cand {
                     let x = self.cells[i].targets[k];
                     let info = e.near.classify(x).map_err(vesicle)?;
-                    if info.distance < cj.delta {
-                        near.push((i, k, info.distance));
+                    let signed = if info.inside { -info.distance } else { info.distance };
+                    if info.distance < cj.delta || info.inside {
+                        near.push((i, k, signed));
                     }
+                    if strength > 0.0 && signed < range {
+                        // Along the outward normal of cell j at its nearest quadrature point.
+                        let (kn, _) = cj.sources.iter().enumerate().fold(
+                            (0, f64::INFINITY),
+                            |(kb, db), (kk, y)| {
+                                let d = dist2(x, *y);
+                                if d < db {
+                                    (kk, d)
+                                } else {
+                                    (kb, db)
+                                }
+                            },
+                        );
+                        let mag = if signed >= 0.0 {
+                            strength * (1.0 - signed / range).powi(2)
+                        } else {
+                            strength * (1.0 - signed / range)
+                        };
+                        push.push((i, k, cj.normals[kn].map(|v| v * mag)));
+                    }
+                }
+                if !push.is_empty() {
+                    let mut rep = repulsion.lock().expect("repulsion lock");
+                    rep.extend(push);
                 }
                 if near.is_empty() {
                     return Ok(Vec::new());
@@ -373,8 +434,30 @@ impl Coupling {
             self.stats.near_pairs += pairs.len();
         }
         self.stats.min_gap = min_gap;
+        let mut rep = repulsion.into_inner().expect("repulsion lock");
+        rep.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        self.repulsion = if rep.is_empty() {
+            Vec::new()
+        } else {
+            let mut r = vec![vec![0.0; 3 * np]; nc];
+            for &(i, k, f) in &rep {
+                for c in 0..3 {
+                    r[i][c * np + k] += f[c];
+                }
+            }
+            r
+        };
+        self.stats.repulsion_points += rep.len();
         self.stats.near_s += t3.elapsed().as_secs_f64();
         Ok(out)
+    }
+}
+
+impl Coupling {
+    /// The contact-repulsion traction on each cell from the last [`Coupling::velocities`]
+    /// (order-`p` grid, component-major); `None` when no point was within range.
+    pub fn repulsion(&self) -> Option<&[Vec<f64>]> {
+        (!self.repulsion.is_empty()).then_some(self.repulsion.as_slice())
     }
 }
 

@@ -167,6 +167,7 @@ impl Suspension {
                 .map_err(|source| CellStepError { cell: None, source })?;
         }
         let velocities = &self.velocities;
+        let repulsion = self.coupling.as_ref().and_then(|c| c.repulsion());
         let reports = self
             .steppers
             .par_iter_mut()
@@ -175,7 +176,7 @@ impl Suspension {
             .map(|(i, (st, c))| {
                 let extra = ExplicitTerms {
                     velocity: velocities.get(i).map(|v| v.as_slice()),
-                    traction: None,
+                    traction: repulsion.map(|r| r[i].as_slice()),
                 };
                 st.step_with(c, u_inf, extra)
                     .map_err(|source| CellStepError {
