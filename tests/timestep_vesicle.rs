@@ -25,6 +25,9 @@ fn params(p: usize, force: [f64; 3], dt: f64) -> VesicleParams {
         },
         correct_drift: false,
         reparametrize: None,
+        preconditioner: false,
+        scheme: mobo::timestep::semi_implicit::TimeScheme::Euler,
+        viscosity_ratio: 1.0,
     }
 }
 

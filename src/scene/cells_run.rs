@@ -117,6 +117,9 @@ pub fn run(scene: &CellScene, out: &Path, quiet: bool) -> Result<CellRunSummary,
             max_iterations: 10,
             ..Default::default()
         }),
+        preconditioner: true,
+        scheme: crate::timestep::semi_implicit::TimeScheme::Euler,
+        viscosity_ratio: 1.0,
     };
     let surface = cell.surface(p)?;
     let mut coefs = surface.coefs().to_vec();
