@@ -65,6 +65,7 @@ fn on_a_sphere_gmres_converges_in_at_most_three_iterations() {
             r.gmres.iterations, r0.gmres.iterations
         );
         assert!(r.gmres.iterations <= 3, "{} iterations", r.gmres.iterations);
+        block_structure(p);
         assert!(
             r0.gmres.iterations > 3,
             "{} iterations",
@@ -134,5 +135,32 @@ fn iteration_counts_drop_on_nonspherical_cells() {
     for (name, p, i0, i1, ratio) in rows {
         let want = if p <= 6 { 2.0 } else { 3.0 };
         assert!(ratio >= want, "{name}, p = {p}: {i0} -> {i1}");
+    }
+}
+
+/// The sphere's operator in the rotated coefficient basis splits into small blocks (one per
+/// total order |M| and reflection parity, ≈ 4(p + 1 − |M|) coefficients each), with the entries
+/// left out at rounding level.
+fn block_structure(p: usize) {
+    use mobo::timestep::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
+    use mobo::vesicle::layer::{RotationAlgorithm, SelfInteraction};
+    use mobo::vesicle::membrane::Membrane;
+    let mut m = Membrane::new(p, 2 * p).unwrap();
+    let mut l = SelfInteraction::new(p, 2 * p, RotationAlgorithm::Direct).unwrap();
+    for lambda in [1.0, 5.0] {
+        let c = StepCoefficients::new(lambda, 0.1, 1.0, 1.0);
+        let pc = SpherePreconditioner::build(&mut m, &mut l, 1.3, c).unwrap();
+        let sizes = pc.block_sizes();
+        let total: usize = sizes.iter().sum();
+        let largest = *sizes.iter().max().unwrap();
+        println!(
+            "p = {p}, λ = {lambda}: {} blocks, largest {largest} of {total}, dropped {:.1e}, {} kB",
+            sizes.len(),
+            pc.dropped_relative(),
+            pc.memory_bytes() / 1024
+        );
+        assert!(pc.dropped_relative() < 1e-11, "{}", pc.dropped_relative());
+        assert!(largest <= 8 * (p + 2), "largest block {largest}");
+        assert_eq!(total, 4 * ((p + 1) * (p + 1) - 1));
     }
 }
