@@ -224,13 +224,21 @@ fn a_spherical_vesicle_with_viscosity_contrast_sediments_at_the_stokes_speed() {
         .iter()
         .map(|fk| fk / (6.0 * std::f64::consts::PI * mu * a))
         .collect();
-    for (lambda, precond) in [(1.0, false), (5.0, false), (5.0, true), (0.2, true)] {
+    use mobo::timestep::semi_implicit::TimeScheme::{Bdf2, Euler};
+    for (lambda, precond, scheme) in [
+        (1.0, false, Euler),
+        (5.0, false, Euler),
+        (5.0, true, Euler),
+        (0.2, true, Euler),
+        (5.0, true, Bdf2),
+    ] {
         let s = shapes::sphere(p, a).unwrap();
         let mut calc = SurfaceCalculus::new(p).unwrap();
         let c0 = calc.geometry(s.coefs()).unwrap().centroid();
         let mut prm = params(p, f, dt);
         prm.viscosity_ratio = lambda;
         prm.preconditioner = precond;
+        prm.scheme = scheme;
         let mut step = VesicleStepper::new(p, prm).unwrap();
         let mut coefs = s.coefs().to_vec();
         let steps = 3;
@@ -247,8 +255,8 @@ fn a_spherical_vesicle_with_viscosity_contrast_sediments_at_the_stokes_speed() {
         let err = (0..3).map(|k| (v[k] - want[k]).powi(2)).sum::<f64>().sqrt()
             / want.iter().map(|w| w * w).sum::<f64>().sqrt();
         println!(
-            "λ = {lambda}, preconditioner {precond}: relative velocity error {err:.2e}, \
-             GMRES iterations {iters:?}"
+            "λ = {lambda}, preconditioner {precond}, {scheme:?}: relative velocity error \
+             {err:.2e}, GMRES iterations {iters:?}"
         );
         assert!(err < 1e-6, "λ = {lambda}: relative error {err:.2e}");
     }
