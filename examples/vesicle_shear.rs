@@ -43,6 +43,9 @@ fn main() {
                 max_iterations: 10,
                 ..Default::default()
             }),
+        preconditioner: std::env::var("MOBO_NO_PRECONDITIONER").is_err(),
+        scheme: mobo::timestep::semi_implicit::TimeScheme::Euler,
+        viscosity_ratio: 1.0,
     };
     let mut st = VesicleStepper::new(p, params).unwrap();
     let mut coefs = s.coefs().to_vec();

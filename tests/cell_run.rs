@@ -112,12 +112,12 @@ fn scenes_beyond_what_is_built_are_refused_clearly() {
     let dir = tmpdir("run-refuse");
     let cases = [
         (
-            "[[cells]]\nshape = \"sphere\"\nviscosity_ratio = 5.0\n",
-            "viscosity_ratio",
+            "[[cells]]\nshape = \"sphere\"\nviscosity_ratio = 5.0\ncount = 2\nplacement = \"lattice\"\n",
+            "viscosity_ratio ≠ 1 with several cells",
         ),
         (
-            "[[cells]]\nshape = \"sphere\"\n[numerics]\nscheme = \"bdf2\"\n",
-            "bdf2",
+            "[[cells]]\nshape = \"sphere\"\n[numerics]\nadaptive_dt = true\n",
+            "adaptive_dt",
         ),
         ("[[cells]]\nshape = \"sphere\"\nradius = -2\n", "bad.toml:3"),
     ];
@@ -182,6 +182,7 @@ bending_modulus = 0.5
 order = 6
 dt = 0.05
 t_end = 1.2
+scheme = "bdf2"
 [output]
 every = 4
 vtk = false

@@ -8,8 +8,9 @@
 //!   and volume drift, centroid and its velocity, inclination angle, final time.
 //!
 //! Any number of cells (coupled through the FMM when there are two or more), shear elasticity
-//! (Skalak, explicit, stress-free at the initial shape), viscosity ratio 1, the first-order
-//! scheme. Other scenes are refused with a message that says what is missing.
+//! (Skalak, explicit, stress-free at the initial shape), the first-order and the BDF2 scheme,
+//! a viscosity contrast for scenes of one cell. Other scenes (a viscosity contrast with several
+//! cells, adaptive `dt`) are refused with a message that says what is missing.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -25,7 +26,7 @@ use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::coupling::CouplingParams;
-use crate::timestep::semi_implicit::VesicleParams;
+use crate::timestep::semi_implicit::{TimeScheme, VesicleParams};
 use crate::timestep::suspension::{CellSetup, CellStepError, Suspension};
 use crate::timestep::{GmresParams, TimestepError};
 use crate::vesicle::geometry::SurfaceCalculus;
@@ -199,6 +200,26 @@ fn save_checkpoint(out: &Path, susp: &Suspension, prog: &Progress) -> Result<(),
         })
         .collect();
     ck.push("drift_targets", vec![nc, 2], targets);
+    // BDF2 history: Xⁿ⁻¹ (NaN rows where there is none) and the inter-cell velocities.
+    let prev: Vec<f64> = susp
+        .steppers()
+        .iter()
+        .flat_map(|s| match s.previous_coefs() {
+            Some(c) => c.to_vec(),
+            None => vec![f64::NAN; ncoef],
+        })
+        .collect();
+    ck.push("previous_coefs", vec![nc, ncoef], prev);
+    for (name, v) in [
+        ("inter_cell_velocities", susp.inter_cell_velocities()),
+        (
+            "previous_inter_cell_velocities",
+            susp.previous_inter_cell_velocities(),
+        ),
+    ] {
+        let flat: Vec<f64> = v.iter().flatten().copied().collect();
+        ck.push(name, vec![v.len(), flat.len() / v.len().max(1)], flat);
+    }
     ck.push(
         "start_observables",
         vec![nc, 6],
@@ -248,6 +269,36 @@ fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRu
         .ok_or_else(|| checkpoint_error(out, "no array \"frame_times\"".into()))?
         .data
         .clone();
+    let prev = get("previous_coefs", nc * ncoef)?;
+    let velocities = |name: &str| -> Result<Vec<Vec<f64>>, CellRunError> {
+        let a = ck
+            .get(name)
+            .ok_or_else(|| checkpoint_error(out, format!("no array \"{name}\"")))?;
+        let rows = a.shape.first().copied().unwrap_or(0);
+        if rows == 0 {
+            return Ok(Vec::new());
+        }
+        if rows != nc || a.data.len() != nc * 3 * n {
+            return Err(checkpoint_error(
+                out,
+                format!(
+                    "array \"{name}\" has shape {:?}, expected [{nc}, {}]",
+                    a.shape,
+                    3 * n
+                ),
+            ));
+        }
+        Ok(a.data.chunks_exact(3 * n).map(|c| c.to_vec()).collect())
+    };
+    let current = velocities("inter_cell_velocities")?;
+    let previous = velocities("previous_inter_cell_velocities")?;
+    susp.set_inter_cell_velocities(current, previous);
+    for i in 0..nc {
+        let row = &prev[i * ncoef..(i + 1) * ncoef];
+        susp.steppers_mut()[i]
+            .set_previous_coefs(row.iter().all(|v| v.is_finite()).then_some(row))
+            .map_err(|e| checkpoint_error(out, format!("previous_coefs of cell {}: {e}", i + 1)))?;
+    }
     for i in 0..nc {
         susp.coefs_mut()[i].copy_from_slice(&coefs[i * ncoef..(i + 1) * ncoef]);
         let st = &mut susp.steppers_mut()[i];
@@ -335,6 +386,12 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
                 max_iterations: 10,
                 ..Default::default()
             }),
+            preconditioner: true,
+            scheme: match scene.numerics.scheme {
+                Scheme::Euler => TimeScheme::Euler,
+                Scheme::Bdf2 => TimeScheme::Bdf2,
+            },
+            viscosity_ratio: cell.viscosity_ratio,
         };
         let skalak = (cell.shear_modulus > 0.0).then(|| {
             (
@@ -385,17 +442,20 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
 
 /// Refuse what the runner does not do yet, with what is missing.
 fn check_supported(scene: &CellScene) -> Result<(), CellRunError> {
-    for (i, cell) in scene.cells.iter().enumerate() {
-        if cell.viscosity_ratio != 1.0 {
+    if scene.cells.len() > 1 {
+        if let Some((i, cell)) = scene
+            .cells
+            .iter()
+            .enumerate()
+            .find(|(_, c)| c.viscosity_ratio != 1.0)
+        {
             return Err(CellRunError::Unsupported(format!(
-                "cell {} (line {}): viscosity_ratio ≠ 1 (the double-layer step is not built yet)",
+                "cell {} (line {}): viscosity_ratio ≠ 1 with several cells (the double layer \
+                 between cells is not coupled yet; one cell with a viscosity contrast runs)",
                 i + 1,
                 cell.line
             )));
         }
-    }
-    if scene.numerics.scheme != Scheme::Euler {
-        return Err(CellRunError::Unsupported("scheme = \"bdf2\"".into()));
     }
     if scene.numerics.adaptive_dt {
         return Err(CellRunError::Unsupported("adaptive_dt = true".into()));
@@ -582,7 +642,10 @@ pub fn run(
         steps: done,
         final_time: done as f64 * dt,
         completed: done == steps,
-        scheme: "euler",
+        scheme: match scene.numerics.scheme {
+            Scheme::Euler => "euler",
+            Scheme::Bdf2 => "bdf2",
+        },
         gmres_tol: scene.numerics.gmres_tol,
         fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
         effects: scene.effects.clone(),

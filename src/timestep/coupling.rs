@@ -97,6 +97,9 @@ pub struct CouplingStats {
 /// of the point to the source cell's surface.
 type NearCorrection = (usize, usize, [f64; 3], f64);
 
+/// A contact push: target cell, its grid point, source cell, traction.
+type Push = (usize, usize, usize, [f64; 3]);
+
 /// Per-thread engines.
 struct Engine {
     membrane: Membrane,
@@ -329,7 +332,8 @@ impl Coupling {
         self.stats.self_s += (t3 - t2).as_secs_f64();
         // 4. Near-singular corrections: for each source cell j, the points of other cells in
         //    its near zone.
-        let repulsion: Mutex<Vec<(usize, usize, [f64; 3])>> = Mutex::new(Vec::new());
+        // (target cell, point, source cell, traction), sorted before summing: deterministic.
+        let repulsion: Mutex<Vec<Push>> = Mutex::new(Vec::new());
         let corrections: Vec<Vec<NearCorrection>> = (0..nc)
             .into_par_iter()
             .map(|j| -> Result<_, TimestepError> {
@@ -353,7 +357,7 @@ impl Coupling {
                 let e = &mut *guard;
                 e.near.set_surface(coefs[j]).map_err(vesicle)?;
                 let mut near: Vec<(usize, usize, f64)> = Vec::new();
-                let mut push: Vec<(usize, usize, [f64; 3])> = Vec::new();
+                let mut push: Vec<Push> = Vec::new();
                 let (range, strength) = (
                     (self.params.repulsion_range * cj.r_eq).min(cj.delta),
                     self.params.repulsion_strength,
@@ -361,7 +365,11 @@ impl Coupling {
                 for &(i, k) in &cand {
                     let x = self.cells[i].targets[k];
                     let info = e.near.classify(x).map_err(vesicle)?;
-                    let signed = if info.inside { -info.distance } else { info.distance };
+                    let signed = if info.inside {
+                        -info.distance
+                    } else {
+                        info.distance
+                    };
                     if info.distance < cj.delta || info.inside {
                         near.push((i, k, signed));
                     }
@@ -383,7 +391,7 @@ impl Coupling {
                         } else {
                             strength * (1.0 - signed / range)
                         };
-                        push.push((i, k, cj.normals[kn].map(|v| v * mag)));
+                        push.push((i, k, j, cj.normals[kn].map(|v| v * mag)));
                     }
                 }
                 if !push.is_empty() {
@@ -435,12 +443,12 @@ impl Coupling {
         }
         self.stats.min_gap = min_gap;
         let mut rep = repulsion.into_inner().expect("repulsion lock");
-        rep.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        rep.sort_by_key(|a| (a.0, a.1, a.2));
         self.repulsion = if rep.is_empty() {
             Vec::new()
         } else {
             let mut r = vec![vec![0.0; 3 * np]; nc];
-            for &(i, k, f) in &rep {
+            for &(i, k, _, f) in &rep {
                 for c in 0..3 {
                     r[i][c * np + k] += f[c];
                 }

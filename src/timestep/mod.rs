@@ -1,6 +1,7 @@
-//! Time stepping: the Krylov layer (linear operators, preconditioners, restarted GMRES) and the
-//! first-order semi-implicit step of one vesicle ([`semi_implicit`]); many cells coupled by the
-//! FMM, BDF2, adaptive `dt` and the scenes come next.
+//! Time stepping: the Krylov layer (linear operators, preconditioners, restarted GMRES), the
+//! semi-implicit step of one vesicle ([`semi_implicit`]: Euler or BDF2, any viscosity ratio) and
+//! its preconditioner from the sphere ([`sphere_preconditioner`]); many cells coupled by the
+//! FMM, adaptive `dt` and the scenes come next.
 //!
 //! The semi-implicit step of Veerapaneni, Rahimian, Biros & Zorin (*A fast algorithm for
 //! simulating vesicle flows in three dimensions*, J. Comput. Phys. 230, 2011) freezes the
@@ -89,6 +90,7 @@ pub mod coupling;
 mod gmres;
 mod operator;
 pub mod semi_implicit;
+pub mod sphere_preconditioner;
 pub mod suspension;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};

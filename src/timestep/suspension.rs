@@ -6,12 +6,14 @@
 //! This is the splitting of Veerapaneni et al. (J. Comput. Phys. 230, 2011, §3.3) and of MOBO
 //! (Rahimian et al., SC'10): per step one FMM evaluation for the inter-cell velocities, then
 //! independent per-cell solves (in parallel over cells; each cell's dense operators are applied
-//! serially). A scene of one cell builds no [`Coupling`] and no FMM.
+//! serially). A scene of one cell builds no [`Coupling`] and no FMM. With BDF2 the explicit
+//! inter-cell velocity is extrapolated to `X* = 2Xⁿ − Xⁿ⁻¹` as `2vⁿ − vⁿ⁻¹`; the contact
+//! repulsion stays first order (a penalty acting only near contact).
 
 use rayon::prelude::*;
 
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
-use super::semi_implicit::{ExplicitTerms, StepReport, VesicleParams, VesicleStepper};
+use super::semi_implicit::{ExplicitTerms, StepReport, TimeScheme, VesicleParams, VesicleStepper};
 use super::TimestepError;
 use crate::vesicle::skalak::SkalakParams;
 
@@ -50,6 +52,8 @@ pub struct Suspension {
     coupling: Option<Coupling>,
     /// Inter-cell velocities of the last step (per cell, order-`p` grid), kept for output.
     velocities: Vec<Vec<f64>>,
+    /// Those of the step before (BDF2 extrapolates the explicit coupling to `X*`).
+    previous_velocities: Vec<Vec<f64>>,
 }
 
 impl Suspension {
@@ -97,6 +101,7 @@ impl Suspension {
             coefs,
             coupling,
             velocities: Vec::new(),
+            previous_velocities: Vec::new(),
         })
     }
 
@@ -140,12 +145,25 @@ impl Suspension {
         &self.velocities
     }
 
+    /// The inter-cell velocities at `Xⁿ⁻¹` kept for the BDF2 extrapolation (empty for one cell or
+    /// the Euler scheme before the first step).
+    pub fn previous_inter_cell_velocities(&self) -> &[Vec<f64>] {
+        &self.previous_velocities
+    }
+
+    /// Restore the inter-cell velocities at `Xⁿ` and `Xⁿ⁻¹` (restart).
+    pub fn set_inter_cell_velocities(&mut self, current: Vec<Vec<f64>>, previous: Vec<Vec<f64>>) {
+        self.velocities = current;
+        self.previous_velocities = previous;
+    }
+
     /// Advance every cell by one step in the background flow `u_inf`.
     pub fn step(
         &mut self,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
     ) -> Result<SuspensionReport, CellStepError> {
         if let Some(coupling) = &mut self.coupling {
+            self.previous_velocities = std::mem::take(&mut self.velocities);
             let tractions: Vec<Vec<f64>> = self
                 .steppers
                 .par_iter_mut()
@@ -166,6 +184,25 @@ impl Suspension {
                 .velocities(&cref, &fref)
                 .map_err(|source| CellStepError { cell: None, source })?;
         }
+        // BDF2 takes the explicit terms at X* = 2Xⁿ − Xⁿ⁻¹: v* = 2vⁿ − vⁿ⁻¹ (second order).
+        let extrapolated: Vec<Vec<f64>> = self
+            .steppers
+            .iter()
+            .enumerate()
+            .map(|(i, st)| {
+                match (
+                    st.params().scheme,
+                    st.previous_coefs(),
+                    self.velocities.get(i),
+                    self.previous_velocities.get(i),
+                ) {
+                    (TimeScheme::Bdf2, Some(_), Some(v), Some(w)) => {
+                        v.iter().zip(w).map(|(a, b)| 2.0 * a - b).collect()
+                    }
+                    _ => Vec::new(),
+                }
+            })
+            .collect();
         let velocities = &self.velocities;
         let repulsion = self.coupling.as_ref().and_then(|c| c.repulsion());
         let reports = self
@@ -175,7 +212,11 @@ impl Suspension {
             .enumerate()
             .map(|(i, (st, c))| {
                 let extra = ExplicitTerms {
-                    velocity: velocities.get(i).map(|v| v.as_slice()),
+                    velocity: if extrapolated[i].is_empty() {
+                        velocities.get(i).map(|v| v.as_slice())
+                    } else {
+                        Some(extrapolated[i].as_slice())
+                    },
                     traction: repulsion.map(|r| r[i].as_slice()),
                 };
                 st.step_with(c, u_inf, extra)
