@@ -4,7 +4,8 @@
 //! [`mobo::scene::cells::parse`], turned into a [`Suspension`] by
 //! [`mobo::scene::cells_run::build`] and advanced with [`Suspension::step`]. Every step prints,
 //! per cell, the centroid, the tilt of the axis of largest moment of inertia (an RBC's axis of
-//! symmetry) from z, the relative area drift and the GMRES iterations.
+//! symmetry) from z (arbitrary for the spheres), the relative area drift and the GMRES
+//! iterations.
 //!
 //! ```text
 //! cargo run --release --example library_scene [-- STEPS [ORDER]]
