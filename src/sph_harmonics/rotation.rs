@@ -20,6 +20,8 @@
 //! Convention: for a rotation `Q` the operator `(V_Q h)(y) = h(Q y)` has the coefficient matrix
 //! `[V_Q]_{ab} = ∫ Y_a(y) Y_b(Q y) dA`, and `[V_{Q₁Q₂}] = [V_{Q₂}] [V_{Q₁}]`.
 
+use std::sync::{Arc, Mutex, Weak};
+
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
@@ -55,15 +57,36 @@ pub fn shift_longitudes(p: usize, k: usize, src: &[f64], dst: &mut [f64]) {
 pub struct DirectRotation {
     p: usize,
     q: usize,
-    /// Per source latitude: `M_i`, `n_q × n_p`, column-major (absent if not built).
-    matrices: Vec<Option<Vec<f64>>>,
+    /// Per source latitude: `M_i`, `n_q × n_p`, column-major (absent if not built). Shared by
+    /// every rotation of the same `(p, q)` in the process (they depend on nothing else).
+    matrices: Arc<Vec<Option<Vec<f64>>>>,
     shifted: Vec<f64>,
 }
 
 impl DirectRotation {
-    /// All `p+1` matrices, rotating order-`p` data onto the order-`q` grid.
+    /// All `p+1` matrices, rotating order-`p` data onto the order-`q` grid. The matrices are
+    /// built once per `(p, q)` and shared while any rotation of that pair is alive (a
+    /// suspension of many cells holds one copy: 39 MB at `p = 12, q = 24`, not one per cell).
     pub fn new(p: usize, q: usize) -> Result<Self, SphError> {
-        Self::for_latitudes(p, q, &(0..=p).collect::<Vec<_>>())
+        static CACHE: Mutex<Vec<((usize, usize), Weak<Vec<Option<Vec<f64>>>>)>> =
+            Mutex::new(Vec::new());
+        let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+        cache.retain(|(_, w)| w.strong_count() > 0);
+        if let Some(m) = cache
+            .iter()
+            .find(|(k, _)| *k == (p, q))
+            .and_then(|(_, w)| w.upgrade())
+        {
+            return Ok(DirectRotation {
+                p,
+                q,
+                matrices: m,
+                shifted: Vec::new(),
+            });
+        }
+        let r = Self::for_latitudes(p, q, &(0..=p).collect::<Vec<_>>())?;
+        cache.push(((p, q), Arc::downgrade(&r.matrices)));
+        Ok(r)
     }
 
     /// Only the matrices of the given source latitudes (the others return an error).
@@ -118,12 +141,12 @@ impl DirectRotation {
         Ok(DirectRotation {
             p,
             q,
-            matrices,
+            matrices: Arc::new(matrices),
             shifted: Vec::new(),
         })
     }
 
-    /// Bytes held by the matrices.
+    /// Bytes held by the matrices (shared with the other rotations of the same `(p, q)`).
     pub fn memory_bytes(&self) -> usize {
         self.matrices.iter().flatten().map(|m| m.len() * 8).sum()
     }
