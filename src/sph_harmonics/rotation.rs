@@ -53,13 +53,18 @@ pub fn shift_longitudes(p: usize, k: usize, src: &[f64], dst: &mut [f64]) {
     }
 }
 
+/// The rotation matrices of every source latitude (absent: not built).
+type Matrices = Vec<Option<Vec<f64>>>;
+/// Live matrices per `(p, q)`.
+type MatrixCache = Vec<((usize, usize), Weak<Matrices>)>;
+
 /// Direct rotation: one dense matrix per latitude of the source grid.
 pub struct DirectRotation {
     p: usize,
     q: usize,
     /// Per source latitude: `M_i`, `n_q × n_p`, column-major (absent if not built). Shared by
     /// every rotation of the same `(p, q)` in the process (they depend on nothing else).
-    matrices: Arc<Vec<Option<Vec<f64>>>>,
+    matrices: Arc<Matrices>,
     shifted: Vec<f64>,
 }
 
@@ -68,8 +73,7 @@ impl DirectRotation {
     /// built once per `(p, q)` and shared while any rotation of that pair is alive (a
     /// suspension of many cells holds one copy: 39 MB at `p = 12, q = 24`, not one per cell).
     pub fn new(p: usize, q: usize) -> Result<Self, SphError> {
-        static CACHE: Mutex<Vec<((usize, usize), Weak<Vec<Option<Vec<f64>>>>)>> =
-            Mutex::new(Vec::new());
+        static CACHE: Mutex<MatrixCache> = Mutex::new(Vec::new());
         let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
         cache.retain(|(_, w)| w.strong_count() > 0);
         if let Some(m) = cache
