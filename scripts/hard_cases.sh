@@ -7,7 +7,7 @@ cd "$(dirname "$0")/.."
 out=docs/hard_cases.md
 tmp=$(mktemp)
 status=0
-log=$(cargo test --release --test hard_cases -- --include-ignored --nocapture --test-threads 1 2>&1)
+log=$(cargo test --release --test hard_cases -- --include-ignored --nocapture --test-threads 2 2>&1)
 rc=$?
 {
   echo "# Hard cases"
