@@ -12,6 +12,7 @@ pub mod brownian;
 pub mod check;
 pub mod fmm;
 pub mod io;
+pub mod report;
 pub mod scene;
 pub mod sph_harmonics;
 pub mod timestep;

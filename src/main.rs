@@ -63,6 +63,11 @@ enum Command {
         #[arg(long)]
         quiet: bool,
     },
+    /// Reports on the solver: `mobo report accuracy` (error against time per step, per knob).
+    Report {
+        #[command(subcommand)]
+        what: ReportCommand,
+    },
     /// Time batched forward + inverse transforms; prints one JSON line.
     BenchSht {
         /// Spherical-harmonic order p.
@@ -77,6 +82,27 @@ enum Command {
         /// Repetitions (best time is reported).
         #[arg(long, default_value_t = 5)]
         reps: usize,
+    },
+}
+
+#[derive(Subcommand)]
+enum ReportCommand {
+    /// Accuracy against wall time per step: each knob (order, upsampling, FMM digits, GMRES
+    /// tolerance, dt, scheme) varied with the others at a high-accuracy reference. Writes
+    /// accuracy.csv, accuracy.md and accuracy.png into the output directory.
+    Accuracy {
+        /// The scene (TOML); omitted: the built-in study scene (two red blood cells in shear).
+        #[arg(long)]
+        scene: Option<std::path::PathBuf>,
+        /// Output directory.
+        #[arg(long, default_value = "out/report")]
+        out: std::path::PathBuf,
+        /// Wall-time budget of the whole study in minutes.
+        #[arg(long, default_value_t = 10.0)]
+        budget_minutes: f64,
+        /// Time at which the runs are compared (the scene's t_end is not used).
+        #[arg(long, default_value_t = 1.0)]
+        t_end: f64,
     },
 }
 
@@ -105,6 +131,8 @@ enum CliError {
     Run(#[from] mobo::scene::brownian_run::RunError),
     #[error("{0}")]
     CellRun(#[from] mobo::scene::cells_run::CellRunError),
+    #[error("{0}")]
+    Report(#[from] mobo::report::ReportError),
     #[error("interrupted")]
     Interrupted,
 }
@@ -128,6 +156,15 @@ fn main() -> ExitCode {
             max_steps,
             quiet,
         } => run(scene, out, resume, max_steps, quiet),
+        Command::Report {
+            what:
+                ReportCommand::Accuracy {
+                    scene,
+                    out,
+                    budget_minutes,
+                    t_end,
+                },
+        } => report_accuracy(scene, &out, budget_minutes, t_end),
         Command::BenchSht {
             order,
             surfaces,
@@ -241,6 +278,47 @@ fn demo(order: usize) -> Result<(), CliError> {
         2.0 * sht.legendre_flops(3 * cells) / dt / 1e9
     );
     println!("done in {:.2} s", t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `mobo report accuracy`.
+fn report_accuracy(
+    scene: Option<std::path::PathBuf>,
+    out: &std::path::Path,
+    budget_minutes: f64,
+    t_end: f64,
+) -> Result<(), CliError> {
+    use mobo::report::accuracy;
+    if !(budget_minutes.is_finite() && budget_minutes > 0.0) {
+        return Err(CliError::Arg(format!(
+            "--budget-minutes must be a positive number, got {budget_minutes}"
+        )));
+    }
+    if !(t_end.is_finite() && t_end > 0.0) {
+        return Err(CliError::Arg(format!(
+            "--t-end must be a positive number, got {t_end}"
+        )));
+    }
+    let (sc, name) = match &scene {
+        Some(path) => (mobo::scene::cells::load(path)?, path.display().to_string()),
+        None => (
+            accuracy::study_scene()?,
+            "built-in study scene (two RBCs in shear)".to_string(),
+        ),
+    };
+    // Fail on a missing font before spending the budget.
+    mobo::report::plot::ensure_font()?;
+    let opts = accuracy::StudyOptions {
+        budget_s: budget_minutes * 60.0,
+        t_end,
+        progress: true,
+        ..Default::default()
+    };
+    let study = accuracy::run_study(&sc, &name, &opts)?;
+    let files = accuracy::write_report(&study, out)?;
+    for f in files {
+        println!("wrote {}", f.display());
+    }
     Ok(())
 }
 

@@ -1,0 +1,744 @@
+//! Hard cases: scenes that stress the numerics, each run with per-step checks and a pass
+//! criterion; short versions run by default (release: about a minute or two on 2 cores), long
+//! versions are `#[ignore]`d and run by `scripts/hard_cases.sh`, which writes the measured
+//! numbers to `docs/hard_cases.md`.
+//!
+//! Every case steps a [`Suspension`] built by `cells_run::build` (the settings of `mobo run`) and
+//! checks after each step: finite SH coefficients and tension, area and volume drift of every
+//! cell against the start, the speed of every centroid against a bound, and (where asked) that
+//! no grid point of one cell lies inside another cell (`OffSurface::classify`, exact closest
+//! point in the near zone) and the smallest such distance. A failed check stops the case with
+//! a message naming the case, step, time, cell and quantity.
+//!
+//! Each test prints one `| case | ... |` line with its measured numbers.
+
+use mobo::scene::cells::{parse, CellScene};
+use mobo::scene::cells_run::{build, CellRunError};
+use mobo::sph_harmonics::{resample_coefs, CoefLayout, Grid, ShTransform};
+use mobo::timestep::suspension::Suspension;
+use mobo::vesicle::{NearParams, OffSurface, SurfaceCalculus};
+
+fn scene(text: &str) -> CellScene {
+    parse(std::path::Path::new("<hard case>"), text).expect("valid hard-case scene")
+}
+
+/// What to check besides finiteness and drift.
+#[derive(Clone, Copy)]
+struct Checks {
+    /// Largest allowed area or volume drift (relative to the start).
+    drift: f64,
+    /// Largest allowed centroid speed.
+    speed: f64,
+    /// Check overlap and gaps every this many steps (`None`: never).
+    contact_every: Option<usize>,
+}
+
+/// What a case measured.
+#[derive(Clone, Debug, Default)]
+struct Outcome {
+    steps: usize,
+    max_area_drift: f64,
+    max_volume_drift: f64,
+    max_speed: f64,
+    /// Smallest distance of a grid point of one cell to another cell's surface (checked steps).
+    min_gap: f64,
+    /// Smallest gap reported by the coupling's near-zone monitor.
+    coupling_min_gap: f64,
+    /// Grid quality: largest `max J / min J` (J = area element per unit solid angle) seen.
+    max_grid_ratio: f64,
+    initial_grid_ratio: f64,
+    wall_s: f64,
+}
+
+fn norm(v: [f64; 3]) -> f64 {
+    (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
+}
+
+/// `max J / min J` over the grid, `J = W / sin θ`.
+fn grid_ratio(calc: &mut SurfaceCalculus, coefs: &[f64]) -> f64 {
+    let g = calc.geometry(coefs).expect("geometry");
+    let grid = Grid::new(calc.order());
+    let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+    for (j, w) in g.w.iter().enumerate() {
+        let j_elem = w / grid.angles(j).0.sin();
+        lo = lo.min(j_elem);
+        hi = hi.max(j_elem);
+    }
+    hi / lo
+}
+
+/// Smallest distance of a grid point of one cell to another's surface; `Err` on overlap.
+fn contact(coefs: &[Vec<f64>], p: usize, case: &str, k: usize, t: f64) -> Result<f64, String> {
+    let mut calc = SurfaceCalculus::new(p).unwrap();
+    let mut near = OffSurface::new(p, NearParams::default()).unwrap();
+    let centroids: Vec<[f64; 3]> = coefs
+        .iter()
+        .map(|c| calc.geometry(c).unwrap().centroid())
+        .collect();
+    let mut gap = f64::INFINITY;
+    for (j, cj) in coefs.iter().enumerate() {
+        near.set_surface(cj).unwrap();
+        for (i, ci) in coefs.iter().enumerate() {
+            // Far pairs (centroids more than 4 radii apart) cannot touch.
+            if i == j || norm(std::array::from_fn(|d| centroids[i][d] - centroids[j][d])) > 4.0 {
+                continue;
+            }
+            let g = calc.geometry(ci).unwrap();
+            for (q, x) in g.x.iter().enumerate() {
+                let info = near.classify(*x).unwrap();
+                if info.inside {
+                    return Err(format!(
+                        "{case}: step {k} (t = {t:.4}), cell {}: overlap, grid point {q} lies \
+                         inside cell {} (distance {:.3e})",
+                        i + 1,
+                        j + 1,
+                        info.distance
+                    ));
+                }
+                gap = gap.min(info.distance);
+            }
+        }
+    }
+    Ok(gap)
+}
+
+/// Step `susp` `steps` times in `scene`'s flow with the checks; the error names case, step,
+/// cell and quantity.
+fn run_case(
+    case: &str,
+    scene: &CellScene,
+    susp: &mut Suspension,
+    steps: usize,
+    checks: Checks,
+) -> Result<Outcome, String> {
+    let start = std::time::Instant::now();
+    let p = scene.numerics.order;
+    let dt = scene.numerics.dt;
+    let mut calc = SurfaceCalculus::new(p).unwrap();
+    let mut start_obs = Vec::new();
+    let mut centroids = Vec::new();
+    let mut out = Outcome {
+        min_gap: f64::INFINITY,
+        coupling_min_gap: f64::INFINITY,
+        ..Default::default()
+    };
+    for c in susp.coefs() {
+        let g = calc.geometry(c).unwrap();
+        start_obs.push((g.area(), g.volume()));
+        centroids.push(g.centroid());
+        out.initial_grid_ratio = out.initial_grid_ratio.max(grid_ratio(&mut calc, c));
+    }
+    out.max_grid_ratio = out.initial_grid_ratio;
+    let flow = scene.flow;
+    for k in 1..=steps {
+        let t = k as f64 * dt;
+        susp.step(&|x| flow.velocity(x)).map_err(|e| {
+            format!(
+                "{case}: step {k} (t = {t:.4}), cell {}: the step failed: {}",
+                e.cell.map_or("-".into(), |c| (c + 1).to_string()),
+                e.source
+            )
+        })?;
+        out.steps = k;
+        for (i, c) in susp.coefs().iter().enumerate() {
+            if let Some(j) = c.iter().position(|v| !v.is_finite()) {
+                return Err(format!(
+                    "{case}: step {k} (t = {t:.4}), cell {}: non-finite SH coefficient {j}",
+                    i + 1
+                ));
+            }
+            if let Some(j) = susp.steppers()[i].sigma.iter().position(|v| !v.is_finite()) {
+                return Err(format!(
+                    "{case}: step {k} (t = {t:.4}), cell {}: non-finite tension at grid point {j}",
+                    i + 1
+                ));
+            }
+            let g = calc.geometry(c).map_err(|e| {
+                format!(
+                    "{case}: step {k} (t = {t:.4}), cell {}: geometry: {e}",
+                    i + 1
+                )
+            })?;
+            let (a0, v0) = start_obs[i];
+            let da = ((g.area() - a0) / a0).abs();
+            let dv = ((g.volume() - v0) / v0).abs();
+            out.max_area_drift = out.max_area_drift.max(da);
+            out.max_volume_drift = out.max_volume_drift.max(dv);
+            for (what, d) in [("area drift", da), ("volume drift", dv)] {
+                if d > checks.drift {
+                    return Err(format!(
+                        "{case}: step {k} (t = {t:.4}), cell {}: {what} {d:.3e} above {:.1e}",
+                        i + 1,
+                        checks.drift
+                    ));
+                }
+            }
+            let x = g.centroid();
+            let speed = norm(std::array::from_fn(|d| (x[d] - centroids[i][d]) / dt));
+            centroids[i] = x;
+            out.max_speed = out.max_speed.max(speed);
+            if speed > checks.speed {
+                return Err(format!(
+                    "{case}: step {k} (t = {t:.4}), cell {}: centroid speed {speed:.3e} above {:.3e}",
+                    i + 1,
+                    checks.speed
+                ));
+            }
+            out.max_grid_ratio = out.max_grid_ratio.max(grid_ratio(&mut calc, c));
+        }
+        if let Some(st) = susp.coupling_stats() {
+            out.coupling_min_gap = out.coupling_min_gap.min(st.min_gap);
+        }
+        if let Some(every) = checks.contact_every {
+            if k % every == 0 || k == steps {
+                out.min_gap = out.min_gap.min(contact(susp.coefs(), p, case, k, t)?);
+            }
+        }
+    }
+    out.wall_s = start.elapsed().as_secs_f64();
+    Ok(out)
+}
+
+fn report(case: &str, o: &Outcome, extra: &str) {
+    println!(
+        "| {case} | {} | {:.2e} | {:.2e} | {:.3} | {} | {:.3} → {:.3} | {:.1} | {extra} |",
+        o.steps,
+        o.max_area_drift,
+        o.max_volume_drift,
+        o.max_speed,
+        if o.min_gap.is_finite() {
+            format!("{:.4}", o.min_gap)
+        } else {
+            "–".into()
+        },
+        o.initial_grid_ratio,
+        o.max_grid_ratio,
+        o.wall_s
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Near contact.
+
+const TWO_RBCS: &str = r#"
+[flow]
+kind = "shear"
+rate = 1.0
+[[cells]]
+shape = "rbc"
+radius = 1.0
+bending_modulus = 0.1
+center = [-5.0, 0.0, 0.0]
+orientation = [1, 0, 0, 90]
+[[cells]]
+shape = "rbc"
+radius = 1.0
+bending_modulus = 0.1
+center = [5.0, 0.0, 0.0]
+orientation = [1, 0, 0, 90]
+[numerics]
+order = 8
+dt = 0.02
+t_end = 1.0
+gmres_tol = 1e-10
+"#;
+
+/// Two RBCs, discs in the x–z plane, stacked in the shear direction y with the top one shifted
+/// back in x: the shear slides them across each other. The y offset is chosen (bisection on the
+/// measured gap) so that the surfaces start `gap` apart.
+fn near_contact_scene(p: usize, gap: f64) -> CellScene {
+    let mut sc = scene(TWO_RBCS);
+    sc.numerics.order = p;
+    let measure = |h: f64| {
+        let mut s = sc.clone();
+        s.cells[0].center = [-0.8, h, 0.0];
+        s.cells[1].center = [0.8, -h, 0.0];
+        let coefs: Vec<Vec<f64>> = s
+            .cells
+            .iter()
+            .map(|c| c.surface(p).unwrap().coefs().to_vec())
+            .collect();
+        contact(&coefs, p, "placement", 0, 0.0).map_or(-1.0, |g| g)
+    };
+    let (mut lo, mut hi) = (0.3, 1.5);
+    for _ in 0..20 {
+        let mid = 0.5 * (lo + hi);
+        if measure(mid) < gap {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    sc.cells[0].center = [-0.8, hi, 0.0];
+    sc.cells[1].center = [0.8, -hi, 0.0];
+    sc
+}
+
+/// The inter-cell velocity of the first step, as SH coefficients at order `p` (x, y, z).
+fn first_coupling(sc: &CellScene) -> (Vec<Vec<f64>>, Suspension) {
+    let mut susp = build(sc).unwrap();
+    let flow = sc.flow;
+    susp.step(&|x| flow.velocity(x)).unwrap();
+    let sht = ShTransform::new(sc.numerics.order).unwrap();
+    let mut ws = sht.workspace();
+    let u = susp
+        .inter_cell_velocities()
+        .iter()
+        .map(|u| {
+            let mut c = vec![0.0; 3 * sht.n_coefs()];
+            sht.forward(u, &mut c, &mut ws).unwrap();
+            c
+        })
+        .collect();
+    (u, susp)
+}
+
+fn near_contact(case: &str, steps: usize) {
+    let gap0 = 0.03;
+    let sc = near_contact_scene(8, gap0);
+    let mut susp = build(&sc).unwrap();
+    let g0 = contact(susp.coefs(), 8, case, 0, 0.0).unwrap();
+    assert!(
+        g0 < 0.05,
+        "{case}: initial gap {g0} not below 5% of the radius"
+    );
+    let checks = Checks {
+        drift: 1e-3,
+        // Shear speed at the cells' extent (|y| ≲ 2) with room for the relative motion.
+        speed: 4.0,
+        contact_every: Some(1),
+    };
+    let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
+    report(case, &o, &format!("initial gap {g0:.4}"));
+}
+
+#[test]
+fn near_contact_two_rbcs_in_shear_short() {
+    near_contact("near contact (short, 25 steps)", 25);
+}
+
+#[test]
+#[ignore = "long version (scripts/hard_cases.sh)"]
+fn near_contact_two_rbcs_in_shear_long() {
+    near_contact("near contact (long, 150 steps)", 150);
+}
+
+/// Relative difference of the first-step inter-cell velocity at p = 8 and p = 16 for the two
+/// RBCs placed `gap` apart, compared at the same parameter points (p = 8 resampled to 16).
+fn coupling_difference(gap: f64) -> (f64, f64) {
+    let (lo, hi) = (8, 16);
+    let mut sc = near_contact_scene(lo, gap);
+    let (u_lo, _) = first_coupling(&sc);
+    sc.numerics.order = hi;
+    let (u_hi, _) = first_coupling(&sc);
+    let (l_lo, l_hi) = (CoefLayout::new(lo), CoefLayout::new(hi));
+    let sht = ShTransform::new(hi).unwrap();
+    let mut ws = sht.workspace();
+    let (mut diff, mut scale) = (0.0f64, 0.0f64);
+    for (a, b) in u_lo.iter().zip(&u_hi) {
+        let mut up = vec![0.0; 3 * l_hi.len()];
+        resample_coefs(&l_lo, &l_hi, a, &mut up).unwrap();
+        let (mut ga, mut gb) = (vec![0.0; 3 * sht.n_points()], vec![0.0; 3 * sht.n_points()]);
+        sht.inverse(&up, &mut ga, &mut ws).unwrap();
+        sht.inverse(b, &mut gb, &mut ws).unwrap();
+        for (x, y) in ga.iter().zip(&gb) {
+            diff = diff.max((x - y).abs());
+            scale = scale.max(y.abs());
+        }
+    }
+    (diff / scale, scale)
+}
+
+/// Near-singular accuracy at a gap of 3% of the radius: the inter-cell velocity of the first
+/// step at p = 8 against p = 16 (same placement). Its difference includes how differently the
+/// two orders resolve the RBC's bending traction, so it is set against the same difference at a
+/// gap of 0.5 (outside the near zone's hardest range): the near-contact difference may be at
+/// most twice the far one plus 1e-2.
+#[test]
+#[ignore = "fails, measured: p = 8 and p = 16 first-step inter-cell velocities differ by 65% \
+            at gap 0.03 against 17% at gap 0.5 (criterion near <= 2 far + 1e-2): the near-contact \
+            coupling at p = 8 is not resolved"]
+fn near_contact_coupling_against_higher_resolution() {
+    let (near, scale_near) = coupling_difference(0.03);
+    let (far, scale_far) = coupling_difference(0.5);
+    println!(
+        "| near-contact coupling p = 8 vs 16 | gap 0.03: relative difference {near:.3e} (max |u| {scale_near:.3e}); gap 0.5: {far:.3e} (max |u| {scale_far:.3e}) |"
+    );
+    assert!(
+        near <= 2.0 * far + 1e-2,
+        "inter-cell velocity p = 8 vs 16: {near:.3e} at gap 0.03 against {far:.3e} at gap 0.5"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// High shear rate at the largest stable dt.
+
+const ONE_RBC: &str = r#"
+[flow]
+kind = "shear"
+rate = 10.0
+[[cells]]
+shape = "rbc"
+radius = 1.0
+bending_modulus = 0.1
+orientation = [0, 1, 0, 30]
+[numerics]
+order = 8
+dt = 0.05
+t_end = 1.0
+gmres_tol = 1e-8
+"#;
+
+/// Capillary number 10× the demo's (shear rate 10 instead of 1, same bending modulus): the
+/// largest dt in 0.025·2^k (up to 1.6) that runs 0.5 strain units within the checks is found (the
+/// first failure is reported), then the cell
+/// is run over 5 strain units (short) at that dt: no blow-up, drift below 1e-3.
+fn high_shear(case: &str, strain: f64) {
+    let base = scene(ONE_RBC);
+    let rate = 10.0;
+    let checks = Checks {
+        drift: 1e-3,
+        speed: 10.0 * rate,
+        contact_every: None,
+    };
+    // Largest dt = 0.025·2^k (k = 0..6) that runs 0.5 strain units within the checks.
+    let mut tried = Vec::new();
+    let mut stable = None;
+    for k in 0..7 {
+        let dt = 0.025 * f64::from(1u32 << k);
+        let mut sc = base.clone();
+        sc.numerics.dt = dt;
+        let mut susp = build(&sc).unwrap();
+        let steps = ((0.5 / rate) / dt).ceil() as usize;
+        match run_case(case, &sc, &mut susp, steps.max(2), checks) {
+            Ok(_) => stable = Some(dt),
+            Err(e) => {
+                tried.push(format!("dt = {dt}: {e}"));
+                break;
+            }
+        }
+    }
+    let stable = stable.unwrap_or_else(|| panic!("{case}: no stable dt: {tried:?}"));
+    let mut sc = base.clone();
+    sc.numerics.dt = stable;
+    let mut susp = build(&sc).unwrap();
+    let steps = ((strain / rate) / stable).round() as usize;
+    let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
+    report(
+        case,
+        &o,
+        &format!(
+            "largest stable dt {stable} (next refused: {})",
+            if tried.is_empty() {
+                "none up to 1.6".to_string()
+            } else {
+                tried.join("; ").replace('|', "/")
+            }
+        ),
+    );
+}
+
+#[test]
+fn high_shear_rate_at_largest_stable_dt_short() {
+    high_shear("high shear γ̇ = 10 (short, 5 strain units)", 5.0);
+}
+
+#[test]
+#[ignore = "long version (scripts/hard_cases.sh)"]
+fn high_shear_rate_at_largest_stable_dt_long() {
+    high_shear("high shear γ̇ = 10 (long, 50 strain units)", 50.0);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Long run of a vesicle in shear.
+
+const VESICLE: &str = r#"
+[flow]
+kind = "shear"
+rate = 1.0
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+radius = 1.0
+bending_modulus = 0.1
+orientation = [0, 0, 1, 30]
+[numerics]
+order = 6
+dt = 0.05
+t_end = 1.0
+gmres_tol = 1e-8
+"#;
+
+/// A prolate vesicle (v = 0.9, p = 6, dt = 0.05) in shear: no NaN, drift below 1e-3, and the
+/// reparametrisation keeps the grid: `max J / min J` never above twice its initial value.
+fn long_vesicle(case: &str, steps: usize) {
+    let sc = scene(VESICLE);
+    let mut susp = build(&sc).unwrap();
+    let checks = Checks {
+        drift: 1e-3,
+        speed: 5.0,
+        contact_every: None,
+    };
+    let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
+    report(case, &o, "");
+    assert!(
+        o.max_grid_ratio <= 2.0 * o.initial_grid_ratio,
+        "{case}: grid quality max J / min J grew from {:.3} to {:.3}",
+        o.initial_grid_ratio,
+        o.max_grid_ratio
+    );
+}
+
+#[test]
+fn long_vesicle_in_shear_short() {
+    long_vesicle("vesicle in shear (short, 500 steps)", 500);
+}
+
+#[test]
+#[ignore = "long version (scripts/hard_cases.sh): 10^4 steps"]
+fn long_vesicle_in_shear_long() {
+    long_vesicle("vesicle in shear (long, 10000 steps)", 10_000);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Deflated shapes and viscosity contrast.
+
+/// An oblate vesicle of reduced volume 0.6 and an RBC (v ≈ 0.64), each alone in shear
+/// (p = 8, dt = 0.05): no blow-up, drift below 1e-3, reduced volume kept within 1e-3.
+fn deflated(case: &str, shape: &str, steps: usize) {
+    let text = VESICLE
+        .replace("shape = \"prolate\"", shape)
+        .replace("reduced_volume = 0.9\n", "")
+        .replace("order = 6", "order = 8");
+    let sc = scene(&text);
+    let mut susp = build(&sc).unwrap();
+    let mut calc = SurfaceCalculus::new(8).unwrap();
+    let v0 = calc.geometry(&susp.coefs()[0]).unwrap().reduced_volume();
+    let checks = Checks {
+        drift: 1e-3,
+        speed: 5.0,
+        contact_every: None,
+    };
+    let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
+    let v1 = calc.geometry(&susp.coefs()[0]).unwrap().reduced_volume();
+    report(case, &o, &format!("reduced volume {v0:.4} → {v1:.4}"));
+    assert!(
+        (v1 - v0).abs() < 1e-3,
+        "{case}: reduced volume moved from {v0} to {v1}"
+    );
+}
+
+#[test]
+fn deflated_shapes_short() {
+    deflated(
+        "oblate v = 0.6 (short, 40 steps)",
+        "shape = \"oblate\"\nreduced_volume = 0.6",
+        40,
+    );
+    deflated("RBC v ≈ 0.64 (short, 40 steps)", "shape = \"rbc\"", 40);
+}
+
+#[test]
+#[ignore = "long version (scripts/hard_cases.sh)"]
+fn deflated_shapes_long() {
+    deflated(
+        "oblate v = 0.6 (long, 400 steps)",
+        "shape = \"oblate\"\nreduced_volume = 0.6",
+        400,
+    );
+    deflated("RBC v ≈ 0.64 (long, 400 steps)", "shape = \"rbc\"", 400);
+}
+
+/// Viscosity contrast λ = 10: a quasi-spherical vesicle tumbles (its inclination angle turns
+/// through ±90°) instead of tank-treading at a fixed angle.
+#[test]
+#[ignore = "viscosity contrast not built yet: cells_run::build refuses viscosity_ratio ≠ 1 \
+            (CellRunError::Unsupported, the double-layer step); enable when it is"]
+fn viscosity_contrast_ten_tumbles() {
+    let text = VESICLE.replace(
+        "bending_modulus = 0.1",
+        "bending_modulus = 0.1\nviscosity_ratio = 10.0",
+    );
+    let sc = scene(&text);
+    let mut susp = match build(&sc) {
+        Ok(s) => s,
+        Err(CellRunError::Unsupported(m)) => panic!("viscosity contrast not built: {m}"),
+        Err(e) => panic!("{e}"),
+    };
+    let checks = Checks {
+        drift: 1e-3,
+        speed: 5.0,
+        contact_every: None,
+    };
+    let mut calc = SurfaceCalculus::new(6).unwrap();
+    let mut angles = Vec::new();
+    for _ in 0..40 {
+        run_case("λ = 10", &sc, &mut susp, 5, checks).unwrap_or_else(|e| panic!("{e}"));
+        let (_, axes) = calc.geometry(&susp.coefs()[0]).unwrap().principal_axes();
+        angles.push((axes[0][1] / axes[0][0]).atan().to_degrees());
+    }
+    let min = angles.iter().cloned().fold(f64::INFINITY, f64::min);
+    let max = angles.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+    assert!(
+        min < -45.0 && max > 45.0,
+        "λ = 10: inclination stayed in [{min:.1}, {max:.1}]°, no tumbling"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Dense suspension.
+
+/// RBCs (discs in the x–y plane) on an `nx × ny × nz` lattice with spacing (3.0, 3.0, 1.3) in
+/// shear: the cells fill `N · 4π/3 / (N · 3.0 · 3.0 · 1.3)` = 36% of their lattice cells. No
+/// overlap, drift below 1e-3, bounded speed.
+fn dense(case: &str, n: [usize; 3], p: usize, steps: usize) {
+    let spacing = [3.0, 3.0, 1.3];
+    let mut text = String::from("[flow]\nkind = \"shear\"\nrate = 1.0\n");
+    let count = n[0] * n[1] * n[2];
+    for i in 0..count {
+        text.push_str(&format!(
+            "[[cells]]\nshape = \"rbc\"\nradius = 1.0\nbending_modulus = 0.1\ncenter = [{}, 0, 0]\n",
+            10.0 * i as f64
+        ));
+    }
+    text.push_str(&format!(
+        "[numerics]\norder = {p}\ndt = 0.05\nt_end = 1.0\ngmres_tol = 1e-8\n"
+    ));
+    let mut sc = scene(&text);
+    // Placed after parsing: the scene's bounding-sphere check would refuse this packing.
+    let mut c = 0;
+    for i in 0..n[0] {
+        for j in 0..n[1] {
+            for k in 0..n[2] {
+                sc.cells[c].center = [
+                    (i as f64 - 0.5 * (n[0] - 1) as f64) * spacing[0],
+                    (j as f64 - 0.5 * (n[1] - 1) as f64) * spacing[1],
+                    (k as f64 - 0.5 * (n[2] - 1) as f64) * spacing[2],
+                ];
+                c += 1;
+            }
+        }
+    }
+    let fraction = (4.0 * std::f64::consts::PI / 3.0) / (spacing[0] * spacing[1] * spacing[2]);
+    assert!(fraction >= 0.2);
+    let mut susp = build(&sc).unwrap();
+    let ymax = 0.5 * (n[1] - 1) as f64 * spacing[1] + 1.5;
+    let checks = Checks {
+        drift: 1e-3,
+        speed: 2.0 * ymax,
+        contact_every: Some(5),
+    };
+    let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
+    report(
+        case,
+        &o,
+        &format!("{count} cells, volume fraction {:.0}%", 100.0 * fraction),
+    );
+}
+
+#[test]
+fn dense_suspension_short() {
+    dense("dense 2×1×2 (short, 10 steps)", [2, 1, 2], 6, 10);
+}
+
+#[test]
+#[ignore = "long version (scripts/hard_cases.sh)"]
+fn dense_suspension_long() {
+    dense("dense 3×3×3 (long, 40 steps)", [3, 3, 3], 6, 40);
+}
+
+// ---------------------------------------------------------------------------------------------
+// NaN/Inf guard through `mobo run`.
+
+/// A scene that diverges: an RBC whose shear elasticity (explicit in the scheme) is far too
+/// stiff for the time step. `mobo run` must stop with an error that names the step, the cell
+/// and the quantity, exit non-zero, and keep a readable last checkpoint from an earlier step.
+#[test]
+fn divergence_names_step_cell_quantity_and_keeps_the_checkpoint() {
+    let dir = std::env::temp_dir().join(format!("mobo-hard-diverge-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("diverge.toml");
+    std::fs::write(&scene, DIVERGING).unwrap();
+    let out = dir.join("out");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_mobo"))
+        .args(["run", scene.to_str().unwrap(), "--out"])
+        .arg(&out)
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "the diverging run succeeded: {stderr}");
+    assert!(
+        !stderr.contains("panicked"),
+        "a panic instead of an error: {stderr}"
+    );
+    // "step N (t = T), cell C: <quantity> ..."
+    let at = stderr
+        .find("step ")
+        .unwrap_or_else(|| panic!("no step in: {stderr}"));
+    let rest = &stderr[at + 5..];
+    let step: usize = rest
+        .split(|c: char| !c.is_ascii_digit())
+        .next()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no step number in: {stderr}"));
+    assert!(rest.contains("(t = "), "no time in: {stderr}");
+    assert!(rest.contains(", cell 1: "), "no cell in: {stderr}");
+    let quantity = rest.split(", cell 1: ").nth(1).unwrap_or("");
+    assert!(
+        [
+            "coefficient",
+            "tension",
+            "gmres",
+            "GMRES",
+            "residual",
+            "geometry",
+            "area",
+            "volume"
+        ]
+        .iter()
+        .any(|q| quantity.contains(q)),
+        "no quantity named in: {stderr}"
+    );
+    let ck = mobo::io::checkpoint::Checkpoint::read(&out.join("checkpoint.bin"))
+        .unwrap_or_else(|e| panic!("the last checkpoint is not readable: {e}"));
+    let ck_step = ck.meta["step"].as_u64().expect("checkpoint step") as usize;
+    assert!(
+        ck_step < step,
+        "checkpoint step {ck_step} not before the failing step {step}"
+    );
+    let coefs = ck
+        .arrays
+        .iter()
+        .find(|a| a.name == "coefs")
+        .expect("coefs in the checkpoint");
+    assert!(coefs.data.iter().all(|v| v.is_finite()));
+    println!(
+        "| divergence guard | failed at step {step}, checkpoint at step {ck_step} | {} |",
+        stderr.trim()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+const DIVERGING: &str = r#"
+[flow]
+kind = "shear"
+rate = 1.0
+[[cells]]
+shape = "rbc"
+radius = 1.0
+bending_modulus = 0.1
+shear_modulus = 1e4
+orientation = [0, 1, 0, 30]
+[numerics]
+order = 6
+dt = 0.5
+t_end = 50.0
+gmres_tol = 1e-8
+[output]
+every = 1
+npy = false
+vtk = false
+checkpoint_every = 1
+"#;
