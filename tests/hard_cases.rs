@@ -552,8 +552,6 @@ fn deflated_shapes_long() {
 /// Viscosity contrast λ = 10: a quasi-spherical vesicle tumbles (its inclination angle turns
 /// through ±90°) instead of tank-treading at a fixed angle.
 #[test]
-#[ignore = "viscosity contrast not built yet: cells_run::build refuses viscosity_ratio ≠ 1 \
-            (CellRunError::Unsupported, the double-layer step); enable when it is"]
 fn viscosity_contrast_ten_tumbles() {
     let text = VESICLE.replace(
         "bending_modulus = 0.1",
