@@ -58,6 +58,44 @@ gmres_tol = 1e-11
 }
 
 #[test]
+fn a_viscosity_contrast_builds_the_double_layer_and_still_sediments_at_the_stokes_speed() {
+    let dir = tmpdir("run-lambda");
+    let scene = write(
+        &dir,
+        "lambda.toml",
+        r#"
+[[cells]]
+shape = "sphere"
+force = [0.0, 0.0, -1.0]
+viscosity_ratio = 5.0
+[numerics]
+order = 8
+dt = 0.1
+t_end = 0.3
+gmres_tol = 1e-11
+[output]
+vtk = false
+"#,
+    );
+    let out = dir.join("out");
+    let o = mobo(&["run", &scene, "--out", out.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&out);
+    assert_eq!(s["counters"]["double_layer_assemblies"].as_u64(), Some(3));
+    let v = s["centroid_velocity"][2].as_f64().unwrap();
+    let want = -1.0 / (6.0 * std::f64::consts::PI);
+    assert!((v - want).abs() < 1e-4 * want.abs(), "{v} vs {want}");
+    let on: Vec<&str> = s["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["enabled"].as_bool().unwrap())
+        .map(|e| e["name"].as_str().unwrap())
+        .collect();
+    assert!(on.contains(&"double_layer"), "{on:?}");
+}
+
+#[test]
 fn a_vesicle_in_shear_writes_frames_and_a_summary() {
     let dir = tmpdir("run-shear");
     let scene = write(

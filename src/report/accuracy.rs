@@ -463,7 +463,14 @@ fn knob_values(knob: Knob, reference: &Settings, t_end: f64) -> Vec<f64> {
                 .filter(|&n| n < n_ref)
                 .map(|n| t_end / n as f64)
                 .collect();
-            if knob == Knob::DtBdf2 || reference.scheme != Scheme::Euler {
+            // The reference's own dt with the other scheme (with its own scheme it would be the
+            // reference again).
+            let scheme = if knob == Knob::DtBdf2 {
+                Scheme::Bdf2
+            } else {
+                Scheme::Euler
+            };
+            if scheme != reference.scheme {
                 v.push(reference.dt);
             }
             v

@@ -114,6 +114,9 @@ pub struct Counters {
     pub fmm_builds: usize,
     /// Point–cell pairs pushed apart by the contact repulsion.
     pub repulsion_points: usize,
+    /// Double-layer operators assembled (cells with a viscosity contrast, once per step; in this
+    /// invocation).
+    pub double_layer_assemblies: usize,
     pub near_points: usize,
     pub near_pairs: usize,
 }
@@ -660,6 +663,11 @@ pub fn run(
         counters: Counters {
             fmm_builds: stats.fmm_builds,
             repulsion_points: stats.repulsion_points,
+            double_layer_assemblies: susp
+                .steppers()
+                .iter()
+                .map(|s| s.double_layer_assemblies)
+                .sum(),
             near_points: stats.near_points,
             near_pairs: stats.near_pairs,
         },

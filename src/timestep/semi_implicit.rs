@@ -180,6 +180,8 @@ pub struct VesicleStepper {
     targets: Option<(f64, f64)>,
     /// Shear elasticity (explicit, relative to the reference set by [`VesicleStepper::set_skalak`]).
     skalak: Option<SkalakParams>,
+    /// Double-layer operators assembled so far (0 for `λ = 1`: only what is called for).
+    pub double_layer_assemblies: usize,
     /// `Xⁿ⁻¹` (coefficients) for BDF2.
     previous: Option<Vec<f64>>,
     /// Sphere preconditioners built so far (at most two: the Euler and the BDF2 `τ`).
@@ -235,6 +237,7 @@ impl VesicleStepper {
             calc: SurfaceCalculus::new(p)?,
             targets: None,
             skalak: None,
+            double_layer_assemblies: 0,
             previous: None,
             preconditioners: Vec::new(),
         })
@@ -495,6 +498,7 @@ impl VesicleStepper {
         if c_d != 0.0 {
             self.layer
                 .assemble(LayerKernel::DoubleLayer, &xstar, &mut self.d_op)?;
+            self.double_layer_assemblies += 1;
         }
         let s_op = MatRef::from_column_major_slice(&self.s_op, 3 * n, 3 * n);
         let d_op = (c_d != 0.0).then(|| MatRef::from_column_major_slice(&self.d_op, 3 * n, 3 * n));
