@@ -435,12 +435,17 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
         repulsion_strength: scene.numerics.repulsion_strength.unwrap_or(auto_strength),
         ..Default::default()
     };
-    Suspension::new(p, setups, coupling).map_err(|e| CellRunError::Step {
-        step: 0,
-        time: 0.0,
+    Suspension::new(p, setups, coupling).map_err(|e| step_error(0, dt, e))
+}
+
+/// A failed step `step` (time `step · dt`) as a run error, the cell numbered from 1.
+fn step_error(step: usize, dt: f64, e: CellStepError) -> CellRunError {
+    CellRunError::Step {
+        step,
+        time: step as f64 * dt,
         cell: e.cell.map(|c| c + 1),
         source: Box::new(e.source),
-    })
+    }
 }
 
 /// Refuse what the runner does not do yet, with what is missing.
@@ -478,12 +483,6 @@ pub fn run(
     let dt = scene.numerics.dt;
     let steps = (scene.numerics.t_end / dt).round().max(1.0) as usize;
     let nc = scene.cells.len();
-    let step_err = |step: usize, e: CellStepError| CellRunError::Step {
-        step,
-        time: step as f64 * dt,
-        cell: e.cell.map(|c| c + 1),
-        source: Box::new(e.source),
-    };
     let mut susp = build(scene)?;
     let mut calc = SurfaceCalculus::new(p)?;
     let sht = ShTransform::new(p).map_err(VesicleError::from)?;
@@ -544,7 +543,7 @@ pub fn run(
         let t = Instant::now();
         let report = susp
             .step(&|x| flow.velocity(x))
-            .map_err(|e| step_err(k, e))?;
+            .map_err(|e| step_error(k, dt, e))?;
         prog.step_s += t.elapsed().as_secs_f64();
         for (i, c) in susp.coefs().iter().enumerate() {
             if let Some(j) = c.iter().position(|c| !c.is_finite()) {

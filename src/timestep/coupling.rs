@@ -286,9 +286,21 @@ impl Coupling {
         let t1 = Instant::now();
         self.stats.setup_s += (t1 - t0).as_secs_f64();
         // 2. All pairs by the FMM.
-        let sources: Vec<[f64; 3]> = self.cells.iter().flat_map(|c| c.sources.clone()).collect();
-        let density: Vec<f64> = self.cells.iter().flat_map(|c| c.density.clone()).collect();
-        let targets: Vec<[f64; 3]> = self.cells.iter().flat_map(|c| c.targets.clone()).collect();
+        let sources: Vec<[f64; 3]> = self
+            .cells
+            .iter()
+            .flat_map(|c| c.sources.iter().copied())
+            .collect();
+        let density: Vec<f64> = self
+            .cells
+            .iter()
+            .flat_map(|c| c.density.iter().copied())
+            .collect();
+        let targets: Vec<[f64; 3]> = self
+            .cells
+            .iter()
+            .flat_map(|c| c.targets.iter().copied())
+            .collect();
         let kind = FmmKernel::Stokeslet;
         let mut fmm = Fmm::new(
             kind,
