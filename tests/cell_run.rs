@@ -3,17 +3,7 @@
 //! with a clear message.
 
 mod common;
-use common::{mobo, run_example_scenes, tmpdir};
-
-fn write(dir: &std::path::Path, name: &str, text: &str) -> String {
-    let p = dir.join(name);
-    std::fs::write(&p, text).unwrap();
-    p.to_str().unwrap().to_string()
-}
-
-fn summary(dir: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
-}
+use common::{frame_bits, mobo, run_example_scenes, summary, tmpdir, write};
 
 #[test]
 fn a_sedimenting_vesicle_scene_moves_at_the_stokes_speed() {
@@ -153,10 +143,6 @@ fn scenes_beyond_what_is_built_are_refused_clearly() {
             "[[cells]]\nshape = \"sphere\"\nviscosity_ratio = 5.0\ncount = 2\nplacement = \"lattice\"\n",
             "viscosity_ratio ≠ 1 with several cells",
         ),
-        (
-            "[[cells]]\nshape = \"sphere\"\n[numerics]\nadaptive_dt = true\n",
-            "adaptive_dt",
-        ),
         ("[[cells]]\nshape = \"sphere\"\nradius = -2\n", "bad.toml:3"),
     ];
     for (text, want) in cases {
@@ -227,18 +213,7 @@ vtk = false
 "#;
 
 fn frames_of(out: &std::path::Path) -> Vec<Vec<u64>> {
-    let mut all = Vec::new();
-    for f in 0.. {
-        let path = out.join(format!("frames/frame_{f:05}_coefs.npy"));
-        if !path.exists() {
-            break;
-        }
-        let (_, c) = mobo::io::npy::read_f64(&path).unwrap();
-        let (_, t) =
-            mobo::io::npy::read_f64(&out.join(format!("frames/frame_{f:05}_tension.npy"))).unwrap();
-        all.push(c.iter().chain(&t).map(|v| v.to_bits()).collect());
-    }
-    all
+    frame_bits(out, true)
 }
 
 #[test]

@@ -33,7 +33,9 @@
 //! dt = 0.01
 //! t_end = 1.0
 //! scheme = "euler"                # "euler" | "bdf2"
-//! adaptive_dt = false
+//! adaptive_dt = false             # true: dt from the area/volume error (dt is the first step)
+//! # dt_tolerance = 1e-3           # adaptive: relative area/volume error allowed over the run
+//! # dt_min = 1e-5, dt_max = 0.1   # adaptive: bounds of dt (defaults dt/1000, max(dt, t_end/10))
 //! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
 //! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
 //!
@@ -113,6 +115,9 @@ struct NumericsSection {
     t_end: Option<Spanned<f64>>,
     scheme: Option<Spanned<String>>,
     adaptive_dt: Option<bool>,
+    dt_tolerance: Option<Spanned<f64>>,
+    dt_min: Option<Spanned<f64>>,
+    dt_max: Option<Spanned<f64>>,
     repulsion_range: Option<Spanned<f64>>,
     repulsion_strength: Option<Spanned<f64>>,
 }
@@ -234,6 +239,11 @@ pub struct Numerics {
     pub t_end: f64,
     pub scheme: Scheme,
     pub adaptive_dt: bool,
+    /// Adaptive `dt`: relative area/volume error allowed over the run (default `1e-3`).
+    pub dt_tolerance: f64,
+    /// Adaptive `dt`: bounds of the step (defaults `dt/1000` and `t_end/10`, at least `dt`).
+    pub dt_min: f64,
+    pub dt_max: f64,
     /// Contact repulsion range as a fraction of the equivalent radius (0: off).
     pub repulsion_range: f64,
     /// Contact repulsion strength (traction); `None`: `10 · max(κ_b/R³, μ γ̇, |F|/4πR²)`
@@ -440,6 +450,27 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
             },
         },
         adaptive_dt: n.and_then(|n| n.adaptive_dt).unwrap_or(false),
+        dt_tolerance: match n.and_then(|n| n.dt_tolerance.as_ref()) {
+            Some(t) => {
+                let v = positive(t, "[numerics] dt_tolerance")?;
+                if v >= 1.0 {
+                    return Err(at(
+                        t.span(),
+                        format!("[numerics] dt_tolerance must be below 1, got {v}"),
+                    ));
+                }
+                v
+            }
+            None => 1e-3,
+        },
+        dt_min: match n.and_then(|n| n.dt_min.as_ref()) {
+            Some(v) => positive(v, "[numerics] dt_min")?,
+            None => f64::NAN,
+        },
+        dt_max: match n.and_then(|n| n.dt_max.as_ref()) {
+            Some(v) => positive(v, "[numerics] dt_max")?,
+            None => f64::NAN,
+        },
         repulsion_range: match n.and_then(|n| n.repulsion_range.as_ref()) {
             Some(v) if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0 && *v.get_ref() <= 1.0) => {
                 return Err(at(
@@ -467,6 +498,26 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
             None => None,
         },
     };
+    let mut numerics = numerics;
+    if numerics.dt_min.is_nan() {
+        numerics.dt_min = numerics.dt / 1000.0;
+    }
+    if numerics.dt_max.is_nan() {
+        numerics.dt_max = numerics.dt.max(numerics.t_end / 10.0);
+    }
+    if numerics.dt_min > numerics.dt || numerics.dt > numerics.dt_max {
+        let span = n
+            .and_then(|n| n.dt.as_ref().or(n.dt_min.as_ref()).or(n.dt_max.as_ref()))
+            .map(|v| v.span());
+        let msg = format!(
+            "[numerics] dt = {} must lie between dt_min = {} and dt_max = {}",
+            numerics.dt, numerics.dt_min, numerics.dt_max
+        );
+        return Err(match span {
+            Some(sp) => at(sp, msg),
+            None => SceneError::new(file, msg),
+        });
+    }
     let output_every = match f.output.as_ref().and_then(|o| o.every.as_ref()) {
         Some(e) if *e.get_ref() == 0 => {
             return Err(at(e.span(), "[output] every must be at least 1".into()))
@@ -513,7 +564,20 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         cells.extend(cell_specs(c, k, &at, &positive, &finite, text)?);
     }
     check_overlaps(&cells, file)?;
-    let effects = effects(&cells, &flow);
+    let mut effects = effects(&cells, &flow);
+    effects.push(Effect {
+        name: "adaptive_dt",
+        enabled: numerics.adaptive_dt,
+        reason: if numerics.adaptive_dt {
+            format!(
+                "[numerics] adaptive_dt = true: dt from the area/volume error, tolerance {} over \
+                 the run, dt in [{}, {}]",
+                numerics.dt_tolerance, numerics.dt_min, numerics.dt_max
+            )
+        } else {
+            format!("fixed dt = {} (adaptive_dt = false)", numerics.dt)
+        },
+    });
     Ok(CellScene {
         viscosity,
         flow,

@@ -9,8 +9,10 @@
 //!
 //! Any number of cells (coupled through the FMM when there are two or more), shear elasticity
 //! (Skalak, explicit, stress-free at the initial shape), the first-order and the BDF2 scheme,
-//! a viscosity contrast for scenes of one cell. Other scenes (a viscosity contrast with several
-//! cells, adaptive `dt`) are refused with a message that says what is missing.
+//! a viscosity contrast for scenes of one cell, a fixed or an adaptive `dt`
+//! ([`crate::timestep::adaptive`]: steps whose area/volume error is too large are repeated
+//! smaller). Other scenes (a viscosity contrast with several cells) are refused with a message
+//! that says what is missing.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -25,6 +27,7 @@ use crate::io::checkpoint::Checkpoint;
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{TimeScheme, VesicleParams};
 use crate::timestep::suspension::{CellSetup, CellStepError, Suspension};
@@ -77,11 +80,17 @@ pub struct CellRunSummary {
     pub cells: usize,
     pub order: usize,
     pub upsampled_order: usize,
+    /// The (first) time step.
     pub dt: f64,
     pub steps: usize,
     pub final_time: f64,
     /// Whether the run reached `t_end` (false: stopped early with a checkpoint).
     pub completed: bool,
+    /// The adaptive time step's record (`null`: fixed `dt`).
+    pub adaptive: Option<AdaptiveSummary>,
+    /// The sum over the steps of the area/volume error estimate (the error the steps
+    /// committed before the drift correction restored area and volume).
+    pub area_volume_error_sum: f64,
     pub scheme: &'static str,
     pub gmres_tol: f64,
     pub fmm_digits: Option<u32>,
@@ -106,6 +115,24 @@ pub struct CellRunSummary {
     pub min_gap: Option<f64>,
     pub per_cell: Vec<CellSummary>,
     pub frames: usize,
+}
+
+/// What the adaptive time step did.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct AdaptiveSummary {
+    /// Relative area/volume error allowed over the run.
+    pub tolerance: f64,
+    /// Bounds of `dt`.
+    pub dt_min: f64,
+    pub dt_max: f64,
+    /// Steps rejected (and repeated with a smaller `dt`).
+    pub rejected_steps: usize,
+    /// Steps accepted at `dt_min` although their error exceeded what they may commit.
+    pub steps_above_tolerance: usize,
+    /// Smallest, largest and last step taken.
+    pub dt_smallest: f64,
+    pub dt_largest: f64,
+    pub dt_last: f64,
 }
 
 /// What the run built and how often.
@@ -169,6 +196,33 @@ struct Progress {
     min_gap: f64,
     /// Per cell: centroid (3), area, volume, inclination at the start of the run.
     start_obs: Vec<[f64; 6]>,
+    /// Time reached.
+    time: f64,
+    /// The next step's size (adaptive `dt`).
+    dt: f64,
+    /// The size of the last step taken.
+    last_dt: f64,
+    /// Smallest and largest step taken.
+    dt_used: [f64; 2],
+    /// Steps rejected by the adaptive `dt` (repeated smaller).
+    rejected: usize,
+    /// Accepted steps whose error exceeded what they may commit (taken at `dt_min`).
+    above_tolerance: usize,
+    /// Sum over the steps of the area/volume error estimate.
+    error_sum: f64,
+}
+
+impl Progress {
+    /// A run that starts at `t = 0` with the step `dt`.
+    fn start(dt: f64) -> Self {
+        Progress {
+            min_gap: f64::INFINITY,
+            dt,
+            last_dt: dt,
+            dt_used: [f64::INFINITY, 0.0],
+            ..Default::default()
+        }
+    }
 }
 
 fn checkpoint_error(out: &Path, what: String) -> CellRunError {
@@ -238,6 +292,26 @@ fn save_checkpoint(out: &Path, susp: &Suspension, prog: &Progress) -> Result<(),
         vec![4],
         vec![prog.step_s, prog.output_s, prog.wall_s, prog.min_gap],
     );
+    ck.push(
+        "time_steps",
+        vec![8],
+        vec![
+            prog.time,
+            prog.dt,
+            prog.last_dt,
+            prog.dt_used[0],
+            prog.dt_used[1],
+            prog.rejected as f64,
+            prog.above_tolerance as f64,
+            prog.error_sum,
+        ],
+    );
+    let previous_dt: Vec<f64> = susp
+        .steppers()
+        .iter()
+        .map(|s| s.previous_dt().unwrap_or(f64::NAN))
+        .collect();
+    ck.push("previous_dt", vec![nc], previous_dt);
     ck.write(&out.join(CHECKPOINT))?;
     Ok(())
 }
@@ -273,6 +347,13 @@ fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRu
         .data
         .clone();
     let prev = get("previous_coefs", nc * ncoef)?;
+    let time_steps = get("time_steps", 8)?;
+    let previous_dt = get("previous_dt", nc)?;
+    for (i, &pdt) in previous_dt.iter().enumerate() {
+        susp.steppers_mut()[i]
+            .set_previous_dt(pdt.is_finite().then_some(pdt))
+            .map_err(|e| checkpoint_error(out, format!("previous_dt of cell {}: {e}", i + 1)))?;
+    }
     let velocities = |name: &str| -> Result<Vec<Vec<f64>>, CellRunError> {
         let a = ck
             .get(name)
@@ -328,6 +409,23 @@ fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRu
             .chunks_exact(6)
             .map(|c| std::array::from_fn(|k| c[k]))
             .collect(),
+        time: time_steps[0],
+        dt: time_steps[1],
+        last_dt: time_steps[2],
+        dt_used: [time_steps[3], time_steps[4]],
+        rejected: time_steps[5] as usize,
+        above_tolerance: time_steps[6] as usize,
+        error_sum: time_steps[7],
+    })
+    .and_then(|p| {
+        if p.dt.is_finite() && p.dt > 0.0 && p.time.is_finite() {
+            Ok(p)
+        } else {
+            Err(checkpoint_error(
+                out,
+                format!("time_steps: time {} and dt {} are not usable", p.time, p.dt),
+            ))
+        }
     })
 }
 
@@ -435,14 +533,14 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
         repulsion_strength: scene.numerics.repulsion_strength.unwrap_or(auto_strength),
         ..Default::default()
     };
-    Suspension::new(p, setups, coupling).map_err(|e| step_error(0, dt, e))
+    Suspension::new(p, setups, coupling).map_err(|e| step_error(0, 0.0, e))
 }
 
-/// A failed step `step` (time `step · dt`) as a run error, the cell numbered from 1.
-fn step_error(step: usize, dt: f64, e: CellStepError) -> CellRunError {
+/// A failed step `step` (started at `time`) as a run error, the cell numbered from 1.
+fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
     CellRunError::Step {
         step,
-        time: step as f64 * dt,
+        time,
         cell: e.cell.map(|c| c + 1),
         source: Box::new(e.source),
     }
@@ -464,9 +562,6 @@ fn check_supported(scene: &CellScene) -> Result<(), CellRunError> {
                 cell.line
             )));
         }
-    }
-    if scene.numerics.adaptive_dt {
-        return Err(CellRunError::Unsupported("adaptive_dt = true".into()));
     }
     Ok(())
 }
@@ -497,10 +592,7 @@ pub fn run(
         let frames = FrameWriter::resume(out, formats, &prog.frame_times)?;
         (prog, frames)
     } else {
-        let mut prog = Progress {
-            min_gap: f64::INFINITY,
-            ..Default::default()
-        };
+        let mut prog = Progress::start(dt);
         for c in susp.coefs() {
             let (x, a, v, inc) = observe(&mut calc, c)?;
             prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
@@ -513,10 +605,43 @@ pub fn run(
         prog.frame_times = frames.times().to_vec();
         (prog, frames)
     };
+    let adaptive = if scene.numerics.adaptive_dt {
+        let order = match scene.numerics.scheme {
+            Scheme::Euler => 1,
+            Scheme::Bdf2 => 2,
+        };
+        Some(
+            AdaptiveDt::new(
+                scene.numerics.dt_tolerance,
+                scene.numerics.t_end,
+                order,
+                dt,
+                scene.numerics.dt_min,
+                scene.numerics.dt_max,
+            )
+            .map_err(|e| CellRunError::Step {
+                step: 0,
+                time: 0.0,
+                cell: None,
+                source: Box::new(e),
+            })?,
+        )
+    } else {
+        None
+    };
+    if adaptive.is_some() {
+        // A resumed adaptive run continues with the step it had chosen.
+        susp.set_dt(prog.dt)
+            .map_err(|e| step_error(prog.step, prog.time, e))?;
+    }
     let bar = if options.quiet {
         ProgressBar::hidden()
     } else {
-        let b = ProgressBar::new(steps as u64);
+        let b = ProgressBar::new(if adaptive.is_some() {
+            1000
+        } else {
+            steps as u64
+        });
         b.set_style(
             ProgressStyle::with_template(
                 "{elapsed_precise} [{bar:30}] step {pos}/{len} {msg} ETA {eta}",
@@ -524,7 +649,11 @@ pub fn run(
             .expect("valid template")
             .progress_chars("=> "),
         );
-        b.set_position(prog.step as u64);
+        b.set_position(if adaptive.is_some() {
+            (1000.0 * prog.time / scene.numerics.t_end) as u64
+        } else {
+            prog.step as u64
+        });
         b
     };
     let flow = scene.flow;
@@ -533,23 +662,74 @@ pub fn run(
     let mut before_last: Vec<[f64; 3]> = Vec::new();
     let first = prog.step + 1;
     let mut stopped = false;
-    for k in first..=steps {
-        if k == steps {
+    let mut k = prog.step;
+    // The run ends at t_end up to round-off in the sum of adaptive steps.
+    let t_done = scene.numerics.t_end * (1.0 - 1e-12);
+    loop {
+        let finished = match &adaptive {
+            None => k >= steps,
+            Some(_) => prog.time >= t_done,
+        };
+        if finished {
+            break;
+        }
+        k += 1;
+        let mut dt_try = match &adaptive {
+            None => dt,
+            Some(_) => prog.dt.min(scene.numerics.t_end - prog.time),
+        };
+        let last_candidate = match &adaptive {
+            None => k == steps,
+            Some(_) => prog.time + dt_try >= t_done,
+        };
+        if last_candidate {
             before_last.clear();
             for c in susp.coefs() {
                 before_last.push(observe(&mut calc, c)?.0);
             }
         }
         let t = Instant::now();
-        let report = susp
-            .step(&|x| flow.velocity(x))
-            .map_err(|e| step_error(k, dt, e))?;
+        let snapshot = adaptive.as_ref().map(|_| susp.snapshot());
+        let report = loop {
+            if adaptive.is_some() {
+                susp.set_dt(dt_try)
+                    .map_err(|e| step_error(k, prog.time, e))?;
+            }
+            let report = susp
+                .step(&|x| flow.velocity(x))
+                .map_err(|e| step_error(k, prog.time, e))?;
+            let (error, _) = report.area_volume_error();
+            let (Some(ctl), Some(snap)) = (&adaptive, &snapshot) else {
+                prog.error_sum += error;
+                break report;
+            };
+            let d = ctl.decide(dt_try, error);
+            if d.accept {
+                prog.error_sum += error;
+                if error > ctl.allowed(dt_try) {
+                    prog.above_tolerance += 1;
+                }
+                prog.dt = d.dt;
+                break report;
+            }
+            prog.rejected += 1;
+            susp.restore(snap)
+                .map_err(|e| step_error(k, prog.time, e))?;
+            dt_try = d.dt.min(scene.numerics.t_end - prog.time);
+        };
         prog.step_s += t.elapsed().as_secs_f64();
+        prog.time = match &adaptive {
+            None => k as f64 * dt,
+            Some(_) => prog.time + dt_try,
+        };
+        prog.last_dt = dt_try;
+        prog.dt_used[0] = prog.dt_used[0].min(dt_try);
+        prog.dt_used[1] = prog.dt_used[1].max(dt_try);
         for (i, c) in susp.coefs().iter().enumerate() {
             if let Some(j) = c.iter().position(|c| !c.is_finite()) {
                 return Err(CellRunError::Step {
                     step: k,
-                    time: k as f64 * dt,
+                    time: prog.time,
                     cell: Some(i + 1),
                     source: Box::new(TimestepError::Vesicle(format!(
                         "non-finite coefficient {j} after the step (the last checkpoint, \
@@ -574,21 +754,36 @@ pub fn run(
         if let Some(st) = susp.coupling_stats() {
             prog.min_gap = prog.min_gap.min(st.min_gap);
         }
-        bar.set_message(format!("t {:.3} dt {dt} gmres {it}", k as f64 * dt));
-        bar.inc(1);
+        match &adaptive {
+            None => {
+                bar.set_message(format!("t {:.3} dt {dt} gmres {it}", prog.time));
+                bar.set_position(k as u64);
+            }
+            Some(_) => {
+                bar.set_message(format!(
+                    "step {k} t {:.3} dt {:.3e} gmres {it} rejected {}",
+                    prog.time, dt_try, prog.rejected
+                ));
+                bar.set_position((1000.0 * prog.time / scene.numerics.t_end) as u64);
+            }
+        }
         prog.step = k;
         let interrupted = options
             .stop
             .as_ref()
             .is_some_and(|s| s.load(Ordering::Relaxed));
         let limited = options.max_steps.is_some_and(|m| k + 1 - first >= m);
-        stopped = k < steps && (interrupted || limited);
+        let last = match &adaptive {
+            None => k == steps,
+            Some(_) => prog.time >= t_done,
+        };
+        stopped = !last && (interrupted || limited);
         let t0 = Instant::now();
-        if k == steps || k as u64 % scene.output_every == 0 {
-            write_frame(&mut frames, &susp, &sht, &mut ws, k as f64 * dt)?;
+        if last || k as u64 % scene.output_every == 0 {
+            write_frame(&mut frames, &susp, &sht, &mut ws, prog.time)?;
             prog.frame_times = frames.times().to_vec();
         }
-        if stopped || k == steps || k as u64 % scene.output.checkpoint_every == 0 {
+        if stopped || last || k as u64 % scene.output.checkpoint_every == 0 {
             prog.wall_s = wall0 + start.elapsed().as_secs_f64();
             save_checkpoint(out, &susp, &prog)?;
         }
@@ -607,7 +802,7 @@ pub fn run(
         let (centroid, area, volume, inclination) = observe(&mut calc, c)?;
         let s0 = prog.start_obs[i];
         let velocity = match before_last.get(i) {
-            Some(b) => std::array::from_fn(|d| (centroid[d] - b[d]) / dt),
+            Some(b) => std::array::from_fn(|d| (centroid[d] - b[d]) / prog.last_dt),
             None => [f64::NAN; 3],
         };
         per_cell.push(CellSummary {
@@ -642,8 +837,22 @@ pub fn run(
         upsampled_order: q,
         dt,
         steps: done,
-        final_time: done as f64 * dt,
-        completed: done == steps,
+        final_time: prog.time,
+        completed: match &adaptive {
+            None => done == steps,
+            Some(_) => prog.time >= t_done,
+        },
+        adaptive: adaptive.map(|a| AdaptiveSummary {
+            tolerance: a.tolerance,
+            dt_min: a.dt_min,
+            dt_max: a.dt_max,
+            rejected_steps: prog.rejected,
+            steps_above_tolerance: prog.above_tolerance,
+            dt_smallest: prog.dt_used[0],
+            dt_largest: prog.dt_used[1],
+            dt_last: prog.last_dt,
+        }),
+        area_volume_error_sum: prog.error_sum,
         scheme: match scene.numerics.scheme {
             Scheme::Euler => "euler",
             Scheme::Bdf2 => "bdf2",

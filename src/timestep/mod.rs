@@ -86,6 +86,7 @@
 //! }
 //! ```
 
+pub mod adaptive;
 pub mod coupling;
 mod gmres;
 mod operator;

@@ -149,6 +149,10 @@ pub struct StepReport {
     pub scheme: TimeScheme,
     /// Whether the sphere preconditioner was (re)built in this step.
     pub preconditioner_built: bool,
+    /// The step's area/volume error, `max(|Aⁿ⁺¹ − Aⁿ|/Aⁿ, |Vⁿ⁺¹ − Vⁿ|/Vⁿ)` measured before the
+    /// drift correction: the exact flow keeps both, so this is an error estimate of the step
+    /// (what [`super::adaptive`] controls).
+    pub area_volume_error: f64,
 }
 
 /// What one application of the step operator needs, reused across GMRES iterations.
@@ -184,6 +188,8 @@ pub struct VesicleStepper {
     pub double_layer_assemblies: usize,
     /// `Xⁿ⁻¹` (coefficients) for BDF2.
     previous: Option<Vec<f64>>,
+    /// The step `Δtⁿ⁻¹` that led from `Xⁿ⁻¹` to `Xⁿ` (variable-step BDF2).
+    previous_dt: Option<f64>,
     /// Sphere preconditioners built so far (at most two: the Euler and the BDF2 `τ`).
     preconditioners: Vec<SpherePreconditioner>,
 }
@@ -239,6 +245,7 @@ impl VesicleStepper {
             skalak: None,
             double_layer_assemblies: 0,
             previous: None,
+            previous_dt: None,
             preconditioners: Vec::new(),
         })
     }
@@ -303,6 +310,35 @@ impl VesicleStepper {
             }
         }
         Ok(())
+    }
+
+    /// The step `Δtⁿ⁻¹` from `Xⁿ⁻¹` to `Xⁿ` (`None`: the step size of the run so far, `dt`).
+    pub fn previous_dt(&self) -> Option<f64> {
+        self.previous_dt
+    }
+
+    /// Set `Δtⁿ⁻¹` (restart of an adaptive BDF2 run).
+    pub fn set_previous_dt(&mut self, dt: Option<f64>) -> Result<(), TimestepError> {
+        if let Some(v) = dt {
+            check("previous dt", v)?;
+        }
+        self.previous_dt = dt;
+        Ok(())
+    }
+
+    /// Change the time step (adaptive `dt`). A BDF2 run then takes the variable-step formula
+    /// with the ratio `ω = Δtⁿ/Δtⁿ⁻¹`.
+    pub fn set_dt(&mut self, dt: f64) -> Result<(), TimestepError> {
+        check("dt", dt)?;
+        self.params.dt = dt;
+        Ok(())
+    }
+
+    /// `ω = Δtⁿ/Δtⁿ⁻¹` when the next step is a BDF2 step (`None`: an Euler step): explicit
+    /// terms are extrapolated to the operators' geometry `X* = (1 + ω)Xⁿ − ωXⁿ⁻¹`.
+    pub fn extrapolation_ratio(&self) -> Option<f64> {
+        (self.params.scheme == TimeScheme::Bdf2 && self.previous.is_some())
+            .then(|| self.params.dt / self.previous_dt.unwrap_or(self.params.dt))
     }
 
     /// Parameters.
@@ -421,31 +457,44 @@ impl VesicleStepper {
         }
         let lambda = self.params.viscosity_ratio;
         let kappa = self.params.bending_modulus;
-        let bdf2 = self.params.scheme == TimeScheme::Bdf2 && self.previous.is_some();
+        let omega = self.extrapolation_ratio();
+        let bdf2 = omega.is_some();
         let scheme = if bdf2 {
             TimeScheme::Bdf2
         } else {
             TimeScheme::Euler
         };
+        // Variable-step BDF2 with ω = Δtⁿ/Δtⁿ⁻¹:
+        //   ((1+2ω)/(1+ω)) Xⁿ⁺¹ − (1+ω) Xⁿ + (ω²/(1+ω)) Xⁿ⁻¹ = Δtⁿ F(X*),
+        // i.e. Xⁿ⁺¹ − X̂ = τ F(X*) with τ = Δtⁿ (1+ω)/(1+2ω), X̂ = ((1+ω)² Xⁿ − ω² Xⁿ⁻¹)/(1+2ω),
+        // X* = (1+ω) Xⁿ − ω Xⁿ⁻¹ (ω = 1: τ = 2Δt/3, X̂ = (4Xⁿ − Xⁿ⁻¹)/3, X* = 2Xⁿ − Xⁿ⁻¹).
+        let w = omega.unwrap_or(1.0);
         let tau = if bdf2 {
-            2.0 * self.params.dt / 3.0
+            (1.0 + w) * self.params.dt / (1.0 + 2.0 * w)
         } else {
             self.params.dt
         };
         let coef = StepCoefficients::new(lambda, tau, kappa, self.params.viscosity);
         let (a_id, c_d) = (coef.identity, coef.double_layer);
-        if self.targets.is_none() {
+        let (area0, volume0) = {
             let g = self.calc.geometry(coefs)?;
-            self.targets = Some((g.area(), g.volume()));
+            (g.area(), g.volume())
+        };
+        if self.targets.is_none() {
+            self.targets = Some((area0, volume0));
         }
         // X* (geometry of the operators) and X̂ (the history term), as coefficients.
         let (xstar, xhat): (Vec<f64>, Vec<f64>) = match (&self.previous, bdf2) {
             (Some(prev), true) => (
-                coefs.iter().zip(prev).map(|(c, o)| 2.0 * c - o).collect(),
                 coefs
                     .iter()
                     .zip(prev)
-                    .map(|(c, o)| (4.0 * c - o) / 3.0)
+                    .map(|(c, o)| (1.0 + w) * c - w * o)
+                    .collect(),
+                coefs
+                    .iter()
+                    .zip(prev)
+                    .map(|(c, o)| ((1.0 + w) * (1.0 + w) * c - w * w * o) / (1.0 + 2.0 * w))
                     .collect(),
             ),
             _ => (coefs.to_vec(), coefs.to_vec()),
@@ -604,10 +653,19 @@ impl VesicleStepper {
                 Some(prev) => prev.copy_from_slice(coefs),
                 None => self.previous = Some(coefs.to_vec()),
             }
+            self.previous_dt = Some(self.params.dt);
         }
         self.sht
             .forward(&z[..3 * n], coefs, &mut self.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
+        // The error estimate of the flow step itself (before the reparametrisation, which
+        // changes area and volume by the discretisation error, whatever the step).
+        let area_volume_error = {
+            let g = self.calc.geometry(coefs)?;
+            ((g.area() - area0) / area0)
+                .abs()
+                .max(((g.volume() - volume0) / volume0).abs())
+        };
         if let Some(rp) = &self.params.reparametrize {
             let mut surf = Surface::from_coefs(self.p, coefs.to_vec())?;
             reparametrize(&mut surf, rp)?;
@@ -628,6 +686,7 @@ impl VesicleStepper {
             gmres: report,
             scheme,
             preconditioner_built,
+            area_volume_error,
         })
     }
 

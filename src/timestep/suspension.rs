@@ -13,7 +13,7 @@
 use rayon::prelude::*;
 
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
-use super::semi_implicit::{ExplicitTerms, StepReport, TimeScheme, VesicleParams, VesicleStepper};
+use super::semi_implicit::{ExplicitTerms, StepReport, VesicleParams, VesicleStepper};
 use super::TimestepError;
 use crate::vesicle::skalak::SkalakParams;
 
@@ -43,6 +43,35 @@ pub struct CellStepError {
 pub struct SuspensionReport {
     /// Per cell: the GMRES solve.
     pub cells: Vec<StepReport>,
+}
+
+impl SuspensionReport {
+    /// The largest area/volume error of a cell in this step (the adaptive-`dt` estimate) and
+    /// the cell that committed it.
+    pub fn area_volume_error(&self) -> (f64, usize) {
+        self.cells
+            .iter()
+            .enumerate()
+            .fold((0.0, 0), |(e, c), (i, r)| {
+                // NaN wins: a failed estimate must not pass as small.
+                if r.area_volume_error > e || r.area_volume_error.is_nan() && !e.is_nan() {
+                    (r.area_volume_error, i)
+                } else {
+                    (e, c)
+                }
+            })
+    }
+}
+
+/// Everything a step changes, kept to repeat a rejected step (adaptive `dt`).
+#[derive(Clone, Debug)]
+pub struct SuspensionState {
+    coefs: Vec<Vec<f64>>,
+    sigma: Vec<Vec<f64>>,
+    previous: Vec<Option<Vec<f64>>>,
+    previous_dt: Vec<Option<f64>>,
+    velocities: Vec<Vec<f64>>,
+    previous_velocities: Vec<Vec<f64>>,
 }
 
 /// Cells of order `p`, stepped together.
@@ -151,6 +180,60 @@ impl Suspension {
         &self.previous_velocities
     }
 
+    /// The time step (shared by all cells).
+    pub fn dt(&self) -> f64 {
+        self.steppers.first().map_or(0.0, |s| s.params().dt)
+    }
+
+    /// Change the time step of every cell (adaptive `dt`).
+    pub fn set_dt(&mut self, dt: f64) -> Result<(), CellStepError> {
+        for (i, st) in self.steppers.iter_mut().enumerate() {
+            st.set_dt(dt).map_err(|source| CellStepError {
+                cell: Some(i),
+                source,
+            })?;
+        }
+        Ok(())
+    }
+
+    /// A copy of everything [`Suspension::step`] changes (the cells, their tensions and BDF2
+    /// histories, the inter-cell velocities); [`Suspension::restore`] goes back to it.
+    pub fn snapshot(&self) -> SuspensionState {
+        SuspensionState {
+            coefs: self.coefs.clone(),
+            sigma: self.steppers.iter().map(|s| s.sigma.clone()).collect(),
+            previous: self
+                .steppers
+                .iter()
+                .map(|s| s.previous_coefs().map(|c| c.to_vec()))
+                .collect(),
+            previous_dt: self.steppers.iter().map(|s| s.previous_dt()).collect(),
+            velocities: self.velocities.clone(),
+            previous_velocities: self.previous_velocities.clone(),
+        }
+    }
+
+    /// Go back to a [`Suspension::snapshot`] (a rejected step). The drift targets and the
+    /// preconditioners are not part of the state: a step does not change the former, and the
+    /// latter depend only on the targets and `dt`.
+    pub fn restore(&mut self, state: &SuspensionState) -> Result<(), CellStepError> {
+        self.coefs.clone_from(&state.coefs);
+        for (i, st) in self.steppers.iter_mut().enumerate() {
+            let err = |source| CellStepError {
+                cell: Some(i),
+                source,
+            };
+            st.sigma.copy_from_slice(&state.sigma[i]);
+            st.set_previous_coefs(state.previous[i].as_deref())
+                .map_err(err)?;
+            st.set_previous_dt(state.previous_dt[i]).map_err(err)?;
+        }
+        self.velocities.clone_from(&state.velocities);
+        self.previous_velocities
+            .clone_from(&state.previous_velocities);
+        Ok(())
+    }
+
     /// Restore the inter-cell velocities at `Xⁿ` and `Xⁿ⁻¹` (restart).
     pub fn set_inter_cell_velocities(&mut self, current: Vec<Vec<f64>>, previous: Vec<Vec<f64>>) {
         self.velocities = current;
@@ -184,21 +267,23 @@ impl Suspension {
                 .velocities(&cref, &fref)
                 .map_err(|source| CellStepError { cell: None, source })?;
         }
-        // BDF2 takes the explicit terms at X* = 2Xⁿ − Xⁿ⁻¹: v* = 2vⁿ − vⁿ⁻¹ (second order).
+        // BDF2 takes the explicit terms at X* = (1 + ω)Xⁿ − ωXⁿ⁻¹ (ω = Δtⁿ/Δtⁿ⁻¹):
+        // v* = (1 + ω)vⁿ − ωvⁿ⁻¹ (second order; 2vⁿ − vⁿ⁻¹ at a constant step).
         let extrapolated: Vec<Vec<f64>> = self
             .steppers
             .iter()
             .enumerate()
             .map(|(i, st)| {
                 match (
-                    st.params().scheme,
-                    st.previous_coefs(),
+                    st.extrapolation_ratio(),
                     self.velocities.get(i),
                     self.previous_velocities.get(i),
                 ) {
-                    (TimeScheme::Bdf2, Some(_), Some(v), Some(w)) => {
-                        v.iter().zip(w).map(|(a, b)| 2.0 * a - b).collect()
-                    }
+                    (Some(w), Some(v), Some(u)) => v
+                        .iter()
+                        .zip(u)
+                        .map(|(a, b)| (1.0 + w) * a - w * b)
+                        .collect(),
                     _ => Vec::new(),
                 }
             })

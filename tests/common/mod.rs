@@ -55,3 +55,34 @@ pub fn run_example_scenes(
     }
     ran
 }
+
+/// Write `text` to `dir/name`; the path as a string.
+pub fn write(dir: &std::path::Path, name: &str, text: &str) -> String {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p.to_str().unwrap().to_string()
+}
+
+/// The `summary.json` of a run in `dir`.
+pub fn summary(dir: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+/// The bits of every saved frame's coefficients (and tension, if `tension`) in `out/frames`,
+/// for bit-for-bit comparisons of runs.
+pub fn frame_bits(out: &std::path::Path, tension: bool) -> Vec<Vec<u64>> {
+    let mut all = Vec::new();
+    for f in 0.. {
+        let path = out.join(format!("frames/frame_{f:05}_coefs.npy"));
+        if !path.exists() {
+            break;
+        }
+        let (_, mut c) = mobo::io::npy::read_f64(&path).unwrap();
+        if tension {
+            let tp = out.join(format!("frames/frame_{f:05}_tension.npy"));
+            c.extend(mobo::io::npy::read_f64(&tp).unwrap().1);
+        }
+        all.push(c.iter().map(|v| v.to_bits()).collect());
+    }
+    all
+}
