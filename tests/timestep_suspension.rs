@@ -4,12 +4,14 @@
 
 use std::f64::consts::PI;
 
+mod common;
+use common::quadrature::{max_rel, reference};
+
 use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::coupling::{Coupling, CouplingParams};
 use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams};
 use mobo::timestep::suspension::{CellSetup, Suspension};
 use mobo::timestep::GmresParams;
-use mobo::vesicle::membrane::Membrane;
 use mobo::vesicle::shapes::{ellipsoid, sphere};
 use mobo::vesicle::SurfaceCalculus;
 
@@ -27,68 +29,6 @@ fn traction(p: usize, coefs: &[f64], seed: f64) -> Vec<f64> {
         f[2 * n + j] = a * b + seed * c;
     }
     f
-}
-
-/// `Σ_{j≠i} S_j[f_j]` at cell `i`'s grid points by the smooth quadrature of order `big_q`.
-fn reference(p: usize, big_q: usize, coefs: &[Vec<f64>], f: &[Vec<f64>], mu: f64) -> Vec<Vec<f64>> {
-    let sht = ShTransform::new(p).unwrap();
-    let n = sht.n_points();
-    let mut mem = Membrane::new(p, big_q).unwrap();
-    let nq = mem.n_points_upsampled();
-    // Per cell: quadrature points and weighted tractions.
-    type Quadrature = (Vec<[f64; 3]>, Vec<[f64; 3]>);
-    let mut src: Vec<Quadrature> = Vec::new();
-    for (c, fc) in coefs.iter().zip(f) {
-        mem.set_geometry(c).unwrap();
-        let mut fq = vec![0.0; 3 * nq];
-        mem.upsample(fc, &mut fq).unwrap();
-        let g = mem.geometry().unwrap();
-        let w: Vec<[f64; 3]> = (0..nq)
-            .map(|k| std::array::from_fn(|d| fq[d * nq + k] * g.da[k]))
-            .collect();
-        src.push((g.x.clone(), w));
-    }
-    coefs
-        .iter()
-        .enumerate()
-        .map(|(i, c)| {
-            let mut x = vec![0.0; 3 * n];
-            sht.inverse(c, &mut x, &mut sht.workspace()).unwrap();
-            let mut u = vec![0.0; 3 * n];
-            for t in 0..n {
-                let xt = [x[t], x[n + t], x[2 * n + t]];
-                let mut acc = [0.0; 3];
-                for (j, (ys, ws)) in src.iter().enumerate() {
-                    if j == i {
-                        continue;
-                    }
-                    for (y, w) in ys.iter().zip(ws) {
-                        let r = [xt[0] - y[0], xt[1] - y[1], xt[2] - y[2]];
-                        let r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-                        let ri = 1.0 / r2.sqrt();
-                        let rw = (r[0] * w[0] + r[1] * w[1] + r[2] * w[2]) * ri * ri * ri;
-                        for d in 0..3 {
-                            acc[d] += w[d] * ri + rw * r[d];
-                        }
-                    }
-                }
-                for d in 0..3 {
-                    u[d * n + t] = acc[d] / (8.0 * PI * mu);
-                }
-            }
-            u
-        })
-        .collect()
-}
-
-fn max_rel(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
-    let scale = b.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    a.iter()
-        .flatten()
-        .zip(b.iter().flatten())
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max)
-        / scale
 }
 
 fn ellipsoids(p: usize, gap: f64) -> Vec<Vec<f64>> {

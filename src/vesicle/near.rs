@@ -11,6 +11,13 @@
 //!   double layer (`D_out = D_PV + u/2`, `D_in = D_PV − u/2` in the convention of [`super::layer`]);
 //!   the Lagrange polynomial through these `m + 1` values in the normal distance is evaluated at
 //!   `d` (Veerapaneni et al. 2011, §4; Ying, Biros & Zorin, J. Comput. Phys. 219, 2006).
+//! * **Near targets the smooth rule can still resolve** (distance `d ≥ ¾ · 2π R_max / q` for a
+//!   refined order `q = 2q_far, 4q_far, …, max_order`, default 256): the smooth
+//!   quadrature at the smallest such `q` (its grid and the resampled density built on first use
+//!   per surface and density). Its error falls like `exp(−c d/h)` in the distance over the
+//!   spacing, while the check-point interpolation is limited by the interval it spans: on two
+//!   RBCs at p = 8, 4 % apart, the check points gave 1.1e-2 relative error, the order-192
+//!   quadrature 2e-7 (against a direct quadrature at order 256).
 //! * Classification: far targets are inside when the solid-angle (Gauss) integral
 //!   `(1/4π) ∫ (y − x)·n / |y − x|³ dA` exceeds ½; near targets by the side of the normal at `X*`.
 //!
@@ -48,6 +55,9 @@ pub struct NearParams {
     pub far_order: Option<usize>,
     /// Quadrature order of the on-surface (singular) values; `None` gives `2p`.
     pub self_order: Option<usize>,
+    /// Largest order of the refined smooth quadratures for near targets (`q_far · 2^k` and this
+    /// order, built on first use); `None` gives 256; below `2q_far`: none.
+    pub max_order: Option<usize>,
 }
 
 impl Default for NearParams {
@@ -58,6 +68,7 @@ impl Default for NearParams {
             check_spacing: 0.1,
             far_order: None,
             self_order: None,
+            max_order: None,
         }
     }
 }
@@ -106,7 +117,33 @@ pub struct OffSurface {
     spacing: f64,
     nodes: Vec<f64>,
     vals: Vec<[f64; 3]>,
+    /// Refined smooth quadratures (orders `2q_far, 4q_far, …`), built when first needed.
+    levels: Vec<Level>,
+    /// Largest distance of the surface from its centroid.
+    rmax: f64,
 }
+
+/// A refined smooth quadrature of order `q` for near targets.
+struct Level {
+    q: usize,
+    sht: ShTransform,
+    ws: ShWorkspace,
+    calc: SurfaceCalculus,
+    geom: Geometry,
+    /// Whether `geom` is that of the current surface, and the density that of the last call.
+    geometry_set: bool,
+    density_set: bool,
+    dens_coef: Vec<f64>,
+    dens: Vec<f64>,
+}
+
+/// A near target at distance `d` is given the smooth quadrature of order `q` when
+/// `d ≥ RESOLVED · 2π R_max / q` (measured on RBCs at a 4 % gap: relative error 1.8e-5 at 0.76
+/// of that spacing bound with `q = 96`).
+const RESOLVED: f64 = 0.8;
+
+/// Default largest refined order (an order-256 transform holds about 70 MB of tables).
+const DEFAULT_MAX_ORDER: usize = 256;
 
 impl OffSurface {
     /// Evaluator for surfaces of order `p`.
@@ -166,6 +203,8 @@ impl OffSurface {
             spacing: 0.0,
             nodes: Vec::with_capacity(params.check_points + 1),
             vals: Vec::with_capacity(params.check_points + 1),
+            levels: Vec::new(),
+            rmax: 0.0,
             sht_p,
             sht_far,
         })
@@ -198,6 +237,10 @@ impl OffSurface {
             .map(|x| ((x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)).sqrt())
             .fold(0.0, f64::max);
         self.spacing = 2.0 * PI * rmax / self.far_grid.order() as f64;
+        self.rmax = rmax;
+        for l in &mut self.levels {
+            l.geometry_set = false;
+        }
         self.has_surface = true;
         Ok(())
     }
@@ -253,13 +296,76 @@ impl OffSurface {
     /// Smooth quadrature of the layer potential at `x` with the upsampled density in
     /// `dens_far`.
     fn smooth(&self, kernel: LayerKernel, x: [f64; 3]) -> [f64; 3] {
-        let g = &self.geom_far;
+        smooth_sum(&self.geom_far, &self.dens_far, kernel, x)
+    }
+
+    /// The order of the refined smooth quadrature that resolves a target at distance `d`
+    /// (`None`: none up to `max_order`; the check points are used).
+    fn resolving_order(&self, d: f64) -> Option<usize> {
+        let q_far = self.far_grid.order();
+        let max = self.params.max_order.unwrap_or(DEFAULT_MAX_ORDER);
+        let mut q = 2 * q_far;
+        while q <= max {
+            if d >= RESOLVED * 2.0 * PI * self.rmax / q as f64 {
+                return Some(q);
+            }
+            q = if q < max { (2 * q).min(max) } else { max + 1 };
+        }
+        None
+    }
+
+    /// The refined quadrature of order `q` with the current surface and density (built,
+    /// resampled on first use).
+    fn level(&mut self, q: usize) -> Result<usize, VesicleError> {
+        let i = match self.levels.iter().position(|l| l.q == q) {
+            Some(i) => i,
+            None => {
+                let sht = ShTransform::new(q)?;
+                let (nc, n) = (sht.n_coefs(), sht.n_points());
+                self.levels.push(Level {
+                    q,
+                    ws: sht.workspace(),
+                    calc: SurfaceCalculus::new(q)?,
+                    geom: Geometry::zeros(q),
+                    geometry_set: false,
+                    density_set: false,
+                    dens_coef: vec![0.0; 3 * nc],
+                    dens: vec![0.0; 3 * n],
+                    sht,
+                });
+                self.levels.len() - 1
+            }
+        };
+        let l = &mut self.levels[i];
+        if !l.geometry_set {
+            let mut cf = vec![0.0; 3 * l.sht.n_coefs()];
+            resample_coefs(&self.lay_p, l.sht.layout(), &self.coefs, &mut cf)?;
+            l.calc.update_geometry(&cf, &mut l.geom)?;
+            l.geometry_set = true;
+        }
+        if !l.density_set {
+            resample_coefs(
+                &self.lay_p,
+                l.sht.layout(),
+                &self.dens_coef,
+                &mut l.dens_coef,
+            )?;
+            l.sht.inverse(&l.dens_coef, &mut l.dens, &mut l.ws)?;
+            l.density_set = true;
+        }
+        Ok(i)
+    }
+}
+
+/// `Σ_j K(x, y_j) f_j dA_j` over the grid of `g` with the density `dens` (component-major).
+fn smooth_sum(g: &Geometry, dens: &[f64], kernel: LayerKernel, x: [f64; 3]) -> [f64; 3] {
+    {
         let nq = g.n_points();
         let mut u = [0.0; 3];
         for j in 0..nq {
             let r = [x[0] - g.x[j][0], x[1] - g.x[j][1], x[2] - g.x[j][2]];
             let r2 = dot(r, r);
-            let f = get3(&self.dens_far, nq, j);
+            let f = get3(dens, nq, j);
             let rinv = 1.0 / r2.sqrt();
             match kernel {
                 LayerKernel::SingleLayer { .. } => {
@@ -282,7 +388,9 @@ impl OffSurface {
         };
         u.map(|v| v * pre)
     }
+}
 
+impl OffSurface {
     /// The layer potential of `density` (component-major on the order-`p` grid) at arbitrary
     /// targets; `out` is component-major (`3 · targets.len()`). Also returns each target's
     /// classification.
@@ -309,12 +417,19 @@ impl OffSurface {
         )?;
         self.sht_far
             .inverse(&self.dens_far_coef, &mut self.dens_far, &mut self.ws_far)?;
+        for l in &mut self.levels {
+            l.density_set = false;
+        }
         let infos: Vec<TargetInfo> = targets
             .iter()
             .map(|&x| self.classify(x))
             .collect::<Result<_, _>>()?;
         // On-surface values (only if some target is near).
-        if infos.iter().any(|i| i.near) {
+        // On-surface values (only if some near target is left to the check points).
+        if infos
+            .iter()
+            .any(|i| i.near && self.resolving_order(i.distance).is_none())
+        {
             self.self_layer
                 .evaluate(kernel, &self.coefs, density, &mut self.on_surface)?;
             self.sht_p
@@ -324,8 +439,17 @@ impl OffSurface {
         let m = self.params.check_points;
         let h = self.delta * self.params.check_spacing;
         for (ti, (&x, info)) in targets.iter().zip(&infos).enumerate() {
+            let refined = if info.near {
+                self.resolving_order(info.distance)
+            } else {
+                None
+            };
             let u = if !info.near {
                 self.smooth(kernel, x)
+            } else if let Some(q) = refined {
+                let i = self.level(q)?;
+                let l = &self.levels[i];
+                smooth_sum(&l.geom, &l.dens, kernel, x)
             } else {
                 let pd = self
                     .point

@@ -86,3 +86,5 @@ pub fn frame_bits(out: &std::path::Path, tension: bool) -> Vec<Vec<u64>> {
     }
     all
 }
+
+pub mod quadrature;
