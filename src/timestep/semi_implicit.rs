@@ -83,7 +83,7 @@ use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
-use crate::vesicle::reparam::{reparametrize, ReparamParams};
+use crate::vesicle::reparam::{ReparamParams, Reparametrizer};
 use crate::vesicle::shapes::Surface;
 use crate::vesicle::skalak::SkalakParams;
 
@@ -190,6 +190,8 @@ pub struct VesicleStepper {
     previous: Option<Vec<f64>>,
     /// The step `Δtⁿ⁻¹` that led from `Xⁿ⁻¹` to `Xⁿ` (variable-step BDF2).
     previous_dt: Option<f64>,
+    /// The reparametrisation's transforms (planned at the first step).
+    reparametrizer: Option<Reparametrizer>,
     /// Sphere preconditioners built so far (at most two: the Euler and the BDF2 `τ`).
     preconditioners: Vec<SpherePreconditioner>,
 }
@@ -246,6 +248,7 @@ impl VesicleStepper {
             double_layer_assemblies: 0,
             previous: None,
             previous_dt: None,
+            reparametrizer: None,
             preconditioners: Vec::new(),
         })
     }
@@ -668,7 +671,13 @@ impl VesicleStepper {
         };
         if let Some(rp) = &self.params.reparametrize {
             let mut surf = Surface::from_coefs(self.p, coefs.to_vec())?;
-            reparametrize(&mut surf, rp)?;
+            if self.reparametrizer.is_none() {
+                self.reparametrizer = Some(Reparametrizer::new(self.p)?);
+            }
+            self.reparametrizer
+                .as_mut()
+                .expect("planned above")
+                .run(&mut surf, rp)?;
             // Move the history by the same grid displacement, so that the difference
             // Xⁿ⁺¹ − Xⁿ the next BDF2 step sees stays that of the flow.
             if let Some(prev) = self.previous.as_mut() {

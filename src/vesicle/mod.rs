@@ -89,7 +89,7 @@ pub use layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 pub use membrane::Membrane;
 pub use mesh::CellMesh;
 pub use near::{NearParams, OffSurface, TargetInfo};
-pub use reparam::{reparametrize, ReparamParams, ReparamReport};
+pub use reparam::{reparametrize, ReparamParams, ReparamReport, Reparametrizer};
 pub use shapes::{Spheroid, Surface};
 pub use skalak::SkalakParams;
 

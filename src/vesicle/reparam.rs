@@ -8,19 +8,23 @@
 //!
 //! (the sum over all coefficients of degree `n` of the three coordinates) along the surface
 //! only: with `G = Σ A_n x̂_n Y_n` on the grid (half the gradient of `E`) and `P = I − n⊗n`,
-//! each step moves every grid point to `X − τ P G` and then back onto the *current* surface (its
-//! closest point, by Newton's method on the band-limited surface), so the shape changes only by
-//! the re-fit of the moved points at order `p` — below the discretisation error. The iteration
+//! each step moves every grid point by the tangent vector `d = −τ P G`, taken in parameters
+//! (`[E F; F G] δ = [X_θ·d; X_φ·d]`, one Gauss–Newton step of the closest-point problem) and
+//! evaluated *on the current surface*, `X(θ + δθ, φ + δφ)`: every moved point lies on the
+//! band-limited surface exactly, so the shape changes only by the re-fit of the moved points at
+//! order `p` — below the discretisation error. (The exact closest point of `X + d`, by Newton's
+//! method, cost 5–6 point evaluations per grid point instead of one, for a move that differs
+//! only at second order in `|d|`.) The iteration
 //! stops when a step lowers `E` by less than `tolerance · E` or would raise it.
 //!
 //! The grid-quality measure reported is `E` itself (the energy in the high degrees of the
 //! parametrisation); [`ReparamReport`] gives it before and after.
 
 use super::geometry::SurfaceCalculus;
-use super::point::{closest_point, PointEval};
+use super::point::PointEval;
 use super::shapes::Surface;
 use super::{dot, VesicleError};
-use crate::sph_harmonics::{CoefLayout, ShTransform};
+use crate::sph_harmonics::{CoefLayout, ShTransform, ShWorkspace};
 
 /// Parameters of [`reparametrize`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -77,8 +81,63 @@ fn weights(lay: &CoefLayout, s: u32) -> Vec<f64> {
         .collect()
 }
 
-/// Reparametrise `surface` in place (see the module docs).
+/// Reparametrise `surface` in place (see the module docs). Plans the transforms on every call:
+/// a time stepper keeps a [`Reparametrizer`] instead.
 pub fn reparametrize(
+    surface: &mut Surface,
+    params: &ReparamParams,
+) -> Result<ReparamReport, VesicleError> {
+    Reparametrizer::new(surface.order())?.run(surface, params)
+}
+
+/// The transforms and scratch of [`reparametrize`] for surfaces of one order, planned once.
+pub struct Reparametrizer {
+    sht: ShTransform,
+    ws: ShWorkspace,
+    calc: SurfaceCalculus,
+    pe: PointEval,
+    gc: Vec<f64>,
+    g: Vec<f64>,
+    moved: Vec<f64>,
+    new_coefs: Vec<f64>,
+}
+
+impl Reparametrizer {
+    /// Plans for order `p`.
+    pub fn new(p: usize) -> Result<Self, VesicleError> {
+        let sht = ShTransform::new(p)?;
+        let (nc, np) = (sht.n_coefs(), sht.n_points());
+        Ok(Reparametrizer {
+            ws: sht.workspace(),
+            calc: SurfaceCalculus::new(p)?,
+            pe: PointEval::new(p),
+            gc: vec![0.0; 3 * nc],
+            g: vec![0.0; 3 * np],
+            moved: vec![0.0; 3 * np],
+            new_coefs: vec![0.0; 3 * nc],
+            sht,
+        })
+    }
+
+    /// Reparametrise `surface` (of this order) in place (see the module docs).
+    pub fn run(
+        &mut self,
+        surface: &mut Surface,
+        params: &ReparamParams,
+    ) -> Result<ReparamReport, VesicleError> {
+        if surface.order() != self.sht.order() {
+            return Err(VesicleError::Parameter {
+                name: "surface order",
+                value: surface.order() as f64,
+                reason: "differs from the order the reparametrisation was planned for",
+            });
+        }
+        reparametrize_with(self, surface, params)
+    }
+}
+
+fn reparametrize_with(
+    plan: &mut Reparametrizer,
     surface: &mut Surface,
     params: &ReparamParams,
 ) -> Result<ReparamReport, VesicleError> {
@@ -97,18 +156,19 @@ pub fn reparametrize(
         });
     }
     let p = surface.order();
-    let sht = ShTransform::new(p)?;
-    let mut ws = sht.workspace();
-    let mut calc = SurfaceCalculus::new(p)?;
-    let lay = sht.layout().clone();
-    let nc = lay.len();
+    let Reparametrizer {
+        sht,
+        ws,
+        calc,
+        pe,
+        gc,
+        g,
+        moved,
+        new_coefs,
+    } = plan;
+    let lay = sht.layout();
     let np = sht.n_points();
-    let w = weights(&lay, params.weight_exponent);
-    let mut pe = PointEval::new(p);
-    let mut gc = vec![0.0; 3 * nc];
-    let mut g = vec![0.0; 3 * np];
-    let mut moved = vec![0.0; 3 * np];
-    let mut new_coefs = vec![0.0; 3 * nc];
+    let w = weights(lay, params.weight_exponent);
     let e0 = spectral_energy(surface, params.weight_exponent);
     let mut e = e0;
     let mut iterations = 0;
@@ -120,20 +180,27 @@ pub fn reparametrize(
         {
             *gc = c * w;
         }
-        sht.inverse(&gc, &mut g, &mut ws)?;
+        sht.inverse(gc, g, ws)?;
         for j in 0..np {
             let gj = [g[j], g[np + j], g[2 * np + j]];
             let n = geom.normal[j];
             let gn = dot(gj, n);
-            let target: [f64; 3] =
-                std::array::from_fn(|c| geom.x[j][c] - params.step * (gj[c] - gn * n[c]));
-            let start = sht.grid().angles(j);
-            let (_, pd) = closest_point(&mut pe, &lay, surface.coefs(), target, start);
+            // The tangential move d = −τ P G in parameters: [E F; F G] δ = [X_θ·d; X_φ·d].
+            let d: [f64; 3] = std::array::from_fn(|c| -params.step * (gj[c] - gn * n[c]));
+            let (a, b) = (dot(geom.xt[j], d), dot(geom.xp[j], d));
+            let gi = geom.ginv[j];
+            let (t0, f0) = sht.grid().angles(j);
+            let pd = pe.eval(
+                lay,
+                surface.coefs(),
+                t0 + gi[0] * a + gi[1] * b,
+                f0 + gi[1] * a + gi[2] * b,
+            );
             for c in 0..3 {
                 moved[c * np + j] = pd.x[c];
             }
         }
-        sht.forward(&moved, &mut new_coefs, &mut ws)?;
+        sht.forward(moved, new_coefs, ws)?;
         let candidate = Surface::from_coefs(p, new_coefs.clone())?;
         let e_new = spectral_energy(&candidate, params.weight_exponent);
         if e_new >= e {
