@@ -9,8 +9,10 @@
 //!
 //! Any number of cells (coupled through the FMM when there are two or more), shear elasticity
 //! (Skalak, explicit, stress-free at the initial shape), the first-order and the BDF2 scheme,
-//! a viscosity contrast for scenes of one cell. Other scenes (a viscosity contrast with several
-//! cells, adaptive `dt`) are refused with a message that says what is missing.
+//! a viscosity contrast (with several cells, the double layer of each cell with `λ ≠ 1` is
+//! felt by the others through a second, stresslet FMM, with its membrane velocity from the
+//! previous step; see [`crate::timestep::coupling`]). Adaptive `dt` is refused with a message
+//! that says what is missing.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -119,6 +121,9 @@ pub struct Counters {
     pub double_layer_assemblies: usize,
     pub near_points: usize,
     pub near_pairs: usize,
+    /// Stresslet FMMs built for the inter-cell double layer (several cells, some `λ ≠ 1`: one
+    /// per step from the second on; 0 otherwise).
+    pub double_layer_fmm_builds: usize,
 }
 
 /// One cell's observables from its coefficients.
@@ -223,6 +228,20 @@ fn save_checkpoint(out: &Path, susp: &Suspension, prog: &Progress) -> Result<(),
         let flat: Vec<f64> = v.iter().flatten().copied().collect();
         ck.push(name, vec![v.len(), flat.len() / v.len().max(1)], flat);
     }
+    // Membrane velocities of the last solve: the explicit double-layer densities of the next
+    // step (only where the inter-cell double layer is built; NaN rows for none yet).
+    if susp.has_inter_cell_double_layer() {
+        let n3 = 3 * n;
+        let u: Vec<f64> = susp
+            .steppers()
+            .iter()
+            .flat_map(|s| match s.velocity() {
+                Some(u) => u.to_vec(),
+                None => vec![f64::NAN; n3],
+            })
+            .collect();
+        ck.push("membrane_velocities", vec![nc, n3], u);
+    }
     ck.push(
         "start_observables",
         vec![nc, 6],
@@ -296,6 +315,18 @@ fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRu
     let current = velocities("inter_cell_velocities")?;
     let previous = velocities("previous_inter_cell_velocities")?;
     susp.set_inter_cell_velocities(current, previous);
+    // Absent from checkpoints of runs without an inter-cell double layer.
+    if susp.has_inter_cell_double_layer() {
+        let u = get("membrane_velocities", nc * 3 * n)?;
+        for i in 0..nc {
+            let row = &u[i * 3 * n..(i + 1) * 3 * n];
+            susp.steppers_mut()[i]
+                .set_velocity(row.iter().all(|v| v.is_finite()).then_some(row))
+                .map_err(|e| {
+                    checkpoint_error(out, format!("membrane_velocities of cell {}: {e}", i + 1))
+                })?;
+        }
+    }
     for i in 0..nc {
         let row = &prev[i * ncoef..(i + 1) * ncoef];
         susp.steppers_mut()[i]
@@ -450,21 +481,6 @@ fn step_error(step: usize, dt: f64, e: CellStepError) -> CellRunError {
 
 /// Refuse what the runner does not do yet, with what is missing.
 fn check_supported(scene: &CellScene) -> Result<(), CellRunError> {
-    if scene.cells.len() > 1 {
-        if let Some((i, cell)) = scene
-            .cells
-            .iter()
-            .enumerate()
-            .find(|(_, c)| c.viscosity_ratio != 1.0)
-        {
-            return Err(CellRunError::Unsupported(format!(
-                "cell {} (line {}): viscosity_ratio ≠ 1 with several cells (the double layer \
-                 between cells is not coupled yet; one cell with a viscosity contrast runs)",
-                i + 1,
-                cell.line
-            )));
-        }
-    }
     if scene.numerics.adaptive_dt {
         return Err(CellRunError::Unsupported("adaptive_dt = true".into()));
     }
@@ -669,6 +685,7 @@ pub fn run(
                 .sum(),
             near_points: stats.near_points,
             near_pairs: stats.near_pairs,
+            double_layer_fmm_builds: stats.double_layer_fmm_builds,
         },
         area_drift: worst(|c| c.area_drift),
         volume_drift: worst(|c| c.volume_drift),

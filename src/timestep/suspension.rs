@@ -54,6 +54,9 @@ pub struct Suspension {
     velocities: Vec<Vec<f64>>,
     /// Those of the step before (BDF2 extrapolates the explicit coupling to `X*`).
     previous_velocities: Vec<Vec<f64>>,
+    /// Whether the cells with `λ ≠ 1` pass their double layer to the others (on by default;
+    /// switched off only to measure what it does).
+    inter_cell_double_layer: bool,
 }
 
 impl Suspension {
@@ -102,6 +105,7 @@ impl Suspension {
             coupling,
             velocities: Vec::new(),
             previous_velocities: Vec::new(),
+            inter_cell_double_layer: true,
         })
     }
 
@@ -157,6 +161,24 @@ impl Suspension {
         self.previous_velocities = previous;
     }
 
+    /// Whether some cell has a viscosity contrast and there are other cells to feel its double
+    /// layer (the inter-cell double layer is then built from the second step on).
+    pub fn has_inter_cell_double_layer(&self) -> bool {
+        self.inter_cell_double_layer
+            && self.coupling.is_some()
+            && self
+                .steppers
+                .iter()
+                .any(|s| s.params().viscosity_ratio != 1.0)
+    }
+
+    /// Switch the inter-cell double layer off (or on again): the cells then feel only each
+    /// other's single layers, as if every `λ` were 1 outside their own step. For studies and
+    /// tests of what the double layer does; a physical run keeps it on.
+    pub fn set_inter_cell_double_layer(&mut self, on: bool) {
+        self.inter_cell_double_layer = on;
+    }
+
     /// Advance every cell by one step in the background flow `u_inf`.
     pub fn step(
         &mut self,
@@ -180,8 +202,24 @@ impl Suspension {
                 .collect::<Result<_, _>>()?;
             let cref: Vec<&[f64]> = self.coefs.iter().map(|c| c.as_slice()).collect();
             let fref: Vec<&[f64]> = tractions.iter().map(|c| c.as_slice()).collect();
+            // Double-layer densities (1 − λ_j) u_j from each cell's last solve (none before the
+            // first step: the first step couples the single layers only).
+            let scaled: Vec<Option<Vec<f64>>> = self
+                .steppers
+                .iter()
+                .map(|st| {
+                    let lambda = st.params().viscosity_ratio;
+                    match st.velocity() {
+                        Some(u) if lambda != 1.0 && self.inter_cell_double_layer => {
+                            Some(u.iter().map(|v| (1.0 - lambda) * v).collect())
+                        }
+                        _ => None,
+                    }
+                })
+                .collect();
+            let dref: Vec<Option<&[f64]>> = scaled.iter().map(|d| d.as_deref()).collect();
             self.velocities = coupling
-                .velocities(&cref, &fref)
+                .velocities_with(&cref, &fref, &dref)
                 .map_err(|source| CellStepError { cell: None, source })?;
         }
         // BDF2 takes the explicit terms at X* = 2Xⁿ − Xⁿ⁻¹: v* = 2vⁿ − vⁿ⁻¹ (second order).
