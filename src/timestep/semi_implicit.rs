@@ -56,6 +56,11 @@
 //! reparametrisation itself changes the shape slightly per call, independently of `Δt`, which
 //! caps the accuracy at small `Δt` (measured orders 1.94, 1.75, 1.40 over Δt = 0.05 … 0.00625).
 //!
+//! The membrane velocity of the solve, `u = (Xⁿ⁺¹ − X̂)/τ` on the grid (before the
+//! reparametrisation and the drift correction), is kept ([`VesicleStepper::velocity`]): a
+//! suspension passes `(1 − λ) u` to the other cells as the density of this cell's double layer
+//! (explicitly, in the next step).
+//!
 //! ## Preconditioner
 //!
 //! With [`VesicleParams::preconditioner`] GMRES is right-preconditioned by the inverse step

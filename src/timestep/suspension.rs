@@ -9,6 +9,18 @@
 //! serially). A scene of one cell builds no [`Coupling`] and no FMM. With BDF2 the explicit
 //! inter-cell velocity is extrapolated to `X* = 2Xⁿ − Xⁿ⁻¹` as `2vⁿ − vⁿ⁻¹`; the contact
 //! repulsion stays first order (a penalty acting only near contact).
+//!
+//! **Viscosity contrast between cells.** A cell with `λ ≠ 1` is felt by the others through its
+//! single layer and its double layer `(1 − λ) D[u]` ([`Coupling::velocities_with`]). Its own
+//! double layer is implicit in its step; the one the others feel takes the membrane velocity
+//! `u` of the cell's previous solve ([`VesicleStepper::velocity`]: `(Xⁿ − Xⁿ⁻¹)/Δt` for Euler,
+//! a first-order lag, consistent with the explicit coupling; the BDF2 derivative
+//! `(3Xⁿ − 4Xⁿ⁻¹ + Xⁿ⁻²)/(2Δt)` for BDF2, which then extrapolates the whole inter-cell velocity
+//! as above). The first step has no velocity yet and couples the single layers only (the
+//! cells' initial velocity is not known before their first solve); the double layer enters
+//! from the second step on. A restart restores the velocities
+//! ([`VesicleStepper::set_velocity`]). Only what is called for: with every `λ = 1` (or one cell)
+//! no double-layer density is passed and no stresslet FMM is built.
 
 use rayon::prelude::*;
 
