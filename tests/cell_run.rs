@@ -1,6 +1,7 @@
 //! `mobo run` on cell scenes: a sedimenting spherical vesicle moves at `F/(6πμa)`, a vesicle in
-//! shear writes its frames and summary, and scenes that need what is not built yet are refused
-//! with a clear message.
+//! shear writes its frames and summary, scenes that need what is not built yet are refused
+//! with a clear message, and stopped runs resume bit for bit (also with a viscosity contrast
+//! between cells, whose explicit double layer carries the membrane velocities over).
 
 mod common;
 use common::{frame_bits, mobo, run_example_scenes, summary, tmpdir, write};
@@ -136,15 +137,9 @@ every = 5
 }
 
 #[test]
-fn scenes_beyond_what_is_built_are_refused_clearly() {
+fn bad_scenes_are_refused_clearly() {
     let dir = tmpdir("run-refuse");
-    let cases = [
-        (
-            "[[cells]]\nshape = \"sphere\"\nviscosity_ratio = 5.0\ncount = 2\nplacement = \"lattice\"\n",
-            "viscosity_ratio ≠ 1 with several cells",
-        ),
-        ("[[cells]]\nshape = \"sphere\"\nradius = -2\n", "bad.toml:3"),
-    ];
+    let cases = [("[[cells]]\nshape = \"sphere\"\nradius = -2\n", "bad.toml:3")];
     for (text, want) in cases {
         let scene = write(&dir, "bad.toml", text);
         let o = mobo(&[
@@ -230,6 +225,11 @@ fn a_stopped_or_interrupted_run_resumes_to_bit_identical_results() {
         Some(24),
         "two cells: one FMM per step"
     );
+    assert_eq!(
+        s["counters"]["double_layer_fmm_builds"].as_u64(),
+        Some(0),
+        "λ = 1: no inter-cell double layer"
+    );
     let want = frames_of(&full);
     assert_eq!(want.len(), 7);
 
@@ -301,4 +301,69 @@ fn a_stopped_or_interrupted_run_resumes_to_bit_identical_results() {
         "{err}"
     );
     assert!(!err.contains("panicked"), "{err}");
+}
+
+/// Two cells with `λ = 5`: the inter-cell double layer takes each cell's membrane velocity of
+/// the previous step, which the checkpoint carries, so a resumed run is still bit-identical.
+#[test]
+fn a_run_with_a_viscosity_contrast_between_cells_resumes_to_bit_identical_results() {
+    let dir = tmpdir("run-resume-lambda");
+    let text = TWO_CELLS
+        .replace(
+            "bending_modulus = 0.5\ncenter = [-1.3",
+            "bending_modulus = 0.5\nviscosity_ratio = 5.0\ncenter = [-1.3",
+        )
+        .replace(
+            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5",
+            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5\nviscosity_ratio = 5.0",
+        )
+        .replace("t_end = 1.2", "t_end = 0.6");
+    assert_eq!(text.matches("viscosity_ratio = 5.0").count(), 2);
+    let scene = write(&dir, "two.toml", &text);
+    let full = dir.join("full");
+    let o = mobo(&["run", &scene, "--out", full.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&full);
+    assert_eq!(s["steps"].as_u64(), Some(12));
+    assert_eq!(s["counters"]["fmm_builds"].as_u64(), Some(12));
+    assert_eq!(
+        s["counters"]["double_layer_fmm_builds"].as_u64(),
+        Some(11),
+        "a stresslet FMM every step but the first (no membrane velocity yet)"
+    );
+    let on: Vec<&str> = s["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["enabled"].as_bool().unwrap())
+        .map(|e| e["name"].as_str().unwrap())
+        .collect();
+    assert!(on.contains(&"inter_cell_double_layer"), "{on:?}");
+    let want = frames_of(&full);
+
+    let part = dir.join("part");
+    let o = mobo(&[
+        "run",
+        &scene,
+        "--out",
+        part.to_str().unwrap(),
+        "--quiet",
+        "--max-steps",
+        "5",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = mobo(&["run", "--resume", part.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&part);
+    assert_eq!(s["completed"].as_bool(), Some(true));
+    assert_eq!(
+        s["counters"]["double_layer_fmm_builds"].as_u64(),
+        Some(7),
+        "the resumed invocation has the velocities from its first step on"
+    );
+    assert_eq!(
+        frames_of(&part),
+        want,
+        "stop at 5 + resume = one run, bit for bit"
+    );
 }

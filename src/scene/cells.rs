@@ -879,6 +879,22 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             },
         },
         Effect {
+            name: "inter_cell_double_layer",
+            enabled: n > 1 && !contrast.is_empty(),
+            reason: if n < 2 {
+                "one cell: its double layer is part of its own step".into()
+            } else if contrast.is_empty() {
+                "every viscosity_ratio is 1: cells feel only each other's single layer".into()
+            } else {
+                format!(
+                    "viscosity_ratio ≠ 1 for cells {} and {n} cells interact: their double \
+                     layer reaches the others (a stresslet FMM per step, membrane velocity of \
+                     the previous step)",
+                    list(&contrast)
+                )
+            },
+        },
+        Effect {
             name: "skalak",
             enabled: !shear.is_empty(),
             reason: if shear.is_empty() {

@@ -9,9 +9,11 @@
 //!
 //! Any number of cells (coupled through the FMM when there are two or more), shear elasticity
 //! (Skalak, explicit, stress-free at the initial shape), the first-order and the BDF2 scheme,
-//! a viscosity contrast for scenes of one cell, a fixed or an adaptive `dt`
+//! a viscosity contrast (with several cells, the double layer of each cell with `λ ≠ 1` is
+//! felt by the others through a second, stresslet FMM, with its membrane velocity from the
+//! previous step; see [`crate::timestep::coupling`]), a fixed or an adaptive `dt`
 //! ([`crate::timestep::adaptive`]: steps whose area/volume error is too large are repeated
-//! smaller). Other scenes (a viscosity contrast with several cells) are refused with a message
+//! smaller). Scenes that ask for what is not built are refused with a message
 //! that says what is missing.
 
 use std::path::Path;
@@ -146,6 +148,9 @@ pub struct Counters {
     pub double_layer_assemblies: usize,
     pub near_points: usize,
     pub near_pairs: usize,
+    /// Stresslet FMMs built for the inter-cell double layer (several cells, some `λ ≠ 1`: one
+    /// per step from the second on; 0 otherwise).
+    pub double_layer_fmm_builds: usize,
 }
 
 /// One cell's observables from its coefficients.
@@ -277,6 +282,20 @@ fn save_checkpoint(out: &Path, susp: &Suspension, prog: &Progress) -> Result<(),
         let flat: Vec<f64> = v.iter().flatten().copied().collect();
         ck.push(name, vec![v.len(), flat.len() / v.len().max(1)], flat);
     }
+    // Membrane velocities of the last solve: the explicit double-layer densities of the next
+    // step (only where the inter-cell double layer is built; NaN rows for none yet).
+    if susp.has_inter_cell_double_layer() {
+        let n3 = 3 * n;
+        let u: Vec<f64> = susp
+            .steppers()
+            .iter()
+            .flat_map(|s| match s.velocity() {
+                Some(u) => u.to_vec(),
+                None => vec![f64::NAN; n3],
+            })
+            .collect();
+        ck.push("membrane_velocities", vec![nc, n3], u);
+    }
     ck.push(
         "start_observables",
         vec![nc, 6],
@@ -377,6 +396,18 @@ fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRu
     let current = velocities("inter_cell_velocities")?;
     let previous = velocities("previous_inter_cell_velocities")?;
     susp.set_inter_cell_velocities(current, previous);
+    // Absent from checkpoints of runs without an inter-cell double layer.
+    if susp.has_inter_cell_double_layer() {
+        let u = get("membrane_velocities", nc * 3 * n)?;
+        for i in 0..nc {
+            let row = &u[i * 3 * n..(i + 1) * 3 * n];
+            susp.steppers_mut()[i]
+                .set_velocity(row.iter().all(|v| v.is_finite()).then_some(row))
+                .map_err(|e| {
+                    checkpoint_error(out, format!("membrane_velocities of cell {}: {e}", i + 1))
+                })?;
+        }
+    }
     for i in 0..nc {
         let row = &prev[i * ncoef..(i + 1) * ncoef];
         susp.steppers_mut()[i]
@@ -463,7 +494,6 @@ fn write_frame(
 /// drift correction and reparametrisation every step, GMRES restart 200). Library users and
 /// studies (`mobo report`) step it themselves.
 pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
-    check_supported(scene)?;
     let p = scene.numerics.order;
     let q = scene.numerics.upsample * p;
     let dt = scene.numerics.dt;
@@ -544,26 +574,6 @@ fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
         cell: e.cell.map(|c| c + 1),
         source: Box::new(e.source),
     }
-}
-
-/// Refuse what the runner does not do yet, with what is missing.
-fn check_supported(scene: &CellScene) -> Result<(), CellRunError> {
-    if scene.cells.len() > 1 {
-        if let Some((i, cell)) = scene
-            .cells
-            .iter()
-            .enumerate()
-            .find(|(_, c)| c.viscosity_ratio != 1.0)
-        {
-            return Err(CellRunError::Unsupported(format!(
-                "cell {} (line {}): viscosity_ratio ≠ 1 with several cells (the double layer \
-                 between cells is not coupled yet; one cell with a viscosity contrast runs)",
-                i + 1,
-                cell.line
-            )));
-        }
-    }
-    Ok(())
 }
 
 /// Run `scene` (whose text is `scene_text`), writing into `out`.
@@ -878,6 +888,7 @@ pub fn run(
                 .sum(),
             near_points: stats.near_points,
             near_pairs: stats.near_pairs,
+            double_layer_fmm_builds: stats.double_layer_fmm_builds,
         },
         area_drift: worst(|c| c.area_drift),
         volume_drift: worst(|c| c.volume_drift),

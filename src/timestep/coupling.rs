@@ -1,5 +1,5 @@
-//! Hydrodynamic coupling between cells: the velocity each cell's membrane traction induces on
-//! the grid points of every *other* cell.
+//! Hydrodynamic coupling between cells: the velocity each cell's membrane traction (and, with a
+//! viscosity contrast, its membrane velocity) induces on the grid points of every *other* cell.
 //!
 //! For cells `j` with traction `f_j` (order-`p` grid), the velocity at a point `x` of cell `i`
 //! is `u_i(x) = Σ_{j≠i} S_j[f_j](x)`, `S_j[f](x) = (1/8πμ) ∫_{Γ_j} (I/r + r⊗r/r³) f dA`.
@@ -18,6 +18,24 @@
 //!    order `6p`, interpolation to the point). The default `c_near = 2` (design.md 3.3) keeps
 //!    the order-`q` quadrature accurate beyond `δ` (`δ/h_q = 4√p/π` grid spacings).
 //!
+//! **Viscosity contrast** ([`Coupling::velocities_with`]): a cell `j` with `λ_j ≠ 1` adds its
+//! double layer `(1 − λ_j) D_j[u_j](x)`, `D[u](x) = (3/4π) ∫ (r·n)(r⊗r)/r⁵ u dA` (`n` outward;
+//! the convention of [`LayerKernel::DoubleLayer`]: `D[c] = 0` outside, `−c` inside), to the
+//! velocity at points `x` outside it, `u_j` its membrane velocity. The same three parts: one
+//! stresslet FMM ([`FmmKernel::Stresslet`], density `(1 − λ_j) u_j dA` on the upsampled grid,
+//! orientation the outward normal, sources only on the cells with a density, targets all grid
+//! points), minus each such cell's own smooth sum, plus near-singular corrections
+//! ([`OffSurface`] with [`LayerKernel::DoubleLayer`]) at the near points found for the single
+//! layer, with more, closer check points (`DOUBLE_LAYER_NEAR`). Cells without a density add
+//! nothing, and a call without any builds nothing more than the single-layer part (counter
+//! [`CouplingStats::double_layer_fmm_builds`]). `u_j` is explicit: the suspension passes each
+//! cell's velocity of its previous solve ([`super::semi_implicit::VesicleStepper::velocity`],
+//! see [`super::suspension`]). Accuracy (tests/timestep_contrast.rs, `p = 8`, `q = 2p`, against
+//! a direct quadrature of order 160): 9e-12 for separated cells; 2.1e-5 and 1.3e-5 at gaps 0.3
+//! and 0.1, limited by the order-`q` quadrature just beyond `δ` (the `1/r²` kernel needs more
+//! points there than the Stokeslet; 8.9e-6 at `q = 3p`); a rigid motion gives 6e-14 (separated)
+//! and 2e-6 (gap 0.1) of its size.
+//!
 //! The distance of every near point to the other cell's surface is recorded: the smallest gap
 //! is the minimum-distance monitor of the run. Points closer than `d_r` to another cell (or
 //! inside it) feel a **contact repulsion** traction along that cell's outward normal,
@@ -34,12 +52,26 @@ use rayon::prelude::*;
 
 use super::TimestepError;
 use crate::fmm::blocks::SourceBlock;
-use crate::fmm::{order_for_digits, Fmm, FmmKernel, Kernel, Stokeslet};
+use crate::fmm::{order_for_digits, Fmm, FmmKernel, Kernel, Stokeslet, Stresslet};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::layer::LayerKernel;
 use crate::vesicle::membrane::Membrane;
 use crate::vesicle::near::{NearParams, OffSurface};
 use crate::vesicle::VesicleError;
+
+/// Check points of the near-singular double layer: 16 spaced `0.07 δ` (the single layer keeps
+/// [`NearParams::default`], 12 spaced `δ/10`). The double layer varies faster with the distance
+/// to the surface; measured at `p = 8` on ellipsoids 0.1 apart (tests/timestep_contrast.rs),
+/// the largest error of a near point fell from 1.9e-4 (12 spaced `δ/10`) to below the far-field
+/// quadrature error (1.3e-5).
+const DOUBLE_LAYER_NEAR: NearParams = NearParams {
+    near_distance: None,
+    check_points: 16,
+    check_spacing: 0.07,
+    far_order: None,
+    self_order: None,
+    max_order: None,
+};
 
 /// Settings of the inter-cell coupling.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -76,6 +108,9 @@ impl Default for CouplingParams {
 pub struct CouplingStats {
     /// FMM trees built (one per evaluation: the points move every step).
     pub fmm_builds: usize,
+    /// FMM trees built for the inter-cell double layer (cells with a viscosity contrast; none
+    /// when every `λ = 1` or no cell has a recorded velocity yet).
+    pub double_layer_fmm_builds: usize,
     /// Points that received a near-singular correction.
     pub near_points: usize,
     /// Ordered cell pairs `(target cell, source cell)` with near points.
@@ -104,10 +139,17 @@ type Push = (usize, usize, usize, [f64; 3]);
 struct Engine {
     membrane: Membrane,
     near: OffSurface,
+    /// The near-singular evaluator of the double layer (built on first use, see
+    /// `DOUBLE_LAYER_NEAR`).
+    near_dl: Option<OffSurface>,
     sht: ShTransform,
     ws: ShWorkspace,
     fq: Vec<f64>,
+    /// Upsampled double-layer density.
+    fu: Vec<f64>,
     block: SourceBlock,
+    /// Sources with orientations (the stresslet of the double layer).
+    dl_block: SourceBlock,
 }
 
 /// One cell's quadrature: upsampled sources and order-`p` targets.
@@ -120,6 +162,8 @@ struct CellQuadrature {
     r_eq: f64,
     /// `f dA / μ`, interleaved (3 per source).
     density: Vec<f64>,
+    /// `(1 − λ) u dA`, interleaved (empty: the cell has no double layer).
+    dl_density: Vec<f64>,
     targets: Vec<[f64; 3]>,
     centroid: [f64; 3],
     /// Largest distance from the centroid to a grid point.
@@ -181,10 +225,13 @@ impl Coupling {
                 Ok(Mutex::new(Engine {
                     membrane: Membrane::new(p, q)?,
                     near: OffSurface::new(p, NearParams::default())?,
+                    near_dl: None,
                     ws: sht.workspace(),
                     sht,
                     fq: Vec::new(),
+                    fu: Vec::new(),
                     block: SourceBlock::default(),
+                    dl_block: SourceBlock::default(),
                 }))
             })
             .collect::<Result<_, _>>()?;
@@ -210,10 +257,25 @@ impl Coupling {
     /// The velocity induced on each cell by all the others. `coefs[i]` are cell `i`'s
     /// order-`p` coefficients, `tractions[i]` its traction on the order-`p` grid (`3n`,
     /// component-major); the result is component-major on each cell's order-`p` grid.
+    /// Single layers only (every `λ = 1`): see [`Coupling::velocities_with`].
     pub fn velocities(
         &mut self,
         coefs: &[&[f64]],
         tractions: &[&[f64]],
+    ) -> Result<Vec<Vec<f64>>, TimestepError> {
+        self.velocities_with(coefs, tractions, &[])
+    }
+
+    /// [`Coupling::velocities`] plus the double layers of cells with a viscosity contrast:
+    /// `double_layer[j]` is `(1 − λ_j) u_j` on cell `j`'s order-`p` grid (`3n`,
+    /// component-major; `u_j` its membrane velocity), `None` for a cell without one (`λ_j = 1`
+    /// or no velocity yet). An empty list, or one of `None` only, builds nothing beyond the
+    /// single-layer part (same work and counters as [`Coupling::velocities`]).
+    pub fn velocities_with(
+        &mut self,
+        coefs: &[&[f64]],
+        tractions: &[&[f64]],
+        double_layer: &[Option<&[f64]>],
     ) -> Result<Vec<Vec<f64>>, TimestepError> {
         let nc = coefs.len();
         if tractions.len() != nc {
@@ -223,6 +285,31 @@ impl Coupling {
                 got: tractions.len(),
             });
         }
+        if !double_layer.is_empty() && double_layer.len() != nc {
+            return Err(TimestepError::DimensionMismatch {
+                what: "double-layer densities (one per cell, or none)",
+                expected: nc,
+                got: double_layer.len(),
+            });
+        }
+        let dl_of = |j: usize| double_layer.get(j).copied().flatten();
+        for (j, t) in tractions.iter().enumerate() {
+            if let Some(d) = dl_of(j) {
+                if d.len() != t.len() {
+                    return Err(TimestepError::DimensionMismatch {
+                        what: "double-layer density",
+                        expected: t.len(),
+                        got: d.len(),
+                    });
+                }
+                if !d.iter().all(|v| v.is_finite()) {
+                    return Err(TimestepError::NonFinite {
+                        what: "double-layer density",
+                    });
+                }
+            }
+        }
+        let with_dl = (0..nc).any(|j| dl_of(j).is_some());
         let t0 = Instant::now();
         let mu = self.params.viscosity;
         let (p, near_factor) = (self.p, self.params.near_factor);
@@ -238,6 +325,10 @@ impl Coupling {
                 e.membrane
                     .upsample(tractions[i], &mut e.fq)
                     .map_err(vesicle)?;
+                if let Some(d) = dl_of(i) {
+                    e.fu.resize(3 * nq, 0.0);
+                    e.membrane.upsample(d, &mut e.fu).map_err(vesicle)?;
+                }
                 let g = e.membrane.geometry().map_err(vesicle)?;
                 let centroid = g.centroid();
                 let radius = g.x.iter().map(|x| dist(*x, centroid)).fold(0.0, f64::max);
@@ -246,6 +337,15 @@ impl Coupling {
                 for k in 0..nq {
                     for c in 0..3 {
                         density.push(e.fq[c * nq + k] * g.da[k] / mu);
+                    }
+                }
+                let mut dl_density = Vec::new();
+                if dl_of(i).is_some() {
+                    dl_density.reserve(3 * nq);
+                    for k in 0..nq {
+                        for c in 0..3 {
+                            dl_density.push(e.fu[c * nq + k] * g.da[k]);
+                        }
                     }
                 }
                 let sources = g.x.clone();
@@ -275,6 +375,7 @@ impl Coupling {
                     normals,
                     r_eq,
                     density,
+                    dl_density,
                     targets,
                     centroid,
                     radius,
@@ -315,6 +416,35 @@ impl Coupling {
         let mut u_all = vec![0.0; 3 * targets.len()];
         fmm.evaluate(&density, &mut u_all)
             .map_err(|e| TimestepError::Vesicle(format!("FMM: {e}")))?;
+        // 2b. The double layers of the cells that have one: one stresslet FMM, sources only on
+        //     those cells, the same targets.
+        let dl_all = if with_dl {
+            let dl_cells = || self.cells.iter().filter(|c| !c.dl_density.is_empty());
+            let sources: Vec<[f64; 3]> =
+                dl_cells().flat_map(|c| c.sources.iter().copied()).collect();
+            let normals: Vec<[f64; 3]> =
+                dl_cells().flat_map(|c| c.normals.iter().copied()).collect();
+            let density: Vec<f64> = dl_cells()
+                .flat_map(|c| c.dl_density.iter().copied())
+                .collect();
+            let kind = FmmKernel::Stresslet;
+            let mut fmm = Fmm::new(
+                kind,
+                &sources,
+                Some(&normals),
+                &targets,
+                self.fmm_order,
+                kind.default_leaf_size(self.fmm_order),
+            )
+            .map_err(|e| TimestepError::Vesicle(format!("FMM (double layer): {e}")))?;
+            self.stats.double_layer_fmm_builds += 1;
+            let mut u = vec![0.0; 3 * targets.len()];
+            fmm.evaluate(&density, &mut u)
+                .map_err(|e| TimestepError::Vesicle(format!("FMM (double layer): {e}")))?;
+            u
+        } else {
+            Vec::new()
+        };
         let t2 = Instant::now();
         self.stats.fmm_s += (t2 - t1).as_secs_f64();
         // 3. Minus each cell's own smooth quadrature; to component-major per cell.
@@ -335,6 +465,20 @@ impl Coupling {
                 for k in 0..np {
                     for d in 0..3 {
                         u[d * np + k] = u_all[base + 3 * k + d] - own[3 * k + d];
+                    }
+                }
+                if !dl_all.is_empty() {
+                    let mut own = vec![0.0; 3 * np];
+                    if !c.dl_density.is_empty() {
+                        let mut guard = self.engine();
+                        let e = &mut *guard;
+                        set_oriented(&mut e.dl_block, &c.sources, &c.normals, &c.dl_density);
+                        Stresslet.eval_block(&c.targets, &e.dl_block.all(), &mut own);
+                    }
+                    for k in 0..np {
+                        for d in 0..3 {
+                            u[d * np + k] += dl_all[base + 3 * k + d] - own[3 * k + d];
+                        }
                     }
                 }
                 u
@@ -430,6 +574,30 @@ impl Coupling {
                 e.block.set_points(&cj.sources, &cj.density, 3);
                 Stokeslet.eval_block(&pts, &e.block.all(), &mut smooth);
                 let m = pts.len();
+                if let Some(dl) = dl_of(j) {
+                    // The double layer of cell j: near-singular value minus the smooth sum the
+                    // FMM counted, at the same points.
+                    let mut d_near = vec![0.0; 3 * m];
+                    let near_dl = match &mut e.near_dl {
+                        Some(o) => o,
+                        None => e
+                            .near_dl
+                            .insert(OffSurface::new(p, DOUBLE_LAYER_NEAR).map_err(vesicle)?),
+                    };
+                    near_dl.set_surface(coefs[j]).map_err(vesicle)?;
+                    near_dl
+                        .evaluate(LayerKernel::DoubleLayer, dl, &pts, &mut d_near)
+                        .map_err(vesicle)?;
+                    let mut d_smooth = vec![0.0; 3 * m];
+                    set_oriented(&mut e.dl_block, &cj.sources, &cj.normals, &cj.dl_density);
+                    Stresslet.eval_block(&pts, &e.dl_block.all(), &mut d_smooth);
+                    for t in 0..m {
+                        for c in 0..3 {
+                            u_near[c * m + t] += d_near[c * m + t];
+                            smooth[3 * t + c] += d_smooth[3 * t + c];
+                        }
+                    }
+                }
                 Ok(near
                     .iter()
                     .enumerate()
@@ -478,6 +646,15 @@ impl Coupling {
     /// (order-`p` grid, component-major); `None` when no point was within range.
     pub fn repulsion(&self) -> Option<&[Vec<f64>]> {
         (!self.repulsion.is_empty()).then_some(self.repulsion.as_slice())
+    }
+}
+
+/// Sources `p` with orientations `normals` and interleaved 3-vector densities `dens`.
+fn set_oriented(b: &mut SourceBlock, p: &[[f64; 3]], normals: &[[f64; 3]], dens: &[f64]) {
+    b.set_points(p, dens, 3);
+    for (k, comp) in b.n.iter_mut().enumerate() {
+        comp.clear();
+        comp.extend(normals.iter().map(|v| v[k]));
     }
 }
 

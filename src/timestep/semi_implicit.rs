@@ -56,6 +56,11 @@
 //! reparametrisation itself changes the shape slightly per call, independently of `Δt`, which
 //! caps the accuracy at small `Δt` (measured orders 1.94, 1.75, 1.40 over Δt = 0.05 … 0.00625).
 //!
+//! The membrane velocity of the solve, `u = (Xⁿ⁺¹ − X̂)/τ` on the grid (before the
+//! reparametrisation and the drift correction), is kept ([`VesicleStepper::velocity`]): a
+//! suspension passes `(1 − λ) u` to the other cells as the density of this cell's double layer
+//! (explicitly, in the next step).
+//!
 //! ## Preconditioner
 //!
 //! With [`VesicleParams::preconditioner`] GMRES is right-preconditioned by the inverse step
@@ -194,6 +199,9 @@ pub struct VesicleStepper {
     reparametrizer: Option<Reparametrizer>,
     /// Sphere preconditioners built so far (at most two: the Euler and the BDF2 `τ`).
     preconditioners: Vec<SpherePreconditioner>,
+    /// Membrane velocity of the last solve on the order-`p` grid (see
+    /// [`VesicleStepper::velocity`]).
+    velocity: Option<Vec<f64>>,
 }
 
 fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
@@ -250,6 +258,7 @@ impl VesicleStepper {
             previous_dt: None,
             reparametrizer: None,
             preconditioners: Vec::new(),
+            velocity: None,
         })
     }
 
@@ -342,6 +351,46 @@ impl VesicleStepper {
     pub fn extrapolation_ratio(&self) -> Option<f64> {
         (self.params.scheme == TimeScheme::Bdf2 && self.previous.is_some())
             .then(|| self.params.dt / self.previous_dt.unwrap_or(self.params.dt))
+    }
+
+    /// The membrane velocity of the last step on the order-`p` grid (`3n`, component-major):
+    /// `u = (Xⁿ⁺¹ − X̂)/τ` from the solution of the linear system, before the
+    /// reparametrisation and the drift correction (`(Xⁿ⁺¹ − Xⁿ)/Δt` for Euler, the BDF2
+    /// derivative `(3Xⁿ⁺¹ − 4Xⁿ + Xⁿ⁻¹)/(2Δt)` for BDF2). Value `k` is the velocity of grid
+    /// point `k`; the reparametrisation afterwards moves that point tangentially by a small
+    /// amount, which is neglected. `None` before the first step. A suspension with a viscosity
+    /// contrast takes it as the density of the cell's double layer seen by the other cells
+    /// (explicitly, in the next step).
+    pub fn velocity(&self) -> Option<&[f64]> {
+        self.velocity.as_deref()
+    }
+
+    /// Set (or clear) the recorded membrane velocity (a restarted run restores it).
+    ///
+    /// # Errors
+    /// [`TimestepError::DimensionMismatch`] for a wrong length, [`TimestepError::NonFinite`]
+    /// for NaN or infinite values.
+    pub fn set_velocity(&mut self, velocity: Option<&[f64]>) -> Result<(), TimestepError> {
+        match velocity {
+            None => self.velocity = None,
+            Some(v) => {
+                let expected = 3 * self.sht.n_points();
+                if v.len() != expected {
+                    return Err(TimestepError::DimensionMismatch {
+                        what: "membrane velocity",
+                        expected,
+                        got: v.len(),
+                    });
+                }
+                if !v.iter().all(|x| x.is_finite()) {
+                    return Err(TimestepError::NonFinite {
+                        what: "membrane velocity",
+                    });
+                }
+                self.velocity = Some(v.to_vec());
+            }
+        }
+        Ok(())
     }
 
     /// Parameters.
@@ -651,6 +700,10 @@ impl VesicleStepper {
         // explicit coupling would spread it to the other cells.
         let report = report?;
         self.sigma.copy_from_slice(&z[3 * n..]);
+        // The membrane velocity of this step, u = (Xⁿ⁺¹ − X̂)/τ on the grid.
+        let velocity = self.velocity.get_or_insert_with(Vec::new);
+        velocity.clear();
+        velocity.extend(z[..3 * n].iter().zip(&xh_grid).map(|(x, h)| (x - h) / tau));
         if self.params.scheme == TimeScheme::Bdf2 {
             match &mut self.previous {
                 Some(prev) => prev.copy_from_slice(coefs),

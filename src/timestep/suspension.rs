@@ -9,6 +9,18 @@
 //! serially). A scene of one cell builds no [`Coupling`] and no FMM. With BDF2 the explicit
 //! inter-cell velocity is extrapolated to `X* = 2Xⁿ − Xⁿ⁻¹` as `2vⁿ − vⁿ⁻¹`; the contact
 //! repulsion stays first order (a penalty acting only near contact).
+//!
+//! **Viscosity contrast between cells.** A cell with `λ ≠ 1` is felt by the others through its
+//! single layer and its double layer `(1 − λ) D[u]` ([`Coupling::velocities_with`]). Its own
+//! double layer is implicit in its step; the one the others feel takes the membrane velocity
+//! `u` of the cell's previous solve ([`VesicleStepper::velocity`]: `(Xⁿ − Xⁿ⁻¹)/Δt` for Euler,
+//! a first-order lag, consistent with the explicit coupling; the BDF2 derivative
+//! `(3Xⁿ − 4Xⁿ⁻¹ + Xⁿ⁻²)/(2Δt)` for BDF2, which then extrapolates the whole inter-cell velocity
+//! as above). The first step has no velocity yet and couples the single layers only (the
+//! cells' initial velocity is not known before their first solve); the double layer enters
+//! from the second step on. A restart restores the velocities
+//! ([`VesicleStepper::set_velocity`]). Only what is called for: with every `λ = 1` (or one cell)
+//! no double-layer density is passed and no stresslet FMM is built.
 
 use rayon::prelude::*;
 
@@ -70,6 +82,7 @@ pub struct SuspensionState {
     sigma: Vec<Vec<f64>>,
     previous: Vec<Option<Vec<f64>>>,
     previous_dt: Vec<Option<f64>>,
+    membrane_velocities: Vec<Option<Vec<f64>>>,
     velocities: Vec<Vec<f64>>,
     previous_velocities: Vec<Vec<f64>>,
 }
@@ -83,6 +96,9 @@ pub struct Suspension {
     velocities: Vec<Vec<f64>>,
     /// Those of the step before (BDF2 extrapolates the explicit coupling to `X*`).
     previous_velocities: Vec<Vec<f64>>,
+    /// Whether the cells with `λ ≠ 1` pass their double layer to the others (on by default;
+    /// switched off only to measure what it does).
+    inter_cell_double_layer: bool,
 }
 
 impl Suspension {
@@ -131,6 +147,7 @@ impl Suspension {
             coupling,
             velocities: Vec::new(),
             previous_velocities: Vec::new(),
+            inter_cell_double_layer: true,
         })
     }
 
@@ -208,6 +225,11 @@ impl Suspension {
                 .map(|s| s.previous_coefs().map(|c| c.to_vec()))
                 .collect(),
             previous_dt: self.steppers.iter().map(|s| s.previous_dt()).collect(),
+            membrane_velocities: self
+                .steppers
+                .iter()
+                .map(|s| s.velocity().map(|v| v.to_vec()))
+                .collect(),
             velocities: self.velocities.clone(),
             previous_velocities: self.previous_velocities.clone(),
         }
@@ -227,6 +249,8 @@ impl Suspension {
             st.set_previous_coefs(state.previous[i].as_deref())
                 .map_err(err)?;
             st.set_previous_dt(state.previous_dt[i]).map_err(err)?;
+            st.set_velocity(state.membrane_velocities[i].as_deref())
+                .map_err(err)?;
         }
         self.velocities.clone_from(&state.velocities);
         self.previous_velocities
@@ -238,6 +262,24 @@ impl Suspension {
     pub fn set_inter_cell_velocities(&mut self, current: Vec<Vec<f64>>, previous: Vec<Vec<f64>>) {
         self.velocities = current;
         self.previous_velocities = previous;
+    }
+
+    /// Whether some cell has a viscosity contrast and there are other cells to feel its double
+    /// layer (the inter-cell double layer is then built from the second step on).
+    pub fn has_inter_cell_double_layer(&self) -> bool {
+        self.inter_cell_double_layer
+            && self.coupling.is_some()
+            && self
+                .steppers
+                .iter()
+                .any(|s| s.params().viscosity_ratio != 1.0)
+    }
+
+    /// Switch the inter-cell double layer off (or on again): the cells then feel only each
+    /// other's single layers, as if every `λ` were 1 outside their own step. For studies and
+    /// tests of what the double layer does; a physical run keeps it on.
+    pub fn set_inter_cell_double_layer(&mut self, on: bool) {
+        self.inter_cell_double_layer = on;
     }
 
     /// Advance every cell by one step in the background flow `u_inf`.
@@ -263,8 +305,24 @@ impl Suspension {
                 .collect::<Result<_, _>>()?;
             let cref: Vec<&[f64]> = self.coefs.iter().map(|c| c.as_slice()).collect();
             let fref: Vec<&[f64]> = tractions.iter().map(|c| c.as_slice()).collect();
+            // Double-layer densities (1 − λ_j) u_j from each cell's last solve (none before the
+            // first step: the first step couples the single layers only).
+            let scaled: Vec<Option<Vec<f64>>> = self
+                .steppers
+                .iter()
+                .map(|st| {
+                    let lambda = st.params().viscosity_ratio;
+                    match st.velocity() {
+                        Some(u) if lambda != 1.0 && self.inter_cell_double_layer => {
+                            Some(u.iter().map(|v| (1.0 - lambda) * v).collect())
+                        }
+                        _ => None,
+                    }
+                })
+                .collect();
+            let dref: Vec<Option<&[f64]>> = scaled.iter().map(|d| d.as_deref()).collect();
             self.velocities = coupling
-                .velocities(&cref, &fref)
+                .velocities_with(&cref, &fref, &dref)
                 .map_err(|source| CellStepError { cell: None, source })?;
         }
         // BDF2 takes the explicit terms at X* = (1 + ω)Xⁿ − ωXⁿ⁻¹ (ω = Δtⁿ/Δtⁿ⁻¹):
