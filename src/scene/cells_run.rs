@@ -566,7 +566,7 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
     Suspension::new(p, setups, coupling).map_err(|e| step_error(0, 0.0, e))
 }
 
-/// A failed step `step` (started at `time`) as a run error, the cell numbered from 1.
+/// A failed step `step` (that was to reach `time`) as a run error, the cell numbered from 1.
 fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
     CellRunError::Step {
         step,
@@ -703,11 +703,11 @@ pub fn run(
         let report = loop {
             if adaptive.is_some() {
                 susp.set_dt(dt_try)
-                    .map_err(|e| step_error(k, prog.time, e))?;
+                    .map_err(|e| step_error(k, prog.time + dt_try, e))?;
             }
             let report = susp
                 .step(&|x| flow.velocity(x))
-                .map_err(|e| step_error(k, prog.time, e))?;
+                .map_err(|e| step_error(k, prog.time + dt_try, e))?;
             let (error, _) = report.area_volume_error();
             let (Some(ctl), Some(snap)) = (&adaptive, &snapshot) else {
                 prog.error_sum += error;
@@ -724,7 +724,7 @@ pub fn run(
             }
             prog.rejected += 1;
             susp.restore(snap)
-                .map_err(|e| step_error(k, prog.time, e))?;
+                .map_err(|e| step_error(k, prog.time + dt_try, e))?;
             dt_try = d.dt.min(scene.numerics.t_end - prog.time);
         };
         prog.step_s += t.elapsed().as_secs_f64();
