@@ -13,7 +13,7 @@
 //! Each test prints one `| case | ... |` line with its measured numbers.
 
 use mobo::scene::cells::{parse, CellScene};
-use mobo::scene::cells_run::{build, CellRunError};
+use mobo::scene::cells_run::build;
 use mobo::timestep::coupling::{Coupling, CouplingParams};
 
 mod common;
@@ -575,11 +575,7 @@ fn viscosity_contrast_ten_tumbles() {
         "bending_modulus = 0.1\nviscosity_ratio = 10.0",
     );
     let sc = scene(&text);
-    let mut susp = match build(&sc) {
-        Ok(s) => s,
-        Err(CellRunError::Unsupported(m)) => panic!("viscosity contrast not built: {m}"),
-        Err(e) => panic!("{e}"),
-    };
+    let mut susp = build(&sc).unwrap_or_else(|e| panic!("{e}"));
     let checks = Checks {
         drift: 1e-3,
         speed: 5.0,

@@ -8,8 +8,7 @@
 //! * `upsample` — quadrature order `q = upsample · p` of the singular and coupling quadrature;
 //! * `fmm_digits` — FMM accuracy of the inter-cell velocity;
 //! * `gmres_tol` — relative residual of each step's Krylov solve;
-//! * `dt` — time step (`T/dt` steps), per scheme; the scheme is a knob only when
-//!   [`crate::scene::cells_run::build`] accepts `scheme = "bdf2"` (the report says whether).
+//! * `dt` — time step (`T/dt` steps), per scheme (Euler and BDF2; the reference is BDF2).
 //!
 //! Each run is compared with the reference at `T`:
 //!
@@ -63,7 +62,7 @@ pub enum Knob {
     GmresTol,
     /// Time step with the first-order scheme.
     DtEuler,
-    /// Time step with BDF2 (only when the build accepts it).
+    /// Time step with BDF2.
     DtBdf2,
 }
 
@@ -545,23 +544,7 @@ pub fn run_study(
     let radii: Vec<f64> = scene.cells.iter().map(|c| c.radius).collect();
     let mut notes = Vec::new();
 
-    // Is the second-order scheme built? Ask the builder itself.
-    let mut probe_scene = scene.clone();
-    probe_scene.numerics.scheme = Scheme::Bdf2;
-    probe_scene.numerics.order = 4;
-    probe_scene.numerics.adaptive_dt = false;
-    let bdf2 = match build(&probe_scene) {
-        Ok(_) => true,
-        Err(CellRunError::Unsupported(m)) => {
-            notes.push(format!(
-                "The scheme knob is left out: `build` refuses BDF2 ({m}); the reference and the \
-                 dt runs use the first-order scheme."
-            ));
-            false
-        }
-        Err(e) => return Err(run_error("bdf2 probe", e)),
-    };
-    let ref_scheme = if bdf2 { Scheme::Bdf2 } else { Scheme::Euler };
+    let ref_scheme = Scheme::Bdf2;
 
     // Reference level: probe levels from the cheapest up, while the next is predicted to fit.
     let mut chosen = None;
@@ -652,9 +635,7 @@ pub fn run_study(
     }
     knobs.push(Knob::GmresTol);
     knobs.push(Knob::DtEuler);
-    if bdf2 {
-        knobs.push(Knob::DtBdf2);
-    }
+    knobs.push(Knob::DtBdf2);
     let lists: Vec<Vec<f64>> = knobs
         .iter()
         .map(|&k| knob_values(k, &reference_settings, opts.t_end))

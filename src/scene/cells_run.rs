@@ -42,9 +42,6 @@ use crate::vesicle::VesicleError;
 /// Errors of a cell run.
 #[derive(Debug, thiserror::Error)]
 pub enum CellRunError {
-    /// The scene asks for something not built yet.
-    #[error("not supported yet: {0}")]
-    Unsupported(String),
     /// The step failed (solver, geometry), with the step number and the cell (1-based).
     #[error("step {step} (t = {time}){}: {source}", .cell.map(|c| format!(", cell {c}")).unwrap_or_default())]
     Step {
