@@ -672,12 +672,13 @@ pub fn run(
     let mut k = prog.step;
     // The run ends at t_end up to round-off in the sum of adaptive steps.
     let t_done = scene.numerics.t_end * (1.0 - 1e-12);
+    // Whether step `k`, reaching time `t`, ends the run.
+    let ends_run = |k: usize, t: f64| match &adaptive {
+        None => k >= steps,
+        Some(_) => t >= t_done,
+    };
     loop {
-        let finished = match &adaptive {
-            None => k >= steps,
-            Some(_) => prog.time >= t_done,
-        };
-        if finished {
+        if ends_run(k, prog.time) {
             break;
         }
         k += 1;
@@ -685,11 +686,7 @@ pub fn run(
             None => dt,
             Some(_) => prog.dt.min(scene.numerics.t_end - prog.time),
         };
-        let last_candidate = match &adaptive {
-            None => k == steps,
-            Some(_) => prog.time + dt_try >= t_done,
-        };
-        if last_candidate {
+        if ends_run(k, prog.time + dt_try) {
             before_last.clear();
             for c in susp.coefs() {
                 before_last.push(observe(&mut calc, c)?.0);
@@ -780,10 +777,7 @@ pub fn run(
             .as_ref()
             .is_some_and(|s| s.load(Ordering::Relaxed));
         let limited = options.max_steps.is_some_and(|m| k + 1 - first >= m);
-        let last = match &adaptive {
-            None => k == steps,
-            Some(_) => prog.time >= t_done,
-        };
+        let last = ends_run(k, prog.time);
         stopped = !last && (interrupted || limited);
         let t0 = Instant::now();
         if last || k as u64 % scene.output_every == 0 {
@@ -845,10 +839,7 @@ pub fn run(
         dt,
         steps: done,
         final_time: prog.time,
-        completed: match &adaptive {
-            None => done == steps,
-            Some(_) => prog.time >= t_done,
-        },
+        completed: ends_run(done, prog.time),
         adaptive: adaptive.map(|a| AdaptiveSummary {
             tolerance: a.tolerance,
             dt_min: a.dt_min,

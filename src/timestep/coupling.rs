@@ -333,21 +333,12 @@ impl Coupling {
                 let centroid = g.centroid();
                 let radius = g.x.iter().map(|x| dist(*x, centroid)).fold(0.0, f64::max);
                 let delta = near_factor * g.equivalent_radius() / (p as f64).sqrt();
-                let mut density = Vec::with_capacity(3 * nq);
-                for k in 0..nq {
-                    for c in 0..3 {
-                        density.push(e.fq[c * nq + k] * g.da[k] / mu);
-                    }
-                }
-                let mut dl_density = Vec::new();
-                if dl_of(i).is_some() {
-                    dl_density.reserve(3 * nq);
-                    for k in 0..nq {
-                        for c in 0..3 {
-                            dl_density.push(e.fu[c * nq + k] * g.da[k]);
-                        }
-                    }
-                }
+                let density = weighted_interleaved(&e.fq, &g.da, mu);
+                let dl_density = if dl_of(i).is_some() {
+                    weighted_interleaved(&e.fu, &g.da, 1.0)
+                } else {
+                    Vec::new()
+                };
                 let sources = g.x.clone();
                 let normals = g.normal.clone();
                 let r_eq = g.equivalent_radius();
@@ -402,20 +393,15 @@ impl Coupling {
             .iter()
             .flat_map(|c| c.targets.iter().copied())
             .collect();
-        let kind = FmmKernel::Stokeslet;
-        let mut fmm = Fmm::new(
-            kind,
+        let u_all = fmm_sum(
+            FmmKernel::Stokeslet,
             &sources,
             None,
             &targets,
+            &density,
             self.fmm_order,
-            kind.default_leaf_size(self.fmm_order),
-        )
-        .map_err(|e| TimestepError::Vesicle(format!("FMM: {e}")))?;
+        )?;
         self.stats.fmm_builds += 1;
-        let mut u_all = vec![0.0; 3 * targets.len()];
-        fmm.evaluate(&density, &mut u_all)
-            .map_err(|e| TimestepError::Vesicle(format!("FMM: {e}")))?;
         // 2b. The double layers of the cells that have one: one stresslet FMM, sources only on
         //     those cells, the same targets.
         let dl_all = if with_dl {
@@ -427,20 +413,15 @@ impl Coupling {
             let density: Vec<f64> = dl_cells()
                 .flat_map(|c| c.dl_density.iter().copied())
                 .collect();
-            let kind = FmmKernel::Stresslet;
-            let mut fmm = Fmm::new(
-                kind,
+            let u = fmm_sum(
+                FmmKernel::Stresslet,
                 &sources,
                 Some(&normals),
                 &targets,
+                &density,
                 self.fmm_order,
-                kind.default_leaf_size(self.fmm_order),
-            )
-            .map_err(|e| TimestepError::Vesicle(format!("FMM (double layer): {e}")))?;
+            )?;
             self.stats.double_layer_fmm_builds += 1;
-            let mut u = vec![0.0; 3 * targets.len()];
-            fmm.evaluate(&density, &mut u)
-                .map_err(|e| TimestepError::Vesicle(format!("FMM (double layer): {e}")))?;
             u
         } else {
             Vec::new()
@@ -647,6 +628,43 @@ impl Coupling {
     pub fn repulsion(&self) -> Option<&[Vec<f64>]> {
         (!self.repulsion.is_empty()).then_some(self.repulsion.as_slice())
     }
+}
+
+/// One FMM evaluation of `kind` (3-vector densities, interleaved) at `targets`.
+fn fmm_sum(
+    kind: FmmKernel,
+    sources: &[[f64; 3]],
+    normals: Option<&[[f64; 3]]>,
+    targets: &[[f64; 3]],
+    density: &[f64],
+    order: usize,
+) -> Result<Vec<f64>, TimestepError> {
+    let fail = |e: crate::fmm::FmmError| TimestepError::Vesicle(format!("FMM ({kind:?}): {e}"));
+    let mut fmm = Fmm::new(
+        kind,
+        sources,
+        normals,
+        targets,
+        order,
+        kind.default_leaf_size(order),
+    )
+    .map_err(fail)?;
+    let mut u = vec![0.0; 3 * targets.len()];
+    fmm.evaluate(density, &mut u).map_err(fail)?;
+    Ok(u)
+}
+
+/// `f dA / divisor` at each upsampled point, interleaved (3 per point), from the
+/// component-major `f`.
+fn weighted_interleaved(f: &[f64], da: &[f64], divisor: f64) -> Vec<f64> {
+    let nq = da.len();
+    let mut out = Vec::with_capacity(3 * nq);
+    for (k, w) in da.iter().enumerate() {
+        for c in 0..3 {
+            out.push(f[c * nq + k] * w / divisor);
+        }
+    }
+    out
 }
 
 /// Sources `p` with orientations `normals` and interleaved 3-vector densities `dens`.
