@@ -13,6 +13,7 @@ use std::time::Instant;
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, Par};
+use mobo::vesicle::far_side::FarSideParams;
 use mobo::vesicle::{shapes, LayerKernel, RotationAlgorithm, SelfInteraction};
 
 fn gemm_rate(m: usize, k: usize, n: usize) -> f64 {
@@ -52,8 +53,8 @@ fn main() {
         "faer GEMM 512² (1 thread): {:.1} GFLOP/s\n",
         gemm_rate(512, 512, 512)
     );
-    println!("| p | q | algorithm | assembly (ms) | GFLOP/s | GEMM rate same shape | / GEMM |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| p | q | algorithm | assembly (ms) | GFLOP/s | GEMM rate same shape | / GEMM | without far-side split (ms) | far side split off |");
+    println!("|---|---|---|---|---|---|---|---|---|");
     let mut ops = Vec::new();
     for p in [6usize, 12, 16] {
         let q = 2 * p;
@@ -76,10 +77,28 @@ fn main() {
             }
             let dt = t.elapsed().as_secs_f64() / reps as f64;
             let rate = flops / dt / 1e9;
+            let (flagged, far_q) = si.far_side_plan();
+            let flagged = flagged.len();
+            // The same without the far-side split (the plain Graham–Sloan rule).
+            si.set_far_side_params(FarSideParams {
+                enabled: false,
+                ..FarSideParams::default()
+            })
+            .expect("params");
+            si.assemble(kernel, rbc.coefs(), &mut a).expect("assemble");
+            let t = Instant::now();
+            for _ in 0..reps {
+                si.assemble(kernel, rbc.coefs(), &mut a).expect("assemble");
+            }
+            let dt_plain = t.elapsed().as_secs_f64() / reps as f64;
+            si.set_far_side_params(FarSideParams::default())
+                .expect("params");
+            si.assemble(kernel, rbc.coefs(), &mut a).expect("assemble");
             println!(
-                "| {p} | {q} | {algo:?} | {:.1} | {rate:.1} | {ref_rate:.1} | {:.0}% |",
+                "| {p} | {q} | {algo:?} | {:.1} | {rate:.1} | {ref_rate:.1} | {:.0}% | {:.1} | {flagged} of {np}, Q = {far_q} |",
                 dt * 1e3,
-                100.0 * rate / ref_rate
+                100.0 * rate / ref_rate,
+                dt_plain * 1e3,
             );
             if algo == RotationAlgorithm::Direct {
                 ops.push((p, a));

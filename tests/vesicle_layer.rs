@@ -6,6 +6,7 @@ use std::f64::consts::PI;
 
 use mobo::check::{assert_close, rel_max_error};
 use mobo::sph_harmonics::{resample_coefs, CoefLayout, ShTransform};
+use mobo::vesicle::far_side::{window, FarSideParams, WINDOW_ORDER};
 use mobo::vesicle::{
     shapes, LayerKernel, NearParams, OffSurface, RotationAlgorithm, SelfInteraction, Surface,
     SurfaceCalculus, VesicleError,
@@ -101,7 +102,20 @@ fn layer_at(
     density: &[f64],
     targets: &[usize],
 ) -> Vec<f64> {
+    layer_with(s, q, FarSideParams::default(), kernel, density, targets)
+}
+
+/// [`layer_at`] with the given far-side settings.
+fn layer_with(
+    s: &Surface,
+    q: usize,
+    far: FarSideParams,
+    kernel: LayerKernel,
+    density: &[f64],
+    targets: &[usize],
+) -> Vec<f64> {
     let mut si = SelfInteraction::new(s.order(), q, RotationAlgorithm::ViaSh).unwrap();
+    si.set_far_side_params(far).unwrap();
     let mut u = vec![0.0; 3 * targets.len()];
     si.evaluate_at(kernel, s.coefs(), density, targets, &mut u)
         .unwrap();
@@ -138,9 +152,10 @@ fn ellipsoid_single_layer_converges() {
     println!("ellipsoid double layer, density degree ≤ 6, q = 24 vs 48: {e:.2e}");
 }
 
-/// RBC (`p = 16`) with a random density of degree ≤ 8, reference `q = 64` (itself within 2e-8
-/// of `q = 96`). The issue asks for `1e-6` at `q = 32`; this implementation gives 2.2e-5 there
-/// (6e-6 even for a constant density) and reaches `1e-6` at `q = 48` (5.2e-7).
+/// RBC (`p = 16`) with a random density of degree ≤ 8, reference `q = 96`. The issue asks for
+/// `1e-6` at `q = 32`. The plain Graham–Sloan rule gives 1e-5 there, all of it at the dimples,
+/// where the opposite dimple (0.29 away) is a nearly singular feature for the order-32 rule; the
+/// far-side split of `vesicle::far_side` takes it to 1.5e-7.
 #[test]
 fn rbc_single_layer_converges() {
     let p = 16;
@@ -151,15 +166,127 @@ fn rbc_single_layer_converges() {
         .flat_map(|i| [0, 7, 20].map(|k| i * 2 * p + k))
         .collect();
     let sl = LayerKernel::SingleLayer { viscosity: 1.0 };
-    let reference = layer_at(&s, 64, sl, &f, &targets);
-    for (q, tol) in [(32, 3e-5), (48, 1e-6)] {
+    let reference = layer_at(&s, 96, sl, &f, &targets);
+    for (q, tol) in [(32, 1e-6), (48, 1e-8)] {
         let e = assert_close(
             &format!("RBC single layer, q = {q}"),
             &layer_at(&s, q, sl, &f, &targets),
             &reference,
             tol,
         );
-        println!("RBC single layer, p = 16, q = {q} vs q = 64: {e:.2e}");
+        let plain = rel_max_error(&layer_with(&s, q, plain(), sl, &f, &targets), &reference);
+        println!(
+            "RBC single layer, p = 16, q = {q} vs q = 96: {e:.2e} (plain Graham–Sloan {plain:.2e})"
+        );
+        assert!(
+            e < plain / 10.0,
+            "the far-side split should gain at least 10x at q = {q}: {e:.2e} vs {plain:.2e}"
+        );
+    }
+}
+
+/// Far-side split off: the plain Graham–Sloan rule.
+fn plain() -> FarSideParams {
+    FarSideParams {
+        enabled: false,
+        ..FarSideParams::default()
+    }
+}
+
+/// The window of the far-side split: `η + (1 − η) = 1`, `η(0) = 1`, `η(π) = 0`, symmetric
+/// (`η(π − θ) = 1 − η(θ)`), `1 − η = O(θ^{2n+2})` at the target, and a polynomial of degree
+/// `2n + 1` in `cos θ` (its Legendre coefficients beyond that degree vanish).
+#[test]
+fn far_side_window_is_a_band_limited_partition_of_unity() {
+    let n = WINDOW_ORDER;
+    for i in 0..=100 {
+        let theta = PI * i as f64 / 100.0;
+        let s = (theta / 2.0).sin().powi(2);
+        let (eta, rest) = window(s);
+        // Sums of 6 terms with binomials up to 462: a few ulps.
+        assert!(
+            (eta + rest - 1.0).abs() < 1e-14,
+            "η + (1 − η) at θ = {theta}"
+        );
+        let (eta2, _) = window(1.0 - s);
+        assert!((eta2 - rest).abs() < 1e-14, "symmetry at θ = {theta}");
+    }
+    assert_eq!(window(0.0), (1.0, 0.0));
+    assert_eq!(window(1.0), (0.0, 1.0));
+    // 1 − η ≈ C(2n+1, n+1) s^{n+1} as s → 0.
+    let lead = (0..=n).fold(1.0, |c, i| c * (2 * n + 1 - i) as f64 / (i + 1) as f64);
+    for s in [1e-2, 1e-3, 1e-4] {
+        let ratio = window(s).1 / (lead * s.powi(n as i32 + 1));
+        assert!(
+            (ratio - 1.0).abs() < 20.0 * s,
+            "1 − η at s = {s}: ratio {ratio}"
+        );
+    }
+    // Legendre coefficients ∫ η P_l d(cos θ) by Gauss–Legendre (exact for the degrees here).
+    let (x, w) = mobo::sph_harmonics::grid::gauss_legendre(40);
+    for l in 0..=2 * n + 6 {
+        let c: f64 = x
+            .iter()
+            .zip(&w)
+            .map(|(&xi, &wi)| wi * window((1.0 - xi) / 2.0).0 * legendre(l, xi))
+            .sum();
+        if l > 2 * n + 1 {
+            assert!(c.abs() < 1e-14, "Legendre coefficient {l} of η: {c:.2e}");
+        } else if l == 2 * n + 1 {
+            assert!(c.abs() > 1e-8, "η should have degree exactly 2n + 1");
+        }
+    }
+}
+
+/// `P_l(x)` by the three-term recurrence.
+fn legendre(l: usize, x: f64) -> f64 {
+    let (mut p0, mut p1) = (1.0, x);
+    if l == 0 {
+        return 1.0;
+    }
+    for k in 1..l {
+        let p2 = ((2 * k + 1) as f64 * x * p1 - k as f64 * p0) / (k + 1) as f64;
+        p0 = p1;
+        p1 = p2;
+    }
+    p1
+}
+
+/// With the split forced on every target of a sphere (flag factor 1e3), the exact identities
+/// still hold: the local part `η g` is a polynomial of degree ≤ q + 1 there (exact under the
+/// Graham–Sloan rule), so only the far part's smooth quadrature is left to err.
+#[test]
+fn forced_far_side_split_keeps_the_sphere_identities() {
+    let (p, q, a, mu) = (8, 24, 1.3, 0.7);
+    let s = shapes::sphere(p, a).unwrap();
+    let np = 2 * p * (p + 1);
+    let f0 = [0.4, 1.0, -0.7];
+    let f: Vec<f64> = (0..3).flat_map(|c| vec![f0[c]; np]).collect();
+    for algo in ALGOS {
+        let mut si = SelfInteraction::new(p, q, algo).unwrap();
+        si.set_far_side_params(FarSideParams {
+            flag: 1e3,
+            max_order: Some(64),
+            ..FarSideParams::default()
+        })
+        .unwrap();
+        let mut u = vec![0.0; 3 * np];
+        si.evaluate(
+            LayerKernel::SingleLayer { viscosity: mu },
+            s.coefs(),
+            &f,
+            &mut u,
+        )
+        .unwrap();
+        let (flagged, far_q) = si.far_side_plan();
+        assert_eq!(flagged.len(), np, "every target is split");
+        let want: Vec<f64> = f.iter().map(|v| 2.0 * a * v / (3.0 * mu)).collect();
+        let e1 = assert_close(&format!("split S[f] = 2af/3μ, {algo:?}"), &u, &want, 1e-10);
+        si.evaluate(LayerKernel::DoubleLayer, s.coefs(), &f, &mut u)
+            .unwrap();
+        let want: Vec<f64> = f.iter().map(|v| -0.5 * v).collect();
+        let e2 = assert_close(&format!("split D[c] = −c/2, {algo:?}"), &u, &want, 1e-10);
+        println!("forced split on a sphere, {algo:?}, far order {far_q}: S {e1:.1e}, D {e2:.1e}");
     }
 }
 
@@ -183,7 +310,7 @@ fn convergence_table() {
         let targets: Vec<usize> = (0..2 * p * (p + 1)).step_by(7).collect();
         let reference = layer_at(&s, 96, sl, &f, &targets);
         println!(
-            "\n{name} (reference q = 96, {} targets)\n| q | rel. max error |\n|---|---|",
+            "\n{name} (reference q = 96, {} targets)\n| q | rel. max error | plain Graham–Sloan |\n|---|---|---|",
             targets.len()
         );
         for q in [8, 12, 16, 24, 32, 48, 64] {
@@ -191,14 +318,21 @@ fn convergence_table() {
                 continue;
             }
             let e = rel_max_error(&layer_at(&s, q, sl, &f, &targets), &reference);
-            println!("| {q} | {e:.2e} |");
+            let plain = rel_max_error(&layer_with(&s, q, plain(), sl, &f, &targets), &reference);
+            println!("| {q} | {e:.2e} | {plain:.2e} |");
         }
     }
 }
 
 #[test]
 fn dense_operator_equals_matrix_free_evaluation_for_both_rotations() {
-    let (p, q) = (6, 12);
+    // p = 6, q = 12: plain Graham–Sloan; p = 8, q = 24: the dimple targets are split.
+    for (p, q) in [(6, 12), (8, 24)] {
+        dense_equals_matrix_free(p, q);
+    }
+}
+
+fn dense_equals_matrix_free(p: usize, q: usize) {
     let s = shapes::rbc(p).unwrap();
     let np = 2 * p * (p + 1);
     let n3 = 3 * np;
@@ -212,18 +346,24 @@ fn dense_operator_equals_matrix_free_evaluation_for_both_rotations() {
             let mut si = SelfInteraction::new(p, q, algo).unwrap();
             let mut a = vec![0.0; n3 * n3];
             si.assemble(kernel, s.coefs(), &mut a).unwrap();
+            let split = si.far_side_plan().0.len();
+            assert_eq!(
+                split > 0,
+                q >= 24,
+                "far-side split at p = {p}, q = {q}: {split}"
+            );
             let mut direct = vec![0.0; n3];
             si.evaluate(kernel, s.coefs(), &f, &mut direct).unwrap();
             let applied: Vec<f64> = (0..n3)
                 .map(|r| (0..n3).map(|c| a[c * n3 + r] * f[c]).sum())
                 .collect();
             let e = assert_close(
-                &format!("{kernel:?} {algo:?}: A·f vs matrix-free"),
+                &format!("{kernel:?} {algo:?}, p = {p}: A·f vs matrix-free"),
                 &applied,
                 &direct,
                 1e-13,
             );
-            println!("{kernel:?} {algo:?}: operator vs matrix-free {e:.2e}");
+            println!("{kernel:?} {algo:?}, p = {p}, q = {q} ({split} split): operator vs matrix-free {e:.2e}");
             ops.push(a);
         }
         let e = assert_close(

@@ -28,6 +28,7 @@ use std::f64::consts::PI;
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
+use super::far_side::{FarSide, FarSideParams};
 use super::{check_len, cross, dot, get3, VesicleError};
 use crate::sph_harmonics::{
     Deriv, DirectRotation, GrahamSloan, Grid, ShRotation, ShTransform, ShWorkspace,
@@ -86,6 +87,9 @@ pub struct SelfInteraction {
     ws_q: ShWorkspace,
     /// Graham–Sloan weight per latitude of the order-`q` grid.
     gs: Vec<f64>,
+    /// The same times the far-side window `η` (for flagged targets).
+    gs_local: Vec<f64>,
+    far: FarSide,
     sin_q: Vec<f64>,
     // Scratch.
     x_grid: Vec<f64>,
@@ -115,13 +119,18 @@ impl SelfInteraction {
         let sht_q = ShTransform::new(q)?;
         let (np, nq) = (sht_p.n_points(), sht_q.n_points());
         let (ncp, ncq) = (sht_p.n_coefs(), sht_q.n_coefs());
+        let gs = GrahamSloan::new(q).latitude_weights;
+        let far = FarSide::new(p, q)?;
+        let gs_local = gs.iter().zip(&far.eta_q).map(|(w, e)| w * e).collect();
         Ok(SelfInteraction {
             p,
             q,
             rot,
             ws_p: sht_p.workspace(),
             ws_q: sht_q.workspace(),
-            gs: GrahamSloan::new(q).latitude_weights,
+            gs,
+            gs_local,
+            far,
             sin_q: Grid::new(q).sin_theta,
             x_grid: vec![0.0; 3 * np],
             x_coef: vec![0.0; 3 * ncp],
@@ -151,11 +160,28 @@ impl SelfInteraction {
         self.sht_p.n_points()
     }
 
+    /// Settings of the split off of the cell's own far side ([`super::far_side`]).
+    pub fn far_side_params(&self) -> FarSideParams {
+        self.far.params()
+    }
+
+    /// Change the settings of the far-side split (see [`super::far_side`]).
+    pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), VesicleError> {
+        self.far.set_params(params)
+    }
+
+    /// For the surface of the last evaluation or assembly: the targets whose far side was split
+    /// off (latitude-major indices) and the order `Q` of its grid (0 when there are none).
+    pub fn far_side_plan(&self) -> (&[usize], usize) {
+        self.far.plan()
+    }
+
     fn set_surface(&mut self, coefs: &[f64]) -> Result<(), VesicleError> {
         check_len("surface coefficients", coefs.len(), self.x_coef.len())?;
         self.x_coef.copy_from_slice(coefs);
         self.sht_p
             .inverse(coefs, &mut self.x_grid, &mut self.ws_p)?;
+        self.far.set_surface(&self.x_coef, &self.x_grid)?;
         Ok(())
     }
 
@@ -195,6 +221,7 @@ impl SelfInteraction {
             });
         }
         self.set_surface(coefs)?;
+        self.far.set_density(density)?;
         if matches!(self.rot, Rotator::ViaSh(_)) {
             self.sht_p
                 .forward(density, &mut self.dens_coef, &mut self.ws_p)?;
@@ -217,13 +244,15 @@ impl SelfInteraction {
                 }
             }
             self.rotated_derivatives()?;
+            let xt = get3(&self.x_grid, np, t);
+            let flagged = self.far.flagged[t];
             kernel_rows(
                 kernel,
-                get3(&self.x_grid, np, t),
+                xt,
                 &self.y,
                 &self.yt,
                 &self.yp,
-                &self.gs,
+                if flagged { &self.gs_local } else { &self.gs },
                 &self.sin_q,
                 &mut self.kern,
             );
@@ -234,6 +263,9 @@ impl SelfInteraction {
                 for (a, ua) in u.iter_mut().enumerate() {
                     *ua += col[3 * a] * f[0] + col[3 * a + 1] * f[1] + col[3 * a + 2] * f[2];
                 }
+            }
+            if flagged {
+                self.far.add_far(kernel, t, xt, &mut u);
             }
             for (a, ua) in u.iter().enumerate() {
                 out[a * nt + ti] = *ua;
@@ -336,7 +368,11 @@ impl SelfInteraction {
                     &y_all[blk.clone()],
                     &yt_all[blk.clone()],
                     &yp_all[blk],
-                    &self.gs,
+                    if self.far.flagged[t] {
+                        &self.gs_local
+                    } else {
+                        &self.gs
+                    },
                     &self.sin_q,
                     &mut self.kern,
                 );
@@ -373,12 +409,44 @@ impl SelfInteraction {
                 }
             }
         }
+        self.far.add_rows(kernel, &self.x_grid, out)?;
         Ok(())
     }
 }
 
-/// Kernel rows `K_ab(j)` (quadrature weights included) of target point `xt` from the rotated
-/// surface `y, y_θ, y_φ` (component-major on the order-`q` grid), into `kern` (`9 × n_q`).
+/// The nine entries `K_ab` (row-major, `3a + b`) of a layer kernel at `r = x − y` with the unit
+/// normal `n` at `y`, times the weight `wt`: single layer `wt (δ_ab/r + r_a r_b/r³) / 8πμ`, double
+/// layer `wt (3/4π) (r·n) r_a r_b / r⁵`.
+#[inline]
+pub(crate) fn kernel_entries(kernel: LayerKernel, r: [f64; 3], n: [f64; 3], wt: f64) -> [f64; 9] {
+    let r2 = dot(r, r);
+    let rinv = 1.0 / r2.sqrt();
+    let mut col = [0.0; 9];
+    match kernel {
+        LayerKernel::SingleLayer { viscosity } => {
+            let c = wt / (8.0 * PI * viscosity) * rinv;
+            let c3 = c / r2;
+            for a in 0..3 {
+                for b in 0..3 {
+                    col[3 * a + b] = c3 * r[a] * r[b] + if a == b { c } else { 0.0 };
+                }
+            }
+        }
+        LayerKernel::DoubleLayer => {
+            let c = 3.0 / (4.0 * PI) * wt * dot(r, n) * rinv.powi(5);
+            for a in 0..3 {
+                for b in 0..3 {
+                    col[3 * a + b] = c * r[a] * r[b];
+                }
+            }
+        }
+    }
+    col
+}
+
+/// Kernel rows `K_ab(j)` (quadrature weights `gs` per latitude included) of target point `xt`
+/// from the rotated surface `y, y_θ, y_φ` (component-major on the order-`q` grid), into `kern`
+/// (`9 × n_q`).
 #[allow(clippy::too_many_arguments)]
 fn kernel_rows(
     kernel: LayerKernel,
@@ -399,28 +467,7 @@ fn kernel_rows(
         let w = dot(nv, nv).sqrt();
         let wt = gs[lat] * w / sin_q[lat];
         let r = [xt[0] - yj[0], xt[1] - yj[1], xt[2] - yj[2]];
-        let r2 = dot(r, r);
-        let rinv = 1.0 / r2.sqrt();
-        let col = &mut kern[9 * j..9 * j + 9];
-        match kernel {
-            LayerKernel::SingleLayer { viscosity } => {
-                let c = wt / (8.0 * PI * viscosity) * rinv;
-                let c3 = c / r2;
-                for a in 0..3 {
-                    for b in 0..3 {
-                        col[3 * a + b] = c3 * r[a] * r[b] + if a == b { c } else { 0.0 };
-                    }
-                }
-            }
-            LayerKernel::DoubleLayer => {
-                let rn = dot(r, nv) / w;
-                let c = 3.0 / (4.0 * PI) * wt * rn * rinv.powi(5);
-                for a in 0..3 {
-                    for b in 0..3 {
-                        col[3 * a + b] = c * r[a] * r[b];
-                    }
-                }
-            }
-        }
+        let n = [nv[0] / w, nv[1] / w, nv[2] / w];
+        kern[9 * j..9 * j + 9].copy_from_slice(&kernel_entries(kernel, r, n, wt));
     }
 }

@@ -73,6 +73,7 @@
 //! ```
 
 pub mod bending;
+pub mod far_side;
 pub mod geometry;
 pub mod layer;
 pub mod membrane;

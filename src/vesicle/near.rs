@@ -424,7 +424,6 @@ impl OffSurface {
             .iter()
             .map(|&x| self.classify(x))
             .collect::<Result<_, _>>()?;
-        // On-surface values (only if some target is near).
         // On-surface values (only if some near target is left to the check points).
         if infos
             .iter()
