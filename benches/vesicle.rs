@@ -7,7 +7,10 @@
 //! Flop counts: assembly counts the two GEMMs per latitude, the rotation of the surface for all
 //! `2p` targets (`2 n_q n_p · 6p`) and the kernel rows times `B_i` (`2 · 18p · n_q · n_p`); the
 //! per-target transforms, kernel evaluation and scatter are overhead on top of that count.
-//! Application counts `2 (3n_p)²` per cell (one GEMV per cell and right-hand side).
+//! Application counts `2 (3n_p)²` per cell and right-hand side. With one right-hand side it is a
+//! GEMV, bounded by the memory bandwidth (2 flops per 8-byte entry); the bench measures the read
+//! bandwidth in the same run and reports the GEMV rate against that roofline as well as against
+//! GEMM, and the same operators applied to 4 and 16 right-hand sides at once.
 
 use std::time::Instant;
 
@@ -105,8 +108,21 @@ fn main() {
             }
         }
     }
-    println!("\n| p | cells | apply all (ms) | GFLOP/s | MB per operator |");
-    println!("|---|---|---|---|---|");
+    // Application. One right-hand side per operator is a GEMV: 2 flops per 8-byte entry, so
+    // its rate is bounded by the memory bandwidth, 2/8 · B ("roofline"), not by the GEMM rate.
+    // Measured beside it: the same operators applied to k = 4 and 16 right-hand sides at once.
+    let bandwidth = read_bandwidth();
+    let roofline = bandwidth / 4.0;
+    let gemm = gemm_rate(512, 512, 512);
+    println!(
+        "\nread bandwidth (1 thread, 512 MB): {bandwidth:.1} GB/s -> GEMV roofline {roofline:.2} GFLOP/s \
+         ({:.0}% of GEMM {gemm:.1} GFLOP/s)",
+        100.0 * roofline / gemm
+    );
+    println!(
+        "\n| p | cells | MB per operator | k = 1: ms | GFLOP/s | / roofline | / GEMM | k = 4: GFLOP/s | k = 16: GFLOP/s | / GEMM |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     for (p, a) in &ops {
         let n3 = 3 * 2 * p * (p + 1);
         let bytes = n3 * n3 * 8;
@@ -118,26 +134,57 @@ fn main() {
         let operators: Vec<Mat<f64>> = (0..cells)
             .map(|c| Mat::from_fn(n3, n3, |i, j| a[j * n3 + i] * (1.0 + 1e-3 * c as f64)))
             .collect();
-        let dens = Mat::<f64>::from_fn(n3, cells, |i, j| ((i + 3 * j) % 7) as f64 - 3.0);
-        let mut out = Mat::<f64>::zeros(n3, cells);
-        let t = Instant::now();
-        for (c, op) in operators.iter().enumerate() {
-            matmul(
-                out.as_mut().col_mut(c).as_mat_mut(),
-                Accum::Replace,
-                op.as_ref(),
-                dens.as_ref().col(c).as_mat(),
-                1.0,
-                Par::Seq,
-            );
+        let mut rates = Vec::new();
+        let mut ms = 0.0;
+        for k in [1usize, 4, 16] {
+            let dens = Mat::<f64>::from_fn(n3, k * cells, |i, j| ((i + 3 * j) % 7) as f64 - 3.0);
+            let mut out = Mat::<f64>::zeros(n3, k * cells);
+            let t = Instant::now();
+            for (c, op) in operators.iter().enumerate() {
+                matmul(
+                    out.as_mut().subcols_mut(c * k, k),
+                    Accum::Replace,
+                    op.as_ref(),
+                    dens.as_ref().subcols(c * k, k),
+                    1.0,
+                    Par::Seq,
+                );
+            }
+            let dt = t.elapsed().as_secs_f64();
+            if k == 1 {
+                ms = dt * 1e3;
+            }
+            rates.push(2.0 * (n3 * n3 * k * cells) as f64 / dt / 1e9);
         }
-        let dt = t.elapsed().as_secs_f64();
-        let flops = 2.0 * (n3 * n3) as f64 * cells as f64;
         println!(
-            "| {p} | {cells} | {:.1} | {:.2} | {:.2} |",
-            dt * 1e3,
-            flops / dt / 1e9,
-            bytes as f64 / 1e6
+            "| {p} | {cells} | {:.2} | {ms:.1} | {:.2} | {:.0}% | {:.0}% | {:.1} | {:.1} | {:.0}% |",
+            bytes as f64 / 1e6,
+            rates[0],
+            100.0 * rates[0] / roofline,
+            100.0 * rates[0] / gemm,
+            rates[1],
+            rates[2],
+            100.0 * rates[2] / gemm,
         );
     }
+}
+
+/// Read bandwidth of one thread in GB/s: the best of three sums over a 512 MB array.
+fn read_bandwidth() -> f64 {
+    let v: Vec<f64> = (0..64 << 20).map(|i| (i % 5) as f64).collect();
+    let mut best = 0.0f64;
+    for _ in 0..3 {
+        let t = Instant::now();
+        // Four independent accumulators so that the adds do not serialise.
+        let mut s = [0.0f64; 4];
+        for c in v.chunks_exact(4) {
+            for (a, x) in s.iter_mut().zip(c) {
+                *a += x;
+            }
+        }
+        let dt = t.elapsed().as_secs_f64();
+        std::hint::black_box(s);
+        best = best.max((v.len() * 8) as f64 / dt / 1e9);
+    }
+    best
 }

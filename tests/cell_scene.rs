@@ -38,6 +38,7 @@ dt = 0.005
 t_end = 0.5
 scheme = "bdf2"
 adaptive_dt = true
+far_side_split = false
 
 [output]
 every = 4
@@ -60,6 +61,16 @@ fn a_full_scene_parses_with_its_values_and_effects() {
     assert_eq!(s.numerics.order, 8);
     assert_eq!(s.numerics.scheme, Scheme::Bdf2);
     assert!(s.numerics.adaptive_dt);
+    assert!(!s.numerics.far_side_split);
+    assert!(
+        parse(file(), "[[cells]]\nshape = \"rbc\"\n")
+            .unwrap()
+            .numerics
+            .far_side_split
+    );
+    // The setting reaches every cell's own layer potentials.
+    let susp = mobo::scene::cells_run::build(&s).unwrap();
+    assert!(susp.steppers().iter().all(|c| !c.far_side_params().enabled));
     assert_eq!(s.output_every, 4);
     let on = |name: &str| s.effects.iter().find(|e| e.name == name).unwrap().enabled;
     assert!(

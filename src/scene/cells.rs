@@ -34,6 +34,7 @@
 //! t_end = 1.0
 //! scheme = "euler"                # "euler" | "bdf2"
 //! adaptive_dt = false             # true: dt from the area/volume error (dt is the first step)
+//! far_side_split = true           # split off the own far side in the singular quadrature
 //! # dt_tolerance = 1e-3           # adaptive: relative area/volume error allowed over the run
 //! # dt_min = 1e-5, dt_max = 0.1   # adaptive: bounds of dt (defaults dt/1000, max(dt, t_end/10))
 //! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
@@ -115,6 +116,7 @@ struct NumericsSection {
     t_end: Option<Spanned<f64>>,
     scheme: Option<Spanned<String>>,
     adaptive_dt: Option<bool>,
+    far_side_split: Option<bool>,
     dt_tolerance: Option<Spanned<f64>>,
     dt_min: Option<Spanned<f64>>,
     dt_max: Option<Spanned<f64>>,
@@ -239,6 +241,9 @@ pub struct Numerics {
     pub t_end: f64,
     pub scheme: Scheme,
     pub adaptive_dt: bool,
+    /// Split a cell's own far side off its singular integrals where it comes close
+    /// ([`crate::vesicle::far_side`]; default on).
+    pub far_side_split: bool,
     /// Adaptive `dt`: relative area/volume error allowed over the run (default `1e-3`).
     pub dt_tolerance: f64,
     /// Adaptive `dt`: bounds of the step (defaults `dt/1000` and `t_end/10`, at least `dt`).
@@ -450,6 +455,7 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
             },
         },
         adaptive_dt: n.and_then(|n| n.adaptive_dt).unwrap_or(false),
+        far_side_split: n.and_then(|n| n.far_side_split).unwrap_or(true),
         dt_tolerance: match n.and_then(|n| n.dt_tolerance.as_ref()) {
             Some(t) => {
                 let v = positive(t, "[numerics] dt_tolerance")?;

@@ -34,6 +34,7 @@ use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{TimeScheme, VesicleParams};
 use crate::timestep::suspension::{CellSetup, CellStepError, Suspension};
 use crate::timestep::{GmresParams, TimestepError};
+use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::reparam::ReparamParams;
 use crate::vesicle::skalak::SkalakParams;
@@ -560,7 +561,26 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
         repulsion_strength: scene.numerics.repulsion_strength.unwrap_or(auto_strength),
         ..Default::default()
     };
-    Suspension::new(p, setups, coupling).map_err(|e| step_error(0, 0.0, e))
+    let mut susp = Suspension::new(p, setups, coupling).map_err(|e| step_error(0, 0.0, e))?;
+    if !scene.numerics.far_side_split {
+        let off = FarSideParams {
+            enabled: false,
+            ..FarSideParams::default()
+        };
+        for (c, s) in susp.steppers_mut().iter_mut().enumerate() {
+            s.set_far_side_params(off).map_err(|source| {
+                step_error(
+                    0,
+                    0.0,
+                    CellStepError {
+                        cell: Some(c),
+                        source,
+                    },
+                )
+            })?;
+        }
+    }
+    Ok(susp)
 }
 
 /// A failed step `step` (that was to reach `time`) as a run error, the cell numbered from 1.

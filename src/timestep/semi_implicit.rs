@@ -85,6 +85,7 @@ use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
 use super::TimestepError;
 use super::{gmres, FnOperator, GmresParams, GmresReport, GmresWorkspace, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
@@ -396,6 +397,17 @@ impl VesicleStepper {
     /// Parameters.
     pub fn params(&self) -> &VesicleParams {
         &self.params
+    }
+
+    /// Settings of the far-side split in the cell's own layer potentials.
+    pub fn far_side_params(&self) -> FarSideParams {
+        self.layer.far_side_params()
+    }
+
+    /// Change the settings of the far-side split in the cell's own layer potentials
+    /// ([`crate::vesicle::far_side`]); they apply from the next step's assembly on.
+    pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), TimestepError> {
+        Ok(self.layer.set_far_side_params(params)?)
     }
 
     /// The traction the membrane exerts on the fluid at the surface `coefs`, with the tension
