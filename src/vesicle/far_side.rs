@@ -35,9 +35,13 @@
 //! targets of a surface: `Q` = the smallest multiple of 4 with
 //! `Q ≥ max(q, order · 2π R_max / min d_far)`, at most [`FarSideParams::max_order`].
 //!
-//! Measured on the RBC at `p = 16` with a density of degree ≤ 8 at the dimple targets
-//! (`tests/vesicle_layer.rs`): `q = 24`: 6.8e-5 → 3.7e-6; `q = 32`: 1.0e-5 → 1.0e-7;
-//! `q = 48`: 3.9e-7 → 1.4e-10.
+//! Defaults (`flag = 2`, `order = 1.5`) measured on the RBC at `p = 16` with a density of
+//! degree ≤ 8, largest relative error over 78 targets against `q = 96`
+//! (`tests/vesicle_layer.rs`, `convergence_table`), plain rule → split: `q = 24`: 7.5e-5 →
+//! 3.5e-6; `q = 32`: 2.2e-5 → 4.5e-7; `q = 48`: 5.2e-7 → 3.3e-8. A larger `flag` splits more
+//! targets for more accuracy (`flag = 3`: 1.6e-7 at `q = 32`, 1.4e-9 at `q = 48`) at more cost
+//! (at `p = 12`, `q = 24`: 240 of 312 targets split and the assembly 1.5× slower, against 96
+//! targets and +6 % with `flag = 2`; `benches/vesicle.rs`).
 //!
 //! **Dense rows.** The far rows of a flagged target, `Σ_j w_j (1 − η_j) K(x_t − y_j) f(y_j)` with
 //! `f = Y_Q E F_p f_p` (forward transform at `p`, zero-padding `E`, synthesis at `Q`), are
@@ -57,6 +61,9 @@ use crate::sph_harmonics::{resample_coefs, Deriv, Grid, ShTransform, ShWorkspace
 
 /// Order `n` of the window `η = I_x(n+1, n+1)` (degree `2n + 1` in `cos θ`).
 pub const WINDOW_ORDER: usize = 5;
+
+/// The entries `(a, b)`, `a ≤ b`, of the (symmetric) kernels: six transforms per target, not nine.
+const SYM: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
 
 /// Targets whose far rows are built in one batch of transforms (keeps the scratch in cache).
 const ROW_BATCH: usize = 8;
@@ -81,7 +88,7 @@ impl Default for FarSideParams {
     fn default() -> Self {
         FarSideParams {
             enabled: true,
-            flag: 3.0,
+            flag: 2.0,
             order: 1.5,
             max_order: None,
             min_q: 4 * (WINDOW_ORDER + 1),
@@ -89,23 +96,47 @@ impl Default for FarSideParams {
     }
 }
 
-/// `(η, 1 − η)` at `s = sin²(θ/2)`, `θ` the angle to the target on the parameter sphere. Each is
-/// summed from its own end (`I_x(a, a) = 1 − I_{1−x}(a, a)`), so neither loses digits.
+/// `(η, 1 − η)` at `s = sin²(θ/2)`, `θ` the angle to the target on the parameter sphere.
+///
+/// `1 − η(s) = s^{n+1} P(s)` with `P` of degree `n`, and `η(s) = (1 − η)(1 − s)` by symmetry;
+/// the smaller of the two is evaluated from its own factor `s^{n+1}` (or `(1 − s)^{n+1}`), the
+/// other as its complement, so neither loses digits where it is small.
+#[inline]
 pub fn window(s: f64) -> (f64, f64) {
-    let n = WINDOW_ORDER;
-    let k = 2 * n + 1;
-    let x = 1.0 - s;
-    let (mut eta, mut rest) = (0.0, 0.0);
-    let mut binom = 1.0; // C(k, j)
-    for j in 0..=k {
-        if j > n {
-            eta += binom * x.powi(j as i32) * s.powi((k - j) as i32);
-            rest += binom * s.powi(j as i32) * x.powi((k - j) as i32);
+    let c = &*WINDOW_COEFS;
+    let tail = |t: f64| {
+        let mut acc = 0.0;
+        for &ci in c.iter().rev() {
+            acc = acc * t + ci;
         }
-        binom = binom * (k - j) as f64 / (j + 1) as f64;
+        acc * t.powi(WINDOW_ORDER as i32 + 1)
+    };
+    if s <= 0.5 {
+        let rest = tail(s);
+        (1.0 - rest, rest)
+    } else {
+        let eta = tail(1.0 - s);
+        (eta, 1.0 - eta)
     }
-    (eta, rest)
 }
+
+/// Monomial coefficients of `P(s)`, `1 − η(s) = s^{n+1} P(s)`: with `k = 2n + 1`,
+/// `1 − η = Σ_{j=n+1}^{k} C(k, j) s^j (1 − s)^{k−j}`.
+static WINDOW_COEFS: std::sync::LazyLock<[f64; WINDOW_ORDER + 1]> =
+    std::sync::LazyLock::new(|| {
+        let n = WINDOW_ORDER;
+        let k = 2 * n + 1;
+        let binom =
+            |a: usize, b: usize| (0..b).fold(1.0, |c, i| c * (a - i) as f64 / (i + 1) as f64);
+        let mut c = [0.0; WINDOW_ORDER + 1];
+        for j in n + 1..=k {
+            for i in 0..=k - j {
+                let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+                c[j - n - 1 + i] += binom(k, j) * binom(k - j, i) * sign;
+            }
+        }
+        c
+    });
 
 /// The surface on the far grid of order `Q`.
 struct FarGrid {
@@ -403,13 +434,13 @@ impl FarSide {
         let n = far.area.len();
         let ncf = far.sht.n_coefs();
         let batch = ROW_BATCH.min(self.targets.len());
-        let nf = 9 * batch;
+        let nf = SYM.len() * batch;
         let mut rows = vec![0.0; nf * n];
         let mut cf = vec![0.0; nf * ncf];
         let mut cp = vec![0.0; nf * ncp];
         let mut r = vec![0.0; nf * np];
         for chunk in self.targets.chunks(batch) {
-            let nf = 9 * chunk.len();
+            let nf = SYM.len() * chunk.len();
             for (ti, &t) in chunk.iter().enumerate() {
                 let (xt, ut) = (get3(x_grid, np, t), self.unit_p[t]);
                 for j in 0..n {
@@ -423,8 +454,8 @@ impl FarSide {
                     } else {
                         kernel_entries(kernel, rv, far.normal[j], rest * far.jac[j])
                     };
-                    for (e, ke) in k.iter().enumerate() {
-                        rows[(9 * ti + e) * n + j] = *ke;
+                    for (e, (a, b)) in SYM.iter().enumerate() {
+                        rows[(SYM.len() * ti + e) * n + j] = k[3 * a + b];
                     }
                 }
             }
@@ -451,11 +482,13 @@ impl FarSide {
                 Par::Seq,
             );
             for (ti, &t) in chunk.iter().enumerate() {
-                for a in 0..3 {
-                    for b in 0..3 {
-                        let f = 9 * ti + 3 * a + b;
-                        for c in 0..np {
-                            out[(b * np + c) * n3 + a * np + t] += r[c * nf + f];
+                for (e, &(a, b)) in SYM.iter().enumerate() {
+                    let f = SYM.len() * ti + e;
+                    for c in 0..np {
+                        let v = r[c * nf + f];
+                        out[(b * np + c) * n3 + a * np + t] += v;
+                        if a != b {
+                            out[(a * np + c) * n3 + b * np + t] += v;
                         }
                     }
                 }

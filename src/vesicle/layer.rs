@@ -26,7 +26,7 @@
 //! Targets whose own far side comes close (the dimples of a red blood cell) split the integral
 //! with a partition of unity on the parameter sphere ([`super::far_side`]): the Graham–Sloan rule
 //! takes the windowed local part and a smooth rule of a higher order `Q` on the unrotated grid
-//! the rest (on an RBC at `p = 16`: `q = 32` 9.8e-6 → 1.5e-7). Both paths include it; the dense
+//! the rest (on an RBC at `p = 16`: `q = 32` 9.8e-6 → 2.8e-7). Both paths include it; the dense
 //! rows of the far part are folded in after the latitude loop
 //! ([`SelfInteraction::set_far_side_params`] turns it off or tunes it).
 
