@@ -320,6 +320,8 @@ impl ShRotation {
             return Err(SphError::Latitude { lat, p });
         }
         let phi = self.src_phi[lon];
+        // (sin mφ, cos mφ) once per call, not per function.
+        let phase: Vec<(f64, f64)> = (0..=p).map(|m| (m as f64 * phi).sin_cos()).collect();
         let nloc = (p + 1) * (p + 1);
         self.buf_in.resize(nloc * nf, 0.0);
         self.buf_out.resize(nloc * nf, 0.0);
@@ -333,7 +335,7 @@ impl ShRotation {
                 for m in 1..=n {
                     let cv = c[self.layout.cos_block(m) + n - m];
                     let sv = self.layout.sin_block(m).map_or(0.0, |b| c[b + n - m]);
-                    let (s, co) = (m as f64 * phi).sin_cos();
+                    let (s, co) = phase[m];
                     col[base + m] = cv * co + sv * s;
                     col[base - m] = -cv * s + sv * co;
                 }
@@ -367,17 +369,23 @@ impl ShRotation {
                 Par::Seq,
             );
         }
+        // Scatter: local (degree-major) index → order-q layout index, found once per call.
         let lay_q = self.dst.layout();
+        let map: Vec<(usize, usize)> = (0..=p)
+            .flat_map(|n| {
+                let base = n * n + n;
+                (-(n as isize)..=(n as isize)).filter_map(move |m| {
+                    lay_q
+                        .index(n, m)
+                        .map(|ix| ((base as isize + m) as usize, ix))
+                })
+            })
+            .collect();
         for (f, o) in out.chunks_exact_mut(lq).enumerate() {
             o.fill(0.0);
             let col = &self.buf_out[f * nloc..(f + 1) * nloc];
-            for n in 0..=p {
-                let base = n * n + n;
-                for m in -(n as isize)..=(n as isize) {
-                    if let Some(ix) = lay_q.index(n, m) {
-                        o[ix] = col[(base as isize + m) as usize];
-                    }
-                }
+            for &(l, ix) in &map {
+                o[ix] = col[l];
             }
         }
         Ok(())
