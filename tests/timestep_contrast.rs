@@ -11,8 +11,11 @@
 //!   spherical vesicles with `λ = 5` still sediment at the two-sphere mobility; a `λ = 1` scene
 //!   builds no double-layer FMM.
 
+mod common;
+
 use std::f64::consts::PI;
 
+use common::quadrature::{reference_layer, Kernel};
 use mobo::scene::cells::parse;
 use mobo::scene::cells_run::{build, run, RunOptions};
 use mobo::sph_harmonics::ShTransform;
@@ -20,7 +23,6 @@ use mobo::timestep::coupling::{Coupling, CouplingParams};
 use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams};
 use mobo::timestep::suspension::{CellSetup, Suspension};
 use mobo::timestep::GmresParams;
-use mobo::vesicle::membrane::Membrane;
 use mobo::vesicle::shapes::{ellipsoid, sphere};
 use mobo::vesicle::SurfaceCalculus;
 
@@ -62,58 +64,6 @@ fn rigid_velocity(p: usize, coefs: &[f64], v: [f64; 3], w: [f64; 3]) -> Vec<f64>
         }
     }
     u
-}
-
-/// `Σ_{j≠i} D_j[d_j]` at cell `i`'s grid points by the smooth quadrature of order `big_q`
-/// (densities interpolated spectrally, as the coupling does).
-fn reference(p: usize, big_q: usize, coefs: &[Vec<f64>], d: &[Vec<f64>]) -> Vec<Vec<f64>> {
-    let n = ShTransform::new(p).unwrap().n_points();
-    let mut mem = Membrane::new(p, big_q).unwrap();
-    let nq = mem.n_points_upsampled();
-    // Per cell: points, outward normals, d dA.
-    type Quadrature = (Vec<[f64; 3]>, Vec<[f64; 3]>, Vec<[f64; 3]>);
-    let mut src: Vec<Quadrature> = Vec::new();
-    for (c, dc) in coefs.iter().zip(d) {
-        mem.set_geometry(c).unwrap();
-        let mut dq = vec![0.0; 3 * nq];
-        mem.upsample(dc, &mut dq).unwrap();
-        let g = mem.geometry().unwrap();
-        let w = (0..nq)
-            .map(|k| std::array::from_fn(|e| dq[e * nq + k] * g.da[k]))
-            .collect();
-        src.push((g.x.clone(), g.normal.clone(), w));
-    }
-    coefs
-        .iter()
-        .enumerate()
-        .map(|(i, c)| {
-            let x = grid(p, c);
-            let mut u = vec![0.0; 3 * n];
-            for t in 0..n {
-                let xt = [x[t], x[n + t], x[2 * n + t]];
-                let mut acc = [0.0; 3];
-                for (j, (ys, ns, ws)) in src.iter().enumerate() {
-                    if j == i {
-                        continue;
-                    }
-                    for ((y, nv), w) in ys.iter().zip(ns).zip(ws) {
-                        let r = [xt[0] - y[0], xt[1] - y[1], xt[2] - y[2]];
-                        let r2 = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-                        let rn = r[0] * nv[0] + r[1] * nv[1] + r[2] * nv[2];
-                        let rw = r[0] * w[0] + r[1] * w[1] + r[2] * w[2];
-                        let s = rn * rw / (r2 * r2 * r2.sqrt());
-                        for e in 0..3 {
-                            acc[e] += s * r[e];
-                        }
-                    }
-                }
-                for e in 0..3 {
-                    u[e * n + t] = 3.0 / (4.0 * PI) * acc[e];
-                }
-            }
-            u
-        })
-        .collect()
 }
 
 fn max_abs(a: &[Vec<f64>]) -> f64 {
@@ -179,7 +129,7 @@ fn double_layer_error(p: usize, q: usize, gap: f64) -> (f64, usize) {
     assert_eq!(cpl.stats.fmm_builds, 1);
     assert_eq!(cpl.stats.double_layer_fmm_builds, 1);
     // The third cell (λ = 1) passes no density; its (1 − λ) u is zero in the reference.
-    let want = reference(p, 160, &coefs, &d);
+    let want = reference_layer(p, 160, &coefs, &d, Kernel::Stresslet);
     assert!(max_abs(&want) > 1e-2, "a double layer to measure");
     (max_diff(&u, &want) / max_abs(&want), cpl.stats.near_points)
 }
