@@ -653,3 +653,66 @@ fn bad_input_is_an_error() {
         .is_err());
     assert!(off.evaluate(bad, &f, &[[2.0, 0.0, 0.0]], &mut u1).is_err());
 }
+
+/// The coefficient-space operator `A_c = F A I`: the grid operator reads its density through the
+/// projection `P = I F` (`A x = A P x` for any grid vector, band-limited or not), and
+/// `I A_c F x` equals `P (A x)` computed with the transforms, for both kernels.
+#[test]
+fn coefficient_space_operator_is_the_projected_grid_operator() {
+    use mobo::vesicle::CoefficientOperator;
+    let (p, q) = (8, 16);
+    let s = shapes::rbc(p).unwrap();
+    let sht = ShTransform::new(p).unwrap();
+    let mut ws = sht.workspace();
+    let (n, nc) = (sht.n_points(), sht.n_coefs());
+    let mut comp = CoefficientOperator::new(&sht).unwrap();
+    assert_eq!((comp.n_points(), comp.n_coefs()), (n, nc));
+    let mut si = SelfInteraction::new(p, q, RotationAlgorithm::Direct).unwrap();
+    let mut rng = StdRng::seed_from_u64(11);
+    // Random grid values: not band-limited.
+    let x: Vec<f64> = (0..3 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let project = |v: &[f64], ws: &mut mobo::sph_harmonics::ShWorkspace| {
+        let mut c = vec![0.0; 3 * nc];
+        sht.forward(v, &mut c, ws).unwrap();
+        let mut g = vec![0.0; 3 * n];
+        sht.inverse(&c, &mut g, ws).unwrap();
+        g
+    };
+    let matvec = |a: &[f64], v: &[f64], m: usize| -> Vec<f64> {
+        (0..m)
+            .map(|i| (0..m).map(|j| a[j * m + i] * v[j]).sum())
+            .collect()
+    };
+    for kernel in [
+        LayerKernel::SingleLayer { viscosity: 0.8 },
+        LayerKernel::DoubleLayer,
+    ] {
+        let mut a = vec![0.0; 9 * n * n];
+        si.assemble(kernel, s.coefs(), &mut a).unwrap();
+        let mut ac = vec![0.0; 9 * nc * nc];
+        comp.compress(&a, &mut ac).unwrap();
+        let ax = matvec(&a, &x, 3 * n);
+        let px = project(&x, &mut ws);
+        let apx = matvec(&a, &px, 3 * n);
+        let e_in = rel_max_error(&apx, &ax);
+        // I A_c F x against P (A x).
+        let mut xc = vec![0.0; 3 * nc];
+        sht.forward(&x, &mut xc, &mut ws).unwrap();
+        let yc = matvec(&ac, &xc, 3 * nc);
+        let mut y = vec![0.0; 3 * n];
+        sht.inverse(&yc, &mut y, &mut ws).unwrap();
+        let pax = project(&ax, &mut ws);
+        let e_out = rel_max_error(&y, &pax);
+        // The projection removes a part of A x of the size of the discretisation error.
+        let e_proj = rel_max_error(&pax, &ax);
+        println!("{kernel:?}: |A x − A P x| {e_in:.1e}, |I A_c F x − P A x| {e_out:.1e}, |P A x − A x| {e_proj:.1e}");
+        assert!(e_in < 1e-12, "{kernel:?}: A ≠ A P ({e_in:.1e})");
+        assert!(e_out < 1e-12, "{kernel:?}: compression ({e_out:.1e})");
+        assert!(
+            e_proj > 1e-6,
+            "{kernel:?}: the output projection does something"
+        );
+    }
+    let mut short = vec![0.0; 10];
+    assert!(comp.compress(&vec![0.0; 9 * n * n], &mut short).is_err());
+}

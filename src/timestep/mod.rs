@@ -92,6 +92,7 @@ mod gmres;
 mod operator;
 pub mod semi_implicit;
 pub mod sphere_preconditioner;
+mod step_engine;
 pub mod suspension;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};

@@ -76,17 +76,18 @@
 //! with a normal displacement `(α + β H) n` whose `α, β` restore the area and volume of the first
 //! step (Newton on `δV = ∫ φ dA`, `δA = −2 ∫ H φ dA` for `φ = α + β H`).
 
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
 use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
+use super::step_engine::{EngineLease, EnginePool, OperatorWork, StepEngine};
 use super::TimestepError;
-use super::{gmres, FnOperator, GmresParams, GmresReport, GmresWorkspace, Identity};
+use super::{gmres, FnOperator, GmresParams, GmresReport, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::vesicle::coefficient_operator::apply_coefficient_operator;
 use crate::vesicle::far_side::FarSideParams;
-use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
 use crate::vesicle::reparam::{ReparamParams, Reparametrizer};
@@ -161,43 +162,51 @@ pub struct StepReport {
     pub area_volume_error: f64,
 }
 
-/// What one application of the step operator needs, reused across GMRES iterations.
-struct OperatorWork {
-    membrane: Membrane,
-    /// Bending and tension forces (`3n` each).
-    fb: Vec<f64>,
-    ft: Vec<f64>,
+/// How a cell keeps its dense self-interaction operators from the assembly to the GMRES
+/// iterations of its step ([`crate::vesicle::coefficient_operator`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum OperatorStorage {
+    /// In coefficient space, `A_c = F A I` (`(3n_c)²` entries, 2.0 MB per operator at
+    /// `p = 12`), applied as `P A x = I A_c F x`: the same step (the band-limited part of the
+    /// solution, hence the new surface, is the same), 3.4× less memory and bandwidth.
+    #[default]
+    Coefficients,
+    /// On the grid, `A` (`(3n)²` entries, 7.0 MB per operator at `p = 12`).
+    Grid,
 }
 
 /// Steps one vesicle of SH order `p`.
+///
+/// The stepper holds the cell's own state; transforms, the membrane-force engine, the layer
+/// potentials and scratch are lent per call by a pool shared by every stepper of the same
+/// `(p, q, restart)` in the process ([`super::step_engine`]), so that a suspension holds one
+/// such engine per thread, not per cell.
 pub struct VesicleStepper {
     p: usize,
+    /// Grid points and coefficients per component.
+    n: usize,
+    nc: usize,
     params: VesicleParams,
-    /// The membrane engine and the force scratch of the operator (locked while applied).
-    work: Mutex<OperatorWork>,
-    layer: SelfInteraction,
-    sht: ShTransform,
-    ws: ShWorkspace,
-    /// Dense single layer, `3n × 3n`, column-major.
+    pool: Arc<EnginePool>,
+    far_side: FarSideParams,
+    storage: OperatorStorage,
+    /// Dense single layer: `3n_c × 3n_c` in coefficient space or `3n × 3n` on the grid,
+    /// column-major (empty before the first step).
     s_op: Vec<f64>,
-    /// Dense double layer, `3n × 3n` (empty when `λ = 1`).
+    /// Dense double layer, the same (empty when `λ = 1`).
     d_op: Vec<f64>,
     /// Tension of the last step (initial guess of the next).
     pub sigma: Vec<f64>,
-    gmres_ws: GmresWorkspace,
-    calc: SurfaceCalculus,
     /// Area and volume to restore (those of the first step's surface).
     targets: Option<(f64, f64)>,
-    /// Shear elasticity (explicit, relative to the reference set by [`VesicleStepper::set_skalak`]).
-    skalak: Option<SkalakParams>,
+    /// Shear elasticity (explicit) and its stress-free reference surface (coefficients).
+    skalak: Option<(SkalakParams, Vec<f64>)>,
     /// Double-layer operators assembled so far (0 for `λ = 1`: only what is called for).
     pub double_layer_assemblies: usize,
     /// `Xⁿ⁻¹` (coefficients) for BDF2.
     previous: Option<Vec<f64>>,
     /// The step `Δtⁿ⁻¹` that led from `Xⁿ⁻¹` to `Xⁿ` (variable-step BDF2).
     previous_dt: Option<f64>,
-    /// The reparametrisation's transforms (planned at the first step).
-    reparametrizer: Option<Reparametrizer>,
     /// Sphere preconditioners built so far (at most two: the Euler and the BDF2 `τ`).
     preconditioners: Vec<SpherePreconditioner>,
     /// Membrane velocity of the last solve on the order-`p` grid (see
@@ -229,38 +238,45 @@ impl VesicleStepper {
         }
         params.gmres.validate()?;
         let q = params.upsampled_order.max(p);
-        let sht = ShTransform::new(p).map_err(crate::vesicle::VesicleError::from)?;
-        let ws = sht.workspace();
-        let n = sht.n_points();
+        let pool = EnginePool::shared(p, q, params.gmres.restart);
+        // Plans the engine (or takes an idle one), which also checks `p` and `q`.
+        let (n, nc, far_side) = {
+            let e = pool.lease()?;
+            (e.sht.n_points(), e.sht.n_coefs(), FarSideParams::default())
+        };
         Ok(VesicleStepper {
             p,
+            n,
+            nc,
             params,
-            work: Mutex::new(OperatorWork {
-                membrane: Membrane::new(p, q)?,
-                fb: vec![0.0; 3 * n],
-                ft: vec![0.0; 3 * n],
-            }),
-            layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
-            sht,
-            ws,
-            s_op: vec![0.0; 9 * n * n],
-            d_op: if params.viscosity_ratio != 1.0 {
-                vec![0.0; 9 * n * n]
-            } else {
-                Vec::new()
-            },
+            pool,
+            far_side,
+            storage: OperatorStorage::default(),
+            s_op: Vec::new(),
+            d_op: Vec::new(),
             sigma: vec![0.0; n],
-            gmres_ws: GmresWorkspace::new(4 * n, params.gmres.restart),
-            calc: SurfaceCalculus::new(p)?,
             targets: None,
             skalak: None,
             double_layer_assemblies: 0,
             previous: None,
             previous_dt: None,
-            reparametrizer: None,
             preconditioners: Vec::new(),
             velocity: None,
         })
+    }
+
+    /// An engine for one call, set up for this cell (far-side settings, Skalak reference).
+    fn lease(&self) -> Result<EngineLease, TimestepError> {
+        let mut e = self.pool.lease()?;
+        e.layer.set_far_side_params(self.far_side)?;
+        if let Some((_, reference)) = &self.skalak {
+            e.work
+                .get_mut()
+                .expect("operator lock")
+                .membrane
+                .set_reference(reference)?;
+        }
+        Ok(e)
     }
 
     /// Add Skalak shear elasticity (explicit in time) relative to the stress-free surface
@@ -270,13 +286,49 @@ impl VesicleStepper {
         params: SkalakParams,
         reference: &[f64],
     ) -> Result<(), TimestepError> {
-        self.work
-            .lock()
+        // Checked here (length, a proper surface), set on each engine lent to this cell.
+        self.pool
+            .lease()?
+            .work
+            .get_mut()
             .expect("operator lock")
             .membrane
             .set_reference(reference)?;
-        self.skalak = Some(params);
+        self.skalak = Some((params, reference.to_vec()));
         Ok(())
+    }
+
+    /// How the dense self-interaction operators are kept between assembly and application.
+    pub fn operator_storage(&self) -> OperatorStorage {
+        self.storage
+    }
+
+    /// Keep the dense self-interaction operators in coefficient space (the default) or on the
+    /// grid, from the next step on.
+    pub fn set_operator_storage(&mut self, storage: OperatorStorage) {
+        if storage != self.storage {
+            self.s_op = Vec::new();
+            self.d_op = Vec::new();
+        }
+        self.storage = storage;
+    }
+
+    /// Bytes of this cell's own state (its dense operators, preconditioners and vectors;
+    /// the engines lent by the pool are shared and not counted).
+    pub fn memory_bytes(&self) -> usize {
+        let vecs = self.s_op.capacity()
+            + self.d_op.capacity()
+            + self.sigma.capacity()
+            + self.previous.as_ref().map_or(0, |v| v.capacity())
+            + self.velocity.as_ref().map_or(0, |v| v.capacity())
+            + self.skalak.as_ref().map_or(0, |(_, r)| r.capacity());
+        8 * vecs
+            + self
+                .preconditioners
+                .iter()
+                .map(|m| m.memory_bytes())
+                .sum::<usize>()
+            + std::mem::size_of::<Self>()
     }
 
     /// The area and volume the drift correction restores (set at the first step).
@@ -306,7 +358,7 @@ impl VesicleStepper {
         match coefs {
             None => self.previous = None,
             Some(c) => {
-                let expected = 3 * self.sht.n_coefs();
+                let expected = 3 * self.nc;
                 if c.len() != expected {
                     return Err(TimestepError::DimensionMismatch {
                         what: "previous coefficients",
@@ -375,7 +427,7 @@ impl VesicleStepper {
         match velocity {
             None => self.velocity = None,
             Some(v) => {
-                let expected = 3 * self.sht.n_points();
+                let expected = 3 * self.n;
                 if v.len() != expected {
                     return Err(TimestepError::DimensionMismatch {
                         what: "membrane velocity",
@@ -401,20 +453,23 @@ impl VesicleStepper {
 
     /// Settings of the far-side split in the cell's own layer potentials.
     pub fn far_side_params(&self) -> FarSideParams {
-        self.layer.far_side_params()
+        self.far_side
     }
 
     /// Change the settings of the far-side split in the cell's own layer potentials
     /// ([`crate::vesicle::far_side`]); they apply from the next step's assembly on.
     pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), TimestepError> {
-        Ok(self.layer.set_far_side_params(params)?)
+        // Checked on an engine now, set on each engine lent to this cell.
+        self.pool.lease()?.layer.set_far_side_params(params)?;
+        self.far_side = params;
+        Ok(())
     }
 
     /// The traction the membrane exerts on the fluid at the surface `coefs`, with the tension
     /// of the last step: `f_b(X) + f_σ(σ) + f_Skalak(X) + F/A` on the order-`p` grid (`3n`).
     /// This is the density whose single layer the other cells feel (explicit coupling).
     pub fn traction(&mut self, coefs: &[f64], out: &mut [f64]) -> Result<(), TimestepError> {
-        let n = self.sht.n_points();
+        let n = self.n;
         if out.len() != 3 * n {
             return Err(TimestepError::DimensionMismatch {
                 what: "traction",
@@ -422,8 +477,10 @@ impl VesicleStepper {
                 got: out.len(),
             });
         }
-        let mut guard = self.work.lock().expect("operator lock");
-        let OperatorWork { membrane, fb, ft } = &mut *guard;
+        let mut engine = self.lease()?;
+        let OperatorWork {
+            membrane, fb, ft, ..
+        } = engine.work.get_mut().expect("operator lock");
         membrane.set_geometry(coefs)?;
         let area = membrane.geometry()?.area();
         membrane.bending_force(self.params.bending_modulus, out)?;
@@ -431,7 +488,7 @@ impl VesicleStepper {
         for (o, t) in out.iter_mut().zip(ft.iter()) {
             *o += t;
         }
-        if let Some(sk) = &self.skalak {
+        if let Some((sk, _)) = &self.skalak {
             membrane.skalak_force(sk, fb)?;
             for (o, t) in out.iter_mut().zip(fb.iter()) {
                 *o += t;
@@ -452,7 +509,7 @@ impl VesicleStepper {
 
     /// Grid points per cell, `n = 2p(p+1)`.
     pub fn n_points(&self) -> usize {
-        self.sht.n_points()
+        self.n
     }
 
     /// Advance the surface with coefficients `coefs` (x, y, z at order `p`) by one step in the
@@ -469,10 +526,11 @@ impl VesicleStepper {
     /// kept ones matches; returns its index and whether it was built.
     fn preconditioner_for(
         &mut self,
+        engine: &mut StepEngine,
         radius: f64,
         c: StepCoefficients,
     ) -> Result<(usize, bool), TimestepError> {
-        let q = self.layer.quadrature_order();
+        let q = engine.layer.quadrature_order();
         if let Some(i) = self
             .preconditioners
             .iter()
@@ -481,8 +539,8 @@ impl VesicleStepper {
             return Ok((i, false));
         }
         let built = {
-            let mut guard = self.work.lock().expect("operator lock");
-            SpherePreconditioner::build(&mut guard.membrane, &mut self.layer, radius, c)?
+            let work = engine.work.get_mut().expect("operator lock");
+            SpherePreconditioner::build(&mut work.membrane, &mut engine.layer, radius, c)?
         };
         // Keep at most two (Euler's and BDF2's τ); a stale radius or τ is replaced.
         if self.preconditioners.len() >= 2 {
@@ -499,8 +557,7 @@ impl VesicleStepper {
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         extra: ExplicitTerms<'_>,
     ) -> Result<StepReport, TimestepError> {
-        let n = self.sht.n_points();
-        let nc = self.sht.n_coefs();
+        let (n, nc) = (self.n, self.nc);
         if coefs.len() != 3 * nc {
             return Err(TimestepError::DimensionMismatch {
                 what: "surface coefficients",
@@ -519,6 +576,8 @@ impl VesicleStepper {
                 }
             }
         }
+        let mut lease = self.lease()?;
+        let engine: &mut StepEngine = &mut lease;
         let lambda = self.params.viscosity_ratio;
         let kappa = self.params.bending_modulus;
         let omega = self.extrapolation_ratio();
@@ -541,7 +600,7 @@ impl VesicleStepper {
         let coef = StepCoefficients::new(lambda, tau, kappa, self.params.viscosity);
         let (a_id, c_d) = (coef.identity, coef.double_layer);
         let (area0, volume0) = {
-            let g = self.calc.geometry(coefs)?;
+            let g = engine.calc.geometry(coefs)?;
             (g.area(), g.volume())
         };
         if self.targets.is_none() {
@@ -569,28 +628,29 @@ impl VesicleStepper {
             // that a restarted run rebuilds the very same preconditioner (bit-identical restart).
             let area = match (self.params.correct_drift, self.targets) {
                 (true, Some((a, _))) => a,
-                _ => self.calc.geometry(&xstar)?.area(),
+                _ => engine.calc.geometry(&xstar)?.area(),
             };
             let radius = (area / (4.0 * std::f64::consts::PI)).sqrt();
-            let (i, b) = self.preconditioner_for(radius, coef)?;
+            let (i, b) = self.preconditioner_for(engine, radius, coef)?;
             (Some(i), b)
         } else {
             (None, false)
         };
         let mut xs_grid = vec![0.0; 3 * n];
         let mut xh_grid = vec![0.0; 3 * n];
-        self.sht
-            .inverse(&xstar, &mut xs_grid, &mut self.ws)
+        engine
+            .sht
+            .inverse(&xstar, &mut xs_grid, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
-        self.sht
-            .inverse(&xhat, &mut xh_grid, &mut self.ws)
+        engine
+            .sht
+            .inverse(&xhat, &mut xh_grid, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
         let mut fext = vec![0.0; 3 * n];
         let area = {
-            let mut guard = self.work.lock().expect("operator lock");
-            let OperatorWork { membrane, fb, .. } = &mut *guard;
+            let OperatorWork { membrane, fb, .. } = engine.work.get_mut().expect("operator lock");
             membrane.set_geometry(&xstar)?;
-            if let Some(sk) = &self.skalak {
+            if let Some((sk, _)) = &self.skalak {
                 membrane.skalak_force(sk, fb)?;
                 fext.copy_from_slice(fb);
             }
@@ -601,7 +661,9 @@ impl VesicleStepper {
                 *a += b;
             }
         }
-        self.layer.assemble(
+        assemble_operator(
+            engine,
+            self.storage,
             LayerKernel::SingleLayer {
                 viscosity: self.params.viscosity,
             },
@@ -609,23 +671,19 @@ impl VesicleStepper {
             &mut self.s_op,
         )?;
         if c_d != 0.0 {
-            self.layer
-                .assemble(LayerKernel::DoubleLayer, &xstar, &mut self.d_op)?;
+            assemble_operator(
+                engine,
+                self.storage,
+                LayerKernel::DoubleLayer,
+                &xstar,
+                &mut self.d_op,
+            )?;
             self.double_layer_assemblies += 1;
+        } else {
+            self.d_op = Vec::new();
         }
-        let s_op = MatRef::from_column_major_slice(&self.s_op, 3 * n, 3 * n);
-        let d_op = (c_d != 0.0).then(|| MatRef::from_column_major_slice(&self.d_op, 3 * n, 3 * n));
-        // y ← y + beta · K x
-        let gemv = |k: MatRef<'_, f64>, x: &[f64], y: &mut [f64], beta: f64| {
-            matmul(
-                MatMut::from_column_major_slice_mut(y, 3 * n, 1),
-                Accum::Add,
-                k,
-                MatRef::from_column_major_slice(x, 3 * n, 1),
-                beta,
-                Par::Seq,
-            );
-        };
+        let storage = self.storage;
+        let (s_op, d_op) = (&self.s_op[..], (c_d != 0.0).then_some(&self.d_op[..]));
         // Right-hand side [a X̂ − c_D D X̂ + τ (u_∞(X*) + u_other + S f_ext); Div X̂].
         let mut b = vec![0.0; 4 * n];
         for c in 0..3 {
@@ -640,40 +698,63 @@ impl VesicleStepper {
                 b[c * n + j] = a_id * xh_grid[c * n + j] + tau * (u[c] + other);
             }
         }
-        gemv(s_op, &fext, &mut b[..3 * n], tau);
-        if let Some(d) = d_op {
-            gemv(d, &xh_grid, &mut b[..3 * n], -c_d);
+        {
+            let OperatorWork {
+                membrane,
+                ws,
+                xc,
+                yc,
+                yg,
+                ..
+            } = engine.work.get_mut().expect("operator lock");
+            let mut terms = vec![(s_op, &fext[..], tau)];
+            if let Some(d) = d_op {
+                terms.push((d, &xh_grid[..], -c_d));
+            }
+            let scratch = CoefficientScratch { ws, xc, yc, yg };
+            apply_operators(storage, &engine.sht, scratch, &terms, &mut b[..3 * n])?;
+            membrane.surface_divergence(&xh_grid, &mut b[3 * n..])?;
         }
-        self.work
-            .lock()
-            .expect("operator lock")
-            .membrane
-            .surface_divergence(&xh_grid, &mut b[3 * n..])?;
         // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X].
-        let work = &self.work;
+        let (work, sht) = (&engine.work, &engine.sht);
         let failure: Mutex<Option<crate::vesicle::VesicleError>> = Mutex::new(None);
         let op = FnOperator::new(4 * n, |z: &[f64], y: &mut [f64]| {
             let (x, sigma) = z.split_at(3 * n);
             let mut guard = work.lock().expect("operator lock");
-            let OperatorWork { membrane, fb, ft } = &mut *guard;
+            let OperatorWork {
+                membrane,
+                fb,
+                ft,
+                ws,
+                xc,
+                yc,
+                yg,
+            } = &mut *guard;
             let r = membrane
                 .bending_linear(kappa, x, fb)
                 .and_then(|_| membrane.tension_force(sigma, ft))
-                .and_then(|_| membrane.surface_divergence(x, &mut y[3 * n..]));
+                .and_then(|_| membrane.surface_divergence(x, &mut y[3 * n..]))
+                .and_then(|_| {
+                    for (a, t) in fb.iter_mut().zip(ft.iter()) {
+                        *a += t;
+                    }
+                    for (yi, xi) in y[..3 * n].iter_mut().zip(x) {
+                        *yi = a_id * xi;
+                    }
+                    let mut terms = [(s_op, &fb[..], -tau), (s_op, x, 0.0)];
+                    let k = match d_op {
+                        Some(d) => {
+                            terms[1] = (d, x, -c_d);
+                            2
+                        }
+                        None => 1,
+                    };
+                    let scratch = CoefficientScratch { ws, xc, yc, yg };
+                    apply_operators(storage, sht, scratch, &terms[..k], &mut y[..3 * n])
+                });
             if let Err(e) = r {
                 *failure.lock().expect("failure lock") = Some(e);
                 y.fill(f64::NAN);
-                return;
-            }
-            for (a, t) in fb.iter_mut().zip(ft.iter()) {
-                *a += t;
-            }
-            for (yi, xi) in y[..3 * n].iter_mut().zip(x) {
-                *yi = a_id * xi;
-            }
-            gemv(s_op, fb, &mut y[..3 * n], -tau);
-            if let Some(d) = d_op {
-                gemv(d, x, &mut y[..3 * n], -c_d);
             }
         });
         // Initial guess: X* (the extrapolation for BDF2, Xⁿ for Euler) and the last tension.
@@ -689,7 +770,7 @@ impl VesicleStepper {
                 Some(&z0),
                 &mut z,
                 &self.params.gmres,
-                &mut self.gmres_ws,
+                &mut engine.gmres_ws,
             ),
             None => gmres(
                 &op,
@@ -698,7 +779,7 @@ impl VesicleStepper {
                 Some(&z0),
                 &mut z,
                 &self.params.gmres,
-                &mut self.gmres_ws,
+                &mut engine.gmres_ws,
             ),
         };
         if let Some(e) = failure.into_inner().expect("failure lock") {
@@ -723,23 +804,25 @@ impl VesicleStepper {
             }
             self.previous_dt = Some(self.params.dt);
         }
-        self.sht
-            .forward(&z[..3 * n], coefs, &mut self.ws)
+        engine
+            .sht
+            .forward(&z[..3 * n], coefs, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
         // The error estimate of the flow step itself (before the reparametrisation, which
         // changes area and volume by the discretisation error, whatever the step).
         let area_volume_error = {
-            let g = self.calc.geometry(coefs)?;
+            let g = engine.calc.geometry(coefs)?;
             ((g.area() - area0) / area0)
                 .abs()
                 .max(((g.volume() - volume0) / volume0).abs())
         };
         if let Some(rp) = &self.params.reparametrize {
             let mut surf = Surface::from_coefs(self.p, coefs.to_vec())?;
-            if self.reparametrizer.is_none() {
-                self.reparametrizer = Some(Reparametrizer::new(self.p)?);
+            if engine.reparametrizer.is_none() {
+                engine.reparametrizer = Some(Reparametrizer::new(self.p)?);
             }
-            self.reparametrizer
+            engine
+                .reparametrizer
                 .as_mut()
                 .expect("planned above")
                 .run(&mut surf, rp)?;
@@ -754,7 +837,7 @@ impl VesicleStepper {
         }
         if self.params.correct_drift {
             let (area, volume) = self.targets.expect("set above");
-            self.correct_area_volume(coefs, area, volume)?;
+            correct_area_volume(engine, coefs, area, volume)?;
         }
         Ok(StepReport {
             gmres: report,
@@ -772,43 +855,132 @@ impl VesicleStepper {
         area: f64,
         volume: f64,
     ) -> Result<(), TimestepError> {
-        let n = self.sht.n_points();
-        let mut xg = vec![0.0; 3 * n];
-        for _ in 0..3 {
-            let g = self.calc.geometry(coefs)?;
-            let (da, dv) = (area - g.area(), volume - g.volume());
-            if da.abs() <= 1e-14 * area && dv.abs() <= 1e-14 * volume {
-                break;
-            }
-            let hh: Vec<f64> = g.h.iter().map(|h| h * h).collect();
-            let (i0, i1, i2) = (g.area(), g.integrate(&g.h), g.integrate(&hh));
-            // [i0 i1; −2 i1 −2 i2] [α; β] = [δV; δA]
-            let det = -2.0 * i0 * i2 + 2.0 * i1 * i1;
-            // On a sphere H is constant and the system is singular (Cauchy–Schwarz): a sphere
-            // of the target volume is the only freedom left, so restore the volume alone.
-            let (alpha, beta) = if det.abs() <= 1e-8 * 2.0 * i0 * i2 {
-                (dv / i0, 0.0)
-            } else {
-                (
-                    (-2.0 * i2 * dv - i1 * da) / det,
-                    (i0 * da + 2.0 * i1 * dv) / det,
-                )
-            };
-            self.sht
-                .inverse(coefs, &mut xg, &mut self.ws)
-                .map_err(crate::vesicle::VesicleError::from)?;
-            for j in 0..n {
-                let phi = alpha + beta * g.h[j];
-                for c in 0..3 {
-                    xg[c * n + j] += phi * g.normal[j][c];
-                }
-            }
-            self.sht
-                .forward(&xg, coefs, &mut self.ws)
-                .map_err(crate::vesicle::VesicleError::from)?;
-        }
-        Ok(())
+        let mut engine = self.lease()?;
+        correct_area_volume(&mut engine, coefs, area, volume)
     }
+}
+
+/// [`VesicleStepper::correct_area_volume`] with a lent engine.
+fn correct_area_volume(
+    engine: &mut StepEngine,
+    coefs: &mut [f64],
+    area: f64,
+    volume: f64,
+) -> Result<(), TimestepError> {
+    let n = engine.sht.n_points();
+    let mut xg = vec![0.0; 3 * n];
+    for _ in 0..3 {
+        let g = engine.calc.geometry(coefs)?;
+        let (da, dv) = (area - g.area(), volume - g.volume());
+        if da.abs() <= 1e-14 * area && dv.abs() <= 1e-14 * volume {
+            break;
+        }
+        let hh: Vec<f64> = g.h.iter().map(|h| h * h).collect();
+        let (i0, i1, i2) = (g.area(), g.integrate(&g.h), g.integrate(&hh));
+        // [i0 i1; −2 i1 −2 i2] [α; β] = [δV; δA]
+        let det = -2.0 * i0 * i2 + 2.0 * i1 * i1;
+        // On a sphere H is constant and the system is singular (Cauchy–Schwarz): a sphere
+        // of the target volume is the only freedom left, so restore the volume alone.
+        let (alpha, beta) = if det.abs() <= 1e-8 * 2.0 * i0 * i2 {
+            (dv / i0, 0.0)
+        } else {
+            (
+                (-2.0 * i2 * dv - i1 * da) / det,
+                (i0 * da + 2.0 * i1 * dv) / det,
+            )
+        };
+        engine
+            .sht
+            .inverse(coefs, &mut xg, &mut engine.ws)
+            .map_err(crate::vesicle::VesicleError::from)?;
+        for j in 0..n {
+            let phi = alpha + beta * g.h[j];
+            for c in 0..3 {
+                xg[c * n + j] += phi * g.normal[j][c];
+            }
+        }
+        engine
+            .sht
+            .forward(&xg, coefs, &mut engine.ws)
+            .map_err(crate::vesicle::VesicleError::from)?;
+    }
+    Ok(())
+}
+
+/// Assemble the dense operator of `kernel` at the surface `coefs` into `out`, kept as `storage`
+/// says (coefficient space: assembled on the grid in the engine's scratch, then compressed).
+fn assemble_operator(
+    engine: &mut StepEngine,
+    storage: OperatorStorage,
+    kernel: LayerKernel,
+    coefs: &[f64],
+    out: &mut Vec<f64>,
+) -> Result<(), TimestepError> {
+    let (n, nc) = (engine.sht.n_points(), engine.sht.n_coefs());
+    match storage {
+        OperatorStorage::Grid => {
+            out.resize(9 * n * n, 0.0);
+            engine.layer.assemble(kernel, coefs, out)?;
+        }
+        OperatorStorage::Coefficients => {
+            if engine.grid_op.len() != 9 * n * n {
+                engine.grid_op = vec![0.0; 9 * n * n];
+            }
+            engine.layer.assemble(kernel, coefs, &mut engine.grid_op)?;
+            out.resize(9 * nc * nc, 0.0);
+            engine.compressor.compress(&engine.grid_op, out)?;
+        }
+    }
+    Ok(())
+}
+
+/// Scratch of a product through coefficient space.
+struct CoefficientScratch<'a> {
+    ws: &'a mut ShWorkspace,
+    /// `3n_c` each: the input's coefficients, the sum's.
+    xc: &'a mut [f64],
+    yc: &'a mut [f64],
+    /// `3n`: the sum on the grid.
+    yg: &'a mut [f64],
+}
+
+/// `y ← y + Σ_k β_k K_k x_k` for stored operators `K_k` (grid vectors `x_k`, `y`, `3n` each):
+/// a GEMV each on the grid, or `y ← y + I (Σ_k β_k K_k F x_k)` in coefficient space.
+fn apply_operators(
+    storage: OperatorStorage,
+    sht: &ShTransform,
+    scratch: CoefficientScratch<'_>,
+    terms: &[(&[f64], &[f64], f64)],
+    y: &mut [f64],
+) -> Result<(), crate::vesicle::VesicleError> {
+    match storage {
+        OperatorStorage::Grid => {
+            let m = y.len();
+            for &(k, x, beta) in terms {
+                matmul(
+                    MatMut::from_column_major_slice_mut(y, m, 1),
+                    Accum::Add,
+                    MatRef::from_column_major_slice(k, m, m),
+                    MatRef::from_column_major_slice(x, m, 1),
+                    beta,
+                    Par::Seq,
+                );
+            }
+        }
+        OperatorStorage::Coefficients => {
+            let CoefficientScratch { ws, xc, yc, yg } = scratch;
+            yc.fill(0.0);
+            for &(k, x, beta) in terms {
+                sht.forward(x, xc, ws)?;
+                apply_coefficient_operator(k, xc, yc, beta);
+            }
+            sht.inverse(yc, yg, ws)?;
+            for (a, b) in y.iter_mut().zip(yg.iter()) {
+                *a += b;
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Forward Euler of bending-driven flow, `X ← X + Δt (u_∞(X) + S[f_b(X)])`, without the

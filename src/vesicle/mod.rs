@@ -73,6 +73,7 @@
 //! ```
 
 pub mod bending;
+pub mod coefficient_operator;
 pub mod far_side;
 pub mod geometry;
 pub mod layer;
@@ -85,6 +86,7 @@ pub mod shapes;
 pub mod skalak;
 pub mod tension;
 
+pub use coefficient_operator::CoefficientOperator;
 pub use geometry::{Geometry, SurfaceCalculus};
 pub use layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 pub use membrane::Membrane;
