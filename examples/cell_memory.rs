@@ -53,6 +53,10 @@ fn main() {
     }
     let r2 = rss_bytes();
     println!(
+        "own state of a cell (VesicleStepper::memory_bytes): {:.2} MB",
+        st[0].memory_bytes() as f64 / 1e6
+    );
+    println!(
         "p = {p}, {n} cells: {:.2} MB per cell after construction, {:.2} MB per cell after one step (shared tables: {:.1} MB)",
         (r1 - r0) / n as f64 / 1e6,
         (r2 - r0) / n as f64 / 1e6,

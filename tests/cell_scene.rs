@@ -39,6 +39,7 @@ t_end = 0.5
 scheme = "bdf2"
 adaptive_dt = true
 far_side_split = false
+operator_storage = "grid"
 
 [output]
 every = 4
@@ -71,6 +72,16 @@ fn a_full_scene_parses_with_its_values_and_effects() {
     // The setting reaches every cell's own layer potentials.
     let susp = mobo::scene::cells_run::build(&s).unwrap();
     assert!(susp.steppers().iter().all(|c| !c.far_side_params().enabled));
+    use mobo::timestep::semi_implicit::OperatorStorage;
+    assert!(susp
+        .steppers()
+        .iter()
+        .all(|c| c.operator_storage() == OperatorStorage::Grid));
+    let default = parse(file(), "[[cells]]\nshape = \"rbc\"\n").unwrap();
+    assert_eq!(
+        default.numerics.operator_storage,
+        OperatorStorage::Coefficients
+    );
     assert_eq!(s.output_every, 4);
     let on = |name: &str| s.effects.iter().find(|e| e.name == name).unwrap().enabled;
     assert!(
@@ -187,6 +198,10 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
         ("[[cells]]\nshape = \"sphere\"\n[numerics]\ngmres_tol = 2.0\n", "scene.toml:4"),
         ("[[cells]]\nshape = \"sphere\"\n[numerics]\norder = 1\n", "order must be between"),
         ("[[cells]]\nshape = \"sphere\"\n[numerics]\nscheme = \"rk4\"\n", "unknown scheme"),
+        (
+            "[[cells]]\nshape = \"sphere\"\n[numerics]\noperator_storage = \"sparse\"\n",
+            "scene.toml:4:20: [numerics] operator_storage: unknown storage \"sparse\"",
+        ),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"shear\"\n", "needs rate"),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"vortex\"\nrate = 1.0\n", "unknown flow"),
         ("[[cells]]\nshape = \"sphere\"\n[output]\nevery = 0\n", "every must be at least 1"),

@@ -330,8 +330,8 @@ fn the_inclination_in_shear_decreases_with_the_viscosity_ratio() {
     assert!(flips >= 2, "no tumbling at λ = 10: {a10:?}");
 }
 
-/// The dense self-interaction operators kept in coefficient space (`P A`, the default) and on
-/// the grid (`A`) give the same steps: an inclined prolate with Skalak elasticity, a viscosity
+/// The dense self-interaction operators kept in coefficient space (`P A`, the default), on
+/// the grid (`A`), or not at all (matrix-free products) give the same steps: an inclined prolate with Skalak elasticity, a viscosity
 /// contrast (single and double layer), BDF2, reparametrisation and drift correction.
 #[test]
 fn coefficient_and_grid_operator_storage_take_the_same_steps() {
@@ -376,6 +376,7 @@ fn coefficient_and_grid_operator_storage_take_the_same_steps() {
     };
     let (cc, sc, ic, mc) = run(OperatorStorage::Coefficients);
     let (cg, sg, ig, mg) = run(OperatorStorage::Grid);
+    let (cm, sm, im, mm) = run(OperatorStorage::MatrixFree);
     let rel = |a: &[f64], b: &[f64]| {
         let d = a
             .iter()
@@ -393,4 +394,10 @@ fn coefficient_and_grid_operator_storage_take_the_same_steps() {
     assert!(es < 1e-7, "tension differs by {es:.1e}");
     // Two dense operators per cell: (n_c/n)² of the entries in coefficient space.
     assert!((mc as f64) < 0.5 * mg as f64, "{mc} vs {mg} bytes");
+    // Matrix-free: the grid operator's products, applied per iteration; no dense operator.
+    let (em, esm) = (rel(&cm, &cg), rel(&sm, &sg));
+    println!("matrix-free vs grid: surface {em:.1e}, tension {esm:.1e}; GMRES {im:?}; {mm} bytes");
+    assert!(em < 1e-9, "surface differs by {em:.1e}");
+    assert!(esm < 1e-7, "tension differs by {esm:.1e}");
+    assert!((mm as f64) < 0.1 * mc as f64, "{mm} vs {mc} bytes");
 }

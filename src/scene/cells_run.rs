@@ -562,6 +562,9 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
         ..Default::default()
     };
     let mut susp = Suspension::new(p, setups, coupling).map_err(|e| step_error(0, 0.0, e))?;
+    for s in susp.steppers_mut() {
+        s.set_operator_storage(scene.numerics.operator_storage);
+    }
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,

@@ -78,15 +78,12 @@
 
 use std::sync::{Arc, Mutex};
 
-use faer::linalg::matmul::matmul;
-use faer::{Accum, MatMut, MatRef, Par};
-
 use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
 use super::step_engine::{EngineLease, EnginePool, OperatorWork, StepEngine};
 use super::TimestepError;
 use super::{gmres, FnOperator, GmresParams, GmresReport, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
-use crate::vesicle::coefficient_operator::apply_coefficient_operator;
+use crate::vesicle::coefficient_operator::add_product;
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
@@ -173,6 +170,11 @@ pub enum OperatorStorage {
     Coefficients,
     /// On the grid, `A` (`(3n)²` entries, 7.0 MB per operator at `p = 12`).
     Grid,
+    /// Not stored: every GMRES iteration applies `A` matrix-free, batched per latitude
+    /// ([`SelfInteraction::apply`]): memory linear in the points per cell, each product
+    /// costing about half an assembly (design.md 5: the mode for scenes whose dense operators
+    /// do not fit in memory).
+    MatrixFree,
 }
 
 /// Steps one vesicle of SH order `p`.
@@ -268,7 +270,11 @@ impl VesicleStepper {
     /// An engine for one call, set up for this cell (far-side settings, Skalak reference).
     fn lease(&self) -> Result<EngineLease, TimestepError> {
         let mut e = self.pool.lease()?;
-        e.layer.set_far_side_params(self.far_side)?;
+        e.work
+            .get_mut()
+            .expect("operator lock")
+            .layer
+            .set_far_side_params(self.far_side)?;
         if let Some((_, reference)) = &self.skalak {
             e.work
                 .get_mut()
@@ -460,7 +466,13 @@ impl VesicleStepper {
     /// ([`crate::vesicle::far_side`]); they apply from the next step's assembly on.
     pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), TimestepError> {
         // Checked on an engine now, set on each engine lent to this cell.
-        self.pool.lease()?.layer.set_far_side_params(params)?;
+        self.pool
+            .lease()?
+            .work
+            .get_mut()
+            .expect("operator lock")
+            .layer
+            .set_far_side_params(params)?;
         self.far_side = params;
         Ok(())
     }
@@ -530,7 +542,7 @@ impl VesicleStepper {
         radius: f64,
         c: StepCoefficients,
     ) -> Result<(usize, bool), TimestepError> {
-        let q = engine.layer.quadrature_order();
+        let q = engine.sht.order().max(self.params.upsampled_order);
         if let Some(i) = self
             .preconditioners
             .iter()
@@ -540,7 +552,7 @@ impl VesicleStepper {
         }
         let built = {
             let work = engine.work.get_mut().expect("operator lock");
-            SpherePreconditioner::build(&mut work.membrane, &mut engine.layer, radius, c)?
+            SpherePreconditioner::build(&mut work.membrane, &mut work.layer, radius, c)?
         };
         // Keep at most two (Euler's and BDF2's τ); a stale radius or τ is replaced.
         if self.preconditioners.len() >= 2 {
@@ -683,7 +695,18 @@ impl VesicleStepper {
             self.d_op = Vec::new();
         }
         let storage = self.storage;
-        let (s_op, d_op) = (&self.s_op[..], (c_d != 0.0).then_some(&self.d_op[..]));
+        let (s_op, d_op) = match storage {
+            OperatorStorage::MatrixFree => (
+                StepOperator::Kernel(LayerKernel::SingleLayer {
+                    viscosity: self.params.viscosity,
+                }),
+                (c_d != 0.0).then_some(StepOperator::Kernel(LayerKernel::DoubleLayer)),
+            ),
+            _ => (
+                StepOperator::Dense(&self.s_op[..]),
+                (c_d != 0.0).then_some(StepOperator::Dense(&self.d_op[..])),
+            ),
+        };
         // Right-hand side [a X̂ − c_D D X̂ + τ (u_∞(X*) + u_other + S f_ext); Div X̂].
         let mut b = vec![0.0; 4 * n];
         for c in 0..3 {
@@ -701,6 +724,7 @@ impl VesicleStepper {
         {
             let OperatorWork {
                 membrane,
+                layer,
                 ws,
                 xc,
                 yc,
@@ -711,7 +735,14 @@ impl VesicleStepper {
             if let Some(d) = d_op {
                 terms.push((d, &xh_grid[..], -c_d));
             }
-            let scratch = CoefficientScratch { ws, xc, yc, yg };
+            let scratch = ProductScratch {
+                ws,
+                xc,
+                yc,
+                yg,
+                layer,
+                surface: &xstar,
+            };
             apply_operators(storage, &engine.sht, scratch, &terms, &mut b[..3 * n])?;
             membrane.surface_divergence(&xh_grid, &mut b[3 * n..])?;
         }
@@ -723,6 +754,7 @@ impl VesicleStepper {
             let mut guard = work.lock().expect("operator lock");
             let OperatorWork {
                 membrane,
+                layer,
                 fb,
                 ft,
                 ws,
@@ -749,7 +781,14 @@ impl VesicleStepper {
                         }
                         None => 1,
                     };
-                    let scratch = CoefficientScratch { ws, xc, yc, yg };
+                    let scratch = ProductScratch {
+                        ws,
+                        xc,
+                        yc,
+                        yg,
+                        layer,
+                        surface: &xstar,
+                    };
                     apply_operators(storage, sht, scratch, &terms[..k], &mut y[..3 * n])
                 });
             if let Err(e) = r {
@@ -917,66 +956,87 @@ fn assemble_operator(
     out: &mut Vec<f64>,
 ) -> Result<(), TimestepError> {
     let (n, nc) = (engine.sht.n_points(), engine.sht.n_coefs());
+    let layer = &mut engine.work.get_mut().expect("operator lock").layer;
     match storage {
         OperatorStorage::Grid => {
             out.resize(9 * n * n, 0.0);
-            engine.layer.assemble(kernel, coefs, out)?;
+            layer.assemble(kernel, coefs, out)?;
         }
         OperatorStorage::Coefficients => {
             if engine.grid_op.len() != 9 * n * n {
                 engine.grid_op = vec![0.0; 9 * n * n];
             }
-            engine.layer.assemble(kernel, coefs, &mut engine.grid_op)?;
+            layer.assemble(kernel, coefs, &mut engine.grid_op)?;
             out.resize(9 * nc * nc, 0.0);
             engine.compressor.compress(&engine.grid_op, out)?;
         }
+        OperatorStorage::MatrixFree => *out = Vec::new(),
     }
     Ok(())
 }
 
-/// Scratch of a product through coefficient space.
-struct CoefficientScratch<'a> {
+/// Scratch of the products of [`apply_operators`].
+struct ProductScratch<'a> {
     ws: &'a mut ShWorkspace,
     /// `3n_c` each: the input's coefficients, the sum's.
     xc: &'a mut [f64],
     yc: &'a mut [f64],
-    /// `3n`: the sum on the grid.
+    /// `3n`: a product or the sum on the grid.
     yg: &'a mut [f64],
+    /// The layer potentials and the surface of the operators (matrix-free products).
+    layer: &'a mut SelfInteraction,
+    surface: &'a [f64],
 }
 
-/// `y ← y + Σ_k β_k K_k x_k` for stored operators `K_k` (grid vectors `x_k`, `y`, `3n` each):
-/// a GEMV each on the grid, or `y ← y + I (Σ_k β_k K_k F x_k)` in coefficient space.
+/// An operator of a step: stored dense (as the storage says), or its kernel (matrix-free).
+#[derive(Clone, Copy)]
+enum StepOperator<'a> {
+    Dense(&'a [f64]),
+    Kernel(LayerKernel),
+}
+
+/// `y ← y + Σ_k β_k K_k x_k` (grid vectors `x_k`, `y`, `3n` each): a GEMV each on the grid,
+/// `y ← y + I (Σ_k β_k K_k F x_k)` in coefficient space, or matrix-free products.
 fn apply_operators(
     storage: OperatorStorage,
     sht: &ShTransform,
-    scratch: CoefficientScratch<'_>,
-    terms: &[(&[f64], &[f64], f64)],
+    scratch: ProductScratch<'_>,
+    terms: &[(StepOperator<'_>, &[f64], f64)],
     y: &mut [f64],
 ) -> Result<(), crate::vesicle::VesicleError> {
+    let ProductScratch {
+        ws,
+        xc,
+        yc,
+        yg,
+        layer,
+        surface,
+    } = scratch;
     match storage {
-        OperatorStorage::Grid => {
-            let m = y.len();
-            for &(k, x, beta) in terms {
-                matmul(
-                    MatMut::from_column_major_slice_mut(y, m, 1),
-                    Accum::Add,
-                    MatRef::from_column_major_slice(k, m, m),
-                    MatRef::from_column_major_slice(x, m, 1),
-                    beta,
-                    Par::Seq,
-                );
-            }
-        }
         OperatorStorage::Coefficients => {
-            let CoefficientScratch { ws, xc, yc, yg } = scratch;
             yc.fill(0.0);
             for &(k, x, beta) in terms {
-                sht.forward(x, xc, ws)?;
-                apply_coefficient_operator(k, xc, yc, beta);
+                if let StepOperator::Dense(k) = k {
+                    sht.forward(x, xc, ws)?;
+                    add_product(k, xc, yc, beta);
+                }
             }
             sht.inverse(yc, yg, ws)?;
             for (a, b) in y.iter_mut().zip(yg.iter()) {
                 *a += b;
+            }
+        }
+        OperatorStorage::Grid | OperatorStorage::MatrixFree => {
+            for &(k, x, beta) in terms {
+                match k {
+                    StepOperator::Dense(k) => add_product(k, x, y, beta),
+                    StepOperator::Kernel(kernel) => {
+                        layer.apply(kernel, surface, x, yg)?;
+                        for (a, b) in y.iter_mut().zip(yg.iter()) {
+                            *a += beta * b;
+                        }
+                    }
+                }
             }
         }
     }

@@ -28,6 +28,8 @@ use crate::vesicle::reparam::Reparametrizer;
 /// while applied: the operator closure is shared).
 pub(crate) struct OperatorWork {
     pub membrane: Membrane,
+    /// The layer potentials (assembly, and the matrix-free products).
+    pub layer: SelfInteraction,
     /// Bending and tension forces (`3n` each).
     pub fb: Vec<f64>,
     pub ft: Vec<f64>,
@@ -43,7 +45,6 @@ pub(crate) struct OperatorWork {
 /// One engine: everything a step of a cell of order `p` needs besides the cell's own state.
 pub(crate) struct StepEngine {
     pub work: Mutex<OperatorWork>,
-    pub layer: SelfInteraction,
     pub sht: ShTransform,
     pub ws: ShWorkspace,
     pub gmres_ws: GmresWorkspace,
@@ -61,6 +62,7 @@ impl StepEngine {
         Ok(StepEngine {
             work: Mutex::new(OperatorWork {
                 membrane: Membrane::new(p, q)?,
+                layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
                 fb: vec![0.0; 3 * n],
                 ft: vec![0.0; 3 * n],
                 ws: sht.workspace(),
@@ -68,7 +70,6 @@ impl StepEngine {
                 yc: vec![0.0; 3 * nc],
                 yg: vec![0.0; 3 * n],
             }),
-            layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
             ws: sht.workspace(),
             gmres_ws: GmresWorkspace::new(4 * n, restart),
             calc: SurfaceCalculus::new(p)?,

@@ -117,14 +117,14 @@ impl CoefficientOperator {
     }
 }
 
-/// `y ← y + β A_c x` for a coefficient-space operator `a_c` (`m × m`, column-major) and
-/// coefficient vectors `x`, `y` of length `m`.
-pub fn apply_coefficient_operator(a_c: &[f64], x: &[f64], y: &mut [f64], beta: f64) {
+/// `y ← y + β K x` for a dense square operator `k` (`m × m`, column-major: a coefficient-space
+/// `A_c` or a grid operator) and vectors `x`, `y` of length `m` (one GEMV).
+pub fn add_product(k: &[f64], x: &[f64], y: &mut [f64], beta: f64) {
     let m = x.len();
     matmul(
         MatMut::from_column_major_slice_mut(y, m, 1),
         Accum::Add,
-        MatRef::from_column_major_slice(a_c, m, m),
+        MatRef::from_column_major_slice(k, m, m),
         MatRef::from_column_major_slice(x, m, 1),
         beta,
         Par::Seq,

@@ -110,6 +110,8 @@ pub struct SelfInteraction {
     dens_rot: Vec<f64>,
     /// Kernel rows of one target, `9 × n_q` (row `3a + b`, column-major).
     kern: Vec<f64>,
+    /// Per-latitude batches (allocated at the first assembly or batched application).
+    scratch: Option<Box<LatitudeScratch>>,
 }
 
 impl SelfInteraction {
@@ -149,6 +151,7 @@ impl SelfInteraction {
             yp: vec![0.0; 3 * nq],
             dens_rot: vec![0.0; 3 * nq],
             kern: vec![0.0; 9 * nq],
+            scratch: None,
             sht_p,
             sht_q,
         })
@@ -309,94 +312,14 @@ impl SelfInteraction {
         let nq = self.sht_q.n_points();
         let nlon = 2 * self.p;
         let rows = 9 * nlon;
-        // Per-latitude scratch: B_i (for ViaSh), the stacked kernel rows and their product.
-        let mut b_sh = match self.rot {
-            Rotator::ViaSh(_) => {
-                // Coefficients of the order-p grid's unit vectors (the forward matrix F).
-                let mut eye = vec![0.0; np * np];
-                for j in 0..np {
-                    eye[j * np + j] = 1.0;
-                }
-                let mut f = vec![0.0; self.sht_p.n_coefs() * np];
-                self.sht_p.forward(&eye, &mut f, &mut self.ws_p)?;
-                Some((f, vec![0.0; nq * np]))
-            }
-            Rotator::Direct(_) => None,
-        };
-        let mut kmat = vec![0.0; rows * nq];
-        let mut cmat = vec![0.0; rows * np];
-        // The surface shifted by every longitude (np × 3·2p) and, per latitude, its rotations
-        // with their derivatives (batches of 3·2p functions on the order-q grid).
-        let nf = 3 * nlon;
-        let mut xs = vec![0.0; np * nf];
-        for lon in 0..nlon {
-            crate::sph_harmonics::rotation::shift_longitudes(
-                self.p,
-                lon,
-                &self.x_grid,
-                &mut xs[lon * 3 * np..(lon + 1) * 3 * np],
-            );
-        }
-        let mut y_all = vec![0.0; nq * nf];
-        let mut yt_all = vec![0.0; nq * nf];
-        let mut yp_all = vec![0.0; nq * nf];
-        let mut c_all = vec![0.0; self.sht_q.n_coefs() * nf];
+        let mut sc = self.latitude_scratch()?;
         for lat in 0..=self.p {
-            if let (Rotator::ViaSh(r), Some((f, b))) = (&mut self.rot, b_sh.as_mut()) {
-                r.apply(lat, 0, f, b)?;
-            }
-            let b: &[f64] = match (&self.rot, b_sh.as_ref()) {
-                (Rotator::Direct(d), _) => d.matrix(lat).expect("all latitudes are built"),
-                (Rotator::ViaSh(_), Some((_, b))) => b,
-                _ => unreachable!("ViaSh always has its B_i scratch"),
-            };
-            // Rotated surfaces Y_k = B_i S_k X of all 2p targets of the latitude, one GEMM.
+            self.latitude_rows(kernel, lat, &mut sc)?;
+            let b = rotation_matrix(&self.rot, &sc.b_sh, lat);
             matmul(
-                MatMut::from_column_major_slice_mut(&mut y_all, nq, nf),
+                MatMut::from_column_major_slice_mut(&mut sc.cmat, rows, np),
                 Accum::Replace,
-                MatRef::from_column_major_slice(b, nq, np),
-                MatRef::from_column_major_slice(&xs, np, nf),
-                1.0,
-                Par::Seq,
-            );
-            self.sht_q.forward(&y_all, &mut c_all, &mut self.ws_q)?;
-            self.sht_q.synthesize(
-                &c_all,
-                &[Deriv::Value, Deriv::Theta, Deriv::Phi],
-                &mut [&mut y_all, &mut yt_all, &mut yp_all],
-                &mut self.ws_q,
-            )?;
-            for lon in 0..nlon {
-                let t = lat * nlon + lon;
-                let blk = lon * 3 * nq..(lon + 1) * 3 * nq;
-                kernel_rows(
-                    kernel,
-                    get3(&self.x_grid, np, t),
-                    &y_all[blk.clone()],
-                    &yt_all[blk.clone()],
-                    &yp_all[blk],
-                    if self.far.flagged[t] {
-                        &self.gs_local
-                    } else {
-                        &self.gs
-                    },
-                    &self.sin_q,
-                    &mut self.kern,
-                );
-                for j in 0..nq {
-                    kmat[j * rows + 9 * lon..j * rows + 9 * lon + 9]
-                        .copy_from_slice(&self.kern[9 * j..9 * j + 9]);
-                }
-            }
-            let b: &[f64] = match (&self.rot, b_sh.as_ref()) {
-                (Rotator::Direct(d), _) => d.matrix(lat).expect("all latitudes are built"),
-                (Rotator::ViaSh(_), Some((_, b))) => b,
-                _ => unreachable!("ViaSh always has its B_i scratch"),
-            };
-            matmul(
-                MatMut::from_column_major_slice_mut(&mut cmat, rows, np),
-                Accum::Replace,
-                MatRef::from_column_major_slice(&kmat, rows, nq),
+                MatRef::from_column_major_slice(&sc.kmat, rows, nq),
                 MatRef::from_column_major_slice(b, nq, np),
                 1.0,
                 Par::Seq,
@@ -407,7 +330,7 @@ impl SelfInteraction {
                 for cp in 0..np {
                     let (cl, ck) = (cp / nlon, cp % nlon);
                     let c = cl * nlon + (ck + lon) % nlon;
-                    let src = &cmat[cp * rows + 9 * lon..cp * rows + 9 * lon + 9];
+                    let src = &sc.cmat[cp * rows + 9 * lon..cp * rows + 9 * lon + 9];
                     for a in 0..3 {
                         for bb in 0..3 {
                             out[(bb * np + c) * n3 + a * np + t] = src[3 * a + bb];
@@ -416,9 +339,223 @@ impl SelfInteraction {
                 }
             }
         }
+        self.scratch = Some(sc);
         self.far.add_rows(kernel, &self.x_grid, out)?;
         Ok(())
     }
+
+    /// Matrix-free application at every grid point, batched per latitude like
+    /// [`Self::assemble`] (memory linear in the points per cell, time per call about half an
+    /// assembly): `out = A · density` (component-major, `3n_p` each), the same numbers as the
+    /// dense operator's product to round-off.
+    ///
+    /// Per latitude `i`: the rotated surfaces of its `2p` targets and their kernel rows `K`
+    /// (as in the assembly), the rotated densities `B_i S_k f` of all targets in one GEMM, and
+    /// per target the contraction `Σ_j K(j) (B_i S_k f)(j)`; flagged targets add their far
+    /// side ([`super::far_side`]).
+    pub fn apply(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        density: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        kernel.check()?;
+        let np = self.n_points();
+        check_len("density", density.len(), 3 * np)?;
+        check_len("output", out.len(), 3 * np)?;
+        self.set_surface(coefs)?;
+        self.far.set_density(density)?;
+        let nq = self.sht_q.n_points();
+        let nlon = 2 * self.p;
+        let rows = 9 * nlon;
+        let nf = 3 * nlon;
+        let mut sc = self.latitude_scratch()?;
+        // The density shifted by every longitude (np × 3·2p), as the surface.
+        for lon in 0..nlon {
+            crate::sph_harmonics::rotation::shift_longitudes(
+                self.p,
+                lon,
+                density,
+                &mut sc.ds[lon * 3 * np..(lon + 1) * 3 * np],
+            );
+        }
+        for lat in 0..=self.p {
+            self.latitude_rows(kernel, lat, &mut sc)?;
+            let b = rotation_matrix(&self.rot, &sc.b_sh, lat);
+            // Rotated densities of all 2p targets (n_q × 3·2p), reusing the values' scratch.
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut sc.y_all, nq, nf),
+                Accum::Replace,
+                MatRef::from_column_major_slice(b, nq, np),
+                MatRef::from_column_major_slice(&sc.ds, np, nf),
+                1.0,
+                Par::Seq,
+            );
+            for lon in 0..nlon {
+                let t = lat * nlon + lon;
+                let d = &sc.y_all[lon * 3 * nq..(lon + 1) * 3 * nq];
+                let mut u = [0.0; 3];
+                for j in 0..nq {
+                    let k = &sc.kmat[j * rows + 9 * lon..j * rows + 9 * lon + 9];
+                    let f = [d[j], d[nq + j], d[2 * nq + j]];
+                    for (a, ua) in u.iter_mut().enumerate() {
+                        *ua += k[3 * a] * f[0] + k[3 * a + 1] * f[1] + k[3 * a + 2] * f[2];
+                    }
+                }
+                if self.far.flagged[t] {
+                    self.far
+                        .add_far(kernel, t, get3(&self.x_grid, np, t), &mut u);
+                }
+                for (a, ua) in u.iter().enumerate() {
+                    out[a * np + t] = *ua;
+                }
+            }
+        }
+        self.scratch = Some(sc);
+        Ok(())
+    }
+
+    /// The per-latitude scratch (kept between calls), with the surface of the last
+    /// `set_surface` shifted by every longitude.
+    fn latitude_scratch(&mut self) -> Result<Box<LatitudeScratch>, VesicleError> {
+        let (np, nq, ncq) = (
+            self.sht_p.n_points(),
+            self.sht_q.n_points(),
+            self.sht_q.n_coefs(),
+        );
+        let nlon = 2 * self.p;
+        let nf = 3 * nlon;
+        let mut sc = match self.scratch.take() {
+            Some(sc) => sc,
+            None => {
+                let b_sh = match self.rot {
+                    Rotator::ViaSh(_) => {
+                        // Coefficients of the order-p grid's unit vectors (the forward matrix F).
+                        let mut eye = vec![0.0; np * np];
+                        for j in 0..np {
+                            eye[j * np + j] = 1.0;
+                        }
+                        let mut f = vec![0.0; self.sht_p.n_coefs() * np];
+                        self.sht_p.forward(&eye, &mut f, &mut self.ws_p)?;
+                        Some((f, vec![0.0; nq * np]))
+                    }
+                    Rotator::Direct(_) => None,
+                };
+                Box::new(LatitudeScratch {
+                    xs: vec![0.0; np * nf],
+                    ds: vec![0.0; np * nf],
+                    y_all: vec![0.0; nq * nf],
+                    yt_all: vec![0.0; nq * nf],
+                    yp_all: vec![0.0; nq * nf],
+                    c_all: vec![0.0; ncq * nf],
+                    kmat: vec![0.0; 9 * nlon * nq],
+                    cmat: vec![0.0; 9 * nlon * np],
+                    b_sh,
+                })
+            }
+        };
+        for lon in 0..nlon {
+            crate::sph_harmonics::rotation::shift_longitudes(
+                self.p,
+                lon,
+                &self.x_grid,
+                &mut sc.xs[lon * 3 * np..(lon + 1) * 3 * np],
+            );
+        }
+        Ok(sc)
+    }
+
+    /// For latitude `lat`: `B_i` (ViaSh), the rotated surfaces `Y_k = B_i S_k X` of its `2p`
+    /// targets with their derivatives (one GEMM, batched transforms at order `q`) and their
+    /// stacked kernel rows `sc.kmat` (`9·2p × n_q`, row `9k + 3a + b`).
+    fn latitude_rows(
+        &mut self,
+        kernel: LayerKernel,
+        lat: usize,
+        sc: &mut LatitudeScratch,
+    ) -> Result<(), VesicleError> {
+        let (np, nq) = (self.sht_p.n_points(), self.sht_q.n_points());
+        let nlon = 2 * self.p;
+        let rows = 9 * nlon;
+        let nf = 3 * nlon;
+        if let (Rotator::ViaSh(r), Some((f, b))) = (&mut self.rot, sc.b_sh.as_mut()) {
+            r.apply(lat, 0, f, b)?;
+        }
+        let b = rotation_matrix(&self.rot, &sc.b_sh, lat);
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut sc.y_all, nq, nf),
+            Accum::Replace,
+            MatRef::from_column_major_slice(b, nq, np),
+            MatRef::from_column_major_slice(&sc.xs, np, nf),
+            1.0,
+            Par::Seq,
+        );
+        self.sht_q
+            .forward(&sc.y_all, &mut sc.c_all, &mut self.ws_q)?;
+        self.sht_q.synthesize(
+            &sc.c_all,
+            &[Deriv::Value, Deriv::Theta, Deriv::Phi],
+            &mut [&mut sc.y_all, &mut sc.yt_all, &mut sc.yp_all],
+            &mut self.ws_q,
+        )?;
+        for lon in 0..nlon {
+            let t = lat * nlon + lon;
+            let blk = lon * 3 * nq..(lon + 1) * 3 * nq;
+            kernel_rows(
+                kernel,
+                get3(&self.x_grid, np, t),
+                &sc.y_all[blk.clone()],
+                &sc.yt_all[blk.clone()],
+                &sc.yp_all[blk],
+                if self.far.flagged[t] {
+                    &self.gs_local
+                } else {
+                    &self.gs
+                },
+                &self.sin_q,
+                &mut self.kern,
+            );
+            for j in 0..nq {
+                sc.kmat[j * rows + 9 * lon..j * rows + 9 * lon + 9]
+                    .copy_from_slice(&self.kern[9 * j..9 * j + 9]);
+            }
+        }
+        Ok(())
+    }
+}
+
+/// `B_i` of latitude `lat` (for `ViaSh`: as built by the last
+/// [`SelfInteraction::latitude_rows`] into `b_sh`).
+fn rotation_matrix<'a>(
+    rot: &'a Rotator,
+    b_sh: &'a Option<(Vec<f64>, Vec<f64>)>,
+    lat: usize,
+) -> &'a [f64] {
+    match (rot, b_sh.as_ref()) {
+        (Rotator::Direct(d), _) => d.matrix(lat).expect("all latitudes are built"),
+        (Rotator::ViaSh(_), Some((_, b))) => b,
+        _ => unreachable!("ViaSh always has its B_i scratch"),
+    }
+}
+
+/// Scratch of the per-latitude batches of [`SelfInteraction::assemble`] and
+/// [`SelfInteraction::apply`] (`2p` targets at a time).
+struct LatitudeScratch {
+    /// The surface and the density shifted by every longitude (`n_p × 3·2p`).
+    xs: Vec<f64>,
+    ds: Vec<f64>,
+    /// Rotated surfaces (then rotated densities), their derivatives (`n_q × 3·2p`) and
+    /// coefficients.
+    y_all: Vec<f64>,
+    yt_all: Vec<f64>,
+    yp_all: Vec<f64>,
+    c_all: Vec<f64>,
+    /// Stacked kernel rows (`9·2p × n_q`) and their product with `B_i` (`9·2p × n_p`).
+    kmat: Vec<f64>,
+    cmat: Vec<f64>,
+    /// ViaSh: the forward matrix `F` and `B_i`.
+    b_sh: Option<(Vec<f64>, Vec<f64>)>,
 }
 
 /// The nine entries `K_ab` (row-major, `3a + b`) of a layer kernel at `r = x − y` with the unit
