@@ -78,9 +78,29 @@ fn a_full_scene_parses_with_its_values_and_effects() {
         .iter()
         .all(|c| c.operator_storage() == OperatorStorage::Grid));
     let default = parse(file(), "[[cells]]\nshape = \"rbc\"\n").unwrap();
+    assert_eq!(default.numerics.operator_storage, None);
+    // "auto": the fastest storage whose operators fit the budget. 10⁴ RBCs at p = 12 need
+    // 70 GB on the grid and 20 GB in coefficient space.
+    let gib = 1u64 << 30;
     assert_eq!(
-        default.numerics.operator_storage,
+        OperatorStorage::for_budget(100, 12, 1, 14 * gib),
+        OperatorStorage::Grid
+    );
+    assert_eq!(
+        OperatorStorage::for_budget(10_000, 12, 1, 24 * gib),
         OperatorStorage::Coefficients
+    );
+    assert_eq!(
+        OperatorStorage::for_budget(10_000, 12, 2, 24 * gib),
+        OperatorStorage::MatrixFree
+    );
+    assert_eq!(
+        OperatorStorage::Grid.bytes_per_cell(12, 1),
+        9 * 312 * 312 * 8
+    );
+    assert_eq!(
+        OperatorStorage::Coefficients.bytes_per_cell(12, 1),
+        9 * 168 * 168 * 8
     );
     assert_eq!(s.output_every, 4);
     let on = |name: &str| s.effects.iter().find(|e| e.name == name).unwrap().enabled;

@@ -35,7 +35,7 @@
 //! scheme = "euler"                # "euler" | "bdf2"
 //! adaptive_dt = false             # true: dt from the area/volume error (dt is the first step)
 //! far_side_split = true           # split off the own far side in the singular quadrature
-//! operator_storage = "coefficients" # self-interaction: "coefficients" | "grid" | "matrix_free"
+//! operator_storage = "auto"       # self-interaction: "auto" | "grid" | "coefficients" | "matrix_free"
 //! # dt_tolerance = 1e-3           # adaptive: relative area/volume error allowed over the run
 //! # dt_min = 1e-5, dt_max = 0.1   # adaptive: bounds of dt (defaults dt/1000, max(dt, t_end/10))
 //! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
@@ -247,9 +247,10 @@ pub struct Numerics {
     /// Split a cell's own far side off its singular integrals where it comes close
     /// ([`crate::vesicle::far_side`]; default on).
     pub far_side_split: bool,
-    /// How each cell keeps its dense self-interaction operators (default: in coefficient space,
-    /// 3.4× smaller; [`crate::timestep::semi_implicit::OperatorStorage`]).
-    pub operator_storage: OperatorStorage,
+    /// How each cell keeps its self-interaction operators
+    /// ([`crate::timestep::semi_implicit::OperatorStorage`]); `None` ("auto", the default): the
+    /// fastest whose operators for all cells fit in 60 % of the memory available at the start.
+    pub operator_storage: Option<OperatorStorage>,
     /// Adaptive `dt`: relative area/volume error allowed over the run (default `1e-3`).
     pub dt_tolerance: f64,
     /// Adaptive `dt`: bounds of the step (defaults `dt/1000` and `t_end/10`, at least `dt`).
@@ -463,17 +464,18 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         adaptive_dt: n.and_then(|n| n.adaptive_dt).unwrap_or(false),
         far_side_split: n.and_then(|n| n.far_side_split).unwrap_or(true),
         operator_storage: match n.and_then(|n| n.operator_storage.as_ref()) {
-            None => OperatorStorage::Coefficients,
+            None => None,
             Some(s) => match s.get_ref().as_str() {
-                "coefficients" => OperatorStorage::Coefficients,
-                "grid" => OperatorStorage::Grid,
-                "matrix_free" => OperatorStorage::MatrixFree,
+                "auto" => None,
+                "coefficients" => Some(OperatorStorage::Coefficients),
+                "grid" => Some(OperatorStorage::Grid),
+                "matrix_free" => Some(OperatorStorage::MatrixFree),
                 other => {
                     return Err(at(
                         s.span(),
                         format!(
                             "[numerics] operator_storage: unknown storage \"{other}\" \
-                             (coefficients, grid, matrix_free)"
+                             (auto, grid, coefficients, matrix_free)"
                         ),
                     ))
                 }

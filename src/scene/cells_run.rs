@@ -31,7 +31,7 @@ use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::coupling::CouplingParams;
-use crate::timestep::semi_implicit::{TimeScheme, VesicleParams};
+use crate::timestep::semi_implicit::{OperatorStorage, TimeScheme, VesicleParams};
 use crate::timestep::suspension::{CellSetup, CellStepError, Suspension};
 use crate::timestep::{GmresParams, TimestepError};
 use crate::vesicle::far_side::FarSideParams;
@@ -562,8 +562,13 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
         ..Default::default()
     };
     let mut susp = Suspension::new(p, setups, coupling).map_err(|e| step_error(0, 0.0, e))?;
+    let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
+        let contrast = scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
+        let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+        OperatorStorage::for_budget(susp.steppers().len(), p, 1 + usize::from(contrast), budget)
+    });
     for s in susp.steppers_mut() {
-        s.set_operator_storage(scene.numerics.operator_storage);
+        s.set_operator_storage(storage);
     }
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
@@ -944,3 +949,11 @@ gmres_tol = 1e-8
 [output]
 every = 20
 "#;
+
+/// `MemAvailable` of `/proc/meminfo` in bytes (`None` where there is none).
+fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}

@@ -159,22 +159,50 @@ pub struct StepReport {
     pub area_volume_error: f64,
 }
 
-/// How a cell keeps its dense self-interaction operators from the assembly to the GMRES
-/// iterations of its step ([`crate::vesicle::coefficient_operator`]).
+/// How a cell keeps its self-interaction operators from the assembly to the GMRES iterations
+/// of its step. All three give the same step to the GMRES tolerance; they trade memory for
+/// time (one RBC at `p = 12`, one core: 0.19 / 0.24 / 2.8 s per step, 7.2 / 2.2 / 0.19 MB of
+/// own state per cell for grid / coefficients / matrix-free; `benches/RESULTS.md`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum OperatorStorage {
     /// In coefficient space, `A_c = F A I` (`(3n_c)²` entries, 2.0 MB per operator at
-    /// `p = 12`), applied as `P A x = I A_c F x`: the same step (the band-limited part of the
-    /// solution, hence the new surface, is the same), 3.4× less memory and bandwidth.
-    #[default]
+    /// `p = 12`; [`crate::vesicle::coefficient_operator`]), applied as `P A x = I A_c F x`:
+    /// the same step (the band-limited part of the solution, hence the new surface, is the
+    /// same), 3.4× less memory, for a compression per assembly and two transforms per product.
     Coefficients,
-    /// On the grid, `A` (`(3n)²` entries, 7.0 MB per operator at `p = 12`).
+    /// On the grid, `A` (`(3n)²` entries, 7.0 MB per operator at `p = 12`): the fast path.
+    #[default]
     Grid,
     /// Not stored: every GMRES iteration applies `A` matrix-free, batched per latitude
     /// ([`SelfInteraction::apply`]): memory linear in the points per cell, each product
     /// costing about half an assembly (design.md 5: the mode for scenes whose dense operators
     /// do not fit in memory).
     MatrixFree,
+}
+
+impl OperatorStorage {
+    /// Bytes of the stored operators of one cell of order `p` (`operators`: 1, or 2 with a
+    /// viscosity contrast).
+    pub fn bytes_per_cell(self, p: usize, operators: usize) -> usize {
+        let n = 2 * p * (p + 1);
+        let nc = (p + 1) * (p + 1) - 1;
+        operators
+            * 8
+            * match self {
+                OperatorStorage::Grid => 9 * n * n,
+                OperatorStorage::Coefficients => 9 * nc * nc,
+                OperatorStorage::MatrixFree => 0,
+            }
+    }
+
+    /// The fastest storage whose operators for `cells` cells fit in `budget` bytes (`operators`
+    /// per cell): the grid, else coefficient space, else matrix-free (design.md 5).
+    pub fn for_budget(cells: usize, p: usize, operators: usize, budget: u64) -> Self {
+        [OperatorStorage::Grid, OperatorStorage::Coefficients]
+            .into_iter()
+            .find(|s| (cells as u64) * (s.bytes_per_cell(p, operators) as u64) <= budget)
+            .unwrap_or(OperatorStorage::MatrixFree)
+    }
 }
 
 /// Steps one vesicle of SH order `p`.
