@@ -79,7 +79,7 @@
 use std::sync::{Arc, Mutex};
 
 use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
-use super::step_engine::{EngineLease, EnginePool, OperatorWork, StepEngine};
+use super::step_engine::{EngineLease, EnginePool, OperatorWork, ProductWork, StepEngine};
 use super::TimestepError;
 use super::{gmres, FnOperator, GmresParams, GmresReport, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
@@ -270,9 +270,9 @@ impl VesicleStepper {
         let q = params.upsampled_order.max(p);
         let pool = EnginePool::shared(p, q, params.gmres.restart);
         // Plans the engine (or takes an idle one), which also checks `p` and `q`.
-        let (n, nc, far_side) = {
+        let (n, nc) = {
             let e = pool.lease()?;
-            (e.sht.n_points(), e.sht.n_coefs(), FarSideParams::default())
+            (e.sht.n_points(), e.sht.n_coefs())
         };
         Ok(VesicleStepper {
             p,
@@ -280,7 +280,7 @@ impl VesicleStepper {
             nc,
             params,
             pool,
-            far_side,
+            far_side: FarSideParams::default(),
             storage: OperatorStorage::default(),
             s_op: Vec::new(),
             d_op: Vec::new(),
@@ -301,6 +301,7 @@ impl VesicleStepper {
         e.work
             .get_mut()
             .expect("operator lock")
+            .products
             .layer
             .set_far_side_params(self.far_side)?;
         if let Some((_, reference)) = &self.skalak {
@@ -499,6 +500,7 @@ impl VesicleStepper {
             .work
             .get_mut()
             .expect("operator lock")
+            .products
             .layer
             .set_far_side_params(params)?;
         self.far_side = params;
@@ -580,7 +582,7 @@ impl VesicleStepper {
         }
         let built = {
             let work = engine.work.get_mut().expect("operator lock");
-            SpherePreconditioner::build(&mut work.membrane, &mut work.layer, radius, c)?
+            SpherePreconditioner::build(&mut work.membrane, &mut work.products.layer, radius, c)?
         };
         // Keep at most two (Euler's and BDF2's τ); a stale radius or τ is replaced.
         if self.preconditioners.len() >= 2 {
@@ -751,27 +753,17 @@ impl VesicleStepper {
         }
         {
             let OperatorWork {
-                membrane,
-                layer,
-                ws,
-                xc,
-                yc,
-                yg,
-                ..
+                membrane, products, ..
             } = engine.work.get_mut().expect("operator lock");
-            let mut terms = vec![(s_op, &fext[..], tau)];
-            if let Some(d) = d_op {
-                terms.push((d, &xh_grid[..], -c_d));
-            }
-            let scratch = ProductScratch {
-                ws,
-                xc,
-                yc,
-                yg,
-                layer,
-                surface: &xstar,
-            };
-            apply_operators(storage, &engine.sht, scratch, &terms, &mut b[..3 * n])?;
+            apply_operators(
+                storage,
+                &engine.sht,
+                products,
+                &xstar,
+                (s_op, &fext, tau),
+                d_op.map(|d| (d, &xh_grid[..], -c_d)),
+                &mut b[..3 * n],
+            )?;
             membrane.surface_divergence(&xh_grid, &mut b[3 * n..])?;
         }
         // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X].
@@ -782,13 +774,9 @@ impl VesicleStepper {
             let mut guard = work.lock().expect("operator lock");
             let OperatorWork {
                 membrane,
-                layer,
                 fb,
                 ft,
-                ws,
-                xc,
-                yc,
-                yg,
+                products,
             } = &mut *guard;
             let r = membrane
                 .bending_linear(kappa, x, fb)
@@ -801,23 +789,15 @@ impl VesicleStepper {
                     for (yi, xi) in y[..3 * n].iter_mut().zip(x) {
                         *yi = a_id * xi;
                     }
-                    let mut terms = [(s_op, &fb[..], -tau), (s_op, x, 0.0)];
-                    let k = match d_op {
-                        Some(d) => {
-                            terms[1] = (d, x, -c_d);
-                            2
-                        }
-                        None => 1,
-                    };
-                    let scratch = ProductScratch {
-                        ws,
-                        xc,
-                        yc,
-                        yg,
-                        layer,
-                        surface: &xstar,
-                    };
-                    apply_operators(storage, sht, scratch, &terms[..k], &mut y[..3 * n])
+                    apply_operators(
+                        storage,
+                        sht,
+                        products,
+                        &xstar,
+                        (s_op, fb, -tau),
+                        d_op.map(|d| (d, x, -c_d)),
+                        &mut y[..3 * n],
+                    )
                 });
             if let Err(e) = r {
                 *failure.lock().expect("failure lock") = Some(e);
@@ -984,7 +964,7 @@ fn assemble_operator(
     out: &mut Vec<f64>,
 ) -> Result<(), TimestepError> {
     let (n, nc) = (engine.sht.n_points(), engine.sht.n_coefs());
-    let layer = &mut engine.work.get_mut().expect("operator lock").layer;
+    let layer = &mut engine.work.get_mut().expect("operator lock").products.layer;
     match storage {
         OperatorStorage::Grid => {
             out.resize(9 * n * n, 0.0);
@@ -1003,19 +983,6 @@ fn assemble_operator(
     Ok(())
 }
 
-/// Scratch of the products of [`apply_operators`].
-struct ProductScratch<'a> {
-    ws: &'a mut ShWorkspace,
-    /// `3n_c` each: the input's coefficients, the sum's.
-    xc: &'a mut [f64],
-    yc: &'a mut [f64],
-    /// `3n`: a product or the sum on the grid.
-    yg: &'a mut [f64],
-    /// The layer potentials and the surface of the operators (matrix-free products).
-    layer: &'a mut SelfInteraction,
-    surface: &'a [f64],
-}
-
 /// An operator of a step: stored dense (as the storage says), or its kernel (matrix-free).
 #[derive(Clone, Copy)]
 enum StepOperator<'a> {
@@ -1023,27 +990,33 @@ enum StepOperator<'a> {
     Kernel(LayerKernel),
 }
 
-/// `y ← y + Σ_k β_k K_k x_k` (grid vectors `x_k`, `y`, `3n` each): a GEMV each on the grid,
-/// `y ← y + I (Σ_k β_k K_k F x_k)` in coefficient space, or matrix-free products.
+/// One term `β K x` of a product: the operator, the input (a grid vector, `3n`) and `β`.
+type Term<'a> = (StepOperator<'a>, &'a [f64], f64);
+
+/// `y ← y + β_S S x_S + β_D D x_D` (the double-layer term optional; grid vectors, `3n` each):
+/// a GEMV each on the grid, `y ← y + I (Σ β K F x)` in coefficient space, or matrix-free
+/// products on the surface `surface` (coefficients).
 fn apply_operators(
     storage: OperatorStorage,
     sht: &ShTransform,
-    scratch: ProductScratch<'_>,
-    terms: &[(StepOperator<'_>, &[f64], f64)],
+    work: &mut ProductWork,
+    surface: &[f64],
+    single: Term<'_>,
+    double: Option<Term<'_>>,
     y: &mut [f64],
 ) -> Result<(), crate::vesicle::VesicleError> {
-    let ProductScratch {
+    let ProductWork {
+        layer,
         ws,
         xc,
         yc,
         yg,
-        layer,
-        surface,
-    } = scratch;
+    } = work;
+    let terms = std::iter::once(single).chain(double);
     match storage {
         OperatorStorage::Coefficients => {
             yc.fill(0.0);
-            for &(k, x, beta) in terms {
+            for (k, x, beta) in terms {
                 if let StepOperator::Dense(k) = k {
                     sht.forward(x, xc, ws)?;
                     add_product(k, xc, yc, beta);
@@ -1055,7 +1028,7 @@ fn apply_operators(
             }
         }
         OperatorStorage::Grid | OperatorStorage::MatrixFree => {
-            for &(k, x, beta) in terms {
+            for (k, x, beta) in terms {
                 match k {
                     StepOperator::Dense(k) => add_product(k, x, y, beta),
                     StepOperator::Kernel(kernel) => {

@@ -28,17 +28,23 @@ use crate::vesicle::reparam::Reparametrizer;
 /// while applied: the operator closure is shared).
 pub(crate) struct OperatorWork {
     pub membrane: Membrane,
-    /// The layer potentials (assembly, and the matrix-free products).
-    pub layer: SelfInteraction,
     /// Bending and tension forces (`3n` each).
     pub fb: Vec<f64>,
     pub ft: Vec<f64>,
-    /// Transform workspace of the operator and the coefficient vectors (`3n_c` each) of its
-    /// coefficient-space products: an input and the sum.
+    /// The self-interaction products.
+    pub products: ProductWork,
+}
+
+/// The layer potentials and the scratch of the self-interaction products of a step.
+pub(crate) struct ProductWork {
+    /// The layer potentials (assembly, and the matrix-free products).
+    pub layer: SelfInteraction,
+    /// Transform workspace and the coefficient vectors (`3n_c` each) of the coefficient-space
+    /// products: an input and the sum.
     pub ws: ShWorkspace,
     pub xc: Vec<f64>,
     pub yc: Vec<f64>,
-    /// Grid scratch (`3n`).
+    /// Grid scratch (`3n`): a product or the sum.
     pub yg: Vec<f64>,
 }
 
@@ -62,13 +68,15 @@ impl StepEngine {
         Ok(StepEngine {
             work: Mutex::new(OperatorWork {
                 membrane: Membrane::new(p, q)?,
-                layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
                 fb: vec![0.0; 3 * n],
                 ft: vec![0.0; 3 * n],
-                ws: sht.workspace(),
-                xc: vec![0.0; 3 * nc],
-                yc: vec![0.0; 3 * nc],
-                yg: vec![0.0; 3 * n],
+                products: ProductWork {
+                    layer: SelfInteraction::new(p, q, RotationAlgorithm::Direct)?,
+                    ws: sht.workspace(),
+                    xc: vec![0.0; 3 * nc],
+                    yc: vec![0.0; 3 * nc],
+                    yg: vec![0.0; 3 * n],
+                },
             }),
             ws: sht.workspace(),
             gmres_ws: GmresWorkspace::new(4 * n, restart),

@@ -28,7 +28,7 @@ use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
 use super::{check_len, VesicleError};
-use crate::sph_harmonics::ShTransform;
+use crate::sph_harmonics::{ShTransform, ShWorkspace};
 
 /// The transforms of order `p` as matrices and the scratch of a compression: compresses grid
 /// operators `A` to `A_c = F A I`.
@@ -48,12 +48,7 @@ impl CoefficientOperator {
     pub fn new(sht: &ShTransform) -> Result<Self, VesicleError> {
         let (n, nc) = (sht.n_points(), sht.n_coefs());
         let mut ws = sht.workspace();
-        let mut eye = vec![0.0; n * n];
-        for j in 0..n {
-            eye[j * n + j] = 1.0;
-        }
-        let mut forward = vec![0.0; nc * n];
-        sht.forward(&eye, &mut forward, &mut ws)?;
+        let forward = forward_matrix(sht, &mut ws)?;
         let mut eye_c = vec![0.0; nc * nc];
         for k in 0..nc {
             eye_c[k * nc + k] = 1.0;
@@ -115,6 +110,22 @@ impl CoefficientOperator {
         }
         Ok(())
     }
+}
+
+/// The forward transform `F` of `sht` as a matrix (`n_c × n`, column-major: column `j` holds
+/// the coefficients of grid value `j`).
+pub(crate) fn forward_matrix(
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+) -> Result<Vec<f64>, VesicleError> {
+    let (n, nc) = (sht.n_points(), sht.n_coefs());
+    let mut eye = vec![0.0; n * n];
+    for j in 0..n {
+        eye[j * n + j] = 1.0;
+    }
+    let mut forward = vec![0.0; nc * n];
+    sht.forward(&eye, &mut forward, ws)?;
+    Ok(forward)
 }
 
 /// `y ← y + β K x` for a dense square operator `k` (`m × m`, column-major: a coefficient-space

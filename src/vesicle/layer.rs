@@ -35,6 +35,7 @@ use std::f64::consts::PI;
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
+use super::coefficient_operator::forward_matrix;
 use super::far_side::{FarSide, FarSideParams};
 use super::{check_len, cross, dot, get3, VesicleError};
 use crate::sph_harmonics::{
@@ -101,6 +102,8 @@ pub struct SelfInteraction {
     // Scratch.
     x_grid: Vec<f64>,
     x_coef: Vec<f64>,
+    /// Whether `x_coef`, `x_grid` and the far-side plan are those of a surface set.
+    surface_set: bool,
     dens_coef: Vec<f64>,
     rot_vals: Vec<f64>,
     rot_coef: Vec<f64>,
@@ -143,6 +146,7 @@ impl SelfInteraction {
             sin_q: Grid::new(q).sin_theta,
             x_grid: vec![0.0; 3 * np],
             x_coef: vec![0.0; 3 * ncp],
+            surface_set: false,
             dens_coef: vec![0.0; 3 * ncp],
             rot_vals: vec![0.0; 3 * nq],
             rot_coef: vec![0.0; 3 * ncq],
@@ -177,6 +181,10 @@ impl SelfInteraction {
 
     /// Change the settings of the far-side split (see [`super::far_side`]).
     pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), VesicleError> {
+        if params != self.far.params() {
+            // The far-side plan of the surface set so far is stale.
+            self.surface_set = false;
+        }
         self.far.set_params(params)
     }
 
@@ -186,12 +194,19 @@ impl SelfInteraction {
         self.far.plan()
     }
 
+    /// Set the surface (grid values and far-side plan); kept when it is the surface already set
+    /// (the products of a GMRES solve, or `S` and `D` at one geometry, share it).
     fn set_surface(&mut self, coefs: &[f64]) -> Result<(), VesicleError> {
         check_len("surface coefficients", coefs.len(), self.x_coef.len())?;
+        if self.surface_set && self.x_coef == coefs {
+            return Ok(());
+        }
+        self.surface_set = false;
         self.x_coef.copy_from_slice(coefs);
         self.sht_p
             .inverse(coefs, &mut self.x_grid, &mut self.ws_p)?;
         self.far.set_surface(&self.x_coef, &self.x_grid)?;
+        self.surface_set = true;
         Ok(())
     }
 
@@ -369,29 +384,14 @@ impl SelfInteraction {
         let nq = self.sht_q.n_points();
         let nlon = 2 * self.p;
         let rows = 9 * nlon;
-        let nf = 3 * nlon;
         let mut sc = self.latitude_scratch()?;
         // The density shifted by every longitude (np × 3·2p), as the surface.
-        for lon in 0..nlon {
-            crate::sph_harmonics::rotation::shift_longitudes(
-                self.p,
-                lon,
-                density,
-                &mut sc.ds[lon * 3 * np..(lon + 1) * 3 * np],
-            );
-        }
+        shift_every_longitude(self.p, density, &mut sc.ds);
         for lat in 0..=self.p {
             self.latitude_rows(kernel, lat, &mut sc)?;
-            let b = rotation_matrix(&self.rot, &sc.b_sh, lat);
             // Rotated densities of all 2p targets (n_q × 3·2p), reusing the values' scratch.
-            matmul(
-                MatMut::from_column_major_slice_mut(&mut sc.y_all, nq, nf),
-                Accum::Replace,
-                MatRef::from_column_major_slice(b, nq, np),
-                MatRef::from_column_major_slice(&sc.ds, np, nf),
-                1.0,
-                Par::Seq,
-            );
+            let b = rotation_matrix(&self.rot, &sc.b_sh, lat);
+            rotate_batch(b, np, &sc.ds, &mut sc.y_all);
             for lon in 0..nlon {
                 let t = lat * nlon + lon;
                 let d = &sc.y_all[lon * 3 * nq..(lon + 1) * 3 * nq];
@@ -430,16 +430,10 @@ impl SelfInteraction {
             Some(sc) => sc,
             None => {
                 let b_sh = match self.rot {
-                    Rotator::ViaSh(_) => {
-                        // Coefficients of the order-p grid's unit vectors (the forward matrix F).
-                        let mut eye = vec![0.0; np * np];
-                        for j in 0..np {
-                            eye[j * np + j] = 1.0;
-                        }
-                        let mut f = vec![0.0; self.sht_p.n_coefs() * np];
-                        self.sht_p.forward(&eye, &mut f, &mut self.ws_p)?;
-                        Some((f, vec![0.0; nq * np]))
-                    }
+                    Rotator::ViaSh(_) => Some((
+                        forward_matrix(&self.sht_p, &mut self.ws_p)?,
+                        vec![0.0; nq * np],
+                    )),
                     Rotator::Direct(_) => None,
                 };
                 Box::new(LatitudeScratch {
@@ -455,14 +449,7 @@ impl SelfInteraction {
                 })
             }
         };
-        for lon in 0..nlon {
-            crate::sph_harmonics::rotation::shift_longitudes(
-                self.p,
-                lon,
-                &self.x_grid,
-                &mut sc.xs[lon * 3 * np..(lon + 1) * 3 * np],
-            );
-        }
+        shift_every_longitude(self.p, &self.x_grid, &mut sc.xs);
         Ok(sc)
     }
 
@@ -478,19 +465,11 @@ impl SelfInteraction {
         let (np, nq) = (self.sht_p.n_points(), self.sht_q.n_points());
         let nlon = 2 * self.p;
         let rows = 9 * nlon;
-        let nf = 3 * nlon;
         if let (Rotator::ViaSh(r), Some((f, b))) = (&mut self.rot, sc.b_sh.as_mut()) {
             r.apply(lat, 0, f, b)?;
         }
         let b = rotation_matrix(&self.rot, &sc.b_sh, lat);
-        matmul(
-            MatMut::from_column_major_slice_mut(&mut sc.y_all, nq, nf),
-            Accum::Replace,
-            MatRef::from_column_major_slice(b, nq, np),
-            MatRef::from_column_major_slice(&sc.xs, np, nf),
-            1.0,
-            Par::Seq,
-        );
+        rotate_batch(b, np, &sc.xs, &mut sc.y_all);
         self.sht_q
             .forward(&sc.y_all, &mut sc.c_all, &mut self.ws_q)?;
         self.sht_q.synthesize(
@@ -523,6 +502,28 @@ impl SelfInteraction {
         }
         Ok(())
     }
+}
+
+/// `src` (component-major vector field on the order-`p` grid, `3n_p`) shifted by every
+/// longitude `k = 0 … 2p−1` into `dst` (`n_p × 3·2p`, shift `k` in columns `3k … 3k+2`).
+fn shift_every_longitude(p: usize, src: &[f64], dst: &mut [f64]) {
+    for (lon, d) in dst.chunks_exact_mut(src.len()).enumerate() {
+        crate::sph_harmonics::rotation::shift_longitudes(p, lon, src, d);
+    }
+}
+
+/// `out = B · src` for a rotation matrix `B` (`n_q × n_p`) and a batch of functions `src`
+/// (`n_p × k`) into `out` (`n_q × k`).
+fn rotate_batch(b: &[f64], np: usize, src: &[f64], out: &mut [f64]) {
+    let (nq, k) = (b.len() / np, src.len() / np);
+    matmul(
+        MatMut::from_column_major_slice_mut(out, nq, k),
+        Accum::Replace,
+        MatRef::from_column_major_slice(b, nq, np),
+        MatRef::from_column_major_slice(src, np, k),
+        1.0,
+        Par::Seq,
+    );
 }
 
 /// `B_i` of latitude `lat` (for `ViaSh`: as built by the last

@@ -44,6 +44,8 @@ impl SkalakParams {
 
 /// The reference metric on the order-`q` grid and the scratch for the tension tensor.
 pub(super) struct Reference {
+    /// Its order-`p` coefficients.
+    coefs: Vec<f64>,
     /// `[E, F, G]` of the reference surface.
     metric: Vec<[f64; 3]>,
     /// `W_ref / W` is needed for the energy; `W_ref` here.
@@ -85,6 +87,9 @@ impl Membrane {
     /// as the surfaces whose forces are computed). Allocates the Skalak scratch once.
     pub fn set_reference(&mut self, coefs: &[f64]) -> Result<(), VesicleError> {
         check_len("reference coefficients", coefs.len(), self.cp.len())?;
+        if self.reference.as_ref().is_some_and(|r| r.coefs == coefs) {
+            return Ok(());
+        }
         let q = self.upsampled_order();
         let nq = self.n_points_upsampled();
         let ncq = self.calc.transform().n_coefs();
@@ -98,6 +103,7 @@ impl Membrane {
         let mut g = super::Geometry::zeros(q);
         self.calc.update_geometry(&cq, &mut g)?;
         self.reference = Some(Reference {
+            coefs: coefs.to_vec(),
             metric: (0..nq).map(|j| [g.e[j], g.f[j], g.g[j]]).collect(),
             w: g.w,
             tau: vec![0.0; 6 * nq],
