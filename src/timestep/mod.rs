@@ -89,6 +89,7 @@
 pub mod adaptive;
 pub mod coupling;
 mod gmres;
+pub mod grid_frame;
 mod operator;
 pub mod semi_implicit;
 pub mod sphere_preconditioner;

@@ -78,6 +78,7 @@
 
 use std::sync::{Arc, Mutex};
 
+use super::grid_frame::{grid_rotation, RotatedPreconditioner, IDENTITY};
 use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
 use super::step_engine::{EngineLease, EnginePool, OperatorWork, ProductWork, StepEngine};
 use super::TimestepError;
@@ -678,6 +679,14 @@ impl VesicleStepper {
         } else {
             (None, false)
         };
+        // How far the grid has turned with the cell: the sphere preconditioner is turned with
+        // it (see super::grid_frame).
+        let rotation = if self.params.preconditioner {
+            let g = engine.calc.geometry(&xstar)?;
+            grid_rotation(&g, &engine.sht.grid().unit_points())
+        } else {
+            IDENTITY
+        };
         let mut xs_grid = vec![0.0; 3 * n];
         let mut xh_grid = vec![0.0; 3 * n];
         engine
@@ -812,7 +821,7 @@ impl VesicleStepper {
         let report = match pc_index {
             Some(i) => gmres(
                 &op,
-                &self.preconditioners[i],
+                &RotatedPreconditioner::new(&self.preconditioners[i], rotation, n),
                 &b,
                 Some(&z0),
                 &mut z,
@@ -863,24 +872,8 @@ impl VesicleStepper {
                 .abs()
                 .max(((g.volume() - volume0) / volume0).abs())
         };
-        if let Some(rp) = &self.params.reparametrize {
-            let mut surf = Surface::from_coefs(self.p, coefs.to_vec())?;
-            if engine.reparametrizer.is_none() {
-                engine.reparametrizer = Some(Reparametrizer::new(self.p)?);
-            }
-            engine
-                .reparametrizer
-                .as_mut()
-                .expect("planned above")
-                .run(&mut surf, rp)?;
-            // Move the history by the same grid displacement, so that the difference
-            // Xⁿ⁺¹ − Xⁿ the next BDF2 step sees stays that of the flow.
-            if let Some(prev) = self.previous.as_mut() {
-                for ((p, new), old) in prev.iter_mut().zip(surf.coefs()).zip(coefs.iter()) {
-                    *p += new - old;
-                }
-            }
-            coefs.copy_from_slice(surf.coefs());
+        if let Some(rp) = self.params.reparametrize {
+            self.regrid(engine, coefs, &rp)?;
         }
         if self.params.correct_drift {
             let (area, volume) = self.targets.expect("set above");
@@ -892,6 +885,70 @@ impl VesicleStepper {
             preconditioner_built,
             area_volume_error,
         })
+    }
+
+    /// Relax the parametrisation after a step ([`Reparametrizer::run_with`]), relabelling every
+    /// material quantity of the cell with the grid: the Skalak reference (otherwise the shear
+    /// elasticity would see the tangential move as a strain), the tension, the membrane
+    /// velocity and the BDF2 history, so that each stays attached to the same membrane point.
+    fn regrid(
+        &mut self,
+        engine: &mut StepEngine,
+        coefs: &mut [f64],
+        rp: &ReparamParams,
+    ) -> Result<(), TimestepError> {
+        use crate::vesicle::VesicleError;
+        let nc = self.nc;
+        if engine.reparametrizer.is_none() {
+            engine.reparametrizer = Some(Reparametrizer::new(self.p)?);
+        }
+        // The tension (a scalar, padded to three functions) and the velocity as coefficients.
+        let mut sigma_c = vec![0.0; 3 * nc];
+        engine
+            .sht
+            .forward(&self.sigma, &mut sigma_c[..nc], &mut engine.ws)
+            .map_err(VesicleError::from)?;
+        let mut velocity_c = match &self.velocity {
+            Some(v) => {
+                let mut c = vec![0.0; 3 * nc];
+                engine
+                    .sht
+                    .forward(v, &mut c, &mut engine.ws)
+                    .map_err(VesicleError::from)?;
+                Some(c)
+            }
+            None => None,
+        };
+        let mut surf = Surface::from_coefs(self.p, coefs.to_vec())?;
+        {
+            let mut passengers: Vec<&mut [f64]> = vec![&mut sigma_c[..]];
+            if let Some(v) = velocity_c.as_mut() {
+                passengers.push(&mut v[..]);
+            }
+            if let Some((_, reference)) = self.skalak.as_mut() {
+                passengers.push(&mut reference[..]);
+            }
+            if let Some(prev) = self.previous.as_mut() {
+                passengers.push(&mut prev[..]);
+            }
+            engine
+                .reparametrizer
+                .as_mut()
+                .expect("planned above")
+                .run_with(&mut surf, rp, &mut passengers)?;
+        }
+        coefs.copy_from_slice(surf.coefs());
+        engine
+            .sht
+            .inverse(&sigma_c[..nc], &mut self.sigma, &mut engine.ws)
+            .map_err(VesicleError::from)?;
+        if let (Some(c), Some(v)) = (velocity_c, self.velocity.as_mut()) {
+            engine
+                .sht
+                .inverse(&c, v, &mut engine.ws)
+                .map_err(VesicleError::from)?;
+        }
+        Ok(())
     }
 
     /// Move the surface along its normal by `(α + β H) n` so that its area and volume become

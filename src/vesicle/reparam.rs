@@ -100,6 +100,8 @@ pub struct Reparametrizer {
     g: Vec<f64>,
     moved: Vec<f64>,
     new_coefs: Vec<f64>,
+    /// Parameters `(θ, φ)` each grid point moves to in the current move.
+    shifts: Vec<(f64, f64)>,
 }
 
 impl Reparametrizer {
@@ -115,8 +117,25 @@ impl Reparametrizer {
             g: vec![0.0; 3 * np],
             moved: vec![0.0; 3 * np],
             new_coefs: vec![0.0; 3 * nc],
+            shifts: vec![(0.0, 0.0); np],
             sht,
         })
+    }
+
+    /// The order the transforms were planned for.
+    pub fn order(&self) -> usize {
+        self.sht.order()
+    }
+
+    fn check_order(&self, surface: &Surface) -> Result<(), VesicleError> {
+        if surface.order() != self.sht.order() {
+            return Err(VesicleError::Parameter {
+                name: "surface order",
+                value: surface.order() as f64,
+                reason: "differs from the order the reparametrisation was planned for",
+            });
+        }
+        Ok(())
     }
 
     /// Reparametrise `surface` (of this order) in place (see the module docs).
@@ -125,21 +144,74 @@ impl Reparametrizer {
         surface: &mut Surface,
         params: &ReparamParams,
     ) -> Result<ReparamReport, VesicleError> {
-        if surface.order() != self.sht.order() {
-            return Err(VesicleError::Parameter {
-                name: "surface order",
-                value: surface.order() as f64,
-                reason: "differs from the order the reparametrisation was planned for",
-            });
-        }
-        reparametrize_with(self, surface, params)
+        self.run_with(surface, params, &mut [])
     }
+
+    /// [`Self::run`], relabelling every passenger the same way (see [`Self::relabel`]): the
+    /// stress-free reference of an elastic membrane, the surface of the previous step, fields
+    /// on the surface given by their coefficients. Each passenger holds `3 (p+1)²` coefficients
+    /// (three functions; pad a scalar field with zeros).
+    pub fn run_with(
+        &mut self,
+        surface: &mut Surface,
+        params: &ReparamParams,
+        passengers: &mut [&mut [f64]],
+    ) -> Result<ReparamReport, VesicleError> {
+        self.check_order(surface)?;
+        self.check_passengers(passengers)?;
+        reparametrize_with(self, surface, params, passengers)
+    }
+
+    fn check_passengers(&self, passengers: &[&mut [f64]]) -> Result<(), VesicleError> {
+        for p in passengers {
+            super::check_len(
+                "reparametrisation passenger",
+                p.len(),
+                3 * self.sht.n_coefs(),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Relabel three functions given by their coefficients `coefs` by the parameter map of the
+    /// last move: `c ← F[c(θ_j + δθ_j, φ_j + δφ_j)]` (point evaluation, then the forward
+    /// transform). A surface relabelled so is the same surface with its grid points moved;
+    /// a material field (reference shape, tension, velocity) stays attached to the material.
+    fn relabel(&mut self, coefs: &mut [f64]) -> Result<(), VesicleError> {
+        let np = self.sht.n_points();
+        let lay = self.sht.layout();
+        for (j, &(t, f)) in self.shifts.iter().enumerate() {
+            let pd = self.pe.eval(lay, coefs, t, f);
+            for c in 0..3 {
+                self.moved[c * np + j] = pd.x[c];
+            }
+        }
+        self.sht
+            .forward(&self.moved, &mut self.new_coefs, &mut self.ws)?;
+        coefs.copy_from_slice(&self.new_coefs);
+        Ok(())
+    }
+}
+
+/// The parameters `(θ_j + δθ, φ_j + δφ)` of the point reached from grid point `j` by the
+/// tangent move `d`: one Gauss–Newton step, `[E F; F G] δ = [X_θ·d; X_φ·d]`.
+fn parameter_shift(
+    sht: &ShTransform,
+    geom: &super::geometry::Geometry,
+    j: usize,
+    d: [f64; 3],
+) -> (f64, f64) {
+    let (a, b) = (dot(geom.xt[j], d), dot(geom.xp[j], d));
+    let gi = geom.ginv[j];
+    let (t0, f0) = sht.grid().angles(j);
+    (t0 + gi[0] * a + gi[1] * b, f0 + gi[1] * a + gi[2] * b)
 }
 
 fn reparametrize_with(
     plan: &mut Reparametrizer,
     surface: &mut Surface,
     params: &ReparamParams,
+    passengers: &mut [&mut [f64]],
 ) -> Result<ReparamReport, VesicleError> {
     if !(params.step.is_finite() && params.step > 0.0 && params.step < 1.0) {
         return Err(VesicleError::Parameter {
@@ -156,57 +228,41 @@ fn reparametrize_with(
         });
     }
     let p = surface.order();
-    let Reparametrizer {
-        sht,
-        ws,
-        calc,
-        pe,
-        gc,
-        g,
-        moved,
-        new_coefs,
-    } = plan;
-    let lay = sht.layout();
-    let np = sht.n_points();
-    let w = weights(lay, params.weight_exponent);
+    let np = plan.sht.n_points();
+    let w = weights(plan.sht.layout(), params.weight_exponent);
     let e0 = spectral_energy(surface, params.weight_exponent);
     let mut e = e0;
     let mut iterations = 0;
+    let mut candidate = surface.coefs().to_vec();
     for _ in 0..params.max_iterations {
-        let geom = calc.geometry(surface.coefs())?;
-        for (gc, (c, w)) in gc
+        let geom = plan.calc.geometry(surface.coefs())?;
+        for (gc, (c, w)) in plan
+            .gc
             .iter_mut()
             .zip(surface.coefs().iter().zip(w.iter().cycle()))
         {
             *gc = c * w;
         }
-        sht.inverse(gc, g, ws)?;
+        plan.sht.inverse(&plan.gc, &mut plan.g, &mut plan.ws)?;
         for j in 0..np {
-            let gj = [g[j], g[np + j], g[2 * np + j]];
+            let gj = [plan.g[j], plan.g[np + j], plan.g[2 * np + j]];
             let n = geom.normal[j];
             let gn = dot(gj, n);
-            // The tangential move d = −τ P G in parameters: [E F; F G] δ = [X_θ·d; X_φ·d].
+            // The tangential move d = −τ P G.
             let d: [f64; 3] = std::array::from_fn(|c| -params.step * (gj[c] - gn * n[c]));
-            let (a, b) = (dot(geom.xt[j], d), dot(geom.xp[j], d));
-            let gi = geom.ginv[j];
-            let (t0, f0) = sht.grid().angles(j);
-            let pd = pe.eval(
-                lay,
-                surface.coefs(),
-                t0 + gi[0] * a + gi[1] * b,
-                f0 + gi[1] * a + gi[2] * b,
-            );
-            for c in 0..3 {
-                moved[c * np + j] = pd.x[c];
-            }
+            plan.shifts[j] = parameter_shift(&plan.sht, &geom, j, d);
         }
-        sht.forward(moved, new_coefs, ws)?;
-        let candidate = Surface::from_coefs(p, new_coefs.clone())?;
-        let e_new = spectral_energy(&candidate, params.weight_exponent);
+        candidate.copy_from_slice(surface.coefs());
+        plan.relabel(&mut candidate)?;
+        let candidate_surface = Surface::from_coefs(p, candidate.clone())?;
+        let e_new = spectral_energy(&candidate_surface, params.weight_exponent);
         if e_new >= e {
             break;
         }
-        *surface = candidate;
+        *surface = candidate_surface;
+        for q in passengers.iter_mut() {
+            plan.relabel(q)?;
+        }
         iterations += 1;
         let decrease = (e - e_new) / e;
         e = e_new;

@@ -1,0 +1,171 @@
+//! Long-run diagnostics of one cell's semi-implicit steps (issue: GMRES iterations growing over
+//! long runs). Prints, every `EVERY` steps: time, GMRES iterations (mean and max over the
+//! window), area/volume drift, grid quality (max/min of the area element per solid angle
+//! `J = W / sin θ`), the share of the shape's and the tension's spectral energy in the top
+//! quarter of the degrees, and the largest |σ|.
+//!
+//! `cargo run --release --example long_run_probe -- SHAPE P DT STEPS [EVERY]`
+//! with SHAPE one of `v0.85` (prolate of that reduced volume), `rbc` (biconcave, Skalak from
+//! `MOBO_SHEAR_MODULUS`, default 0), and the environment:
+//! `MOBO_FLOW` = `shear` (default) | `ext`, `MOBO_KAPPA` (default 0.05), `MOBO_TILT` (degrees
+//! about x, default 0), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`.
+use mobo::sph_harmonics::CoefLayout;
+use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::GmresParams;
+use mobo::vesicle::geometry::SurfaceCalculus;
+use mobo::vesicle::reparam::ReparamParams;
+use mobo::vesicle::shapes::{self, Spheroid};
+use mobo::vesicle::skalak::SkalakParams;
+
+fn env_f64(name: &str, default: f64) -> f64 {
+    std::env::var(name)
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(default)
+}
+
+/// Share of `Σ c²` in degrees above `3p/4`, summed over the functions of `coefs`.
+fn high_share(lay: &CoefLayout, coefs: &[f64]) -> f64 {
+    let deg = lay.degrees();
+    let p = lay.order();
+    let (mut hi, mut all) = (0.0, 0.0);
+    for chunk in coefs.chunks_exact(lay.len()) {
+        for (c, &n) in chunk.iter().zip(&deg) {
+            // Degree 0 of a coordinate is the position of the cell, not its shape.
+            if n == 0 {
+                continue;
+            }
+            all += c * c;
+            if 4 * n > 3 * p {
+                hi += c * c;
+            }
+        }
+    }
+    if all > 0.0 {
+        hi / all
+    } else {
+        0.0
+    }
+}
+
+fn main() {
+    let a: Vec<String> = std::env::args().collect();
+    let shape = a.get(1).map_or("v0.85", |s| s.as_str()).to_string();
+    let p: usize = a.get(2).map_or(12, |s| s.parse().unwrap());
+    let dt: f64 = a.get(3).map_or(0.02, |s| s.parse().unwrap());
+    let steps: usize = a.get(4).map_or(400, |s| s.parse().unwrap());
+    let every: usize = a.get(5).map_or(25, |s| s.parse().unwrap());
+    let kappa = env_f64("MOBO_KAPPA", 0.05);
+    let tilt = env_f64("MOBO_TILT", 0.0).to_radians();
+    let gs = env_f64("MOBO_SHEAR_MODULUS", 0.0);
+    let ext = std::env::var("MOBO_FLOW").is_ok_and(|f| f == "ext");
+    let rot = std::env::var("MOBO_FLOW").is_ok_and(|f| f == "rot");
+    let mut s = if shape == "rbc" {
+        shapes::rbc(p).unwrap()
+    } else {
+        let v: f64 = shape.trim_start_matches('v').parse().unwrap();
+        shapes::reduced_volume_spheroid(p, v, Spheroid::Prolate, 1.0).unwrap()
+    };
+    let (st, ct) = tilt.sin_cos();
+    s.rotate([[1.0, 0.0, 0.0], [0.0, ct, -st], [0.0, st, ct]])
+        .unwrap();
+    let mut calc = SurfaceCalculus::new(p).unwrap();
+    let g0 = calc.geometry(s.coefs()).unwrap();
+    let (a0, v0) = (g0.area(), g0.volume());
+    let params = VesicleParams {
+        bending_modulus: kappa,
+        viscosity: 1.0,
+        force: [0.0; 3],
+        dt,
+        upsampled_order: 2 * p,
+        gmres: GmresParams {
+            tol: 1e-8,
+            restart: env_f64("MOBO_RESTART", 200.0) as usize,
+            max_iters: 5000,
+        },
+        correct_drift: true,
+        reparametrize: std::env::var("MOBO_NO_REPARAM")
+            .is_err()
+            .then(|| ReparamParams {
+                max_iterations: 10,
+                ..Default::default()
+            }),
+        preconditioner: true,
+        scheme: if std::env::var("MOBO_SCHEME").is_ok_and(|s| s == "bdf2") {
+            TimeScheme::Bdf2
+        } else {
+            TimeScheme::Euler
+        },
+        viscosity_ratio: 1.0,
+    };
+    let mut stepper = VesicleStepper::new(p, params).unwrap();
+    let mut coefs = s.coefs().to_vec();
+    if gs > 0.0 {
+        stepper
+            .set_skalak(
+                SkalakParams {
+                    shear_modulus: gs,
+                    dilation_ratio: 10.0,
+                },
+                &coefs,
+            )
+            .unwrap();
+    }
+    let flow = move |x: [f64; 3]| {
+        if rot {
+            [0.0, -0.5 * x[2], 0.5 * x[1]]
+        } else if ext {
+            [x[0], -x[1], 0.0]
+        } else {
+            [x[1], 0.0, 0.0]
+        }
+    };
+    let lay = CoefLayout::new(p);
+    let sht = mobo::sph_harmonics::ShTransform::new(p).unwrap();
+    let mut ws = sht.workspace();
+    let mut sig_c = vec![0.0; lay.len()];
+    println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s");
+    let (mut sum, mut max) = (0usize, 0usize);
+    let start = std::time::Instant::now();
+    for k in 1..=steps {
+        let r = match stepper.step(&mut coefs, &flow) {
+            Ok(r) => r,
+            Err(e) => {
+                println!("# step {k} (t = {:.3}) failed: {e}", k as f64 * dt);
+                std::process::exit(1);
+            }
+        };
+        sum += r.gmres.iterations;
+        max = max.max(r.gmres.iterations);
+        if k % every == 0 {
+            let g = calc.geometry(&coefs).unwrap();
+            let grid = calc.transform().grid();
+            let nlon = 2 * p;
+            let (mut jmin, mut jmax, mut skew) = (f64::INFINITY, 0.0f64, 0.0f64);
+            for (j, w) in g.w.iter().enumerate() {
+                let jj = w / grid.sin_theta[j / nlon];
+                jmin = jmin.min(jj);
+                jmax = jmax.max(jj);
+                skew = skew.max((g.f[j] / (g.e[j] * g.g[j]).sqrt()).abs());
+            }
+            sht.forward(&stepper.sigma, &mut sig_c, &mut ws).unwrap();
+            let smax = stepper.sigma.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            println!(
+                "{:8.3} {:7.1} {:5} {:10.2e} {:10.2e} {:8.3} {:6.3} {:9.2e} {:9.2e} {:9.3e} {:7.1}",
+                k as f64 * dt,
+                sum as f64 / every as f64,
+                max,
+                (g.area() - a0) / a0,
+                (g.volume() - v0) / v0,
+                jmax / jmin,
+                skew,
+                high_share(&lay, &coefs),
+                high_share(&lay, &sig_c),
+                smax,
+                start.elapsed().as_secs_f64()
+            );
+            sum = 0;
+            max = 0;
+        }
+    }
+}
