@@ -36,6 +36,7 @@ fn main() {
             tol: 1e-8,
             restart: 30,
             max_iters: 300,
+            ..Default::default()
         },
         correct_drift: true,
         reparametrize: Some(ReparamParams::default()),

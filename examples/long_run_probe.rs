@@ -82,6 +82,7 @@ fn main() {
             tol: 1e-8,
             restart: env_f64("MOBO_RESTART", 200.0) as usize,
             max_iters: 5000,
+            ..Default::default()
         },
         correct_drift: true,
         reparametrize: std::env::var("MOBO_NO_REPARAM")
@@ -127,16 +128,54 @@ fn main() {
     println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s");
     let (mut sum, mut max) = (0usize, 0usize);
     let start = std::time::Instant::now();
+    // Summary: iterations per window of 100 steps against the first window, drifts, grid.
+    let (mut win_sum, mut first_mean, mut worst_ratio, mut last_mean) = (0usize, None, 1.0f64, 0.0);
+    let (mut max_area, mut max_volume, mut max_step_err) = (0.0f64, 0.0f64, 0.0f64);
+    let j_ratio = |g: &mobo::vesicle::geometry::Geometry, sin_theta: &[f64]| {
+        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+        for (j, w) in g.w.iter().enumerate() {
+            let v = w / sin_theta[j / (2 * p)];
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+        hi / lo
+    };
+    let j_start = j_ratio(&g0, &calc.transform().grid().sin_theta.clone());
+    let mut j_max = j_start;
+    let case = std::env::var("MOBO_CASE").unwrap_or_else(|_| shape.clone());
     for k in 1..=steps {
         let r = match stepper.step(&mut coefs, &flow) {
             Ok(r) => r,
             Err(e) => {
                 println!("# step {k} (t = {:.3}) failed: {e}", k as f64 * dt);
+                println!(
+                    "| {case} | {p} | {dt} | {steps} | {:.1} | {:.1} | – | – | – | – | – | – | {:.0} | FAIL at step {k}: {} |",
+                    k as f64 * dt,
+                    first_mean.unwrap_or(f64::NAN),
+                    start.elapsed().as_secs_f64(),
+                    e.to_string().lines().next().unwrap_or("")
+                );
                 std::process::exit(1);
             }
         };
         sum += r.gmres.iterations;
         max = max.max(r.gmres.iterations);
+        win_sum += r.gmres.iterations;
+        max_step_err = max_step_err.max(r.area_volume_error);
+        {
+            let g = calc.geometry(&coefs).unwrap();
+            max_area = max_area.max(((g.area() - a0) / a0).abs());
+            max_volume = max_volume.max(((g.volume() - v0) / v0).abs());
+            let st = calc.transform().grid().sin_theta.clone();
+            j_max = j_max.max(j_ratio(&g, &st));
+        }
+        if k % 100 == 0 {
+            let m = win_sum as f64 / 100.0;
+            let f = *first_mean.get_or_insert(m);
+            worst_ratio = worst_ratio.max(m / f);
+            last_mean = m;
+            win_sum = 0;
+        }
         if k % every == 0 {
             let g = calc.geometry(&coefs).unwrap();
             let grid = calc.transform().grid();
@@ -168,4 +207,12 @@ fn main() {
             max = 0;
         }
     }
+    let first = first_mean.unwrap_or(f64::NAN);
+    let ok = worst_ratio <= 2.0 && max_area < 1e-6 && max_volume < 1e-6;
+    println!(
+        "| {case} | {p} | {dt} | {steps} | {:.1} | {first:.1} | {last_mean:.1} | {worst_ratio:.2} | {max_area:.1e} | {max_volume:.1e} | {max_step_err:.1e} | {j_start:.2} → {j_max:.2} | {:.0} | {} |",
+        steps as f64 * dt,
+        start.elapsed().as_secs_f64(),
+        if ok { "pass" } else { "FAIL" }
+    );
 }

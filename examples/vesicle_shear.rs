@@ -35,6 +35,7 @@ fn main() {
             tol: 1e-9,
             restart: 100,
             max_iters: 2000,
+            ..Default::default()
         },
         correct_drift: std::env::var("MOBO_NO_DRIFT_CORRECTION").is_err(),
         reparametrize: std::env::var("MOBO_NO_REPARAM")

@@ -27,6 +27,7 @@ fn stepper(scheme: TimeScheme, dt: f64) -> VesicleStepper {
                 tol: 1e-13,
                 restart: 100,
                 max_iters: 1000,
+                ..Default::default()
             },
             correct_drift: false,
             reparametrize: None,

@@ -386,6 +386,7 @@ fn spheres_with_contrast_still_sediment_at_the_two_sphere_mobility() {
                         tol: 1e-12,
                         restart: 200,
                         max_iters: 2000,
+                        ..Default::default()
                     },
                     correct_drift: false,
                     reparametrize: None,

@@ -160,6 +160,7 @@ fn dense_diagonally_dominant_systems_match_lu() {
             tol,
             restart: 50,
             max_iters: 500,
+            ..Default::default()
         };
         let (x, rep) = solve(&a, &Identity::new(n), &b, &params);
         let rep = rep.unwrap();
@@ -210,6 +211,7 @@ fn k_distinct_eigenvalues_converge_in_k_iterations() {
         tol: 1e-10,
         restart: 50,
         max_iters: 50,
+        ..Default::default()
     };
     let (x, rep) = solve(&a, &Identity::new(n), &b, &params);
     let rep = rep.unwrap();
@@ -255,6 +257,7 @@ fn cyclic_shift_needs_exactly_n_iterations_without_restart() {
         tol: 1e-12,
         restart: n,
         max_iters: n,
+        ..Default::default()
     };
     let (x, rep) = solve(&a, &Identity::new(n), &b, &params);
     let rep = rep.unwrap();
@@ -283,6 +286,7 @@ fn random_nonnormal_matrix_converges_in_at_most_n_iterations() {
         tol: 1e-10,
         restart: n,
         max_iters: n,
+        ..Default::default()
     };
     let (x, rep) = solve(&a, &Identity::new(n), &b, &params);
     let rep = rep.unwrap();
@@ -319,6 +323,7 @@ fn restarted_gmres_converges_with_monotone_residuals() {
             tol,
             restart: m,
             max_iters: 2000,
+            ..Default::default()
         };
         let (x, rep) = solve(&a, &Identity::new(n), &b, &params);
         let rep = rep.unwrap();
@@ -388,6 +393,7 @@ fn block_diagonal_preconditioner_cuts_iterations() {
         tol,
         restart: n,
         max_iters: n,
+        ..Default::default()
     };
     let m = BlockDiagonal::from_diagonal_of(a.as_ref(), &sizes).unwrap();
     assert_eq!(m.num_blocks(), sizes.len());
@@ -495,6 +501,7 @@ fn matrix_free_closure_operator_matches_dense() {
         tol: 1e-11,
         restart: 40,
         max_iters: 5000,
+        ..Default::default()
     };
     let (x1, rep1) = solve(&op, &Identity::new(n), &b, &params);
     let (x2, rep2) = solve(&dense, &Identity::new(n), &b, &params);
@@ -523,10 +530,30 @@ fn non_convergence_returns_err_with_report() {
         tol: 1e-8,
         restart: 10,
         max_iters: 100,
+        ..Default::default()
+    };
+    // With the stagnation test (the default) it stops after the first cycle, with the residual
+    // history in the message.
+    let (x, res) = solve(&a, &Identity::new(n), &b, &params);
+    let err = res.unwrap_err();
+    println!("stagnating GMRES(10), stagnation test on: {err}");
+    assert!(err.to_string().contains("stagnated"), "{err}");
+    assert!(err.to_string().contains("1.00e0"), "{err}");
+    let TimestepError::Stagnated(rep) = &err else {
+        panic!("expected Stagnated, got {err:?}");
+    };
+    assert_eq!(rep.iterations, 10);
+    assert_eq!(rep.restarts, 0);
+    assert_eq!(rep.cycle_residuals, vec![1.0]);
+    assert!(x.iter().all(|&v| v == 0.0));
+    // Without it, GMRES grinds on to max_iters.
+    let params = GmresParams {
+        min_cycle_reduction: 0.0,
+        ..params
     };
     let (x, res) = solve(&a, &Identity::new(n), &b, &params);
     let err = res.unwrap_err();
-    println!("stagnating GMRES(10): {err}");
+    println!("stagnating GMRES(10), stagnation test off: {err}");
     assert!(err.to_string().contains("did not converge"));
     let TimestepError::NotConverged(rep) = &err else {
         panic!("expected NotConverged, got {err:?}");
@@ -547,6 +574,7 @@ fn non_convergence_returns_err_with_report() {
         tol: 1e-10,
         restart: 4,
         max_iters: 10,
+        ..Default::default()
     };
     let (x, res) = solve(&a, &Identity::new(n), &b, &params);
     let rep = res.unwrap_err().report().unwrap().clone();
@@ -571,6 +599,7 @@ fn singular_operator_reports_breakdown() {
         tol: 1e-10,
         restart: 10,
         max_iters: 100,
+        ..Default::default()
     };
     let (x, res) = solve(&a, &Identity::new(3), &b, &params);
     let err = res.unwrap_err();
@@ -628,6 +657,20 @@ fn bad_inputs_return_err_without_panicking() {
             "tol",
         ),
         (GmresParams { restart: 0, ..good }, "restart"),
+        (
+            GmresParams {
+                min_cycle_reduction: 1.0,
+                ..good
+            },
+            "min_cycle_reduction",
+        ),
+        (
+            GmresParams {
+                min_cycle_reduction: -0.1,
+                ..good
+            },
+            "min_cycle_reduction",
+        ),
     ] {
         match gmres(&a, &id, &b, None, &mut x, &p, &mut ws) {
             Err(TimestepError::InvalidParameter { name: got, .. }) => assert_eq!(got, name),
@@ -706,6 +749,7 @@ fn zero_rhs_and_initial_guess() {
         tol: 1e-12,
         restart: 20,
         max_iters: 200,
+        ..Default::default()
     };
     let mut ws = GmresWorkspace::new(n, params.restart);
     let id = Identity::new(n);
@@ -758,6 +802,7 @@ fn workspace_reuse_is_bit_identical() {
         tol: 1e-12,
         restart: 8,
         max_iters: 500,
+        ..Default::default()
     };
     let run = |ws: &mut GmresWorkspace| {
         let mut x = vec![0.0; n];
@@ -849,6 +894,7 @@ fn no_allocation_inside_iterations() {
                     tol,
                     restart: 10,
                     max_iters: 2000,
+                    ..Default::default()
                 };
                 let before = allocations();
                 let rep = if use_m {
@@ -884,6 +930,7 @@ fn block_preconditioner_is_deterministic_across_thread_counts_and_matches_closur
         tol: 1e-11,
         restart: 20,
         max_iters: 2000,
+        ..Default::default()
     };
     let m = BlockDiagonal::from_diagonal_of(a.as_ref(), &sizes).unwrap();
     let run_in = |threads: usize| {

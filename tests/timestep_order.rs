@@ -37,6 +37,7 @@ fn advance(scheme: TimeScheme, start: &[f64], t: f64, steps: usize, post: Post) 
             tol: 1e-13,
             restart: 100,
             max_iters: 1000,
+            ..Default::default()
         },
         correct_drift: post.correct_drift,
         reparametrize: post.reparametrize.then(|| ReparamParams {
@@ -189,6 +190,7 @@ fn a_restarted_bdf2_run_continues_exactly() {
             tol: 1e-12,
             restart: 100,
             max_iters: 1000,
+            ..Default::default()
         },
         correct_drift: true,
         reparametrize: None,

@@ -20,6 +20,7 @@ fn params(p: usize, dt: f64, tol: f64, preconditioner: bool) -> VesicleParams {
             tol,
             restart: 300,
             max_iters: 3000,
+            ..Default::default()
         },
         correct_drift: false,
         reparametrize: None,

@@ -107,6 +107,7 @@ fn sedimentation(p: usize, a: f64, centres: &[[f64; 3]]) -> Vec<[f64; 3]> {
                         tol: 1e-12,
                         restart: 200,
                         max_iters: 2000,
+                        ..Default::default()
                     },
                     correct_drift: false,
                     reparametrize: None,
@@ -218,6 +219,7 @@ fn head_on(strength: f64, steps: usize) -> (f64, f64, usize) {
                         tol: 1e-8,
                         restart: 200,
                         max_iters: 2000,
+                        ..Default::default()
                     },
                     correct_drift: true,
                     reparametrize: None,

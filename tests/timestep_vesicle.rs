@@ -22,6 +22,7 @@ fn params(p: usize, force: [f64; 3], dt: f64) -> VesicleParams {
             tol: 1e-11,
             restart: 200,
             max_iters: 2000,
+            ..Default::default()
         },
         correct_drift: false,
         reparametrize: None,

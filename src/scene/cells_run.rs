@@ -125,7 +125,8 @@ pub struct AdaptiveSummary {
     /// Bounds of `dt`.
     pub dt_min: f64,
     pub dt_max: f64,
-    /// Steps rejected (and repeated with a smaller `dt`).
+    /// Steps rejected (their area/volume error too large, or their solve failed) and repeated
+    /// with a smaller `dt`.
     pub rejected_steps: usize,
     /// Steps accepted at `dt_min` although their error exceeded what they may commit.
     pub steps_above_tolerance: usize,
@@ -509,6 +510,7 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
                 tol: scene.numerics.gmres_tol,
                 restart: 200,
                 max_iters: 5000,
+                ..Default::default()
             },
             correct_drift: true,
             reparametrize: Some(ReparamParams {
@@ -727,9 +729,27 @@ pub fn run(
                 susp.set_dt(dt_try)
                     .map_err(|e| step_error(k, prog.time + dt_try, e))?;
             }
-            let report = susp
-                .step(&|x| flow.velocity(x))
-                .map_err(|e| step_error(k, prog.time + dt_try, e))?;
+            let report = match susp.step(&|x| flow.velocity(x)) {
+                Ok(r) => r,
+                Err(e) => {
+                    // A solve that failed (stagnated, out of iterations) is retried smaller
+                    // with adaptive dt, from the snapshot, down to dt_min.
+                    let retry = match (&adaptive, &snapshot) {
+                        (Some(ctl), Some(snap)) if e.source.report().is_some() => {
+                            ctl.after_failure(dt_try).map(|d| (d, snap))
+                        }
+                        _ => None,
+                    };
+                    let Some((smaller, snap)) = retry else {
+                        return Err(step_error(k, prog.time + dt_try, e));
+                    };
+                    prog.rejected += 1;
+                    susp.restore(snap)
+                        .map_err(|e| step_error(k, prog.time + dt_try, e))?;
+                    dt_try = smaller.min(scene.numerics.t_end - prog.time);
+                    continue;
+                }
+            };
             let (error, _) = report.area_volume_error();
             let (Some(ctl), Some(snap)) = (&adaptive, &snapshot) else {
                 prog.error_sum += error;

@@ -113,6 +113,13 @@ impl AdaptiveDt {
         self.dt0 * (j / RUNGS_PER_OCTAVE).exp2()
     }
 
+    /// The size to retry with after a step of size `dt` whose solve failed (GMRES stagnated or
+    /// ran out of iterations): one shrink factor down the ladder, or `None` at `dt_min` (the
+    /// run then gives up with the solver's error).
+    pub fn after_failure(&self, dt: f64) -> Option<f64> {
+        (dt > self.dt_min).then(|| self.rung_below(dt * MIN_FACTOR).max(self.dt_min))
+    }
+
     /// Decide on a step of size `dt` that committed the error `error`. A step at `dt_min` is
     /// accepted whatever its error (the caller reports it); a non-finite error rejects.
     pub fn decide(&self, dt: f64, error: f64) -> Decision {

@@ -14,15 +14,22 @@ pub struct GmresParams {
     pub restart: usize,
     /// Limit on the total number of Arnoldi steps (products with `A M⁻¹`) over all cycles.
     pub max_iters: usize,
+    /// Stagnation test: a full restart cycle must lower the true residual by at least this
+    /// fraction (`r_new ≤ (1 − min_cycle_reduction) r_old`), else the solve stops with
+    /// [`TimestepError::Stagnated`] instead of grinding on to `max_iters`. Default `1e-3`: a
+    /// cycle that gains less than 0.1 % would need thousands more per decade. `0` turns the
+    /// test off (only an increase then counts).
+    pub min_cycle_reduction: f64,
 }
 
 impl Default for GmresParams {
-    /// `tol = 1e-8`, `restart = 50`, `max_iters = 1000`.
+    /// `tol = 1e-8`, `restart = 50`, `max_iters = 1000`, `min_cycle_reduction = 1e-3`.
     fn default() -> Self {
         Self {
             tol: 1e-8,
             restart: 50,
             max_iters: 1000,
+            min_cycle_reduction: 1e-3,
         }
     }
 }
@@ -38,6 +45,14 @@ impl GmresParams {
                 name: "tol",
                 value: format!("{}", self.tol),
                 reason: "must be positive and finite",
+            });
+        }
+        if !(self.min_cycle_reduction.is_finite() && (0.0..1.0).contains(&self.min_cycle_reduction))
+        {
+            return Err(TimestepError::InvalidParameter {
+                name: "min_cycle_reduction",
+                value: format!("{}", self.min_cycle_reduction),
+                reason: "must lie in [0, 1)",
             });
         }
         if self.restart == 0 {
@@ -193,6 +208,9 @@ const SINGULAR: f64 = 64.0 * f64::EPSILON;
 ///   iterate (whose true residual is the report's `relative_residual`);
 /// * [`TimestepError::Breakdown`]: the Krylov space became invariant above the tolerance
 ///   (singular `A M⁻¹`); carries the report, `x` holds the last iterate.
+/// * [`TimestepError::Stagnated`]: a full restart cycle lowered the true residual by less than
+///   [`GmresParams::min_cycle_reduction`]; carries the report (with the residual after every
+///   cycle), `x` holds the last iterate.
 pub fn gmres<A, P>(
     a: &A,
     precond: &P,
@@ -424,6 +442,7 @@ where
                 what: "operator or preconditioner output",
             });
         }
+        let previous = rel;
         rel = beta / norm_b;
         report.cycle_residuals.push(rel);
         if breakdown && rel > tol {
@@ -431,6 +450,14 @@ where
             report.restarts = cycles - 1;
             report.converged = false;
             return Err(TimestepError::Breakdown(report));
+        }
+        // A full cycle that did not make progress: more cycles from the same place would not
+        // either (a cycle cut short by max_iters is left to the NotConverged test).
+        if k == m && rel > tol && rel > (1.0 - params.min_cycle_reduction) * previous {
+            report.relative_residual = rel;
+            report.restarts = cycles - 1;
+            report.converged = false;
+            return Err(TimestepError::Stagnated(report));
         }
     }
 }

@@ -75,7 +75,7 @@
 //! let x_true = [1.0, 2.0, 3.0];
 //! let b: Vec<f64> = (0..3).map(|i| (0..3).map(|j| a[(i, j)] * x_true[j]).sum()).collect();
 //!
-//! let params = GmresParams { tol: 1e-12, restart: 10, max_iters: 100 };
+//! let params = GmresParams { tol: 1e-12, restart: 10, max_iters: 100, ..Default::default() };
 //! let mut ws = GmresWorkspace::new(3, params.restart);
 //! let mut x = vec![0.0; 3];
 //! let report = gmres(&a, &Identity::new(3), &b, None, &mut x, &params, &mut ws).unwrap();
@@ -171,14 +171,43 @@ pub enum TimestepError {
         .0.relative_residual, .0.tol, .0.iterations
     )]
     Breakdown(GmresReport),
+    /// A full restart cycle lowered the true residual by less than
+    /// [`GmresParams::min_cycle_reduction`]: GMRES stopped making progress; `x` holds the last
+    /// iterate. The message gives the residual after every cycle.
+    #[error(
+        "GMRES stagnated: relative residual {:.3e} > tol {:.3e} after {} iterations; a restart \
+         cycle of {} iterations gained less than the required fraction (residual after each \
+         cycle: {})",
+        .0.relative_residual, .0.tol, .0.iterations,
+        .0.iterations / (.0.restarts + 1).max(1),
+        residual_history(&.0.cycle_residuals)
+    )]
+    Stagnated(GmresReport),
+}
+
+/// The residual history of a solve, shortened to its first three and last five cycles.
+fn residual_history(r: &[f64]) -> String {
+    let fmt = |v: &[f64]| {
+        v.iter()
+            .map(|x| format!("{x:.2e}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    if r.len() <= 8 {
+        fmt(r)
+    } else {
+        format!("{}, … {}", fmt(&r[..3]), fmt(&r[r.len() - 5..]))
+    }
 }
 
 impl TimestepError {
-    /// The solver report carried by [`TimestepError::NotConverged`] and
-    /// [`TimestepError::Breakdown`].
+    /// The solver report carried by [`TimestepError::NotConverged`],
+    /// [`TimestepError::Breakdown`] and [`TimestepError::Stagnated`].
     pub fn report(&self) -> Option<&GmresReport> {
         match self {
-            TimestepError::NotConverged(r) | TimestepError::Breakdown(r) => Some(r),
+            TimestepError::NotConverged(r)
+            | TimestepError::Breakdown(r)
+            | TimestepError::Stagnated(r) => Some(r),
             _ => None,
         }
     }
