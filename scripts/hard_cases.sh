@@ -2,8 +2,42 @@
 # Hard cases (tests/hard_cases.rs): runs the short and the long (#[ignore]d) versions in
 # release mode and writes the measured numbers, and whether each case passed, to
 # docs/hard_cases.md. Exits non-zero if any case failed (after writing the file).
+#
+# The long set (one cell at p = 12 and 16 for many steps: scripts/long_runs.sh, hours at the
+# issue's 10^4 steps) runs with LONG_RUNS=1 (its STEPS, ORDERS, JOBS pass through); otherwise
+# the table it last wrote (docs/long_runs.md) is copied in. `scripts/hard_cases.sh --long-only`
+# only refreshes that section of docs/hard_cases.md from docs/long_runs.md.
 set -uo pipefail
 cd "$(dirname "$0")/.."
+
+long_section() {
+  echo "<!-- long-runs:start -->"
+  echo "## Long runs at production order"
+  echo
+  if [ -f docs/long_runs.md ]; then
+    tail -n +3 docs/long_runs.md
+  else
+    echo "Not run yet: \`scripts/long_runs.sh\` writes docs/long_runs.md."
+  fi
+  echo "<!-- long-runs:end -->"
+}
+
+if [ "${1:-}" = --long-only ]; then
+  tmp=$(mktemp)
+  if grep -q 'long-runs:start' docs/hard_cases.md; then
+    sed '/<!-- long-runs:start -->/,$d' docs/hard_cases.md > "$tmp"
+  else
+    cat docs/hard_cases.md > "$tmp"
+    echo >> "$tmp"
+  fi
+  long_section >> "$tmp"
+  mv "$tmp" docs/hard_cases.md
+  echo "wrote the long-run section of docs/hard_cases.md"
+  exit 0
+fi
+if [ "${LONG_RUNS:-0}" = 1 ]; then
+  scripts/long_runs.sh || echo "scripts/long_runs.sh: a long run failed (see docs/long_runs.md)" >&2
+fi
 out=docs/hard_cases.md
 tmp=$(mktemp)
 status=0
@@ -41,6 +75,8 @@ NOTE
     echo '```'
     status=1
   fi
+  echo
+  long_section
 } > "$tmp"
 mv "$tmp" "$out"
 echo "wrote $out"
