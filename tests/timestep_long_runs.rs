@@ -304,7 +304,13 @@ dt_min = 0.02
     let err = String::from_utf8_lossy(&o.stderr);
     println!("{err} ({:.1} s)", t.elapsed().as_secs_f64());
     assert!(!o.status.success());
-    for want in ["step 1", "cell 1", "stagnated", "residual after each cycle"] {
+    // "t = 0.02": the step was retried at dt_min = 0.02 after failing at dt = 0.05.
+    for want in [
+        "step 1 (t = 0.02)",
+        "cell 1",
+        "stagnated",
+        "residual after each cycle",
+    ] {
         assert!(err.contains(want), "missing {want:?} in: {err}");
     }
     assert!(!err.contains("panicked"), "{err}");
