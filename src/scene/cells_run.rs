@@ -271,6 +271,17 @@ fn save_checkpoint(out: &Path, susp: &Suspension, prog: &Progress) -> Result<(),
         })
         .collect();
     ck.push("previous_coefs", vec![nc, ncoef], prev);
+    // Skalak references, relabelled with the grid by the reparametrisation (NaN rows for cells
+    // without shear elasticity).
+    let refs: Vec<f64> = susp
+        .steppers()
+        .iter()
+        .flat_map(|s| match s.skalak_reference() {
+            Some(r) => r.to_vec(),
+            None => vec![f64::NAN; ncoef],
+        })
+        .collect();
+    ck.push("skalak_references", vec![nc, ncoef], refs);
     for (name, v) in [
         ("inter_cell_velocities", susp.inter_cell_velocities()),
         (
@@ -405,6 +416,20 @@ fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRu
                 .map_err(|e| {
                     checkpoint_error(out, format!("membrane_velocities of cell {}: {e}", i + 1))
                 })?;
+        }
+    }
+    // Absent from checkpoints written before the references were relabelled: those keep the
+    // initial reference.
+    if ck.get("skalak_references").is_some() {
+        let refs = get("skalak_references", nc * ncoef)?;
+        for i in 0..nc {
+            let row = &refs[i * ncoef..(i + 1) * ncoef];
+            let st = &mut susp.steppers_mut()[i];
+            if st.skalak_reference().is_some() && row.iter().all(|v| v.is_finite()) {
+                st.set_skalak_reference(row).map_err(|e| {
+                    checkpoint_error(out, format!("skalak_references of cell {}: {e}", i + 1))
+                })?;
+            }
         }
     }
     for i in 0..nc {

@@ -343,6 +343,29 @@ impl VesicleStepper {
         Ok(())
     }
 
+    /// The stress-free reference of the Skalak elasticity (coefficients), relabelled with the
+    /// grid by every reparametrisation; `None` without shear elasticity.
+    pub fn skalak_reference(&self) -> Option<&[f64]> {
+        self.skalak.as_ref().map(|(_, r)| &r[..])
+    }
+
+    /// Replace the (relabelled) Skalak reference (a restarted run or a repeated step restores
+    /// it).
+    ///
+    /// # Errors
+    /// [`TimestepError::InvalidParameter`] for a cell without shear elasticity; the checks of
+    /// [`VesicleStepper::set_skalak`] for the surface.
+    pub fn set_skalak_reference(&mut self, reference: &[f64]) -> Result<(), TimestepError> {
+        let Some((params, _)) = self.skalak else {
+            return Err(TimestepError::InvalidParameter {
+                name: "skalak reference",
+                value: format!("{} coefficients", reference.len()),
+                reason: "the cell has no shear elasticity",
+            });
+        };
+        self.set_skalak(params, reference)
+    }
+
     /// How the dense self-interaction operators are kept between assembly and application.
     pub fn operator_storage(&self) -> OperatorStorage {
         self.storage

@@ -83,6 +83,7 @@ pub struct SuspensionState {
     previous: Vec<Option<Vec<f64>>>,
     previous_dt: Vec<Option<f64>>,
     membrane_velocities: Vec<Option<Vec<f64>>>,
+    skalak_references: Vec<Option<Vec<f64>>>,
     velocities: Vec<Vec<f64>>,
     previous_velocities: Vec<Vec<f64>>,
 }
@@ -213,8 +214,8 @@ impl Suspension {
         Ok(())
     }
 
-    /// A copy of everything [`Suspension::step`] changes (the cells, their tensions and BDF2
-    /// histories, the inter-cell velocities); [`Suspension::restore`] goes back to it.
+    /// A copy of everything [`Suspension::step`] changes (the cells, their tensions, BDF2
+    /// histories and relabelled Skalak references, the inter-cell velocities); [`Suspension::restore`] goes back to it.
     pub fn snapshot(&self) -> SuspensionState {
         SuspensionState {
             coefs: self.coefs.clone(),
@@ -229,6 +230,11 @@ impl Suspension {
                 .steppers
                 .iter()
                 .map(|s| s.velocity().map(|v| v.to_vec()))
+                .collect(),
+            skalak_references: self
+                .steppers
+                .iter()
+                .map(|s| s.skalak_reference().map(|r| r.to_vec()))
                 .collect(),
             velocities: self.velocities.clone(),
             previous_velocities: self.previous_velocities.clone(),
@@ -251,6 +257,9 @@ impl Suspension {
             st.set_previous_dt(state.previous_dt[i]).map_err(err)?;
             st.set_velocity(state.membrane_velocities[i].as_deref())
                 .map_err(err)?;
+            if let Some(r) = &state.skalak_references[i] {
+                st.set_skalak_reference(r).map_err(err)?;
+            }
         }
         self.velocities.clone_from(&state.velocities);
         self.previous_velocities
