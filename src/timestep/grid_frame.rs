@@ -54,7 +54,9 @@ pub fn polar_rotation(h: [[f64; 3]; 3]) -> Option<Rotation> {
         }
     }
     let (vals, vecs) = symmetric_eigen3(hth);
-    if !(vals[0] > 1e-12 * vals[2]) || !vals[2].is_finite() {
+    // Singular (or NaN): the smallest eigenvalue not safely positive.
+    let well_conditioned = vals[2].is_finite() && vals[0] > 1e-12 * vals[2];
+    if !well_conditioned {
         return None;
     }
     // (HᵀH)^{−1/2} = Σ v vᵀ / √λ.
