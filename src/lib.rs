@@ -10,6 +10,7 @@
 
 pub mod brownian;
 pub mod check;
+pub mod comm;
 pub mod fmm;
 pub mod io;
 pub mod report;

@@ -1,0 +1,179 @@
+//! The communicator seam: what the distributed algorithms need from a set of ranks.
+//!
+//! One code path serves one rank and `K` ranks: the FMM (and later the cells) are written
+//! against [`Communicator`], and a run on one process uses [`SerialComm`], which needs no MPI
+//! and whose collectives are copies. With the `mpi` feature, [`MpiComm`] implements the same
+//! trait over `MPI_COMM_WORLD` (rsmpi). The serial implementation is the reference: every
+//! distributed result is tested against a one-rank run of the same code.
+//!
+//! The operations are the few the algorithms use, on `f64` and `u64` buffers:
+//! reductions of small vectors (the global domain, counts), all-gathers of small per-rank
+//! records (splitter samples, the top of the tree), all-to-alls (the partition of points,
+//! which every point crosses once) and point-to-point exchanges with a known set of partners
+//! and sizes (the locally essential tree: only neighbouring ranks). Every byte sent to another
+//! rank is counted ([`Communicator::bytes_sent`]).
+//!
+//! ```
+//! use mobo::comm::{Communicator, SerialComm};
+//! let comm = SerialComm;
+//! let mut v = [3.0, -1.0];
+//! comm.all_min(&mut v).unwrap();
+//! assert_eq!((comm.rank(), comm.size(), v), (0, 1, [3.0, -1.0]));
+//! assert_eq!(comm.all_gather_u64(&[7, 8]).unwrap(), vec![vec![7, 8]]);
+//! ```
+
+#[cfg(feature = "mpi")]
+mod mpi_comm;
+#[cfg(feature = "mpi")]
+pub use mpi_comm::MpiComm;
+
+/// Errors of communication.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+pub enum CommError {
+    /// A buffer whose length does not fit the number of ranks.
+    #[error("communicator: {what} has {got} entries for {ranks} ranks")]
+    Ranks {
+        what: &'static str,
+        got: usize,
+        ranks: usize,
+    },
+    /// A rank named that does not exist.
+    #[error("communicator: rank {rank} does not exist ({ranks} ranks)")]
+    NoSuchRank { rank: usize, ranks: usize },
+    /// A message too long for MPI's 32-bit counts.
+    #[error("communicator: a message of {0} values exceeds MPI's count limit")]
+    TooLong(usize),
+    /// Another rank failed; its message, agreed by every rank.
+    #[error("rank {rank}: {message}")]
+    Remote { rank: usize, message: String },
+}
+
+/// The collective and point-to-point operations of the distributed algorithms. All ranks
+/// call the collectives in the same order (MPI's rule); buffers are per rank where a
+/// `Vec<Vec<_>>` is taken or returned (entry `r` goes to or came from rank `r`).
+pub trait Communicator {
+    /// This process's rank, `0..size()`.
+    fn rank(&self) -> usize;
+    /// Number of ranks.
+    fn size(&self) -> usize;
+    /// Element-wise minimum over ranks, in place.
+    fn all_min(&self, v: &mut [f64]) -> Result<(), CommError>;
+    /// Element-wise maximum over ranks, in place.
+    fn all_max(&self, v: &mut [f64]) -> Result<(), CommError>;
+    /// Element-wise sum over ranks, in place (exact: integers).
+    fn all_sum_u64(&self, v: &mut [u64]) -> Result<(), CommError>;
+    /// Every rank's `local`, indexed by rank.
+    fn all_gather_u64(&self, local: &[u64]) -> Result<Vec<Vec<u64>>, CommError>;
+    /// Every rank's `local`, indexed by rank.
+    fn all_gather_f64(&self, local: &[f64]) -> Result<Vec<Vec<f64>>, CommError>;
+    /// Personalised all-to-all: `send[r]` goes to rank `r`; returns what each rank sent here.
+    fn all_to_all_u64(&self, send: &[Vec<u64>]) -> Result<Vec<Vec<u64>>, CommError>;
+    /// Personalised all-to-all of `f64` buffers.
+    fn all_to_all_f64(&self, send: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, CommError>;
+    /// Point-to-point exchange with known partners: `sends` are `(rank, buffer)`, `recvs` are
+    /// `(rank, length)`; returns the received buffers in the order of `recvs`.
+    fn exchange_f64(
+        &self,
+        sends: &[(usize, &[f64])],
+        recvs: &[(usize, usize)],
+    ) -> Result<Vec<Vec<f64>>, CommError>;
+    /// Bytes this rank has sent to other ranks so far.
+    fn bytes_sent(&self) -> u64;
+
+    /// Agree on success: every rank passes its own outcome; if any rank failed, every rank
+    /// returns the error of the lowest failing rank (so all exit with one message, none hangs).
+    fn agree(&self, local: Result<(), String>) -> Result<(), CommError> {
+        let bytes: Vec<u64> = match &local {
+            Ok(()) => Vec::new(),
+            Err(m) => std::iter::once(1)
+                .chain(m.bytes().map(u64::from))
+                .collect(),
+        };
+        let all = self.all_gather_u64(&bytes)?;
+        for (rank, b) in all.iter().enumerate() {
+            if !b.is_empty() {
+                let message = String::from_utf8_lossy(
+                    &b[1..].iter().map(|&c| c as u8).collect::<Vec<u8>>(),
+                )
+                .into_owned();
+                return Err(CommError::Remote { rank, message });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// One rank, no MPI: collectives are identities and copies.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SerialComm;
+
+fn one<T: Clone>(what: &'static str, send: &[Vec<T>]) -> Result<Vec<Vec<T>>, CommError> {
+    if send.len() != 1 {
+        return Err(CommError::Ranks {
+            what,
+            got: send.len(),
+            ranks: 1,
+        });
+    }
+    Ok(send.to_vec())
+}
+
+impl Communicator for SerialComm {
+    fn rank(&self) -> usize {
+        0
+    }
+    fn size(&self) -> usize {
+        1
+    }
+    fn all_min(&self, _v: &mut [f64]) -> Result<(), CommError> {
+        Ok(())
+    }
+    fn all_max(&self, _v: &mut [f64]) -> Result<(), CommError> {
+        Ok(())
+    }
+    fn all_sum_u64(&self, _v: &mut [u64]) -> Result<(), CommError> {
+        Ok(())
+    }
+    fn all_gather_u64(&self, local: &[u64]) -> Result<Vec<Vec<u64>>, CommError> {
+        Ok(vec![local.to_vec()])
+    }
+    fn all_gather_f64(&self, local: &[f64]) -> Result<Vec<Vec<f64>>, CommError> {
+        Ok(vec![local.to_vec()])
+    }
+    fn all_to_all_u64(&self, send: &[Vec<u64>]) -> Result<Vec<Vec<u64>>, CommError> {
+        one("all-to-all buffer list", send)
+    }
+    fn all_to_all_f64(&self, send: &[Vec<f64>]) -> Result<Vec<Vec<f64>>, CommError> {
+        one("all-to-all buffer list", send)
+    }
+    fn exchange_f64(
+        &self,
+        sends: &[(usize, &[f64])],
+        recvs: &[(usize, usize)],
+    ) -> Result<Vec<Vec<f64>>, CommError> {
+        // Only messages to oneself are possible; they are delivered in order.
+        let mut out = Vec::with_capacity(recvs.len());
+        let mut mine = sends.iter().filter(|s| s.0 == 0);
+        for &(r, n) in recvs {
+            if r != 0 {
+                return Err(CommError::NoSuchRank { rank: r, ranks: 1 });
+            }
+            let b = mine.next().map(|s| s.1.to_vec()).unwrap_or_default();
+            if b.len() != n {
+                return Err(CommError::Ranks {
+                    what: "self message",
+                    got: b.len(),
+                    ranks: 1,
+                });
+            }
+            out.push(b);
+        }
+        if let Some(&(r, _)) = sends.iter().find(|s| s.0 != 0) {
+            return Err(CommError::NoSuchRank { rank: r, ranks: 1 });
+        }
+        Ok(out)
+    }
+    fn bytes_sent(&self) -> u64 {
+        0
+    }
+}
