@@ -43,7 +43,7 @@ fn main() {
         a[1],
         a[2],
         fmm.tree.depth(),
-        fmm.tree.nodes.len(),
+        fmm.tree.boxes.len(),
         (num / den).sqrt(),
         tm.total
     );

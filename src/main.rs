@@ -665,7 +665,7 @@ fn fmm(a: FmmArgs) -> Result<(), CliError> {
         "method": if a.direct { "direct" } else { "fmm" },
         "leaf_size": leaf,
         "tree_depth": fmm.tree.depth(),
-        "boxes": fmm.tree.nodes.len(),
+        "boxes": fmm.tree.boxes.len(),
         "threads": rayon::current_num_threads(),
         "setup_s": setup,
         "eval_s": eval,

@@ -85,17 +85,14 @@ pub trait Communicator {
     fn agree(&self, local: Result<(), String>) -> Result<(), CommError> {
         let bytes: Vec<u64> = match &local {
             Ok(()) => Vec::new(),
-            Err(m) => std::iter::once(1)
-                .chain(m.bytes().map(u64::from))
-                .collect(),
+            Err(m) => std::iter::once(1).chain(m.bytes().map(u64::from)).collect(),
         };
         let all = self.all_gather_u64(&bytes)?;
         for (rank, b) in all.iter().enumerate() {
             if !b.is_empty() {
-                let message = String::from_utf8_lossy(
-                    &b[1..].iter().map(|&c| c as u8).collect::<Vec<u8>>(),
-                )
-                .into_owned();
+                let message =
+                    String::from_utf8_lossy(&b[1..].iter().map(|&c| c as u8).collect::<Vec<u8>>())
+                        .into_owned();
                 return Err(CommError::Remote { rank, message });
             }
         }

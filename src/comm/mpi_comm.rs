@@ -4,8 +4,8 @@ use std::cell::Cell;
 
 use mpi::collective::SystemOperation;
 use mpi::datatype::{Partition, PartitionMut};
-use mpi::topology::SimpleCommunicator;
 use mpi::topology::Communicator as _;
+use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
 use mpi::Count;
 

@@ -23,14 +23,15 @@ use std::time::Instant;
 use rayon::prelude::*;
 
 use super::blocks::{SourceBlock, SourceView};
+use super::dist_tree::{DistTree, Role, TreeInput};
 use super::kernels::{
     Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, StokesletSource, Stresslet,
 };
 use super::m2l_fft::{offset_index, FftM2l};
-use super::octree::{Lists, Octree};
-use super::operators::{gemm, octant, Translations, DOWN_EQUIV, INNER, UP_CHECK};
+use super::operators::{gemm, Translations, DOWN_EQUIV, INNER, UP_CHECK};
 use super::surface::CubeSurface;
 use super::FmmError;
+use crate::comm::{Communicator, SerialComm};
 
 type Operators = (Arc<Translations>, Arc<FftM2l>);
 
@@ -164,28 +165,38 @@ pub struct FmmTimings {
     pub total: f64,
 }
 
+/// Communication of the last evaluation on this rank.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct FmmComm {
+    /// Number of ranks.
+    pub ranks: usize,
+    /// Bytes this rank sent to other ranks during the evaluation.
+    pub bytes_sent: u64,
+    /// Seconds spent in communication (included in the phase total).
+    pub seconds: f64,
+}
+
 /// The FMM for one kernel over fixed sources and targets.
 pub struct Fmm {
     kind: FmmKernel,
     near: Box<dyn Kernel>,
     far_source: Box<dyn Kernel>,
     far_target: Box<dyn Kernel>,
-    /// The tree (points in Morton order inside).
-    pub tree: Octree,
-    lists: Lists,
+    /// This rank's tree: owned, top and ghost boxes (the whole tree on one rank).
+    pub tree: DistTree,
     ops: Arc<Translations>,
     m2l: Arc<FftM2l>,
-    /// Boxes ordered by level; `pos[b]` is box `b`'s place in it.
-    by_level: Vec<usize>,
-    pos: Vec<usize>,
-    level_start: Vec<usize>,
+    /// Owned sources, then ghost sources received from other ranks.
     sources: SourceBlock,
+    identity: Vec<usize>,
     /// Order (points per edge of the surfaces).
     pub order: usize,
     /// Seconds spent in [`Fmm::new`].
     pub setup_s: f64,
     /// Phase times of the last [`Fmm::evaluate`].
     pub timings: FmmTimings,
+    /// Communication of the last evaluation.
+    pub comm: FmmComm,
 }
 
 /// Per-thread scratch of the leaf phase.
@@ -212,9 +223,9 @@ impl PhaseClock {
 }
 
 impl Fmm {
-    /// Build the tree, lists and operators. `normals` are needed by the double-layer kernels;
-    /// `order` is the number of surface points per edge (≥ 2); `leaf_size` the maximum points
-    /// (sources plus targets) per leaf.
+    /// Build the tree, lists and operators on one rank. `normals` are needed by the
+    /// double-layer kernels; `order` is the number of surface points per edge (≥ 2);
+    /// `leaf_size` the maximum points (sources plus targets) per leaf.
     pub fn new(
         kind: FmmKernel,
         sources: &[[f64; 3]],
@@ -223,53 +234,78 @@ impl Fmm {
         order: usize,
         leaf_size: usize,
     ) -> Result<Self, FmmError> {
+        Self::new_on(
+            &SerialComm,
+            kind,
+            sources,
+            normals,
+            targets,
+            order,
+            leaf_size,
+        )
+    }
+
+    /// As [`Fmm::new`], over the ranks of `comm` (collective: every rank calls it with its own
+    /// points). Each rank passes its own sources, normals and targets; the tree is global, and
+    /// [`Fmm::evaluate_on`] returns each rank's own targets' values in its input order.
+    pub fn new_on(
+        comm: &dyn Communicator,
+        kind: FmmKernel,
+        sources: &[[f64; 3]],
+        normals: Option<&[[f64; 3]]>,
+        targets: &[[f64; 3]],
+        order: usize,
+        leaf_size: usize,
+    ) -> Result<Self, FmmError> {
         let start = Instant::now();
-        if !(2..=20).contains(&order) {
-            return Err(FmmError::Shape(format!(
-                "FMM order must be between 2 and 20, got {order}"
-            )));
-        }
         let near = kind.near();
-        if near.needs_normals() && normals.map(|n| n.len()) != Some(sources.len()) {
-            return Err(FmmError::Shape(format!(
-                "{} needs one normal per source",
-                near.name()
-            )));
+        let local = if !(2..=20).contains(&order) {
+            Err(format!("FMM order must be between 2 and 20, got {order}"))
+        } else if near.needs_normals() && normals.map(|n| n.len()) != Some(sources.len()) {
+            Err(format!("{} needs one normal per source", near.name()))
+        } else {
+            Ok(())
+        };
+        if comm.size() == 1 {
+            local.clone().map_err(FmmError::Shape)?;
         }
+        comm.agree(local)?;
         let min_width = match kind {
             FmmKernel::Rpy { radius } => 2.0 * radius,
             _ => 0.0,
         };
-        let tree = Octree::with_min_width(sources, targets, leaf_size, min_width);
-        let lists = tree.lists();
-        let (ops, m2l) = operators_for(kind, order)?;
-        let mut by_level: Vec<usize> = (0..tree.nodes.len()).collect();
-        by_level.sort_by_key(|&b| tree.nodes[b].level);
-        let mut pos = vec![0; by_level.len()];
-        for (i, &b) in by_level.iter().enumerate() {
-            pos[b] = i;
-        }
-        let depth = tree.depth() as usize;
-        let level_start: Vec<usize> = (0..=depth)
-            .map(|l| by_level.partition_point(|&b| (tree.nodes[b].level as usize) < l))
-            .collect();
-        let sources_sorted = SourceBlock::new(sources, normals, &tree.source_perm);
+        let input = TreeInput {
+            sources,
+            normals: if near.needs_normals() { normals } else { None },
+            targets,
+            leaf_size,
+            min_width,
+        };
+        // Operators on a helper thread while this one (which owns the communicator) builds
+        // the tree.
+        let (tree, ops) = std::thread::scope(|s| {
+            let ops = s.spawn(|| operators_for(kind, order));
+            let tree = DistTree::build(comm, &input);
+            (tree, ops.join())
+        });
+        let ops = ops.map_err(|_| poisoned())?;
+        let (tree, (ops, m2l)) = (tree?, ops?);
+        let identity: Vec<usize> = (0..tree.sources.len()).collect();
+        let block = SourceBlock::new(&tree.sources, tree.normals.as_deref(), &identity);
         Ok(Fmm {
             kind,
             near,
             far_source: kind.far_source(),
             far_target: kind.far_target(),
             tree,
-            lists,
             ops,
             m2l,
-            by_level,
-            pos,
-            level_start,
-            sources: sources_sorted,
+            sources: block,
+            identity,
             order,
             setup_s: start.elapsed().as_secs_f64(),
             timings: FmmTimings::default(),
+            comm: FmmComm::default(),
         })
     }
 
@@ -291,8 +327,8 @@ impl Fmm {
     fn check_sizes(&self, density: &[f64], out: &[f64]) -> Result<(), FmmError> {
         let (ds, dt) = (self.near.density_dim(), self.near.output_dim());
         let (ns, nt) = (
-            self.tree.sources_sorted.len(),
-            self.tree.targets_sorted.len(),
+            self.tree.source_route.n_caller(),
+            self.tree.target_route.n_caller(),
         );
         if density.len() != ns * ds {
             return Err(FmmError::Shape(format!(
@@ -315,43 +351,83 @@ impl Fmm {
         Ok(())
     }
 
-    /// The exact sum by direct summation (same kernels, same layout as [`Fmm::evaluate`]).
+    /// The exact sum by direct summation (same kernels, same layout as [`Fmm::evaluate`]);
+    /// one rank only.
     pub fn direct(&mut self, density: &[f64], out: &mut [f64]) -> Result<(), FmmError> {
         self.check_sizes(density, out)?;
         let ds = self.near.density_dim();
         let dt = self.near.output_dim();
-        self.sources
-            .set_density(density, ds, &self.tree.source_perm);
+        let dens = self.tree.source_route.forward(&SerialComm, density, ds)?;
+        self.sources.set_density(&dens, ds, &self.identity);
         let view = self.sources.all();
         let near = &self.near;
-        let tree = &self.tree;
         let mut sorted = vec![0.0; out.len()];
         sorted
             .par_chunks_mut(64 * dt)
-            .zip(tree.targets_sorted.par_chunks(64))
+            .zip(self.tree.targets.par_chunks(64))
             .for_each(|(o, t)| near.eval_block(t, &view, o));
-        for (i, &dst) in tree.target_perm.iter().enumerate() {
-            out[dst * dt..(dst + 1) * dt].copy_from_slice(&sorted[i * dt..(i + 1) * dt]);
-        }
+        self.tree
+            .target_route
+            .backward(&SerialComm, &sorted, dt, out)?;
         Ok(())
     }
 
     /// Evaluate the sum for `density` (`density_dim` values per source, input order) into `out`
-    /// (`output_dim` values per target, input order).
+    /// (`output_dim` values per target, input order), on one rank.
     pub fn evaluate(&mut self, density: &[f64], out: &mut [f64]) -> Result<(), FmmError> {
-        self.check_sizes(density, out)?;
+        self.evaluate_on(&SerialComm, density, out)
+    }
+
+    /// As [`Fmm::evaluate`] over the ranks the FMM was built on (collective): each rank passes
+    /// its own sources' densities and gets its own targets' values, in its input order. Only
+    /// densities, expansions and results move; the tree and exchange pattern are reused.
+    pub fn evaluate_on(
+        &mut self,
+        comm: &dyn Communicator,
+        density: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), FmmError> {
+        let ranks = self.tree.splitters.len() - 1;
+        if comm.size() != ranks {
+            return Err(FmmError::Shape(format!(
+                "FMM built on {ranks} ranks, evaluated on {}",
+                comm.size()
+            )));
+        }
+        let local = self.check_sizes(density, out).map_err(|e| e.to_string());
+        if ranks == 1 {
+            local.clone().map_err(FmmError::Shape)?;
+        }
+        comm.agree(local)?;
         let t0 = Instant::now();
+        let bytes0 = comm.bytes_sent();
         let ds = self.near.density_dim();
-        self.sources
-            .set_density(density, ds, &self.tree.source_perm);
+        let ne = self.ops.n_equiv();
+        let mut comm_s = 0.0;
+        let tc = Instant::now();
+        let mut dens = self.tree.source_route.forward(comm, density, ds)?;
+        comm_s += tc.elapsed().as_secs_f64();
+        dens.resize(self.tree.sources.len() * ds, 0.0);
+        self.sources.set_density(&dens, ds, &self.identity);
         let clock = PhaseClock::new();
-        let up = self.upward(&clock);
+        let mut up = vec![0.0; self.tree.boxes.len() * ne];
+        self.upward(&mut up, Role::Owned, &clock);
+        let tc = Instant::now();
+        self.share_upward(comm, &mut up, &mut dens)?;
+        comm_s += tc.elapsed().as_secs_f64();
+        let n_owned = self.tree.n_owned_sources;
+        for c in 0..ds {
+            for (i, v) in self.sources.q[c].iter_mut().enumerate().skip(n_owned) {
+                *v = dens[i * ds + c];
+            }
+        }
+        self.upward(&mut up, Role::Top, &clock);
         let down = self.downward(&up, &clock);
         let sorted = self.leaves(&up, &down, &clock);
         let dt = self.near.output_dim();
-        for (i, &dst) in self.tree.target_perm.iter().enumerate() {
-            out[dst * dt..(dst + 1) * dt].copy_from_slice(&sorted[i * dt..(i + 1) * dt]);
-        }
+        let tc = Instant::now();
+        self.tree.target_route.backward(comm, &sorted, dt, out)?;
+        comm_s += tc.elapsed().as_secs_f64();
         self.timings = FmmTimings {
             p2m: clock.get(0),
             m2m: clock.get(1),
@@ -364,227 +440,296 @@ impl Fmm {
             p2p: clock.get(8),
             total: t0.elapsed().as_secs_f64(),
         };
+        self.comm = FmmComm {
+            ranks,
+            bytes_sent: comm.bytes_sent() - bytes0,
+            seconds: comm_s,
+        };
         Ok(())
     }
 
-    /// Upward pass: normalised upward equivalent densities, one column of `n_equiv` values per
-    /// box in level order. Per level: P2M and M2M into upward check potentials, one fit (GEMM).
-    fn upward(&self, clock: &PhaseClock) -> Vec<f64> {
+    /// After the owned upward pass: every rank's local roots' expansions to all ranks (the top
+    /// of the tree), and the ghost boxes' expansions and leaf densities to the neighbours that
+    /// need them (into `up` and the ghost part of `dens`).
+    fn share_upward(
+        &self,
+        comm: &dyn Communicator,
+        up: &mut [f64],
+        dens: &mut [f64],
+    ) -> Result<(), FmmError> {
         let ne = self.ops.n_equiv();
-        let nc = self.ops.n_check();
-        let nb = self.tree.nodes.len();
-        let mut up = vec![0.0; nb * ne];
-        let depth = self.level_start.len() - 1;
-        for level in (0..depth).rev() {
-            let (a, b) = (self.level_start[level], self.level_start[level + 1]);
-            let (head, rest) = up.split_at_mut(b * ne);
-            let cur = &mut head[a * ne..];
-            let children = &*rest;
-            let t = Instant::now();
-            let mut check = vec![0.0; (b - a) * nc];
-            // P2M at the leaves of this level.
-            check
-                .par_chunks_mut(nc)
-                .zip(&self.by_level[a..b])
-                .for_each_init(
-                    || Vec::with_capacity(self.ops.surf.len()),
-                    |pts, (col, &bx)| {
-                        let node = &self.tree.nodes[bx];
-                        if node.is_leaf() && !node.sources.is_empty() {
-                            self.ops.surf.place(node.center, node.half, UP_CHECK, pts);
-                            self.far_source.eval_block(
-                                pts,
-                                &self.sources.view(node.sources.clone()),
-                                col,
-                            );
-                        }
-                    },
-                );
-            let t = clock.add(0, t);
-            // M2M: per octant, one GEMM over the children of this level's boxes.
-            if level + 1 < depth {
-                let mut groups: Vec<Vec<(usize, usize)>> = vec![Vec::new(); 8];
-                for i in a..b {
-                    let node = &self.tree.nodes[self.by_level[i]];
-                    for &c in &node.children {
-                        let cn = &self.tree.nodes[c];
-                        if !cn.sources.is_empty() {
-                            let o = octant(sub(cn.center, node.center));
-                            groups[o].push((i - a, self.pos[c] - b));
-                        }
-                    }
-                }
-                for (o, g) in groups.iter().enumerate() {
-                    gather_gemm_scatter(&self.ops.m2m[o], g, children, &mut check);
-                }
+        let ds = self.near.density_dim();
+        let tree = &self.tree;
+        let mine: Vec<f64> = tree.roots[tree.rank]
+            .iter()
+            .flat_map(|&b| up[b * ne..(b + 1) * ne].iter().copied())
+            .collect();
+        let all = comm.all_gather_f64(&mine)?;
+        for (r, vals) in all.iter().enumerate() {
+            if r == tree.rank {
+                continue;
             }
-            self.ops.up.apply_many(&check, cur);
-            clock.add(1, t);
+            for (&b, v) in tree.roots[r].iter().zip(vals.chunks_exact(ne)) {
+                up[b * ne..(b + 1) * ne].copy_from_slice(v);
+            }
         }
-        up
+        let bufs: Vec<Vec<f64>> = tree
+            .ghosts_out
+            .iter()
+            .map(|l| {
+                let mut b = Vec::with_capacity(l.len(ne, ds));
+                for &bx in &l.boxes {
+                    b.extend_from_slice(&up[bx * ne..(bx + 1) * ne]);
+                }
+                for r in &l.sources {
+                    b.extend_from_slice(&dens[r.start * ds..r.end * ds]);
+                }
+                b
+            })
+            .collect();
+        let sends: Vec<(usize, &[f64])> = tree
+            .ghosts_out
+            .iter()
+            .zip(&bufs)
+            .map(|(l, b)| (l.rank, b.as_slice()))
+            .collect();
+        let recvs: Vec<(usize, usize)> = tree
+            .ghosts_in
+            .iter()
+            .map(|l| (l.rank, l.len(ne, ds)))
+            .collect();
+        let got = comm.exchange_f64(&sends, &recvs)?;
+        for (l, buf) in tree.ghosts_in.iter().zip(&got) {
+            let mut at = 0;
+            for &bx in &l.boxes {
+                up[bx * ne..(bx + 1) * ne].copy_from_slice(&buf[at..at + ne]);
+                at += ne;
+            }
+            for r in &l.sources {
+                let n = r.len() * ds;
+                dens[r.start * ds..r.end * ds].copy_from_slice(&buf[at..at + n]);
+                at += n;
+            }
+        }
+        Ok(())
     }
 
-    /// Downward pass: normalised downward equivalent densities by level-ordered position.
-    fn downward(&self, up: &[f64], clock: &PhaseClock) -> Vec<f64> {
+    /// Upward pass over the boxes of one role with sources (owned: from this rank's points;
+    /// top: from the local roots of all ranks), level by level: P2M and M2M into upward check
+    /// potentials, one fit (GEMM) per level.
+    fn upward(&self, up: &mut [f64], role: Role, clock: &PhaseClock) {
         let ne = self.ops.n_equiv();
-        let de = self.ops.degrees.len();
-        let dt = self.near.output_dim();
         let nc = self.ops.n_check();
-        let nf2 = self.m2l.spectrum_len(1);
-        let nb = self.tree.nodes.len();
-        let mut down = vec![0.0; nb * ne];
-        let depth = self.level_start.len() - 1;
-        for level in 2..depth {
-            let (a, b) = (self.level_start[level], self.level_start[level + 1]);
-            let nbl = b - a;
-            let (head, _) = down.split_at_mut(b * ne);
-            let (parents, cur) = head.split_at_mut(a * ne);
-            let parents = &*parents;
-            // M2L: spectra of this level's upward densities, blocked Hadamard products per
-            // frequency chunk, one inverse FFT per target box.
-            let mut t = Instant::now();
-            let mut spec = vec![0.0; nbl * de * nf2];
-            spec.par_chunks_mut(de * nf2)
-                .zip(&self.by_level[a..b])
-                .for_each_init(
-                    || self.m2l.scratch(),
-                    |s, (dst, &bx)| {
-                        if !self.tree.nodes[bx].sources.is_empty() {
-                            let p = self.pos[bx];
-                            self.m2l.spectrum(&up[p * ne..(p + 1) * ne], dst, s);
-                        }
-                    },
-                );
-            let nch = self.m2l.n_chunks;
-            let mut src = vec![0.0; nch * nbl * FftM2l::chunk_len(de)];
-            self.m2l.to_chunks(&spec, de, &mut src);
-            drop(spec);
-            // Pairs (target, source, compact offset), sorted by offset so that each kernel
-            // block is reused from cache.
-            let mut pairs: Vec<(u32, u32, u16)> = Vec::new();
-            for i in a..b {
-                let bx = self.by_level[i];
-                let node = &self.tree.nodes[bx];
-                if node.targets.is_empty() {
-                    continue;
-                }
-                for &v in &self.lists.v[bx] {
-                    let vn = &self.tree.nodes[v];
-                    if vn.sources.is_empty() {
-                        continue;
-                    }
-                    let d = sub(node.center, vn.center);
-                    let w = 2.0 * node.half;
-                    let off = [
-                        (d[0] / w).round() as i32,
-                        (d[1] / w).round() as i32,
-                        (d[2] / w).round() as i32,
-                    ];
-                    let o = self.m2l.compact_offset(offset_index(off));
-                    pairs.push(((i - a) as u32, (self.pos[v] - a) as u32, o as u16));
-                }
+        let tree = &self.tree;
+        for level in (0..tree.depth() as usize).rev() {
+            let sel: Vec<usize> = (tree.level_start[level]..tree.level_start[level + 1])
+                .filter(|&b| tree.boxes[b].role == role && tree.boxes[b].n_sources > 0)
+                .collect();
+            if sel.is_empty() {
+                continue;
             }
-            pairs.sort_unstable_by_key(|&(t, _, o)| (o, t));
-            t = clock.add(2, t);
-            let (sl, tl) = (FftM2l::chunk_len(de), FftM2l::chunk_len(dt));
-            let mut tgt = vec![0.0; nch * nbl * tl];
-            tgt.par_chunks_mut(nbl * tl)
-                .zip(src.par_chunks(nbl * sl))
-                .enumerate()
-                .for_each(|(c, (tc, sc))| {
-                    for &(ti, si, o) in &pairs {
-                        let (ti, si) = (ti as usize, si as usize);
-                        self.m2l.accumulate_chunk(
-                            c,
-                            o as usize,
-                            &sc[si * sl..(si + 1) * sl],
-                            &mut tc[ti * tl..(ti + 1) * tl],
+            let t = Instant::now();
+            let mut check = vec![0.0; sel.len() * nc];
+            // P2M at the leaves.
+            check.par_chunks_mut(nc).zip(&sel).for_each_init(
+                || Vec::with_capacity(self.ops.surf.len()),
+                |pts, (col, &bx)| {
+                    let node = &tree.boxes[bx];
+                    if node.leaf && !node.sources.is_empty() {
+                        self.ops.surf.place(node.center, node.half, UP_CHECK, pts);
+                        self.far_source.eval_block(
+                            pts,
+                            &self.sources.view(node.sources.clone()),
+                            col,
                         );
-                    }
-                });
-            drop(src);
-            t = clock.add(3, t);
-            let mut has_v = vec![false; nbl];
-            for &(ti, _, _) in &pairs {
-                has_v[ti as usize] = true;
-            }
-            let mut check = vec![0.0; nbl * nc];
-            check.par_chunks_mut(nc).enumerate().for_each_init(
-                || (self.m2l.scratch(), vec![0.0; self.m2l.spectrum_len(dt)]),
-                |(s, sp), (i, col)| {
-                    if has_v[i] {
-                        self.m2l.from_chunks(&tgt, nbl, i, dt, sp);
-                        self.m2l.check_values(sp, col, s);
                     }
                 },
             );
-            drop(tgt);
-            t = clock.add(2, t);
+            let t = clock.add(0, t);
+            // M2M: per octant, one GEMM over the children.
+            let mut groups: Vec<Vec<(usize, usize)>> = vec![Vec::new(); 8];
+            for (i, &b) in sel.iter().enumerate() {
+                for &c in &tree.boxes[b].children {
+                    if tree.boxes[c].n_sources > 0 {
+                        groups[tree.boxes[c].key.octant()].push((i, c));
+                    }
+                }
+            }
+            for (o, g) in groups.iter().enumerate() {
+                gather_gemm_scatter(&self.ops.m2m[o], g, up, &mut check);
+            }
+            let mut fit = vec![0.0; sel.len() * ne];
+            self.ops.up.apply_many(&check, &mut fit);
+            for (&b, v) in sel.iter().zip(fit.chunks_exact(ne)) {
+                up[b * ne..(b + 1) * ne].copy_from_slice(v);
+            }
+            clock.add(1, t);
+        }
+    }
+
+    /// Downward pass: normalised downward equivalent densities of the boxes this rank
+    /// computes, indexed by box.
+    fn downward(&self, up: &[f64], clock: &PhaseClock) -> Vec<f64> {
+        let ne = self.ops.n_equiv();
+        let nc = self.ops.n_check();
+        let tree = &self.tree;
+        let mut down = vec![0.0; tree.boxes.len() * ne];
+        for level in 2..tree.depth() as usize {
+            let sel: Vec<usize> = (tree.level_start[level]..tree.level_start[level + 1])
+                .filter(|&b| tree.computes_down(b))
+                .collect();
+            if sel.is_empty() {
+                continue;
+            }
+            let mut check = vec![0.0; sel.len() * nc];
+            self.m2l_level(&sel, up, &mut check, clock);
+            let t = Instant::now();
             // P2L: X-list sources at the downward check surfaces.
-            check
-                .par_chunks_mut(nc)
-                .zip(&self.by_level[a..b])
-                .for_each_init(
-                    || Vec::with_capacity(self.ops.surf.len()),
-                    |pts, (col, &bx)| {
-                        let node = &self.tree.nodes[bx];
-                        if self.lists.x[bx].is_empty() || node.targets.is_empty() {
-                            return;
+            check.par_chunks_mut(nc).zip(&sel).for_each_init(
+                || Vec::with_capacity(self.ops.surf.len()),
+                |pts, (col, &bx)| {
+                    if tree.lists.x[bx].is_empty() || self.x_direct(bx) {
+                        return;
+                    }
+                    let node = &tree.boxes[bx];
+                    self.ops.surf.place(node.center, node.half, INNER, pts);
+                    for &x in &tree.lists.x[bx] {
+                        let xn = &tree.boxes[x];
+                        if !xn.sources.is_empty() {
+                            self.far_source.eval_block(
+                                pts,
+                                &self.sources.view(xn.sources.clone()),
+                                col,
+                            );
                         }
-                        if self.x_direct(bx) {
-                            return;
-                        }
-                        self.ops.surf.place(node.center, node.half, INNER, pts);
-                        for &x in &self.lists.x[bx] {
-                            let xn = &self.tree.nodes[x];
-                            if !xn.sources.is_empty() {
-                                self.far_source.eval_block(
-                                    pts,
-                                    &self.sources.view(xn.sources.clone()),
-                                    col,
-                                );
-                            }
-                        }
-                    },
-                );
-            t = clock.add(4, t);
+                    }
+                },
+            );
+            let t = clock.add(4, t);
             // L2L per octant into the check potentials, then the downward fit of the level.
             if level > 2 {
                 let mut groups: Vec<Vec<(usize, usize)>> = vec![Vec::new(); 8];
-                for i in a..b {
-                    let bx = self.by_level[i];
-                    let node = &self.tree.nodes[bx];
-                    if node.targets.is_empty() {
-                        continue;
+                for (i, &b) in sel.iter().enumerate() {
+                    let node = &tree.boxes[b];
+                    if let Some(p) = node.parent {
+                        groups[node.key.octant()].push((i, p));
                     }
-                    let par = node.parent.expect("level ≥ 2 has a parent");
-                    let o = octant(sub(node.center, self.tree.nodes[par].center));
-                    groups[o].push((i - a, self.pos[par]));
                 }
                 for (o, g) in groups.iter().enumerate() {
-                    gather_gemm_scatter(&self.ops.l2l[o], g, parents, &mut check);
+                    gather_gemm_scatter(&self.ops.l2l[o], g, &down, &mut check);
                 }
             }
-            self.ops.down.apply_many(&check, cur);
+            let mut fit = vec![0.0; sel.len() * ne];
+            self.ops.down.apply_many(&check, &mut fit);
+            for (&b, v) in sel.iter().zip(fit.chunks_exact(ne)) {
+                down[b * ne..(b + 1) * ne].copy_from_slice(v);
+            }
             clock.add(5, t);
         }
         down
     }
 
-    /// Leaves: L2P, M2P and P2P into the targets' values in Morton order.
+    /// M2L into the check potentials of the target boxes `sel` (one level): spectra of the
+    /// V-list sources, blocked Hadamard products per frequency chunk, one inverse FFT per
+    /// target box.
+    fn m2l_level(&self, sel: &[usize], up: &[f64], check: &mut [f64], clock: &PhaseClock) {
+        let ne = self.ops.n_equiv();
+        let de = self.ops.degrees.len();
+        let dt = self.near.output_dim();
+        let nc = self.ops.n_check();
+        let nf2 = self.m2l.spectrum_len(1);
+        let tree = &self.tree;
+        let mut t = Instant::now();
+        // Sources: the V-list boxes with sources; pairs (target, source, compact offset),
+        // sorted by offset so that each kernel block is reused from cache.
+        let mut slot: HashMap<usize, u32> = HashMap::new();
+        let mut srcs: Vec<usize> = Vec::new();
+        let mut pairs: Vec<(u32, u32, u16)> = Vec::new();
+        for (ti, &bx) in sel.iter().enumerate() {
+            let key = tree.boxes[bx].key;
+            for &v in &tree.lists.v[bx] {
+                let vn = &tree.boxes[v];
+                if vn.n_sources == 0 {
+                    continue;
+                }
+                let si = *slot.entry(v).or_insert_with(|| {
+                    srcs.push(v);
+                    (srcs.len() - 1) as u32
+                });
+                let o = self
+                    .m2l
+                    .compact_offset(offset_index(key.offset_from(&vn.key)));
+                pairs.push((ti as u32, si, o as u16));
+            }
+        }
+        if pairs.is_empty() {
+            return;
+        }
+        pairs.sort_unstable_by_key(|&(t, _, o)| (o, t));
+        let mut spec = vec![0.0; srcs.len() * de * nf2];
+        spec.par_chunks_mut(de * nf2).zip(&srcs).for_each_init(
+            || self.m2l.scratch(),
+            |s, (dst, &bx)| self.m2l.spectrum(&up[bx * ne..(bx + 1) * ne], dst, s),
+        );
+        let nch = self.m2l.n_chunks;
+        let mut src = vec![0.0; nch * srcs.len() * FftM2l::chunk_len(de)];
+        self.m2l.to_chunks(&spec, de, &mut src);
+        drop(spec);
+        t = clock.add(2, t);
+        let (sl, tl) = (FftM2l::chunk_len(de), FftM2l::chunk_len(dt));
+        let nt = sel.len();
+        let mut tgt = vec![0.0; nch * nt * tl];
+        tgt.par_chunks_mut(nt * tl)
+            .zip(src.par_chunks(srcs.len() * sl))
+            .enumerate()
+            .for_each(|(c, (tc, sc))| {
+                for &(ti, si, o) in &pairs {
+                    let (ti, si) = (ti as usize, si as usize);
+                    self.m2l.accumulate_chunk(
+                        c,
+                        o as usize,
+                        &sc[si * sl..(si + 1) * sl],
+                        &mut tc[ti * tl..(ti + 1) * tl],
+                    );
+                }
+            });
+        drop(src);
+        t = clock.add(3, t);
+        let mut has_v = vec![false; nt];
+        for &(ti, _, _) in &pairs {
+            has_v[ti as usize] = true;
+        }
+        check.par_chunks_mut(nc).enumerate().for_each_init(
+            || (self.m2l.scratch(), vec![0.0; self.m2l.spectrum_len(dt)]),
+            |(s, sp), (i, col)| {
+                if has_v[i] {
+                    self.m2l.from_chunks(&tgt, nt, i, dt, sp);
+                    self.m2l.check_values(sp, col, s);
+                }
+            },
+        );
+        clock.add(2, t);
+    }
+
+    /// Leaves: L2P, M2P and P2P into this rank's targets' values in key order.
     fn leaves(&self, up: &[f64], down: &[f64], clock: &PhaseClock) -> Vec<f64> {
         let dt = self.near.output_dim();
         let ne = self.ops.n_equiv();
-        let mut leaves: Vec<usize> = (0..self.tree.nodes.len())
-            .filter(|&b| self.tree.nodes[b].is_leaf() && !self.tree.nodes[b].targets.is_empty())
+        let n_surf = self.ops.surf.len();
+        let tree = &self.tree;
+        let mut leaves: Vec<usize> = (0..tree.boxes.len())
+            .filter(|&b| {
+                let bx = &tree.boxes[b];
+                bx.role == Role::Owned && bx.leaf && !bx.targets.is_empty()
+            })
             .collect();
-        leaves.sort_by_key(|&b| self.tree.nodes[b].targets.start);
-        let mut sorted = vec![0.0; self.tree.targets_sorted.len() * dt];
+        leaves.sort_by_key(|&b| tree.boxes[b].targets.start);
+        let mut sorted = vec![0.0; tree.targets.len() * dt];
         let mut chunks = Vec::with_capacity(leaves.len());
         let mut rest = sorted.as_mut_slice();
         let mut at = 0;
         for &b in &leaves {
-            let r = self.tree.nodes[b].targets.clone();
+            let r = tree.boxes[b].targets.clone();
             let (_, tail) = rest.split_at_mut((r.start - at) * dt);
             let (mine, tail) = tail.split_at_mut(r.len() * dt);
             chunks.push(mine);
@@ -594,15 +739,14 @@ impl Fmm {
         chunks.into_par_iter().zip(leaves.par_iter()).for_each_init(
             || self.scratch(),
             |s, (vals, &bx)| {
-                let node = &self.tree.nodes[bx];
-                let tgts = &self.tree.targets_sorted[node.targets.clone()];
+                let node = &tree.boxes[bx];
+                let tgts = &tree.targets[node.targets.clone()];
                 let mut t = Instant::now();
                 // L2P
-                if node.level >= 2 {
-                    let p = self.pos[bx];
+                if node.key.level >= 2 {
                     self.equivalent_to_targets(
                         s,
-                        &down[p * ne..(p + 1) * ne],
+                        &down[bx * ne..(bx + 1) * ne],
                         bx,
                         DOWN_EQUIV,
                         tgts,
@@ -610,31 +754,30 @@ impl Fmm {
                     );
                 }
                 t = clock.add(6, t);
-                // M2P, or P2P where the box has fewer sources than surface points.
-                for &w in &self.lists.w[bx] {
-                    let wn = &self.tree.nodes[w];
-                    if wn.sources.is_empty() {
+                // M2P, or P2P from a leaf with fewer sources than surface points.
+                for &w in &tree.lists.w[bx] {
+                    let wn = &tree.boxes[w];
+                    if wn.n_sources == 0 {
                         continue;
                     }
-                    if wn.sources.len() <= self.ops.surf.len() {
+                    if wn.leaf && wn.n_sources <= n_surf {
                         self.near
                             .eval_block(tgts, &self.sources.view(wn.sources.clone()), vals);
                         continue;
                     }
-                    let p = self.pos[w];
-                    self.equivalent_to_targets(s, &up[p * ne..(p + 1) * ne], w, INNER, tgts, vals);
+                    self.equivalent_to_targets(s, &up[w * ne..(w + 1) * ne], w, INNER, tgts, vals);
                 }
                 t = clock.add(7, t);
                 // P2P: U list, and the X list of a small leaf (instead of P2L).
                 if self.x_direct(bx) {
-                    for &x in &self.lists.x[bx] {
-                        let xn = &self.tree.nodes[x];
+                    for &x in &tree.lists.x[bx] {
+                        let xn = &tree.boxes[x];
                         self.near
                             .eval_block(tgts, &self.sources.view(xn.sources.clone()), vals);
                     }
                 }
-                for &u in &self.lists.u[bx] {
-                    let un = &self.tree.nodes[u];
+                for &u in &tree.lists.u[bx] {
+                    let un = &tree.boxes[u];
                     if !un.sources.is_empty() {
                         let view: SourceView = self.sources.view(un.sources.clone());
                         self.near.eval_block(tgts, &view, vals);
@@ -649,8 +792,8 @@ impl Fmm {
     /// Whether the X list of box `b` acts directly on its targets (a leaf with fewer targets
     /// than surface points) rather than through its downward check surface.
     fn x_direct(&self, b: usize) -> bool {
-        let node = &self.tree.nodes[b];
-        node.is_leaf() && node.targets.len() <= self.ops.surf.len()
+        let node = &self.tree.boxes[b];
+        node.leaf && node.n_targets <= self.ops.surf.len()
     }
 
     /// Add the field of box `b`'s normalised equivalent density (on its surface of radius
@@ -665,7 +808,7 @@ impl Fmm {
         tgts: &[[f64; 3]],
         vals: &mut [f64],
     ) {
-        let node = &self.tree.nodes[b];
+        let node = &self.tree.boxes[b];
         let de = self.ops.degrees.len();
         let scale = self.ops.scale(node.half);
         let dens = &mut s.dens[..normalised.len()];
@@ -701,8 +844,4 @@ fn gather_gemm_scatter(m: &faer::Mat<f64>, pairs: &[(usize, usize)], x: &[f64], 
             *o += v;
         }
     }
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }

@@ -2,7 +2,9 @@
 //!
 //! * [`kernels`]: the kernels of the `mobo fmm` contract and their normalisations;
 //!   [`direct`]: exact sums, the reference.
-//! * [`octree`]: adaptive Morton octree with U, V, W, X lists.
+//! * [`octree`]: adaptive Morton octree with U, V, W, X lists (the reference of the lists);
+//!   [`dist_tree`]: the same tree split over ranks by keys ([`box_key`]), with the locally
+//!   essential tree each rank needs, which the evaluator runs on (one rank: the whole tree).
 //! * [`evaluator::Fmm`]: the KIFMM of Ying, Biros & Zorin (J. Comput. Phys. 196, 2004) with
 //!   level-independent operators ([`operators`]), M2L by FFT ([`m2l_fft`], the scheme of PVFMM,
 //!   Malhotra & Biros 2015) and batched P2P ([`p2p`]); accuracy in digits via
@@ -25,9 +27,11 @@
 //! ```
 
 pub mod blocks;
+pub mod box_key;
 pub mod calibration;
 pub mod clouds;
 pub mod direct;
+pub mod dist_tree;
 pub mod evaluator;
 pub mod kernels;
 pub mod kifmm;
@@ -39,7 +43,7 @@ pub mod surface;
 
 pub use calibration::order_for_digits;
 pub use direct::{direct_sum, SumInput};
-pub use evaluator::{Fmm, FmmKernel, FmmTimings};
+pub use evaluator::{Fmm, FmmComm, FmmKernel, FmmTimings};
 pub use kernels::{Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, Stresslet};
 
 /// Errors of the N-body sums.
@@ -48,4 +52,7 @@ pub enum FmmError {
     /// Inputs whose sizes do not fit the kernel or each other.
     #[error("{0}")]
     Shape(String),
+    /// Communication between ranks failed, or another rank failed.
+    #[error(transparent)]
+    Comm(#[from] crate::comm::CommError),
 }

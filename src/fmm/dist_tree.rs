@@ -1,0 +1,830 @@
+//! The octree of one rank: its share of a global adaptive octree, and the locally essential
+//! tree (LET) of what other ranks hold that its boxes interact with.
+//!
+//! Construction (the scheme of Lashuk et al., SC'09, and PVFMM, Malhotra & Biros 2015, in a
+//! simpler form):
+//!
+//! 1. **Domain.** The root cube is the serial one over the global bounding box (min/max
+//!    reductions), so every rank computes the same keys ([`super::box_key`]).
+//! 2. **Partition.** Splitters on the key line are chosen by weighted regular sampling of
+//!    every rank's sorted keys (sources and targets together), then each is moved down to the
+//!    first key of the leaf of the global tree that contains it: the global point counts of the
+//!    boxes on each splitter's chain (one sum reduction of `22·(K−1)` integers) say where the
+//!    global tree stops splitting. Points are then sent to their owners (one all-to-all that
+//!    every point crosses once). So no leaf is cut, and no rank holds all points.
+//! 3. **Local tree.** Each rank refines its points top-down with the serial rule (split while a
+//!    box has more than `leaf_size` points); a box whose key interval contains a splitter is
+//!    split regardless (its global count is known to exceed `leaf_size`). Boxes inside the
+//!    rank's key interval are *owned*; the others are *top* boxes.
+//! 4. **Top of the tree.** The owned boxes whose parent is not owned are the rank's *local
+//!    roots*. All ranks gather all local roots (key, leaf flag, counts; their upward
+//!    expansions at each evaluation) and compute the top boxes, their common ancestors, alike.
+//!    Its size is `O(K · depth)` records per rank: the cost that bites first at large `K`
+//!    (measured in `docs/scaling.md`).
+//! 5. **Locally essential tree.** Every owned box `S` with sources is sent to each other rank
+//!    whose key interval overlaps the 27 boxes around `S`'s parent: its upward expansion, and
+//!    its sources if it is a leaf. Any target box `T` that interacts with `S` (`S` in `T`'s U,
+//!    V, W or X list) lies in that region, so each rank receives exactly the boxes its lists
+//!    need (proof in `docs/scaling.md`), from neighbouring ranks only. The pattern is built once;
+//!    each evaluation moves only expansions and densities.
+//!
+//! Lists are found from keys by descending from the root through adjacent boxes, and kept in
+//! key order, so the same target box gets the same lists on any number of ranks.
+
+use std::collections::HashMap;
+use std::ops::Range;
+
+use super::box_key::{BoxKey, Domain, FINE, KEY_END};
+use super::octree::MAX_DEPTH;
+use crate::comm::{CommError, Communicator};
+
+/// What a rank holds of a box.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Role {
+    /// All the box's points are on this rank.
+    Owned,
+    /// The box holds points of several ranks; every rank computes its upward expansion.
+    Top,
+    /// Owned by another rank: its upward expansion (and sources, for a leaf) are received.
+    Ghost,
+}
+
+/// One box of the rank's tree.
+#[derive(Clone, Debug)]
+pub struct TreeBox {
+    pub key: BoxKey,
+    pub center: [f64; 3],
+    pub half: f64,
+    /// Whether the box is a leaf of the global tree.
+    pub leaf: bool,
+    /// Sources and targets in the box, over all ranks.
+    pub n_sources: usize,
+    pub n_targets: usize,
+    /// The box's sources in this rank's source arrays (owned boxes and received leaves).
+    pub sources: Range<usize>,
+    /// The box's targets in this rank's target arrays (owned boxes).
+    pub targets: Range<usize>,
+    pub parent: Option<usize>,
+    pub children: Vec<usize>,
+    pub role: Role,
+}
+
+/// Interaction lists of the boxes a rank computes (empty for the others).
+#[derive(Clone, Debug, Default)]
+pub struct Lists {
+    pub u: Vec<Vec<usize>>,
+    pub v: Vec<Vec<usize>>,
+    pub w: Vec<Vec<usize>>,
+    pub x: Vec<Vec<usize>>,
+}
+
+/// How per-point values travel between the caller's ranks and order and the owners' sorted
+/// order (densities forward, results back).
+#[derive(Clone, Debug, Default)]
+pub struct Route {
+    /// For each rank, the caller's point indices sent there, in order.
+    outgoing: Vec<Vec<usize>>,
+    /// Number of points received from each rank.
+    incoming: Vec<usize>,
+    /// Sorted point `i` is entry `from[i]` of the received points (concatenated by rank).
+    from: Vec<usize>,
+}
+
+impl Route {
+    /// Values of the caller's points (`dim` per point, caller order) to this rank's sorted
+    /// points.
+    pub fn forward(
+        &self,
+        comm: &dyn Communicator,
+        data: &[f64],
+        dim: usize,
+    ) -> Result<Vec<f64>, CommError> {
+        let send: Vec<Vec<f64>> = self
+            .outgoing
+            .iter()
+            .map(|idx| {
+                idx.iter()
+                    .flat_map(|&i| data[i * dim..(i + 1) * dim].iter().copied())
+                    .collect()
+            })
+            .collect();
+        let recv: Vec<f64> = comm.all_to_all_f64(&send)?.concat();
+        let mut out = vec![0.0; self.from.len() * dim];
+        for (o, &f) in out.chunks_exact_mut(dim).zip(&self.from) {
+            o.copy_from_slice(&recv[f * dim..(f + 1) * dim]);
+        }
+        Ok(out)
+    }
+
+    /// Values of this rank's sorted points back to the caller's points (`out`, caller order).
+    pub fn backward(
+        &self,
+        comm: &dyn Communicator,
+        sorted: &[f64],
+        dim: usize,
+        out: &mut [f64],
+    ) -> Result<(), CommError> {
+        let mut flat = vec![0.0; sorted.len()];
+        for (v, &f) in sorted.chunks_exact(dim).zip(&self.from) {
+            flat[f * dim..(f + 1) * dim].copy_from_slice(v);
+        }
+        let mut at = 0;
+        let send: Vec<Vec<f64>> = self
+            .incoming
+            .iter()
+            .map(|&n| {
+                let v = flat[at * dim..(at + n) * dim].to_vec();
+                at += n;
+                v
+            })
+            .collect();
+        let recv = comm.all_to_all_f64(&send)?;
+        for (idx, vals) in self.outgoing.iter().zip(&recv) {
+            for (&i, v) in idx.iter().zip(vals.chunks_exact(dim)) {
+                out[i * dim..(i + 1) * dim].copy_from_slice(v);
+            }
+        }
+        Ok(())
+    }
+
+    /// Number of the caller's points.
+    pub fn n_caller(&self) -> usize {
+        self.outgoing.iter().map(Vec::len).sum()
+    }
+}
+
+/// The boxes one rank sends to, or receives from, one other rank at each evaluation.
+#[derive(Clone, Debug, Default)]
+pub struct GhostLink {
+    pub rank: usize,
+    /// Boxes whose upward expansions travel (indices into [`DistTree::boxes`]).
+    pub boxes: Vec<usize>,
+    /// Sources whose densities travel (ranges in the rank's source arrays).
+    pub sources: Vec<Range<usize>>,
+}
+
+impl GhostLink {
+    /// Values per evaluation: `ne` per box, `ds` per source.
+    pub fn len(&self, ne: usize, ds: usize) -> usize {
+        self.boxes.len() * ne + self.sources.iter().map(|r| r.len()).sum::<usize>() * ds
+    }
+}
+
+/// Points as one rank receives them: sorted by (key, global index).
+struct Sorted {
+    points: Vec<[f64; 3]>,
+    normals: Option<Vec<[f64; 3]>>,
+    keys: Vec<u64>,
+    route: Route,
+}
+
+/// One rank's tree: owned, top and ghost boxes in key order.
+#[derive(Clone, Debug)]
+pub struct DistTree {
+    pub domain: Domain,
+    /// Boxes sorted by `(level, morton)`.
+    pub boxes: Vec<TreeBox>,
+    pub index: HashMap<BoxKey, usize>,
+    /// `boxes[level_start[l]..level_start[l + 1]]` are the boxes of level `l`.
+    pub level_start: Vec<usize>,
+    /// Rank `r` owns the keys `splitters[r]..splitters[r + 1]`.
+    pub splitters: Vec<u64>,
+    pub rank: usize,
+    /// This rank's sources (owned, in key order), then the received ghost sources.
+    pub sources: Vec<[f64; 3]>,
+    pub normals: Option<Vec<[f64; 3]>>,
+    /// Number of owned sources (the first entries of `sources`).
+    pub n_owned_sources: usize,
+    /// This rank's targets in key order.
+    pub targets: Vec<[f64; 3]>,
+    pub leaf_size: usize,
+    pub source_route: Route,
+    pub target_route: Route,
+    /// Local roots of every rank, by rank (indices into `boxes`).
+    pub roots: Vec<Vec<usize>>,
+    pub ghosts_out: Vec<GhostLink>,
+    pub ghosts_in: Vec<GhostLink>,
+    pub lists: Lists,
+}
+
+fn bits(p: [f64; 3]) -> [u64; 3] {
+    p.map(f64::to_bits)
+}
+
+fn unbits(v: &[u64]) -> [f64; 3] {
+    [
+        f64::from_bits(v[0]),
+        f64::from_bits(v[1]),
+        f64::from_bits(v[2]),
+    ]
+}
+
+/// Splitters of the key line: weighted regular sampling of the ranks' sorted keys.
+fn sample_splitters(comm: &dyn Communicator, keys: &[u64]) -> Result<Vec<u64>, CommError> {
+    let k = comm.size();
+    let per = (4 * k).max(16).min(keys.len());
+    let mut local = Vec::with_capacity(2 * per);
+    for i in 0..per {
+        local.push(keys[(2 * i + 1) * keys.len() / (2 * per)]);
+        local.push(keys.len() as u64);
+    }
+    let mut all: Vec<(u64, f64)> = comm
+        .all_gather_u64(&local)?
+        .into_iter()
+        .flat_map(|v| {
+            let n = v.len() / 2;
+            v.chunks_exact(2)
+                .map(|c| (c[0], c[1] as f64 / n as f64))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    all.sort_by_key(|s| s.0);
+    let total: f64 = all.iter().map(|s| s.1).sum();
+    let mut out = vec![0u64];
+    let mut acc = 0.0;
+    let mut it = all.iter().peekable();
+    for b in 1..k {
+        let goal = total * b as f64 / k as f64;
+        while let Some(s) = it.peek() {
+            if acc + s.1 / 2.0 >= goal {
+                break;
+            }
+            acc += s.1;
+            it.next();
+        }
+        out.push(it.peek().map(|s| s.0).unwrap_or(KEY_END));
+    }
+    out.push(KEY_END);
+    Ok(out)
+}
+
+/// Move each inner splitter down to the first key of the global leaf that contains it.
+fn snap_splitters(
+    comm: &dyn Communicator,
+    domain: &Domain,
+    keys: &[u64],
+    splitters: &mut [u64],
+    leaf_size: usize,
+    min_width: f64,
+) -> Result<(), CommError> {
+    let k = splitters.len() - 1;
+    let levels = (MAX_DEPTH + 1) as usize;
+    let mut counts = vec![0u64; (k - 1) * levels];
+    for b in 1..k {
+        for l in 0..levels {
+            let bx = BoxKey::containing(splitters[b].min(KEY_END - 1), l as u32);
+            let lo = keys.partition_point(|&x| x < bx.morton);
+            let hi = keys.partition_point(|&x| x < bx.end());
+            counts[(b - 1) * levels + l] = (hi - lo) as u64;
+        }
+    }
+    comm.all_sum_u64(&mut counts)?;
+    for b in 1..k {
+        if splitters[b] >= KEY_END {
+            continue;
+        }
+        for l in 0..levels {
+            let splits = counts[(b - 1) * levels + l] as usize > leaf_size
+                && (l as u32) < MAX_DEPTH
+                && domain.half(l as u32) >= min_width;
+            if !splits {
+                splitters[b] = BoxKey::containing(splitters[b], l as u32).morton;
+                break;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Send points to the owners of their keys and sort them by (key, global index).
+fn distribute(
+    comm: &dyn Communicator,
+    domain: &Domain,
+    points: &[[f64; 3]],
+    normals: Option<&[[f64; 3]]>,
+    splitters: &[u64],
+) -> Result<Sorted, CommError> {
+    let k = comm.size();
+    let counts = comm.all_gather_u64(&[points.len() as u64])?;
+    let offset: u64 = counts[..comm.rank()].iter().map(|c| c[0]).sum();
+    let width = if normals.is_some() { 8 } else { 5 };
+    let mut outgoing = vec![Vec::new(); k];
+    let mut send = vec![Vec::new(); k];
+    for (i, p) in points.iter().enumerate() {
+        let key = domain.key(*p);
+        let r = splitters.partition_point(|&s| s <= key) - 1;
+        outgoing[r].push(i);
+        let buf = &mut send[r];
+        buf.push(key);
+        buf.push(offset + i as u64);
+        buf.extend(bits(*p));
+        if let Some(n) = normals {
+            buf.extend(bits(n[i]));
+        }
+    }
+    let recv = comm.all_to_all_u64(&send)?;
+    let incoming: Vec<usize> = recv.iter().map(|b| b.len() / width).collect();
+    let flat: Vec<u64> = recv.concat();
+    let n = flat.len() / width;
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_unstable_by_key(|&i| (flat[i * width], flat[i * width + 1]));
+    let rec = |i: usize| &flat[i * width..(i + 1) * width];
+    Ok(Sorted {
+        points: order.iter().map(|&i| unbits(&rec(i)[2..5])).collect(),
+        normals: normals
+            .is_some()
+            .then(|| order.iter().map(|&i| unbits(&rec(i)[5..8])).collect()),
+        keys: order.iter().map(|&i| rec(i)[0]).collect(),
+        route: Route {
+            outgoing,
+            incoming,
+            from: order,
+        },
+    })
+}
+
+/// A box of the local refinement, before roles are known.
+struct LocalBox {
+    key: BoxKey,
+    sources: Range<usize>,
+    targets: Range<usize>,
+    leaf: bool,
+}
+
+/// Refine this rank's points top-down (the serial rule, plus: boxes that contain a splitter
+/// always split).
+fn refine(
+    domain: &Domain,
+    skeys: &[u64],
+    tkeys: &[u64],
+    splitters: &[u64],
+    leaf_size: usize,
+    min_width: f64,
+) -> Vec<LocalBox> {
+    let straddles = |b: &BoxKey| {
+        splitters[1..splitters.len() - 1]
+            .iter()
+            .any(|&s| b.morton < s && s < b.end())
+    };
+    let mut out = vec![LocalBox {
+        key: BoxKey::ROOT,
+        sources: 0..skeys.len(),
+        targets: 0..tkeys.len(),
+        leaf: true,
+    }];
+    let mut stack = vec![0usize];
+    while let Some(b) = stack.pop() {
+        let key = out[b].key;
+        let count = out[b].sources.len() + out[b].targets.len();
+        let split = straddles(&key)
+            || (count > leaf_size && key.level < MAX_DEPTH && domain.half(key.level) >= min_width);
+        if !split {
+            continue;
+        }
+        out[b].leaf = false;
+        let (sr, tr) = (out[b].sources.clone(), out[b].targets.clone());
+        let mut s0 = sr.start;
+        let mut t0 = tr.start;
+        for o in 0..8u64 {
+            let child = BoxKey {
+                level: key.level + 1,
+                morton: key.morton | (o << (3 * (FINE - key.level - 1))),
+            };
+            let s1 = s0 + skeys[s0..sr.end].partition_point(|&x| x < child.end());
+            let t1 = t0 + tkeys[t0..tr.end].partition_point(|&x| x < child.end());
+            if s1 > s0 || t1 > t0 {
+                out.push(LocalBox {
+                    key: child,
+                    sources: s0..s1,
+                    targets: t0..t1,
+                    leaf: true,
+                });
+                stack.push(out.len() - 1);
+            }
+            s0 = s1;
+            t0 = t1;
+        }
+    }
+    out
+}
+
+/// Inputs of [`DistTree::build`].
+pub struct TreeInput<'a> {
+    pub sources: &'a [[f64; 3]],
+    pub normals: Option<&'a [[f64; 3]]>,
+    pub targets: &'a [[f64; 3]],
+    pub leaf_size: usize,
+    /// Boxes are not split below this edge length (RPY: the bead diameter).
+    pub min_width: f64,
+}
+
+impl DistTree {
+    /// Build this rank's tree and its exchange pattern (collective: all ranks call it).
+    pub fn build(comm: &dyn Communicator, input: &TreeInput) -> Result<Self, CommError> {
+        let leaf_size = input.leaf_size.max(1);
+        let (k, me) = (comm.size(), comm.rank());
+        // 1. Domain.
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for p in input.sources.iter().chain(input.targets) {
+            for c in 0..3 {
+                lo[c] = lo[c].min(p[c]);
+                hi[c] = hi[c].max(p[c]);
+            }
+        }
+        comm.all_min(&mut lo)?;
+        comm.all_max(&mut hi)?;
+        let domain = Domain::from_bounds(lo, hi);
+        // 2. Partition.
+        let mut keys: Vec<u64> = input
+            .sources
+            .iter()
+            .chain(input.targets)
+            .map(|p| domain.key(*p))
+            .collect();
+        keys.sort_unstable();
+        let mut splitters = if k == 1 {
+            vec![0, KEY_END]
+        } else {
+            sample_splitters(comm, &keys)?
+        };
+        if k > 1 {
+            snap_splitters(
+                comm,
+                &domain,
+                &keys,
+                &mut splitters,
+                leaf_size,
+                input.min_width,
+            )?;
+        }
+        drop(keys);
+        let src = distribute(comm, &domain, input.sources, input.normals, &splitters)?;
+        let tgt = distribute(comm, &domain, input.targets, None, &splitters)?;
+        // 3. Local tree.
+        let local = refine(
+            &domain,
+            &src.keys,
+            &tgt.keys,
+            &splitters,
+            leaf_size,
+            input.min_width,
+        );
+        let (mine_lo, mine_hi) = (splitters[me], splitters[me + 1]);
+        let owned = |b: &BoxKey| mine_lo <= b.morton && b.end() <= mine_hi;
+        let mut tree = DistTree {
+            domain,
+            boxes: Vec::new(),
+            index: HashMap::new(),
+            level_start: Vec::new(),
+            splitters,
+            rank: me,
+            n_owned_sources: src.points.len(),
+            sources: src.points,
+            normals: src.normals,
+            targets: tgt.points,
+            leaf_size,
+            source_route: src.route,
+            target_route: tgt.route,
+            roots: vec![Vec::new(); k],
+            ghosts_out: Vec::new(),
+            ghosts_in: Vec::new(),
+            lists: Lists::default(),
+        };
+        let mut boxes: HashMap<BoxKey, TreeBox> = HashMap::new();
+        let mut my_roots = Vec::new();
+        for b in &local {
+            if !owned(&b.key) {
+                continue;
+            }
+            if b.key.parent().is_none_or(|p| !owned(&p)) {
+                my_roots.push(b.key);
+            }
+            boxes.insert(
+                b.key,
+                tree.new_box(
+                    b.key,
+                    b.leaf,
+                    (b.sources.len(), b.targets.len()),
+                    Role::Owned,
+                ),
+            );
+            let tb = boxes.get_mut(&b.key).expect("just inserted");
+            tb.sources = b.sources.clone();
+            tb.targets = b.targets.clone();
+        }
+        // 4. Top of the tree from every rank's local roots.
+        let mut rec = Vec::with_capacity(5 * my_roots.len());
+        my_roots.sort();
+        for r in &my_roots {
+            let b = &boxes[r];
+            rec.extend([
+                r.level as u64,
+                r.morton,
+                b.leaf as u64,
+                b.n_sources as u64,
+                b.n_targets as u64,
+            ]);
+        }
+        let all_roots = comm.all_gather_u64(&rec)?;
+        let mut root_keys: Vec<Vec<BoxKey>> = vec![Vec::new(); k];
+        for (r, recs) in all_roots.iter().enumerate() {
+            for c in recs.chunks_exact(5) {
+                let key = BoxKey {
+                    level: c[0] as u32,
+                    morton: c[1],
+                };
+                root_keys[r].push(key);
+                let (ns, nt) = (c[3] as usize, c[4] as usize);
+                if r != me {
+                    boxes.insert(key, tree.new_box(key, c[2] == 1, (ns, nt), Role::Ghost));
+                }
+                let mut a = key.parent();
+                while let Some(p) = a {
+                    let e = boxes
+                        .entry(p)
+                        .or_insert_with(|| tree.new_box(p, false, (0, 0), Role::Top));
+                    e.n_sources += ns;
+                    e.n_targets += nt;
+                    a = p.parent();
+                }
+            }
+        }
+        // 5. The locally essential tree: send owned boxes with sources to the ranks around
+        // their parents.
+        let mut sent_keys: Vec<Vec<BoxKey>> = vec![Vec::new(); k];
+        let mut send: Vec<Vec<u64>> = vec![Vec::new(); k];
+        let mut out_links: Vec<GhostLink> = (0..k)
+            .map(|rank| GhostLink {
+                rank,
+                ..Default::default()
+            })
+            .collect();
+        let mut owned_keys: Vec<BoxKey> = boxes
+            .iter()
+            .filter(|(_, b)| b.role == Role::Owned && b.n_sources > 0)
+            .map(|(key, _)| *key)
+            .collect();
+        owned_keys.sort();
+        for key in &owned_keys {
+            let Some(parent) = key.parent() else {
+                continue;
+            };
+            let b = &boxes[key];
+            for r in tree.ranks_near(&parent) {
+                if r == me {
+                    continue;
+                }
+                let buf = &mut send[r];
+                buf.extend([
+                    key.level as u64,
+                    key.morton,
+                    b.leaf as u64,
+                    b.n_sources as u64,
+                    b.n_targets as u64,
+                ]);
+                sent_keys[r].push(*key);
+                if b.leaf {
+                    buf.push(b.sources.len() as u64);
+                    for i in b.sources.clone() {
+                        buf.extend(bits(tree.sources[i]));
+                        if let Some(n) = &tree.normals {
+                            buf.extend(bits(n[i]));
+                        }
+                    }
+                    out_links[r].sources.push(b.sources.clone());
+                } else {
+                    buf.push(0);
+                }
+            }
+        }
+        let recv = comm.all_to_all_u64(&send)?;
+        drop(send);
+        let w = if tree.normals.is_some() { 6 } else { 3 };
+        let mut in_links = Vec::new();
+        let mut in_keys: Vec<(usize, Vec<BoxKey>)> = Vec::new();
+        for (r, buf) in recv.iter().enumerate() {
+            if buf.is_empty() {
+                continue;
+            }
+            let mut link = GhostLink {
+                rank: r,
+                ..Default::default()
+            };
+            let mut keys = Vec::new();
+            let mut at = 0;
+            while at < buf.len() {
+                let key = BoxKey {
+                    level: buf[at] as u32,
+                    morton: buf[at + 1],
+                };
+                let (leaf, ns, nt) = (buf[at + 2] == 1, buf[at + 3] as usize, buf[at + 4]);
+                let np = buf[at + 5] as usize;
+                at += 6;
+                let start = tree.sources.len();
+                for j in 0..np {
+                    let p = &buf[at + j * w..at + (j + 1) * w];
+                    tree.sources.push(unbits(&p[..3]));
+                    if let Some(n) = &mut tree.normals {
+                        n.push(unbits(&p[3..6]));
+                    }
+                }
+                at += w * np;
+                let e = boxes
+                    .entry(key)
+                    .or_insert_with(|| tree.new_box(key, leaf, (ns, nt as usize), Role::Ghost));
+                e.leaf = leaf;
+                if np > 0 {
+                    e.sources = start..start + np;
+                    link.sources.push(start..start + np);
+                }
+                keys.push(key);
+            }
+            in_keys.push((r, keys));
+            in_links.push(link);
+        }
+        // Order the boxes and link parents and children.
+        let mut all: Vec<TreeBox> = boxes.into_values().collect();
+        all.sort_by_key(|b| b.key);
+        tree.index = all.iter().enumerate().map(|(i, b)| (b.key, i)).collect();
+        for i in 0..all.len() {
+            if let Some(p) = all[i]
+                .key
+                .parent()
+                .and_then(|p| tree.index.get(&p).copied())
+            {
+                all[i].parent = Some(p);
+                all[p].children.push(i);
+            }
+        }
+        let depth = all.iter().map(|b| b.key.level).max().unwrap_or(0) as usize + 1;
+        tree.level_start = (0..=depth)
+            .map(|l| all.partition_point(|b| (b.key.level as usize) < l))
+            .collect();
+        tree.boxes = all;
+        let idx = |key: &BoxKey| tree.index[key];
+        tree.roots = root_keys
+            .iter()
+            .map(|ks| ks.iter().map(idx).collect())
+            .collect();
+        for (link, keys) in out_links.iter_mut().zip(&sent_keys) {
+            link.boxes = keys.iter().map(idx).collect();
+        }
+        tree.ghosts_out = out_links
+            .into_iter()
+            .filter(|l| !l.boxes.is_empty())
+            .collect();
+        for (link, (_, keys)) in in_links.iter_mut().zip(&in_keys) {
+            link.boxes = keys.iter().map(idx).collect();
+        }
+        tree.ghosts_in = in_links;
+        tree.lists = tree.interaction_lists();
+        Ok(tree)
+    }
+
+    fn new_box(&self, key: BoxKey, leaf: bool, counts: (usize, usize), role: Role) -> TreeBox {
+        let (center, half) = self.domain.geometry(&key);
+        TreeBox {
+            key,
+            center,
+            half,
+            leaf,
+            n_sources: counts.0,
+            n_targets: counts.1,
+            sources: 0..0,
+            targets: 0..0,
+            parent: None,
+            children: Vec::new(),
+            role,
+        }
+    }
+
+    /// Ranks whose key intervals overlap the 27 boxes around `b` (b included).
+    fn ranks_near(&self, b: &BoxKey) -> Vec<usize> {
+        let mut out = Vec::new();
+        for n in b.neighbourhood() {
+            let first = self.splitters.partition_point(|&s| s <= n.morton) - 1;
+            let mut r = first;
+            while r + 1 < self.splitters.len() && self.splitters[r] < n.end() {
+                if self.splitters[r] < self.splitters[r + 1] {
+                    out.push(r);
+                }
+                r += 1;
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// Number of levels.
+    pub fn depth(&self) -> u32 {
+        (self.level_start.len() - 1) as u32
+    }
+
+    /// Whether this rank computes the downward expansion of box `b`: owned boxes and top
+    /// boxes overlapping the rank's key interval, with targets.
+    pub fn computes_down(&self, b: usize) -> bool {
+        let bx = &self.boxes[b];
+        bx.n_targets > 0
+            && match bx.role {
+                Role::Owned => true,
+                Role::Top => bx
+                    .key
+                    .overlaps(self.splitters[self.rank], self.splitters[self.rank + 1]),
+                Role::Ghost => false,
+            }
+    }
+
+    /// Boxes adjacent to `near`, found by descent from the root through adjacent boxes down
+    /// to `max_level`: `(boxes at max_level, leaves above it)`, each in key order.
+    fn adjacent_boxes(&self, near: &BoxKey, max_level: u32) -> (Vec<usize>, Vec<usize>) {
+        let (mut at_level, mut leaves) = (Vec::new(), Vec::new());
+        let Some(&root) = self.index.get(&BoxKey::ROOT) else {
+            return (at_level, leaves);
+        };
+        let mut stack = vec![root];
+        while let Some(a) = stack.pop() {
+            let bx = &self.boxes[a];
+            if !bx.key.adjacent(near) {
+                continue;
+            }
+            if bx.key.level == max_level {
+                at_level.push(a);
+            } else if bx.leaf {
+                leaves.push(a);
+            } else {
+                stack.extend(&bx.children);
+            }
+        }
+        at_level.sort_unstable();
+        leaves.sort_unstable();
+        (at_level, leaves)
+    }
+
+    /// The U, V, W, X lists of the boxes this rank computes.
+    fn interaction_lists(&self) -> Lists {
+        let n = self.boxes.len();
+        let mut l = Lists {
+            u: vec![Vec::new(); n],
+            v: vec![Vec::new(); n],
+            w: vec![Vec::new(); n],
+            x: vec![Vec::new(); n],
+        };
+        for t in 0..n {
+            let tb = &self.boxes[t];
+            if !self.computes_down(t) {
+                continue;
+            }
+            let key = tb.key;
+            if let Some(pk) = key.parent() {
+                // V: children of the parent's colleagues not adjacent to t; X: leaves coarser
+                // than t adjacent to its parent but not to t.
+                let (colleagues, coarse) = self.adjacent_boxes(&pk, pk.level);
+                for &c in &colleagues {
+                    if self.boxes[c].leaf && !self.boxes[c].key.adjacent(&key) {
+                        l.x[t].push(c);
+                    }
+                    for &ch in &self.boxes[c].children {
+                        if !self.boxes[ch].key.adjacent(&key) {
+                            l.v[t].push(ch);
+                        }
+                    }
+                }
+                l.x[t].extend(
+                    coarse
+                        .into_iter()
+                        .filter(|&s| !self.boxes[s].key.adjacent(&key)),
+                );
+                l.x[t].sort_unstable();
+            }
+            if tb.leaf && tb.role == Role::Owned {
+                // U: leaves adjacent to t; W: descendants of t's colleagues not adjacent to t
+                // whose parents are.
+                let (same, coarse) = self.adjacent_boxes(&key, key.level);
+                l.u[t] = coarse;
+                for c in same {
+                    if self.boxes[c].leaf {
+                        l.u[t].push(c);
+                        continue;
+                    }
+                    let mut stack = self.boxes[c].children.clone();
+                    while let Some(d) = stack.pop() {
+                        let db = &self.boxes[d];
+                        if !db.key.adjacent(&key) {
+                            l.w[t].push(d);
+                        } else if db.leaf {
+                            l.u[t].push(d);
+                        } else {
+                            stack.extend(&db.children);
+                        }
+                    }
+                }
+                l.u[t].sort_unstable();
+                l.w[t].sort_unstable();
+            }
+            l.v[t].sort_unstable();
+        }
+        l
+    }
+}
