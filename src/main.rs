@@ -6,6 +6,9 @@ use std::time::Instant;
 use clap::{Parser, Subcommand};
 use mobo::sph_harmonics::{Deriv, ShTransform, SphError};
 
+mod fmm_command;
+use fmm_command::FmmArgs;
+
 #[derive(Parser)]
 #[command(
     name = "mobo",
@@ -106,15 +109,6 @@ enum ReportCommand {
     },
 }
 
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
-enum KernelArg {
-    Laplace,
-    LaplaceDl,
-    Stokeslet,
-    Stresslet,
-    Rpy,
-}
-
 #[derive(Debug, thiserror::Error)]
 enum CliError {
     #[error("spherical harmonics: {0}")]
@@ -128,6 +122,8 @@ enum CliError {
     #[error("{0}")]
     Fmm(#[from] mobo::fmm::FmmError),
     #[error("{0}")]
+    Comm(#[from] mobo::comm::CommError),
+    #[error("{0}")]
     Run(#[from] mobo::scene::brownian_run::RunError),
     #[error("{0}")]
     CellRun(#[from] mobo::scene::cells_run::CellRunError),
@@ -135,6 +131,9 @@ enum CliError {
     Report(#[from] mobo::report::ReportError),
     #[error("interrupted")]
     Interrupted,
+    /// An error already reported by rank 0 of an MPI run (the other ranks exit quietly).
+    #[error("reported by rank 0")]
+    ReportedElsewhere,
 }
 
 fn main() -> ExitCode {
@@ -148,7 +147,7 @@ fn main() -> ExitCode {
     }) {
         Command::Demo { order } => demo(order),
         Command::Brownian { scene, out, quiet } => brownian(&scene, out, quiet),
-        Command::Fmm(args) => fmm(args),
+        Command::Fmm(args) => fmm_command::fmm(args),
         Command::Run {
             scene,
             out,
@@ -175,6 +174,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(CliError::Interrupted) => ExitCode::from(130),
+        Err(CliError::ReportedElsewhere) => ExitCode::FAILURE,
         Err(e) => {
             eprintln!("mobo: error: {e}");
             ExitCode::FAILURE
@@ -497,180 +497,5 @@ fn brownian(
         "{} beads, {} steps in {:.2} s ({:.0} steps/s); D_CM estimate {:.4} (D0 = {:.4}); <Rg^2> = {:.4}; <Ree^2> = {:.4}",
         s.beads, s.steps, s.wall_s, s.steps_per_second, s.com_diffusion_estimate, s.d0, s.mean_rg2, s.mean_end_to_end_sq
     );
-    Ok(())
-}
-
-/// Arguments of `mobo fmm`.
-#[derive(clap::Args)]
-struct FmmArgs {
-    /// Kernel.
-    #[arg(long, value_enum)]
-    kernel: KernelArg,
-    /// Source points, shape (N, 3).
-    #[arg(long)]
-    sources: std::path::PathBuf,
-    /// Densities: (N,) or (N, 1) for Laplace charges, (N, 3) for vector kernels.
-    #[arg(long)]
-    density: std::path::PathBuf,
-    /// Target points, shape (M, 3) (default: the sources, self terms left out except RPY's).
-    #[arg(long)]
-    targets: Option<std::path::PathBuf>,
-    /// Source normals / orientations, shape (N, 3) (stresslet, laplace-dl).
-    #[arg(long)]
-    normals: Option<std::path::PathBuf>,
-    /// Bead radius (rpy).
-    #[arg(long)]
-    radius: Option<f64>,
-    /// Requested accuracy in digits (3 to 10).
-    #[arg(long, default_value_t = 6)]
-    digits: u32,
-    /// FMM order (surface points per box edge, 2 to 20); overrides the order that --digits
-    /// selects from the calibration table.
-    #[arg(long)]
-    order: Option<usize>,
-    /// Maximum points per leaf box (default: chosen from kernel and order).
-    #[arg(long)]
-    leaf_size: Option<usize>,
-    /// Exact direct summation instead of the FMM.
-    #[arg(long)]
-    direct: bool,
-    /// Output file, (M,) for Laplace kernels, (M, 3) for vector kernels.
-    #[arg(long)]
-    out: std::path::PathBuf,
-}
-
-/// Read an `.npy` array of `n × cols` finite values (`cols = 1` also accepts shape `(n,)`);
-/// `n = None` takes any row count. Errors name the file.
-fn read_points(
-    path: &std::path::Path,
-    cols: usize,
-    n: Option<usize>,
-) -> Result<Vec<f64>, CliError> {
-    let (shape, data) = mobo::io::npy::read_f64(path)?;
-    let bad = |m: String| CliError::Arg(format!("{}: {m}", path.display()));
-    let rows = match shape.as_slice() {
-        [r] if cols == 1 => *r,
-        [r, c] if *c == cols => *r,
-        _ => {
-            let want = if cols == 1 {
-                "(N,) or (N, 1)".to_string()
-            } else {
-                format!("(N, {cols})")
-            };
-            return Err(bad(format!("shape {shape:?}, expected {want}")));
-        }
-    };
-    if let Some(n) = n {
-        if rows != n {
-            return Err(bad(format!("{rows} rows, but there are {n} sources")));
-        }
-    }
-    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-        return Err(bad(format!(
-            "non-finite value {} at row {}",
-            data[i],
-            i / cols
-        )));
-    }
-    Ok(data)
-}
-
-fn fmm(a: FmmArgs) -> Result<(), CliError> {
-    use mobo::fmm::{order_for_digits, Fmm, FmmKernel};
-    if !(3..=10).contains(&a.digits) {
-        return Err(CliError::Arg(format!(
-            "--digits must be between 3 and 10, got {}",
-            a.digits
-        )));
-    }
-    let name = match a.kernel {
-        KernelArg::Laplace => "laplace",
-        KernelArg::LaplaceDl => "laplace-dl",
-        KernelArg::Stokeslet => "stokeslet",
-        KernelArg::Stresslet => "stresslet",
-        KernelArg::Rpy => {
-            let r = a
-                .radius
-                .ok_or_else(|| CliError::Arg("--radius is required for --kernel rpy".into()))?;
-            if !(r.is_finite() && r > 0.0) {
-                return Err(CliError::Arg(format!("--radius must be positive, got {r}")));
-            }
-            "rpy"
-        }
-    };
-    let kind = FmmKernel::from_name(name, a.radius)?;
-    let kernel = kind.near();
-    let order = match a.order {
-        Some(p) if !(2..=20).contains(&p) => {
-            return Err(CliError::Arg(format!(
-                "--order must be between 2 and 20, got {p}"
-            )))
-        }
-        Some(p) => p,
-        None => order_for_digits(kind, a.digits)?,
-    };
-    let leaf = a.leaf_size.unwrap_or_else(|| kind.default_leaf_size(order));
-    if leaf == 0 {
-        return Err(CliError::Arg("--leaf-size must be positive".into()));
-    }
-    let to_points =
-        |v: Vec<f64>| -> Vec<[f64; 3]> { v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect() };
-    let sources = to_points(read_points(&a.sources, 3, None)?);
-    let n = sources.len();
-    let density = read_points(&a.density, kernel.density_dim(), Some(n))?;
-    let normals = match (&a.normals, kernel.needs_normals()) {
-        (Some(p), true) => Some(to_points(read_points(p, 3, Some(n))?)),
-        (None, true) => {
-            return Err(CliError::Arg(format!(
-                "--kernel {} needs --normals",
-                kernel.name()
-            )))
-        }
-        (Some(_), false) => {
-            return Err(CliError::Arg(format!(
-                "--kernel {} takes no --normals",
-                kernel.name()
-            )))
-        }
-        (None, false) => None,
-    };
-    let targets = match &a.targets {
-        Some(p) => to_points(read_points(p, 3, None)?),
-        None => sources.clone(),
-    };
-    let od = kernel.output_dim();
-    let mut u = vec![0.0; targets.len() * od];
-    let t0 = Instant::now();
-    let mut fmm = Fmm::new(kind, &sources, normals.as_deref(), &targets, order, leaf)?;
-    let setup = t0.elapsed().as_secs_f64();
-    let t1 = Instant::now();
-    if a.direct {
-        fmm.direct(&density, &mut u)?;
-    } else {
-        fmm.evaluate(&density, &mut u)?;
-    }
-    let eval = t1.elapsed().as_secs_f64();
-    let shape: Vec<usize> = if od == 1 {
-        vec![targets.len()]
-    } else {
-        vec![targets.len(), od]
-    };
-    mobo::io::npy::write_f64(&a.out, &shape, &u)?;
-    let line = serde_json::json!({
-        "kernel": kernel.name(),
-        "n_sources": n,
-        "n_targets": targets.len(),
-        "digits": a.digits,
-        "order": order,
-        "method": if a.direct { "direct" } else { "fmm" },
-        "leaf_size": leaf,
-        "tree_depth": fmm.tree.depth(),
-        "boxes": fmm.tree.boxes.len(),
-        "threads": rayon::current_num_threads(),
-        "setup_s": setup,
-        "eval_s": eval,
-        "phases_s": if a.direct { serde_json::Value::Null } else { serde_json::to_value(fmm.timings).unwrap_or_default() },
-    });
-    println!("{line}");
     Ok(())
 }

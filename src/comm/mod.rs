@@ -66,6 +66,8 @@ pub trait Communicator {
     fn all_gather_u64(&self, local: &[u64]) -> Result<Vec<Vec<u64>>, CommError>;
     /// Every rank's `local`, indexed by rank.
     fn all_gather_f64(&self, local: &[f64]) -> Result<Vec<Vec<f64>>, CommError>;
+    /// Every rank's `local` at rank `root`, indexed by rank (empty on the other ranks).
+    fn gather_f64(&self, local: &[f64], root: usize) -> Result<Vec<Vec<f64>>, CommError>;
     /// Personalised all-to-all: `send[r]` goes to rank `r`; returns what each rank sent here.
     fn all_to_all_u64(&self, send: &[Vec<u64>]) -> Result<Vec<Vec<u64>>, CommError>;
     /// Personalised all-to-all of `f64` buffers.
@@ -135,6 +137,15 @@ impl Communicator for SerialComm {
         Ok(vec![local.to_vec()])
     }
     fn all_gather_f64(&self, local: &[f64]) -> Result<Vec<Vec<f64>>, CommError> {
+        Ok(vec![local.to_vec()])
+    }
+    fn gather_f64(&self, local: &[f64], root: usize) -> Result<Vec<Vec<f64>>, CommError> {
+        if root != 0 {
+            return Err(CommError::NoSuchRank {
+                rank: root,
+                ranks: 1,
+            });
+        }
         Ok(vec![local.to_vec()])
     }
     fn all_to_all_u64(&self, send: &[Vec<u64>]) -> Result<Vec<Vec<u64>>, CommError> {

@@ -157,6 +157,33 @@ impl Communicator for MpiComm {
     fn all_gather_f64(&self, local: &[f64]) -> Result<Vec<Vec<f64>>, CommError> {
         self.gather(local)
     }
+    fn gather_f64(&self, local: &[f64], root: usize) -> Result<Vec<Vec<f64>>, CommError> {
+        let k = self.size();
+        if root >= k {
+            return Err(CommError::NoSuchRank {
+                rank: root,
+                ranks: k,
+            });
+        }
+        let n = Self::count(local.len())?;
+        let proc = self.world.process_at_rank(root as i32);
+        if self.rank() != root {
+            proc.gather_into(&n);
+            proc.gather_varcount_into(local);
+            self.counted(local.len() + 1, 8);
+            return Ok(Vec::new());
+        }
+        let mut counts = vec![0 as Count; k];
+        proc.gather_into_root(&n, &mut counts[..]);
+        let displs = displacements(&counts)?;
+        let total: usize = counts.iter().map(|&c| c as usize).sum();
+        let mut buf = vec![0.0; total];
+        {
+            let mut part = PartitionMut::new(&mut buf[..], &counts[..], &displs[..]);
+            proc.gather_varcount_into_root(local, &mut part);
+        }
+        Ok(split(&buf, &counts))
+    }
     fn all_to_all_u64(&self, send: &[Vec<u64>]) -> Result<Vec<Vec<u64>>, CommError> {
         self.to_all(send)
     }

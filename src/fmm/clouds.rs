@@ -1,5 +1,6 @@
 //! Point clouds for tests and benchmarks of the N-body sums: uniform in the unit cube,
-//! strongly clustered Gaussian blobs, and points on a few hundred small spheres (cell-like).
+//! strongly clustered Gaussian blobs, points on a few hundred small spheres (cell-like), and
+//! one tight cluster with a sparse background.
 //! The same generators drive the tests, `benches/fmm.rs` and `mobo fmm-cloud`, so that every
 //! measurement names its cloud by kind, size and seed.
 
@@ -17,6 +18,10 @@ pub enum Cloud {
     /// Points uniformly on spheres of radius 0.03 at random centres in `[0, 1]³`, about 300
     /// spheres (at least 20 points each).
     Spheres,
+    /// Strongly clustered: 90 % of the points in a Gaussian of standard deviation 10⁻⁴ near a
+    /// corner, the rest uniform in `[0, 1]³` (a tree ten levels deep in one place, shallow
+    /// elsewhere; its partition over ranks cuts the deep branch).
+    Clustered,
 }
 
 impl Cloud {
@@ -26,6 +31,7 @@ impl Cloud {
             "uniform" => Some(Cloud::Uniform),
             "blobs" => Some(Cloud::Blobs),
             "spheres" => Some(Cloud::Spheres),
+            "clustered" => Some(Cloud::Clustered),
             _ => None,
         }
     }
@@ -36,6 +42,7 @@ impl Cloud {
             Cloud::Uniform => "uniform",
             Cloud::Blobs => "blobs",
             Cloud::Spheres => "spheres",
+            Cloud::Clustered => "clustered",
         }
     }
 
@@ -81,6 +88,16 @@ impl Cloud {
                 }
                 out
             }
+            Cloud::Clustered => (0..n)
+                .map(|i| {
+                    if i % 10 == 9 {
+                        [rng.random(), rng.random(), rng.random()]
+                    } else {
+                        let mut c = || 0.1 + 1e-4 * g(&mut rng);
+                        [c(), c(), c()]
+                    }
+                })
+                .collect(),
         }
     }
 

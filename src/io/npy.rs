@@ -57,6 +57,86 @@ pub fn read_f64(path: &Path) -> Result<(Vec<usize>, Vec<f64>), IoError> {
 
 /// Decode `.npy` bytes (see [`read_f64`]).
 pub fn decode_f64(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f64>), String> {
+    let (shape, start) = decode_header(bytes)?;
+    let count: usize = shape.iter().product();
+    let data = &bytes[start..];
+    if data.len() != 8 * count {
+        return Err(format!(
+            "shape {shape:?} needs {} bytes of data, file has {}",
+            8 * count,
+            data.len()
+        ));
+    }
+    Ok((shape, values(data)))
+}
+
+fn values(data: &[u8]) -> Vec<f64> {
+    data.chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().expect("chunks of 8")))
+        .collect()
+}
+
+/// Read rows `rows` (along the first axis) of a little-endian `float64` array in C order,
+/// without reading the rest of the file (each MPI rank reads its own share):
+/// `(shape of the whole array, data of the rows)`. Rows past the end are an error.
+pub fn read_f64_rows(
+    path: &Path,
+    rows: std::ops::Range<usize>,
+) -> Result<(Vec<usize>, Vec<f64>), IoError> {
+    use std::io::{Read, Seek, SeekFrom};
+    let file_err = |source| IoError::File {
+        path: path.to_path_buf(),
+        source,
+    };
+    let npy_err = |message: String| IoError::Npy {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut f = std::fs::File::open(path).map_err(file_err)?;
+    let len = f.metadata().map_err(file_err)?.len() as usize;
+    let mut head = vec![0u8; len.min(12)];
+    f.read_exact(&mut head).map_err(file_err)?;
+    let hlen = match head.get(6) {
+        Some(1) if head.len() >= 10 => u16::from_le_bytes([head[8], head[9]]) as usize + 10,
+        Some(2 | 3) if head.len() >= 12 => {
+            u32::from_le_bytes([head[8], head[9], head[10], head[11]]) as usize + 12
+        }
+        _ => {
+            let e = decode_header(&head)
+                .err()
+                .unwrap_or("truncated header".into());
+            return Err(npy_err(e));
+        }
+    };
+    let mut head = vec![0u8; hlen.min(len)];
+    f.seek(SeekFrom::Start(0)).map_err(file_err)?;
+    f.read_exact(&mut head).map_err(file_err)?;
+    let (shape, start) = decode_header(&head).map_err(npy_err)?;
+    let count: usize = shape.iter().product();
+    if len - start != 8 * count {
+        return Err(npy_err(format!(
+            "shape {shape:?} needs {} bytes of data, file has {}",
+            8 * count,
+            len - start
+        )));
+    }
+    let n_rows = shape.first().copied().unwrap_or(1);
+    if rows.start > rows.end || rows.end > n_rows {
+        return Err(npy_err(format!(
+            "rows {}..{} asked of an array of {n_rows} rows",
+            rows.start, rows.end
+        )));
+    }
+    let per_row = if n_rows == 0 { 0 } else { count / n_rows };
+    f.seek(SeekFrom::Start((start + 8 * per_row * rows.start) as u64))
+        .map_err(file_err)?;
+    let mut data = vec![0u8; 8 * per_row * rows.len()];
+    f.read_exact(&mut data).map_err(file_err)?;
+    Ok((shape, values(&data)))
+}
+
+/// Parse the magic string and header: `(shape, offset of the data)`.
+fn decode_header(bytes: &[u8]) -> Result<(Vec<usize>, usize), String> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
         return Err("not a .npy file (bad magic string)".into());
     }
@@ -104,20 +184,7 @@ pub fn decode_f64(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f64>), String> {
                 .map_err(|_| format!("malformed shape entry '{s}'"))
         })
         .collect::<Result<Vec<_>, _>>()?;
-    let count: usize = shape.iter().product();
-    let data = &bytes[start + hlen..];
-    if data.len() != 8 * count {
-        return Err(format!(
-            "shape {shape:?} needs {} bytes of data, file has {}",
-            8 * count,
-            data.len()
-        ));
-    }
-    let values = data
-        .chunks_exact(8)
-        .map(|c| f64::from_le_bytes(c.try_into().expect("chunks of 8")))
-        .collect();
-    Ok((shape, values))
+    Ok((shape, start + hlen))
 }
 
 #[cfg(test)]
@@ -155,5 +222,29 @@ mod tests {
             .contains("bytes of data"));
         assert!(decode_f64(b"hello world").unwrap_err().contains("magic"));
         assert!(decode_f64(&bytes[..20]).unwrap_err().contains("truncated"));
+    }
+
+    #[test]
+    fn row_slices_match_the_whole_array() {
+        let dir = std::env::temp_dir().join(format!("mobo-npy-rows-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.npy");
+        let data: Vec<f64> = (0..30).map(|i| i as f64 * 0.25 - 2.0).collect();
+        write_f64(&path, &[10, 3], &data).unwrap();
+        for (a, b) in [(0, 10), (3, 7), (9, 10), (4, 4)] {
+            let (shape, rows) = read_f64_rows(&path, a..b).unwrap();
+            assert_eq!(shape, vec![10, 3]);
+            assert_eq!(rows, data[3 * a..3 * b].to_vec());
+        }
+        let err = read_f64_rows(&path, 8..11).unwrap_err().to_string();
+        assert!(err.contains("a.npy") && err.contains("rows 8..11"), "{err}");
+        let bytes = std::fs::read(&path).unwrap();
+        std::fs::write(&path, &bytes[..bytes.len() - 8]).unwrap();
+        let err = read_f64_rows(&path, 0..1).unwrap_err().to_string();
+        assert!(err.contains("bytes of data"), "{err}");
+        std::fs::write(&path, b"not numpy at all").unwrap();
+        let err = read_f64_rows(&path, 0..1).unwrap_err().to_string();
+        assert!(err.contains("magic"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
