@@ -5,24 +5,47 @@
 #
 # The suite runs with --all-features, so the system libraries of the features are installed
 # first when missing (as root, with apt-get); otherwise it stops and says what to install.
-#   hdf5: libhdf5-dev, pkg-config; the report plots: fonts-dejavu-core
+#   hdf5: libhdf5-dev, pkg-config; mpi: libopenmpi-dev, openmpi-bin, libclang-dev,
+#   openssh-client;
+#   the report plots: fonts-dejavu-core
 # MOBO_DEPS_ONLY=1 installs/checks the system libraries and exits (used by .ci/run before clippy).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-system_deps() {
-    if command -v pkg-config >/dev/null 2>&1 && pkg-config --exists hdf5; then
-        return 0
+# Debian packages the features need that are missing here.
+missing_pkgs() {
+    local pkgs=""
+    # hdf5
+    if ! { command -v pkg-config >/dev/null 2>&1 && pkg-config --exists hdf5; }; then
+        pkgs="$pkgs libhdf5-dev pkg-config"
     fi
-    local pkgs="libhdf5-dev pkg-config"
+    # mpi: rsmpi builds against the MPI compiler wrapper, generates its bindings with
+    # libclang, and the tests launch ranks with mpirun.
+    if ! command -v mpicc >/dev/null 2>&1 || ! command -v mpirun >/dev/null 2>&1; then
+        pkgs="$pkgs libopenmpi-dev openmpi-bin"
+    fi
+    # OpenMPI 4's launcher wants an ssh agent on the PATH even for ranks on this machine.
+    if ! command -v ssh >/dev/null 2>&1; then
+        pkgs="$pkgs openssh-client"
+    fi
+    if ! ls /usr/lib/llvm-*/lib/libclang*.so* /usr/lib/*/libclang*.so* >/dev/null 2>&1; then
+        pkgs="$pkgs libclang-dev"
+    fi
+    echo "$pkgs"
+}
+
+system_deps() {
+    local pkgs
+    pkgs="$(missing_pkgs)"
+    [ -z "$pkgs" ] && return 0
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-        echo "scripts/test.sh: installing $pkgs (needed by the hdf5 feature)" >&2
+        echo "scripts/test.sh: installing$pkgs (needed by the hdf5 and mpi features)" >&2
         apt-get update -qq
         DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $pkgs >&2
     else
-        echo "scripts/test.sh: the hdf5 feature (tested with --all-features) needs the HDF5 library" >&2
-        echo "  and pkg-config, which are missing; install them, e.g. as root:" >&2
-        echo "  apt-get update && apt-get install -y $pkgs" >&2
+        echo "scripts/test.sh: the hdf5 and mpi features (tested with --all-features) need" >&2
+        echo "  system libraries that are missing; install them, e.g. as root:" >&2
+        echo "  apt-get update && apt-get install -y$pkgs" >&2
         exit 1
     fi
 }
@@ -50,4 +73,7 @@ fonts
 if [ "${MOBO_DEPS_ONLY:-0}" = 1 ]; then
     exit 0
 fi
+# The KIFMM fits (truncated SVDs, a minute each at 9 digits for Stokes) are computed once and
+# shared by the test binaries and their MPI ranks (src/fmm/fit_cache.rs).
+export MOBO_OPERATOR_CACHE="${MOBO_OPERATOR_CACHE:-$PWD/target/operator-cache}"
 cargo test --all-features "$@"

@@ -271,6 +271,9 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         t.l2p,
         t.m2p,
         t.p2p,
+        fmm.comm.let_bytes_sent as f64,
+        fmm.comm.top_bytes_received as f64,
+        fmm.tree.roots[fmm.tree.rank].len() as f64,
     ];
     let all = comm.gather_f64(&stats, 0)?;
     if comm.rank() != 0 {
@@ -324,6 +327,9 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         "rank_eval_s": evals,
         "load_imbalance": if mean_eval > 0.0 { max(2) / mean_eval } else { 1.0 },
         "rank_bytes_sent": as_int(col(3)),
+        "rank_let_bytes_sent": as_int(col(15)),
+        "rank_top_bytes_received": as_int(col(16)),
+        "rank_local_roots": as_int(col(17)),
         "rank_comm_s": col(4),
         "phases_max_s": phases_max,
     });

@@ -3,25 +3,37 @@
 //! `fmm::clouds` (uniform, blobs, cell-like spheres, one tight cluster) at 3, 6 and 9 digits,
 //! each rank holding a scattered share of the points: the gathered K-rank result equals the
 //! one-rank result to 1e-12 relative, and both equal direct sums to the requested digits.
-//! New densities on the same tree, separate targets, and a rank with bad input (every rank
-//! gets one error naming that rank; none hangs) are covered too.
+//! New densities on the same tree (at 3 digits), separate targets, a rank with bad input
+//! (every rank gets one error naming that rank; none hangs), and `mpirun -n K mobo fmm` (the
+//! same file for K = 1 and 3; a NaN in one rank's rows stops all with one message) too.
+//!
+//! K = 1 runs first: it also evaluates with `Fmm::new` (no MPI), checks that both agree, and
+//! keeps that result as the reference of K = 2, 3, 4. The fits of the translation operators
+//! are computed once and shared through `MOBO_OPERATOR_CACHE` (default: the test's tmp dir).
+//! `MOBO_MPI_KS` and `MOBO_MPI_DIGITS` (e.g. `1,2` and `9`) run a part.
 //!
 //! A `harness = false` test: run without arguments it launches itself under `mpirun` once per
 //! K (needs `mpirun` on the PATH: Debian's `openmpi-bin`); under `mpirun` (MOBO_MPI_CHILD set)
 //! it is one rank of the check.
 
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use mobo::comm::{Communicator, MpiComm};
 use mobo::fmm::clouds::Cloud;
-use mobo::fmm::{direct_sum, order_for_digits, Fmm, FmmError, FmmKernel, SumInput};
+use mobo::fmm::{
+    clear_operator_cache, direct_sum, order_for_digits, Fmm, FmmError, FmmKernel, SumInput,
+};
+use mobo::io::npy;
 
-const KERNELS: [FmmKernel; 5] = [
-    FmmKernel::Laplace,
-    FmmKernel::LaplaceDoubleLayer,
-    FmmKernel::Stokeslet,
-    FmmKernel::Stresslet,
-    FmmKernel::Rpy { radius: 0.004 },
+/// The kernels, with whether the next one has other translation operators (Laplace SL and
+/// DL share Laplace's, Stokeslet and RPY the Stokeslet's).
+const KERNELS: [(FmmKernel, bool); 5] = [
+    (FmmKernel::Laplace, false),
+    (FmmKernel::LaplaceDoubleLayer, true),
+    (FmmKernel::Stokeslet, false),
+    (FmmKernel::Rpy { radius: 0.004 }, true),
+    (FmmKernel::Stresslet, true),
 ];
 const CLOUDS: [Cloud; 4] = [
     Cloud::Uniform,
@@ -30,7 +42,6 @@ const CLOUDS: [Cloud; 4] = [
     Cloud::Clustered,
 ];
 const N: usize = 2400;
-const LEAF: usize = 40;
 
 /// Which rank holds global point `i` (scattered: every rank's points are all over space).
 fn holder(i: usize, k: usize) -> usize {
@@ -71,7 +82,52 @@ struct Case {
     separate_targets: bool,
 }
 
-/// One case on all ranks; rank 0 returns its failures.
+impl Case {
+    fn name(&self) -> String {
+        format!(
+            "{:?} {} digits={}{}",
+            self.kernel,
+            self.cloud.name(),
+            self.digits,
+            if self.separate_targets {
+                " separate-targets"
+            } else {
+                ""
+            }
+        )
+    }
+}
+
+/// Where the one-rank results of the K = 1 run are kept for the runs with more ranks.
+fn reference_file(c: &Case, round: u64) -> PathBuf {
+    let dir = PathBuf::from(std::env::var("MOBO_MPI_REFS").expect("set by the parent"));
+    let name: String = c
+        .name()
+        .chars()
+        .map(|ch| if ch.is_ascii_alphanumeric() { ch } else { '_' })
+        .collect();
+    dir.join(format!("{name}-{round}.bin"))
+}
+
+fn to_bytes(v: &[f64]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+fn from_bytes(b: &[u8]) -> Vec<f64> {
+    b.chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().unwrap()))
+        .collect()
+}
+
+/// Leaf size: small enough that every rank holds several leaves, growing with the order as
+/// the default does (`100·order`) so that high orders are not spent on tiny leaves.
+fn leaf_for(order: usize) -> usize {
+    10 * order
+}
+
+/// One case on all ranks; rank 0 returns its failures. With one rank (the first run) it also
+/// evaluates with [`Fmm::new`] (no MPI at all), checks both agree, and stores the result as
+/// the reference of the runs with more ranks.
 fn run_case(comm: &dyn Communicator, c: &Case) -> Vec<String> {
     let near = c.kernel.near();
     let (ds, dt) = (near.density_dim(), near.output_dim());
@@ -83,6 +139,7 @@ fn run_case(comm: &dyn Communicator, c: &Case) -> Vec<String> {
         src.clone()
     };
     let order = order_for_digits(c.kernel, c.digits).unwrap();
+    let leaf = leaf_for(order);
     let needs_n = near.needs_normals();
     let my_src = share(&src, 1, comm);
     let my_nrm = share(&nrm, 1, comm);
@@ -94,11 +151,15 @@ fn run_case(comm: &dyn Communicator, c: &Case) -> Vec<String> {
         needs_n.then_some(&my_nrm[..]),
         &my_tgt,
         order,
-        LEAF,
+        leaf,
     )
     .unwrap();
     let mut fails = Vec::new();
-    for round in 0..2u64 {
+    let name = format!("{} order={order} leaf={leaf} K={}", c.name(), comm.size());
+    let t0 = std::time::Instant::now();
+    // New densities on the same tree (a second round) at the cheapest accuracy.
+    let rounds = if c.digits == 3 { 2 } else { 1 };
+    for round in 0..rounds {
         let dens = Cloud::densities(N * ds, 10 + round);
         let my_dens = share(&dens, ds, comm);
         let mut mine = vec![0.0; my_tgt.len() * dt];
@@ -107,17 +168,39 @@ fn run_case(comm: &dyn Communicator, c: &Case) -> Vec<String> {
         if comm.rank() != 0 {
             continue;
         }
-        let mut one = Fmm::new(
-            c.kernel,
-            &src,
-            needs_n.then_some(&nrm[..]),
-            &tgt,
-            order,
-            LEAF,
-        )
-        .unwrap();
-        let mut want = vec![0.0; tgt.len() * dt];
-        one.evaluate(&dens, &mut want).unwrap();
+        let file = reference_file(c, round);
+        let (want, depth) = if comm.size() == 1 {
+            let mut one = Fmm::new(
+                c.kernel,
+                &src,
+                needs_n.then_some(&nrm[..]),
+                &tgt,
+                order,
+                leaf,
+            )
+            .unwrap();
+            let mut want = vec![0.0; tgt.len() * dt];
+            one.evaluate(&dens, &mut want).unwrap();
+            std::fs::write(&file, to_bytes(&want)).unwrap();
+            if one.tree.depth() < 3 {
+                fails.push(format!(
+                    "{name}: tree of depth {} has no far field",
+                    one.tree.depth()
+                ));
+            }
+            (want, one.tree.depth())
+        } else {
+            match std::fs::read(&file) {
+                Ok(b) => (from_bytes(&b), fmm.tree.depth()),
+                Err(e) => {
+                    fails.push(format!(
+                        "{name}: no one-rank reference {}: {e}",
+                        file.display()
+                    ));
+                    continue;
+                }
+            }
+        };
         let e_ranks = rel(&got, &want);
         let same_bits = got
             .iter()
@@ -140,28 +223,18 @@ fn run_case(comm: &dyn Communicator, c: &Case) -> Vec<String> {
             .flat_map(|&i| got[i * dt..(i + 1) * dt].iter().copied())
             .collect();
         let e_direct = rel(&got_s, &exact);
-        let name = format!(
-            "{:?} {} digits={} order={order}{} round {round} K={}",
-            c.kernel,
-            c.cloud.name(),
-            c.digits,
-            if c.separate_targets {
-                " separate targets"
-            } else {
-                ""
-            },
-            comm.size()
-        );
         println!(
-            "{name}: depth {} | K vs 1 rank {e_ranks:.1e} ({same_bits}/{} bit-identical) | vs direct {e_direct:.1e}",
-            one.tree.depth(),
+            "{name} round {round} ({:.1} s): depth {depth} | vs 1 rank {e_ranks:.1e} ({same_bits}/{} bit-identical) | vs direct {e_direct:.1e}",
+            t0.elapsed().as_secs_f64(),
             got.len()
         );
-        if !(e_ranks <= 1e-12) {
-            fails.push(format!("{name}: K-rank vs 1-rank {e_ranks:.2e}"));
+        if !(e_ranks <= 1e-12) || got.len() != want.len() {
+            fails.push(format!(
+                "{name} round {round}: K-rank vs 1-rank {e_ranks:.2e}"
+            ));
         }
         if !(e_direct < 10f64.powi(-(c.digits as i32))) {
-            fails.push(format!("{name}: vs direct {e_direct:.2e}"));
+            fails.push(format!("{name} round {round}: vs direct {e_direct:.2e}"));
         }
     }
     fails
@@ -171,7 +244,7 @@ fn run_case(comm: &dyn Communicator, c: &Case) -> Vec<String> {
 fn bad_rank(comm: &dyn Communicator) -> Vec<String> {
     let src = Cloud::Uniform.points(500, 1);
     let mine = share(&src, 1, comm);
-    let mut fmm = Fmm::new_on(comm, FmmKernel::Laplace, &mine, None, &mine, 4, LEAF).unwrap();
+    let mut fmm = Fmm::new_on(comm, FmmKernel::Laplace, &mine, None, &mine, 4, 40).unwrap();
     let bad = comm.size() - 1;
     let n = if comm.rank() == bad {
         mine.len() + 1
@@ -205,7 +278,7 @@ fn child() -> i32 {
         .filter_map(|d| d.trim().parse().ok())
         .collect();
     for digits in digits_list {
-        for kernel in KERNELS {
+        for (kernel, last_of_its_operators) in KERNELS {
             for cloud in CLOUDS {
                 let case = Case {
                     kernel,
@@ -214,6 +287,10 @@ fn child() -> i32 {
                     separate_targets: false,
                 };
                 fails.extend(run_case(&comm, &case));
+            }
+            // Keep one kernel's operators at a time (order 15: 3.5 GB per rank).
+            if last_of_its_operators {
+                clear_operator_cache();
             }
         }
     }
@@ -235,37 +312,170 @@ fn child() -> i32 {
     i32::from(total > 0)
 }
 
+fn mpirun(k: usize) -> Command {
+    let mut c = Command::new("mpirun");
+    c.args([
+        "--allow-run-as-root",
+        "--oversubscribe",
+        "-n",
+        &k.to_string(),
+    ])
+    // One thread per rank when ranks share the two cores; both when alone.
+    .env("RAYON_NUM_THREADS", if k == 1 { "2" } else { "1" });
+    c
+}
+
+/// `mpirun -n K mobo fmm`: the result file for K = 3 equals K = 1's, the JSON line reports
+/// every rank, and a non-finite value in one rank's rows stops every rank with one message.
+fn cli_checks(dir: &Path) -> Vec<String> {
+    let mut fails = Vec::new();
+    let n = 3000;
+    let src = Cloud::Spheres.points(n, 21);
+    let flat: Vec<f64> = src.iter().flatten().copied().collect();
+    let dens = Cloud::densities(3 * n, 22);
+    let (s_path, f_path) = (dir.join("src.npy"), dir.join("f.npy"));
+    npy::write_f64(&s_path, &[n, 3], &flat).unwrap();
+    npy::write_f64(&f_path, &[n, 3], &dens).unwrap();
+    let run = |k: usize, density: &Path, out: &Path| {
+        mpirun(k)
+            .arg(env!("CARGO_BIN_EXE_mobo"))
+            .args([
+                "fmm",
+                "--kernel",
+                "stokeslet",
+                "--digits",
+                "6",
+                "--leaf-size",
+                "100",
+            ])
+            .arg("--sources")
+            .arg(&s_path)
+            .arg("--density")
+            .arg(density)
+            .arg("--out")
+            .arg(out)
+            .output()
+            .expect("mpirun runs")
+    };
+    let mut outs = Vec::new();
+    for k in [1, 3] {
+        let out = dir.join(format!("u{k}.npy"));
+        let o = run(k, &f_path, &out);
+        let stdout = String::from_utf8_lossy(&o.stdout).to_string();
+        println!("mobo fmm on {k} ranks: {}", stdout.trim());
+        if !o.status.success() {
+            fails.push(format!(
+                "mobo fmm on {k} ranks failed: {}",
+                String::from_utf8_lossy(&o.stderr)
+            ));
+            return fails;
+        }
+        let json: serde_json::Value = match serde_json::from_str(stdout.trim()) {
+            Ok(j) => j,
+            Err(e) => {
+                fails.push(format!(
+                    "{k} ranks: stdout is not one JSON line ({e}): {stdout}"
+                ));
+                return fails;
+            }
+        };
+        let counts: Vec<u64> = json["rank_sources"]
+            .as_array()
+            .map(|a| a.iter().filter_map(|v| v.as_u64()).collect())
+            .unwrap_or_default();
+        let bytes = json["rank_bytes_sent"].as_array().map_or(0, |a| a.len());
+        if json["ranks"] != k || counts.len() != k || counts.iter().sum::<u64>() != n as u64 {
+            fails.push(format!("{k} ranks: JSON line reports {json}"));
+        }
+        if bytes != k || !(json["load_imbalance"].as_f64().unwrap_or(0.0) >= 1.0) {
+            fails.push(format!(
+                "{k} ranks: no per-rank bytes or imbalance in {json}"
+            ));
+        }
+        outs.push(npy::read_f64(&out).unwrap().1);
+    }
+    let e = rel(&outs[1], &outs[0]);
+    println!("mobo fmm: 3 ranks vs 1 rank {e:.1e}");
+    if !(e <= 1e-12) {
+        fails.push(format!("mobo fmm: 3 ranks differ from 1 rank by {e:.2e}"));
+    }
+    // A NaN in the last rank's rows: every rank stops, one message names the file and row.
+    let mut bad = dens.clone();
+    bad[3 * (n - 10) + 1] = f64::NAN;
+    let bad_path = dir.join("bad.npy");
+    npy::write_f64(&bad_path, &[n, 3], &bad).unwrap();
+    let o = run(3, &bad_path, &dir.join("never.npy"));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let mentions = err.matches("non-finite").count();
+    println!(
+        "mobo fmm with a NaN on rank 2: {} | {}",
+        o.status,
+        err.trim()
+    );
+    if o.status.success()
+        || mentions != 1
+        || !err.contains("bad.npy")
+        || !err.contains(&format!("row {}", n - 10))
+    {
+        fails.push(format!(
+            "NaN on one rank: expected one message naming bad.npy and row {} and a non-zero exit, got {} and '{err}'",
+            n - 10,
+            o.status
+        ));
+    }
+    if dir.join("never.npy").exists() {
+        fails.push("NaN on one rank: an output file was written".into());
+    }
+    fails
+}
+
 fn main() {
     if std::env::var_os("MOBO_MPI_CHILD").is_some() {
         let code = child();
         std::process::exit(code);
     }
+    let tmp = PathBuf::from(env!("CARGO_TARGET_TMPDIR"));
+    let refs = tmp.join(format!("mpi_fmm-{}", std::process::id()));
+    std::fs::create_dir_all(&refs).unwrap();
+    // The fits are computed once (K = 1) and read by the other runs' ranks.
+    let cache = std::env::var_os("MOBO_OPERATOR_CACHE")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| tmp.join("operator-cache"));
     let exe = std::env::current_exe().expect("test binary path");
     let mut failed = Vec::new();
-    for k in 1..=4 {
+    // MOBO_MPI_KS=1,2 runs fewer rank counts (K = 1 must come first: it writes the references).
+    let ks: Vec<usize> = std::env::var("MOBO_MPI_KS")
+        .unwrap_or_else(|_| "1,2,3,4".into())
+        .split(',')
+        .filter_map(|k| k.trim().parse().ok())
+        .collect();
+    for k in ks {
+        let t0 = std::time::Instant::now();
         println!("== mpirun -n {k}");
-        let status = Command::new("mpirun")
-            .args([
-                "--allow-run-as-root",
-                "--oversubscribe",
-                "-n",
-                &k.to_string(),
-            ])
+        let status = mpirun(k)
             .arg(&exe)
             .env("MOBO_MPI_CHILD", "1")
-            .env("RAYON_NUM_THREADS", "1")
+            .env("MOBO_MPI_REFS", &refs)
+            .env("MOBO_OPERATOR_CACHE", &cache)
             .status();
         match status {
-            Ok(s) if s.success() => {}
+            Ok(s) if s.success() => println!("== K = {k}: {:.0} s", t0.elapsed().as_secs_f64()),
             Ok(s) => failed.push(format!("K = {k}: {s}")),
-            Err(e) => failed.push(format!(
-                "K = {k}: cannot run mpirun ({e}); install openmpi-bin"
-            )),
+            Err(e) => {
+                failed.push(format!(
+                    "K = {k}: cannot run mpirun ({e}); install openmpi-bin"
+                ));
+                break;
+            }
         }
     }
+    if failed.is_empty() {
+        failed.extend(cli_checks(&refs));
+    }
+    let _ = std::fs::remove_dir_all(&refs);
     if !failed.is_empty() {
-        eprintln!("mpi_fmm failed: {failed:?}");
+        eprintln!("mpi_fmm failed: {failed:#?}");
         std::process::exit(1);
     }
-    println!("mpi_fmm: K = 1..4 agree with one rank and with direct sums");
+    println!("mpi_fmm: K = 1..4 agree with one rank and with direct sums; mobo fmm under mpirun");
 }

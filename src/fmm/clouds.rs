@@ -25,7 +25,7 @@ pub enum Cloud {
 }
 
 impl Cloud {
-    /// Parse `uniform`, `blobs` or `spheres`.
+    /// Parse `uniform`, `blobs`, `spheres` or `clustered`.
     pub fn from_name(name: &str) -> Option<Self> {
         match name {
             "uniform" => Some(Cloud::Uniform),

@@ -24,6 +24,7 @@ use rayon::prelude::*;
 
 use super::blocks::{SourceBlock, SourceView};
 use super::dist_tree::{DistTree, Role, TreeInput};
+use super::fit_cache;
 use super::kernels::{
     Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, StokesletSource, Stresslet,
 };
@@ -37,16 +38,32 @@ type Operators = (Arc<Translations>, Arc<FftM2l>);
 
 /// Translation operators depend only on the equivalent kernel and the order (densities are
 /// normalised per level), so they are built once per process and shared.
+type OperatorCache = Mutex<HashMap<(&'static str, usize), Operators>>;
+
+fn operator_cache() -> &'static OperatorCache {
+    static CACHE: OnceLock<OperatorCache> = OnceLock::new();
+    CACHE.get_or_init(|| Mutex::new(HashMap::new()))
+}
+
+/// Drop the operators this process keeps for every kernel and order it has set up (they are
+/// shared by every [`Fmm`] of the same equivalent kernel and order, and kept until then: at
+/// order 15 the Stokes operators take about 3 GB). Evaluators that exist keep theirs.
+pub fn clear_operator_cache() {
+    if let Ok(mut c) = operator_cache().lock() {
+        c.clear();
+    }
+}
+
 fn operators_for(kind: FmmKernel, order: usize) -> Result<Operators, FmmError> {
-    static CACHE: OnceLock<Mutex<HashMap<(&'static str, usize), Operators>>> = OnceLock::new();
     let equivalent = kind.equivalent();
     let key = (equivalent.name(), order);
-    let cache = CACHE.get_or_init(|| Mutex::new(HashMap::new()));
+    let cache = operator_cache();
     if let Some(v) = cache.lock().map_err(|_| poisoned())?.get(&key) {
         return Ok(v.clone());
     }
+    let disk = fit_cache::dir_from_env();
     let (ops, m2l) = rayon::join(
-        || Translations::new(equivalent.as_ref(), order, kind.rcond()),
+        || Translations::new(equivalent.as_ref(), order, kind.rcond(), disk.as_deref()),
         || FftM2l::new(equivalent.as_ref(), &CubeSurface::new(order)),
     );
     let ops = ops?;
@@ -170,8 +187,13 @@ pub struct FmmTimings {
 pub struct FmmComm {
     /// Number of ranks.
     pub ranks: usize,
-    /// Bytes this rank sent to other ranks during the evaluation.
+    /// Bytes this rank sent to other ranks during the evaluation (both parts below).
     pub bytes_sent: u64,
+    /// Of these, the locally essential tree sent point to point to neighbouring ranks.
+    pub let_bytes_sent: u64,
+    /// Bytes of every other rank's local-root expansions this rank received in the all-gather
+    /// of the top of the tree (`ne · 8 · Σ_{r≠me} roots_r`: the part that grows with `K`).
+    pub top_bytes_received: u64,
     /// Seconds spent in communication (included in the phase total).
     pub seconds: f64,
 }
@@ -440,9 +462,19 @@ impl Fmm {
             p2p: clock.get(8),
             total: t0.elapsed().as_secs_f64(),
         };
+        let ne = self.ops.n_equiv() as u64;
+        let tree = &self.tree;
+        let roots_elsewhere: usize = (0..ranks)
+            .filter(|&r| r != tree.rank)
+            .map(|r| tree.roots[r].len())
+            .sum();
+        let gathered = 8 * ne * tree.roots[tree.rank].len() as u64 * (ranks as u64 - 1);
+        let bytes_sent = comm.bytes_sent() - bytes0;
         self.comm = FmmComm {
             ranks,
-            bytes_sent: comm.bytes_sent() - bytes0,
+            bytes_sent,
+            let_bytes_sent: bytes_sent.saturating_sub(gathered),
+            top_bytes_received: 8 * ne * roots_elsewhere as u64,
             seconds: comm_s,
         };
         Ok(())

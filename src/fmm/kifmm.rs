@@ -47,7 +47,7 @@ pub fn cube_surface(p: usize) -> Vec<[f64; 3]> {
 fn pinv(a: &Mat<f64>, rcond: f64) -> Result<Mat<f64>, FmmError> {
     let svd = a
         .svd()
-        .map_err(|_| FmmError::Shape("SVD of a check-to-equivalent matrix failed".into()))?;
+        .map_err(|_| FmmError::Svd("check-to-equivalent matrix"))?;
     let (u, s, v) = (svd.U(), svd.S().column_vector(), svd.V());
     let smax = s.iter().fold(0.0f64, |m, &x| m.max(x));
     let k = s.nrows();

@@ -33,6 +33,7 @@ pub mod clouds;
 pub mod direct;
 pub mod dist_tree;
 pub mod evaluator;
+pub mod fit_cache;
 pub mod kernels;
 pub mod kifmm;
 pub mod m2l_fft;
@@ -43,7 +44,7 @@ pub mod surface;
 
 pub use calibration::order_for_digits;
 pub use direct::{direct_sum, SumInput};
-pub use evaluator::{Fmm, FmmComm, FmmKernel, FmmTimings};
+pub use evaluator::{clear_operator_cache, Fmm, FmmComm, FmmKernel, FmmTimings};
 pub use kernels::{Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, Stresslet};
 
 /// Errors of the N-body sums.
@@ -55,4 +56,13 @@ pub enum FmmError {
     /// Communication between ranks failed, or another rank failed.
     #[error(transparent)]
     Comm(#[from] crate::comm::CommError),
+    /// An accuracy outside the calibrated range.
+    #[error("digits must be between {min} and {max}, got {got}")]
+    Digits { got: u32, min: u32, max: u32 },
+    /// A singular value decomposition did not converge.
+    #[error("the SVD of the {0} did not converge")]
+    Svd(&'static str),
+    /// The on-disk operator cache (`MOBO_OPERATOR_CACHE`) could not be written.
+    #[error(transparent)]
+    Cache(#[from] fit_cache::FitCacheError),
 }

@@ -21,9 +21,12 @@
 //! Keeping the kernel matrices and the fits apart (instead of precomposing `up⁺ · K`) costs
 //! the same per evaluation and saves the `O(n³)` products at setup.
 
+use std::path::Path;
+
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 
+use super::fit_cache;
 use super::kernels::Kernel;
 use super::surface::CubeSurface;
 use super::FmmError;
@@ -50,7 +53,7 @@ impl Pinv {
     pub fn new(a: &Mat<f64>, rcond: f64) -> Result<Self, FmmError> {
         let svd = a
             .thin_svd()
-            .map_err(|_| FmmError::Shape("SVD of a check-to-equivalent matrix failed".into()))?;
+            .map_err(|_| FmmError::Svd("check-to-equivalent matrix"))?;
         let (u, s, v) = (svd.U(), svd.S().column_vector(), svd.V());
         let smax = s.iter().fold(0.0f64, |m, &x| m.max(x));
         let k = (0..s.nrows()).filter(|&j| s[j] > rcond * smax).count();
@@ -164,8 +167,14 @@ pub struct Translations {
 
 impl Translations {
     /// Build for equivalent kernel `ke` (homogeneous) at order `p`, truncating the fits at
-    /// `rcond`.
-    pub fn new(ke: &dyn Kernel, p: usize, rcond: f64) -> Result<Self, FmmError> {
+    /// `rcond`; the fits are loaded from and stored in `cache` when given
+    /// ([`super::fit_cache`]).
+    pub fn new(
+        ke: &dyn Kernel,
+        p: usize,
+        rcond: f64,
+        cache: Option<&Path>,
+    ) -> Result<Self, FmmError> {
         let de = ke.density_dim();
         let degrees = (0..de)
             .map(|b| ke.homogeneity(b))
@@ -190,19 +199,30 @@ impl Translations {
                 .collect()
         };
         let zero = [0.0; 3];
+        // Everything a fit depends on, for the cache.
+        let key = |what: &str, check: f64, equiv: f64| {
+            format!(
+                "{what} fit of {} p={p} rcond={rcond:e} check={check:e} equiv={equiv:e}",
+                ke.name()
+            )
+        };
+        let fit = |what: &str, check: f64, equiv: f64| -> Result<Pinv, FmmError> {
+            let key = key(what, check, equiv);
+            if let Some(f) = cache.and_then(|dir| fit_cache::load(dir, &key)) {
+                return Ok(f);
+            }
+            let f = Pinv::new(
+                &kernel_matrix(ke, &scaled(check, zero), &scaled(equiv, zero)),
+                rcond,
+            )?;
+            if let Some(dir) = cache {
+                fit_cache::store(dir, &key, &f)?;
+            }
+            Ok(f)
+        };
         let (up, down) = rayon::join(
-            || {
-                Pinv::new(
-                    &kernel_matrix(ke, &scaled(UP_CHECK, zero), &scaled(INNER, zero)),
-                    rcond,
-                )
-            },
-            || {
-                Pinv::new(
-                    &kernel_matrix(ke, &scaled(INNER, zero), &scaled(DOWN_EQUIV, zero)),
-                    rcond,
-                )
-            },
+            || fit("upward", UP_CHECK, INNER),
+            || fit("downward", INNER, DOWN_EQUIV),
         );
         let (up, down) = (up?, down?);
         let mut m2m = Vec::with_capacity(8);

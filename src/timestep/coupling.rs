@@ -52,7 +52,7 @@ use rayon::prelude::*;
 
 use super::TimestepError;
 use crate::fmm::blocks::SourceBlock;
-use crate::fmm::{order_for_digits, Fmm, FmmKernel, Kernel, Stokeslet, Stresslet};
+use crate::fmm::{order_for_digits, Fmm, FmmError, FmmKernel, Kernel, Stokeslet, Stresslet};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::layer::LayerKernel;
 use crate::vesicle::membrane::Membrane;
@@ -211,10 +211,9 @@ impl Coupling {
             TimestepError::InvalidParameter {
                 name: "fmm_digits",
                 value: format!("{}", params.fmm_digits),
-                reason: if e.to_string().contains("between") {
-                    "must be between 3 and 10"
-                } else {
-                    "no FMM order for it"
+                reason: match e {
+                    FmmError::Digits { .. } => "must be between 3 and 10",
+                    _ => "no FMM order for it",
                 },
             }
         })?;
