@@ -48,6 +48,11 @@ fn holder(i: usize, k: usize) -> usize {
     (i * 7919 + 13) % k
 }
 
+/// `x ≤ tol`, false for NaN.
+fn at_most(x: f64, tol: f64) -> bool {
+    x <= tol
+}
+
 fn rel(a: &[f64], b: &[f64]) -> f64 {
     let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
     let den: f64 = b.iter().map(|y| y * y).sum();
@@ -228,12 +233,12 @@ fn run_case(comm: &dyn Communicator, c: &Case) -> Vec<String> {
             t0.elapsed().as_secs_f64(),
             got.len()
         );
-        if !(e_ranks <= 1e-12) || got.len() != want.len() {
+        if !at_most(e_ranks, 1e-12) || got.len() != want.len() {
             fails.push(format!(
                 "{name} round {round}: K-rank vs 1-rank {e_ranks:.2e}"
             ));
         }
-        if !(e_direct < 10f64.powi(-(c.digits as i32))) {
+        if !at_most(e_direct, 10f64.powi(-(c.digits as i32))) {
             fails.push(format!("{name} round {round}: vs direct {e_direct:.2e}"));
         }
     }
@@ -387,7 +392,7 @@ fn cli_checks(dir: &Path) -> Vec<String> {
         if json["ranks"] != k || counts.len() != k || counts.iter().sum::<u64>() != n as u64 {
             fails.push(format!("{k} ranks: JSON line reports {json}"));
         }
-        if bytes != k || !(json["load_imbalance"].as_f64().unwrap_or(0.0) >= 1.0) {
+        if bytes != k || json["load_imbalance"].as_f64().is_none_or(|v| v < 1.0) {
             fails.push(format!(
                 "{k} ranks: no per-rank bytes or imbalance in {json}"
             ));
@@ -396,7 +401,7 @@ fn cli_checks(dir: &Path) -> Vec<String> {
     }
     let e = rel(&outs[1], &outs[0]);
     println!("mobo fmm: 3 ranks vs 1 rank {e:.1e}");
-    if !(e <= 1e-12) {
+    if !at_most(e, 1e-12) {
         fails.push(format!("mobo fmm: 3 ranks differ from 1 rank by {e:.2e}"));
     }
     // A NaN in the last rank's rows: every rank stops, one message names the file and row.

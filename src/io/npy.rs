@@ -127,7 +127,7 @@ pub fn read_f64_rows(
             rows.start, rows.end
         )));
     }
-    let per_row = if n_rows == 0 { 0 } else { count / n_rows };
+    let per_row = count.checked_div(n_rows).unwrap_or(0);
     f.seek(SeekFrom::Start((start + 8 * per_row * rows.start) as u64))
         .map_err(file_err)?;
     let mut data = vec![0u8; 8 * per_row * rows.len()];
