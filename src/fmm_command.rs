@@ -10,8 +10,8 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use mobo::comm::{Communicator, SerialComm};
-use mobo::fmm::{order_for_digits, Fmm, FmmKernel};
+use mobo::comm::{CommError, Communicator, SerialComm};
+use mobo::fmm::{order_for_digits, Fmm, FmmError, FmmKernel};
 
 use super::CliError;
 
@@ -209,9 +209,22 @@ pub fn fmm(a: FmmArgs) -> Result<(), CliError> {
     let comm = world();
     let result = fmm_on(comm.as_ref(), &a);
     match result {
-        Err(_) if comm.rank() != 0 => Err(CliError::ReportedElsewhere),
+        Err(e) if comm.rank() != 0 && every_rank_has(&e) => Err(CliError::ReportedElsewhere),
         r => r,
     }
+}
+
+/// Errors that every rank returns alike: bad arguments (the same on every rank) and failures
+/// agreed across ranks (a rank's bad input, reported to all as `CommError::Remote`). Rank 0
+/// reports these; the other ranks exit with status 0, so that `mpirun` does not abort the
+/// job before rank 0 has printed the message and set the job's non-zero status.
+fn every_rank_has(e: &CliError) -> bool {
+    matches!(
+        e,
+        CliError::Arg(_)
+            | CliError::Comm(CommError::Remote { .. })
+            | CliError::Fmm(FmmError::Comm(CommError::Remote { .. }))
+    )
 }
 
 fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {

@@ -131,7 +131,8 @@ enum CliError {
     Report(#[from] mobo::report::ReportError),
     #[error("interrupted")]
     Interrupted,
-    /// An error already reported by rank 0 of an MPI run (the other ranks exit quietly).
+    /// An error that every rank of an MPI run has and rank 0 reports: the other ranks exit
+    /// quietly with status 0 (rank 0's non-zero status is the job's).
     #[error("reported by rank 0")]
     ReportedElsewhere,
 }
@@ -174,7 +175,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(CliError::Interrupted) => ExitCode::from(130),
-        Err(CliError::ReportedElsewhere) => ExitCode::FAILURE,
+        Err(CliError::ReportedElsewhere) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("mobo: error: {e}");
             ExitCode::FAILURE

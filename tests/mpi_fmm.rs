@@ -326,7 +326,9 @@ fn mpirun(k: usize) -> Command {
         &k.to_string(),
     ])
     // One thread per rank when ranks share the two cores; both when alone.
-    .env("RAYON_NUM_THREADS", if k == 1 { "2" } else { "1" });
+    .env("RAYON_NUM_THREADS", if k == 1 { "2" } else { "1" })
+    // Containers often forbid the cross-memory attach of OpenMPI's shared-memory transport.
+    .env("OMPI_MCA_btl_vader_single_copy_mechanism", "none");
     c
 }
 
