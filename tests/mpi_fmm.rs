@@ -456,6 +456,7 @@ fn main() {
         .split(',')
         .filter_map(|k| k.trim().parse().ok())
         .collect();
+    let ks_run = ks.clone();
     for k in ks {
         let t0 = std::time::Instant::now();
         println!("== mpirun -n {k}");
@@ -484,5 +485,7 @@ fn main() {
         eprintln!("mpi_fmm failed: {failed:#?}");
         std::process::exit(1);
     }
-    println!("mpi_fmm: K = 1..4 agree with one rank and with direct sums; mobo fmm under mpirun");
+    println!(
+        "mpi_fmm: K = {ks_run:?} agree with one rank and with direct sums; mobo fmm under mpirun"
+    );
 }
