@@ -11,6 +11,7 @@
 pub mod brownian;
 pub mod check;
 pub mod comm;
+pub mod durable;
 pub mod fmm;
 pub mod io;
 pub mod report;

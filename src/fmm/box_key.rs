@@ -7,8 +7,10 @@
 //! `B`" is an interval overlap. Adjacency is decided on integer cell coordinates, never on
 //! floating-point centres.
 
-/// Bits per coordinate of the finest cells.
-pub const FINE: u32 = 21;
+use super::octree::spread;
+
+/// Bits per coordinate of the finest cells (the serial octree's deepest level).
+pub const FINE: u32 = super::octree::MAX_DEPTH;
 
 /// One past the largest key: keys are `0..KEY_END`.
 pub const KEY_END: u64 = 1 << (3 * FINE);
@@ -30,16 +32,6 @@ fn compact(v: u64) -> u64 {
     x = (x | (x >> 8)) & 0x1f0000ff0000ff;
     x = (x | (x >> 16)) & 0x1f00000000ffff;
     x = (x | (x >> 32)) & 0x1f_ffff;
-    x
-}
-
-fn spread(v: u64) -> u64 {
-    let mut x = v & 0x1f_ffff;
-    x = (x | (x << 32)) & 0x1f00000000ffff;
-    x = (x | (x << 16)) & 0x1f0000ff0000ff;
-    x = (x | (x << 8)) & 0x100f00f00f00f00f;
-    x = (x | (x << 4)) & 0x10c30c30c30c30c3;
-    x = (x | (x << 2)) & 0x1249249249249249;
     x
 }
 

@@ -35,6 +35,8 @@ use std::collections::HashMap;
 use std::ops::Range;
 
 use super::box_key::{BoxKey, Domain, FINE, KEY_END};
+/// Interaction lists, per box of the rank's tree (empty for the boxes it does not compute).
+pub use super::octree::Lists;
 use super::octree::MAX_DEPTH;
 use crate::comm::{CommError, Communicator};
 
@@ -67,15 +69,6 @@ pub struct TreeBox {
     pub parent: Option<usize>,
     pub children: Vec<usize>,
     pub role: Role,
-}
-
-/// Interaction lists of the boxes a rank computes (empty for the others).
-#[derive(Clone, Debug, Default)]
-pub struct Lists {
-    pub u: Vec<Vec<usize>>,
-    pub v: Vec<Vec<usize>>,
-    pub w: Vec<Vec<usize>>,
-    pub x: Vec<Vec<usize>>,
 }
 
 /// How per-point values travel between the caller's ranks and order and the owners' sorted
@@ -765,12 +758,7 @@ impl DistTree {
     /// The U, V, W, X lists of the boxes this rank computes.
     fn interaction_lists(&self) -> Lists {
         let n = self.boxes.len();
-        let mut l = Lists {
-            u: vec![Vec::new(); n],
-            v: vec![Vec::new(); n],
-            w: vec![Vec::new(); n],
-            x: vec![Vec::new(); n],
-        };
+        let mut l = Lists::empty(n);
         for t in 0..n {
             let tb = &self.boxes[t];
             if !self.computes_down(t) {

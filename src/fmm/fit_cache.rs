@@ -26,12 +26,12 @@
 //! ```
 
 use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use faer::Mat;
 
 use super::operators::Pinv;
+use crate::durable::{fnv1a64, write_atomic};
 
 const MAGIC: &[u8; 8] = b"MOBOFIT1";
 
@@ -54,15 +54,8 @@ pub fn dir_from_env() -> Option<PathBuf> {
         .map(PathBuf::from)
 }
 
-/// FNV-1a, 64 bits: names files by key and checks their contents.
-fn fnv(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
-    })
-}
-
 fn file_for(dir: &Path, key: &str) -> PathBuf {
-    dir.join(format!("fit-{:016x}.bin", fnv(key.as_bytes())))
+    dir.join(format!("fit-{:016x}.bin", fnv1a64(key.as_bytes())))
 }
 
 fn encode(key: &str, fit: &Pinv) -> Vec<u8> {
@@ -81,7 +74,7 @@ fn encode(key: &str, fit: &Pinv) -> Vec<u8> {
     out.extend((key.len() as u64).to_le_bytes());
     out.extend(key.as_bytes());
     out.extend((body.len() as u64).to_le_bytes());
-    out.extend(fnv(&body).to_le_bytes());
+    out.extend(fnv1a64(&body).to_le_bytes());
     out.extend(body);
     out
 }
@@ -124,7 +117,7 @@ fn decode(key: &str, bytes: &[u8]) -> Option<Pinv> {
     let blen = r.u64()? as usize;
     let sum = r.u64()?;
     let body = r.take(blen)?;
-    if fnv(body) != sum || !r.0.is_empty() {
+    if fnv1a64(body) != sum || !r.0.is_empty() {
         return None;
     }
     let mut b = Reader(body);
@@ -143,21 +136,10 @@ pub fn load(dir: &Path, key: &str) -> Option<Pinv> {
 /// Store `fit` under `key` in `dir` (created if missing), atomically.
 pub fn store(dir: &Path, key: &str, fit: &Pinv) -> Result<(), FitCacheError> {
     let path = file_for(dir, key);
-    let err = |e: std::io::Error| FitCacheError::Write {
-        path: path.clone(),
+    write_atomic(&path, &encode(key, fit)).map_err(|e| FitCacheError::Write {
+        path,
         reason: e.to_string(),
-    };
-    fs::create_dir_all(dir).map_err(err)?;
-    let tmp = dir.join(format!(
-        ".fit-{:016x}.{}.tmp",
-        fnv(key.as_bytes()),
-        std::process::id()
-    ));
-    let mut f = fs::File::create(&tmp).map_err(err)?;
-    f.write_all(&encode(key, fit)).map_err(err)?;
-    f.sync_all().map_err(err)?;
-    drop(f);
-    fs::rename(&tmp, &path).map_err(err)
+    })
 }
 
 #[cfg(test)]

@@ -52,6 +52,18 @@ pub struct Lists {
     pub x: Vec<Vec<usize>>,
 }
 
+impl Lists {
+    /// Empty lists for `n` boxes.
+    pub fn empty(n: usize) -> Self {
+        Lists {
+            u: vec![Vec::new(); n],
+            v: vec![Vec::new(); n],
+            w: vec![Vec::new(); n],
+            x: vec![Vec::new(); n],
+        }
+    }
+}
+
 /// The octree over a set of sources and targets.
 #[derive(Clone, Debug)]
 pub struct Octree {
@@ -74,7 +86,7 @@ const BITS: u32 = 21;
 pub const MAX_DEPTH: u32 = BITS;
 
 /// Interleave the low 21 bits of `v` with two zero bits between each.
-fn spread(v: u64) -> u64 {
+pub(super) fn spread(v: u64) -> u64 {
     let mut x = v & 0x1f_ffff;
     x = (x | (x << 32)) & 0x1f00000000ffff;
     x = (x | (x << 16)) & 0x1f0000ff0000ff;
@@ -239,12 +251,7 @@ impl Octree {
             }
             colleagues[b] = c;
         }
-        let mut lists = Lists {
-            u: vec![Vec::new(); n],
-            v: vec![Vec::new(); n],
-            w: vec![Vec::new(); n],
-            x: vec![Vec::new(); n],
-        };
+        let mut lists = Lists::empty(n);
         for b in 1..n {
             let p = self.nodes[b].parent.expect("non-root has a parent");
             for &pc in &colleagues[p] {

@@ -34,6 +34,7 @@ use std::path::Path;
 use serde_json::Value;
 
 use super::{write_atomic, IoError};
+pub use crate::durable::fnv1a64;
 
 /// The magic bytes that open every checkpoint.
 pub const MAGIC: [u8; 8] = *b"MOBOCKPT";
@@ -114,16 +115,6 @@ pub struct Checkpoint {
     pub meta: Value,
     /// The arrays, in the order they are written.
     pub arrays: Vec<NamedArray>,
-}
-
-/// FNV-1a, 64 bits (offset basis `0xcbf29ce484222325`, prime `0x100000001b3`).
-pub fn fnv1a64(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
 }
 
 impl Checkpoint {

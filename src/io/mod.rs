@@ -18,8 +18,6 @@ pub mod vtk;
 
 pub use checkpoint::CheckpointFault;
 
-use std::fs;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Errors of the output layer.
@@ -57,25 +55,11 @@ pub enum IoError {
     Hdf5Unavailable { path: PathBuf },
 }
 
-/// Write `bytes` to `path` atomically (temporary file in the same directory, then rename).
+/// Write `bytes` to `path` atomically (temporary file in the same directory, then rename;
+/// [`crate::durable::write_atomic`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    let err = |source| IoError::File {
+    crate::durable::write_atomic(path, bytes).map_err(|source| IoError::File {
         path: path.to_path_buf(),
         source,
-    };
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    fs::create_dir_all(dir).map_err(err)?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| "out".into());
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    let mut f = fs::File::create(&tmp).map_err(err)?;
-    f.write_all(bytes).map_err(err)?;
-    f.sync_all().map_err(err)?;
-    drop(f);
-    fs::rename(&tmp, path).map_err(err)
+    })
 }
