@@ -274,15 +274,19 @@ fn bad_rank(comm: &dyn Communicator) -> Vec<String> {
     }
 }
 
+/// A comma-separated list from the environment variable `name`, or from `default`.
+fn env_list<T: std::str::FromStr>(name: &str, default: &str) -> Vec<T> {
+    std::env::var(name)
+        .unwrap_or_else(|_| default.into())
+        .split(',')
+        .filter_map(|v| v.trim().parse().ok())
+        .collect()
+}
+
 fn child() -> i32 {
     let comm = MpiComm::init().expect("MPI initialised once");
     let mut fails = Vec::new();
-    let digits_list: Vec<u32> = std::env::var("MOBO_MPI_DIGITS")
-        .unwrap_or_else(|_| "3,6,9".into())
-        .split(',')
-        .filter_map(|d| d.trim().parse().ok())
-        .collect();
-    for digits in digits_list {
+    for digits in env_list::<u32>("MOBO_MPI_DIGITS", "3,6,9") {
         for (kernel, last_of_its_operators) in KERNELS {
             for cloud in CLOUDS {
                 let case = Case {
@@ -451,13 +455,8 @@ fn main() {
     let exe = std::env::current_exe().expect("test binary path");
     let mut failed = Vec::new();
     // MOBO_MPI_KS=1,2 runs fewer rank counts (K = 1 must come first: it writes the references).
-    let ks: Vec<usize> = std::env::var("MOBO_MPI_KS")
-        .unwrap_or_else(|_| "1,2,3,4".into())
-        .split(',')
-        .filter_map(|k| k.trim().parse().ok())
-        .collect();
-    let ks_run = ks.clone();
-    for k in ks {
+    let ks = env_list::<usize>("MOBO_MPI_KS", "1,2,3,4");
+    for &k in &ks {
         let t0 = std::time::Instant::now();
         println!("== mpirun -n {k}");
         let status = mpirun(k)
@@ -485,7 +484,5 @@ fn main() {
         eprintln!("mpi_fmm failed: {failed:#?}");
         std::process::exit(1);
     }
-    println!(
-        "mpi_fmm: K = {ks_run:?} agree with one rank and with direct sums; mobo fmm under mpirun"
-    );
+    println!("mpi_fmm: K = {ks:?} agree with one rank and with direct sums; mobo fmm under mpirun");
 }
