@@ -64,7 +64,7 @@ pub struct FmmArgs {
 }
 
 /// The ranks of this process: MPI's world under `mpirun` (with the `mpi` feature), else one.
-fn world() -> Box<dyn Communicator> {
+pub(crate) fn world() -> Box<dyn Communicator> {
     #[cfg(feature = "mpi")]
     {
         let launched = ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_RANK"]

@@ -396,28 +396,34 @@ fn run(
         .clone()
         .or(out)
         .unwrap_or_else(|| std::path::Path::new("out").join(name));
+    let comm = fmm_command::world();
+    let root = comm.rank() == 0;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
     {
         let stop = stop.clone();
-        // A second Ctrl-C (or no handler) falls back to the default: the process ends.
+        // Ctrl-C, or the SIGTERM that mpirun sends every rank on Ctrl-C: stop after this step
+        // (every rank agrees at the end of each step). A second one (or no handler) falls back
+        // to the default: the process ends.
         let _ = ctrlc::set_handler(move || {
             if stop.swap(true, std::sync::atomic::Ordering::Relaxed) {
                 std::process::exit(130);
             }
-            eprintln!(
-                "\nmobo run: stopping after this step (checkpoint follows); Ctrl-C again to abort"
-            );
+            if root {
+                eprintln!(
+                    "\nmobo run: stopping after this step (checkpoint follows); Ctrl-C again to abort"
+                );
+            }
         });
     }
     let options = cells_run::RunOptions {
-        quiet,
+        quiet: quiet || !root,
         resume: resume.is_some(),
         max_steps,
         stop: Some(stop.clone()),
     };
-    if !quiet {
+    if !quiet && root {
         eprintln!(
-            "mobo run: {} ({} cells, p = {}, dt = {}, t_end = {}) -> {}",
+            "mobo run: {} ({} cells, p = {}, dt = {}, t_end = {}{}) -> {}",
             scene
                 .as_ref()
                 .map_or("built-in demo".into(), |p| p.display().to_string()),
@@ -425,6 +431,10 @@ fn run(
             sc.numerics.order,
             sc.numerics.dt,
             sc.numerics.t_end,
+            match comm.size() {
+                1 => String::new(),
+                k => format!(", {k} ranks"),
+            },
             out.display()
         );
         for e in &sc.effects {
@@ -436,7 +446,13 @@ fn run(
             );
         }
     }
-    let s = cells_run::run(&sc, &text, &out, &options)?;
+    let s = match cells_run::run_on(comm.as_ref(), &sc, &text, &out, &options) {
+        Ok(Some(s)) => s,
+        // Rank 0 reports (every failure is returned on every rank).
+        Ok(None) => return Ok(()),
+        Err(_) if !root => return Err(CliError::ReportedElsewhere),
+        Err(e) => return Err(e.into()),
+    };
     if !s.completed {
         println!(
             "stopped at step {} (t = {}): checkpoint in {}; continue with `mobo run --resume {}`",
@@ -445,7 +461,8 @@ fn run(
             out.display(),
             out.display()
         );
-        return if stop.load(std::sync::atomic::Ordering::Relaxed) {
+        // Stopped early without a step limit: interrupted (here or on another rank).
+        return if stop.load(std::sync::atomic::Ordering::Relaxed) || max_steps.is_none() {
             Err(CliError::Interrupted)
         } else {
             Ok(())

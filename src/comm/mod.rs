@@ -28,7 +28,7 @@ mod mpi_comm;
 pub use mpi_comm::MpiComm;
 
 /// Errors of communication.
-#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[derive(Clone, Debug, thiserror::Error, PartialEq, Eq)]
 pub enum CommError {
     /// A buffer whose length does not fit the number of ranks.
     #[error("communicator: {what} has {got} entries for {ranks} ranks")]

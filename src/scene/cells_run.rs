@@ -25,14 +25,17 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
 use super::cells::{CellScene, Effect, Flow, Scheme};
-use crate::io::checkpoint::Checkpoint;
+use super::cells_checkpoint::{self, Progress, Split};
+use super::cells_partition::{self, Reason};
+use crate::comm::{CommError, Communicator, SerialComm};
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::adaptive::AdaptiveDt;
+use crate::timestep::cell_state::CellState;
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{OperatorStorage, TimeScheme, VesicleParams};
-use crate::timestep::suspension::{CellSetup, CellStepError, Suspension};
+use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
 use crate::timestep::{GmresParams, TimestepError};
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::geometry::SurfaceCalculus;
@@ -60,6 +63,9 @@ pub enum CellRunError {
     /// A checkpoint does not fit the scene.
     #[error("cannot resume: {0}")]
     Resume(String),
+    /// Communication between ranks failed, or another rank failed (its message).
+    #[error("{0}")]
+    Comm(CommError),
 }
 
 /// Per-cell observables at the end of the run.
@@ -115,6 +121,8 @@ pub struct CellRunSummary {
     pub min_gap: Option<f64>,
     pub per_cell: Vec<CellSummary>,
     pub frames: usize,
+    /// How the work was split between MPI ranks (one rank: all of it on rank 0).
+    pub split: SplitSummary,
 }
 
 /// What the adaptive time step did.
@@ -187,349 +195,19 @@ pub const CHECKPOINT: &str = "checkpoint.bin";
 /// The copy of the scene in the output directory (what `--resume` runs).
 pub const SCENE_COPY: &str = "scene.toml";
 
-/// Everything a run carries from step to step besides the cells' own state.
-#[derive(Clone, Debug, Default)]
-struct Progress {
-    step: usize,
-    frame_times: Vec<f64>,
-    iters_sum: usize,
-    iters_max: usize,
-    step_s: f64,
-    output_s: f64,
-    wall_s: f64,
-    min_gap: f64,
-    /// Per cell: centroid (3), area, volume, inclination at the start of the run.
-    start_obs: Vec<[f64; 6]>,
-    /// Time reached.
-    time: f64,
-    /// The next step's size (adaptive `dt`).
-    dt: f64,
-    /// The size of the last step taken.
-    last_dt: f64,
-    /// Smallest and largest step taken.
-    dt_used: [f64; 2],
-    /// Steps rejected by the adaptive `dt` (repeated smaller).
-    rejected: usize,
-    /// Accepted steps whose error exceeded what they may commit (taken at `dt_min`).
-    above_tolerance: usize,
-    /// Sum over the steps of the area/volume error estimate.
-    error_sum: f64,
-}
-
-impl Progress {
-    /// A run that starts at `t = 0` with the step `dt`.
-    fn start(dt: f64) -> Self {
-        Progress {
-            min_gap: f64::INFINITY,
-            dt,
-            last_dt: dt,
-            dt_used: [f64::INFINITY, 0.0],
-            ..Default::default()
-        }
-    }
-}
-
-fn checkpoint_error(out: &Path, what: String) -> CellRunError {
-    CellRunError::Resume(format!("{}: {what}", out.join(CHECKPOINT).display()))
-}
-
-fn save_checkpoint(out: &Path, susp: &Suspension, prog: &Progress) -> Result<(), CellRunError> {
-    let nc = susp.len();
-    let mut ck = Checkpoint::new(serde_json::json!({
-        "format": "mobo cell-run checkpoint",
-        "step": prog.step,
-        "iters_sum": prog.iters_sum,
-        "iters_max": prog.iters_max,
-        "cells": nc,
-    }));
-    let coefs: Vec<f64> = susp.coefs().iter().flatten().copied().collect();
-    let ncoef = coefs.len() / nc;
-    ck.push("coefs", vec![nc, ncoef], coefs);
-    let sigma: Vec<f64> = susp
-        .steppers()
-        .iter()
-        .flat_map(|s| s.sigma.iter().copied())
-        .collect();
-    let n = sigma.len() / nc;
-    ck.push("sigma", vec![nc, n], sigma);
-    let targets: Vec<f64> = susp
-        .steppers()
-        .iter()
-        .flat_map(|s| {
-            let (a, v) = s.drift_targets().unwrap_or((f64::NAN, f64::NAN));
-            [a, v]
-        })
-        .collect();
-    ck.push("drift_targets", vec![nc, 2], targets);
-    // BDF2 history: Xⁿ⁻¹ (NaN rows where there is none) and the inter-cell velocities.
-    let prev: Vec<f64> = susp
-        .steppers()
-        .iter()
-        .flat_map(|s| match s.previous_coefs() {
-            Some(c) => c.to_vec(),
-            None => vec![f64::NAN; ncoef],
-        })
-        .collect();
-    ck.push("previous_coefs", vec![nc, ncoef], prev);
-    // Skalak references, relabelled with the grid by the reparametrisation (NaN rows for cells
-    // without shear elasticity).
-    let refs: Vec<f64> = susp
-        .steppers()
-        .iter()
-        .flat_map(|s| match s.skalak_reference() {
-            Some(r) => r.to_vec(),
-            None => vec![f64::NAN; ncoef],
-        })
-        .collect();
-    ck.push("skalak_references", vec![nc, ncoef], refs);
-    for (name, v) in [
-        ("inter_cell_velocities", susp.inter_cell_velocities()),
-        (
-            "previous_inter_cell_velocities",
-            susp.previous_inter_cell_velocities(),
-        ),
-    ] {
-        let flat: Vec<f64> = v.iter().flatten().copied().collect();
-        ck.push(name, vec![v.len(), flat.len() / v.len().max(1)], flat);
-    }
-    // Membrane velocities of the last solve: the explicit double-layer densities of the next
-    // step (only where the inter-cell double layer is built; NaN rows for none yet).
-    if susp.has_inter_cell_double_layer() {
-        let n3 = 3 * n;
-        let u: Vec<f64> = susp
-            .steppers()
-            .iter()
-            .flat_map(|s| match s.velocity() {
-                Some(u) => u.to_vec(),
-                None => vec![f64::NAN; n3],
-            })
-            .collect();
-        ck.push("membrane_velocities", vec![nc, n3], u);
-    }
-    ck.push(
-        "start_observables",
-        vec![nc, 6],
-        prog.start_obs.iter().flatten().copied().collect(),
-    );
-    ck.push(
-        "frame_times",
-        vec![prog.frame_times.len()],
-        prog.frame_times.clone(),
-    );
-    ck.push(
-        "clocks",
-        vec![4],
-        vec![prog.step_s, prog.output_s, prog.wall_s, prog.min_gap],
-    );
-    ck.push(
-        "time_steps",
-        vec![8],
-        vec![
-            prog.time,
-            prog.dt,
-            prog.last_dt,
-            prog.dt_used[0],
-            prog.dt_used[1],
-            prog.rejected as f64,
-            prog.above_tolerance as f64,
-            prog.error_sum,
-        ],
-    );
-    let previous_dt: Vec<f64> = susp
-        .steppers()
-        .iter()
-        .map(|s| s.previous_dt().unwrap_or(f64::NAN))
-        .collect();
-    ck.push("previous_dt", vec![nc], previous_dt);
-    ck.write(&out.join(CHECKPOINT))?;
-    Ok(())
-}
-
-fn load_checkpoint(out: &Path, susp: &mut Suspension) -> Result<Progress, CellRunError> {
-    let ck = Checkpoint::read(&out.join(CHECKPOINT))?;
-    let nc = susp.len();
-    let get = |name: &str, len: usize| -> Result<&[f64], CellRunError> {
-        let a = ck
-            .get(name)
-            .ok_or_else(|| checkpoint_error(out, format!("no array \"{name}\"")))?;
-        if a.data.len() != len {
-            return Err(checkpoint_error(
-                out,
-                format!(
-                    "array \"{name}\" has {} values, the scene needs {len} (is this the same scene?)",
-                    a.data.len()
-                ),
-            ));
-        }
-        Ok(&a.data)
-    };
-    let ncoef = susp.coefs()[0].len();
-    let n = susp.steppers()[0].sigma.len();
-    let coefs = get("coefs", nc * ncoef)?;
-    let sigma = get("sigma", nc * n)?;
-    let targets = get("drift_targets", nc * 2)?;
-    let start = get("start_observables", nc * 6)?;
-    let clocks = get("clocks", 4)?;
-    let frame_times = ck
-        .get("frame_times")
-        .ok_or_else(|| checkpoint_error(out, "no array \"frame_times\"".into()))?
-        .data
-        .clone();
-    let prev = get("previous_coefs", nc * ncoef)?;
-    let time_steps = get("time_steps", 8)?;
-    let previous_dt = get("previous_dt", nc)?;
-    for (i, &pdt) in previous_dt.iter().enumerate() {
-        susp.steppers_mut()[i]
-            .set_previous_dt(pdt.is_finite().then_some(pdt))
-            .map_err(|e| checkpoint_error(out, format!("previous_dt of cell {}: {e}", i + 1)))?;
-    }
-    let velocities = |name: &str| -> Result<Vec<Vec<f64>>, CellRunError> {
-        let a = ck
-            .get(name)
-            .ok_or_else(|| checkpoint_error(out, format!("no array \"{name}\"")))?;
-        let rows = a.shape.first().copied().unwrap_or(0);
-        if rows == 0 {
-            return Ok(Vec::new());
-        }
-        if rows != nc || a.data.len() != nc * 3 * n {
-            return Err(checkpoint_error(
-                out,
-                format!(
-                    "array \"{name}\" has shape {:?}, expected [{nc}, {}]",
-                    a.shape,
-                    3 * n
-                ),
-            ));
-        }
-        Ok(a.data.chunks_exact(3 * n).map(|c| c.to_vec()).collect())
-    };
-    let current = velocities("inter_cell_velocities")?;
-    let previous = velocities("previous_inter_cell_velocities")?;
-    susp.set_inter_cell_velocities(current, previous);
-    // Absent from checkpoints of runs without an inter-cell double layer.
-    if susp.has_inter_cell_double_layer() {
-        let u = get("membrane_velocities", nc * 3 * n)?;
-        for i in 0..nc {
-            let row = &u[i * 3 * n..(i + 1) * 3 * n];
-            susp.steppers_mut()[i]
-                .set_velocity(row.iter().all(|v| v.is_finite()).then_some(row))
-                .map_err(|e| {
-                    checkpoint_error(out, format!("membrane_velocities of cell {}: {e}", i + 1))
-                })?;
-        }
-    }
-    // Absent from checkpoints written before the references were relabelled: those keep the
-    // initial reference.
-    if ck.get("skalak_references").is_some() {
-        let refs = get("skalak_references", nc * ncoef)?;
-        for i in 0..nc {
-            let row = &refs[i * ncoef..(i + 1) * ncoef];
-            let st = &mut susp.steppers_mut()[i];
-            if st.skalak_reference().is_some() && row.iter().all(|v| v.is_finite()) {
-                st.set_skalak_reference(row).map_err(|e| {
-                    checkpoint_error(out, format!("skalak_references of cell {}: {e}", i + 1))
-                })?;
-            }
-        }
-    }
-    for i in 0..nc {
-        let row = &prev[i * ncoef..(i + 1) * ncoef];
-        susp.steppers_mut()[i]
-            .set_previous_coefs(row.iter().all(|v| v.is_finite()).then_some(row))
-            .map_err(|e| checkpoint_error(out, format!("previous_coefs of cell {}: {e}", i + 1)))?;
-    }
-    for i in 0..nc {
-        susp.coefs_mut()[i].copy_from_slice(&coefs[i * ncoef..(i + 1) * ncoef]);
-        let st = &mut susp.steppers_mut()[i];
-        st.sigma.copy_from_slice(&sigma[i * n..(i + 1) * n]);
-        let (a, v) = (targets[2 * i], targets[2 * i + 1]);
-        st.set_drift_targets((a.is_finite() && v.is_finite()).then_some((a, v)));
-    }
-    let meta = |key: &str| -> Result<usize, CellRunError> {
-        ck.meta[key]
-            .as_u64()
-            .map(|v| v as usize)
-            .ok_or_else(|| checkpoint_error(out, format!("header has no \"{key}\"")))
-    };
-    Ok(Progress {
-        step: meta("step")?,
-        frame_times,
-        iters_sum: meta("iters_sum")?,
-        iters_max: meta("iters_max")?,
-        step_s: clocks[0],
-        output_s: clocks[1],
-        wall_s: clocks[2],
-        min_gap: clocks[3],
-        start_obs: start
-            .chunks_exact(6)
-            .map(|c| std::array::from_fn(|k| c[k]))
-            .collect(),
-        time: time_steps[0],
-        dt: time_steps[1],
-        last_dt: time_steps[2],
-        dt_used: [time_steps[3], time_steps[4]],
-        rejected: time_steps[5] as usize,
-        above_tolerance: time_steps[6] as usize,
-        error_sum: time_steps[7],
-    })
-    .and_then(|p| {
-        if p.dt.is_finite() && p.dt > 0.0 && p.time.is_finite() {
-            Ok(p)
-        } else {
-            Err(checkpoint_error(
-                out,
-                format!("time_steps: time {} and dt {} are not usable", p.time, p.dt),
-            ))
-        }
-    })
-}
-
-fn write_frame(
-    frames: &mut FrameWriter,
-    susp: &Suspension,
-    sht: &ShTransform,
-    ws: &mut ShWorkspace,
-    time: f64,
-) -> Result<(), CellRunError> {
-    let n = sht.n_points();
-    let mut x = vec![0.0; 3 * n * susp.len()];
-    for (i, c) in susp.coefs().iter().enumerate() {
-        sht.inverse(c, &mut x[3 * n * i..3 * n * (i + 1)], ws)
-            .map_err(VesicleError::from)?;
-    }
-    let cells: Vec<CellFrame<'_>> = susp
-        .coefs()
-        .iter()
-        .zip(susp.steppers())
-        .enumerate()
-        .map(|(i, (c, st))| CellFrame {
-            order: sht.order(),
-            coefs: c,
-            positions: &x[3 * n * i..3 * n * (i + 1)],
-            tension: &st.sigma,
-        })
-        .collect();
-    let index = frames.times().len();
-    frames.write_frame(index, time, &cells)?;
-    Ok(())
-}
-
-/// The cells of `scene` as a [`Suspension`] ready to step (the settings `mobo run` uses:
-/// drift correction and reparametrisation every step, GMRES restart 200). Library users and
-/// studies (`mobo report`) step it themselves.
-pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
+/// The setup of every cell of `scene`, in scene order (the settings `mobo run` uses: drift
+/// correction and reparametrisation every step, GMRES restart 200).
+pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
     let p = scene.numerics.order;
     let q = scene.numerics.upsample * p;
-    let dt = scene.numerics.dt;
-    let nc = scene.cells.len();
-    let mut setups = Vec::with_capacity(nc);
+    let mut setups = Vec::with_capacity(scene.cells.len());
     for cell in &scene.cells {
         let coefs = cell.surface(p)?.coefs().to_vec();
         let params = VesicleParams {
             bending_modulus: cell.bending_modulus,
             viscosity: scene.viscosity,
             force: cell.force,
-            dt,
+            dt: scene.numerics.dt,
             upsampled_order: q,
             gmres: GmresParams {
                 tol: scene.numerics.gmres_tol,
@@ -564,6 +242,12 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
             skalak,
         });
     }
+    Ok(setups)
+}
+
+/// The coupling settings of `scene` (the contact repulsion's strength, when the scene leaves
+/// it out, from the cells' bending, the flow and the forces).
+fn coupling_params(scene: &CellScene) -> CouplingParams {
     let rate = match scene.flow {
         Flow::None => 0.0,
         Flow::Shear { rate } | Flow::Extensional { rate } => rate.abs(),
@@ -581,39 +265,58 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
         })
         .fold(0.0, f64::max)
         * 10.0;
-    let coupling = CouplingParams {
+    CouplingParams {
         viscosity: scene.viscosity,
         fmm_digits: scene.numerics.fmm_digits,
         repulsion_range: scene.numerics.repulsion_range,
         repulsion_strength: scene.numerics.repulsion_strength.unwrap_or(auto_strength),
         ..Default::default()
-    };
-    let mut susp = Suspension::new(p, setups, coupling).map_err(|e| step_error(0, 0.0, e))?;
-    let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
-        let contrast = scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
-        let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
-        OperatorStorage::for_budget(susp.steppers().len(), p, 1 + usize::from(contrast), budget)
-    });
-    for s in susp.steppers_mut() {
-        s.set_operator_storage(storage);
     }
+}
+
+/// The cells of `scene` as a [`Suspension`] ready to step (the settings `mobo run` uses:
+/// drift correction and reparametrisation every step, GMRES restart 200). Library users and
+/// studies (`mobo report`) step it themselves.
+pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
+    let setups = setups(scene)?;
+    let all = (0..setups.len()).collect::<Vec<_>>();
+    build_part(scene, &setups, &all)
+}
+
+/// One rank's share of the cells of `scene`: the cells `ids` (global indices) of `setups`
+/// (every cell's, from [`setups`]).
+pub fn build_part(
+    scene: &CellScene,
+    setups: &[CellSetup],
+    ids: &[usize],
+) -> Result<Suspension, CellRunError> {
+    let p = scene.numerics.order;
+    let q = scene.numerics.upsample * p;
+    let contrast = scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
+    let cells = ids.iter().map(|&i| (i, setups[i].clone())).collect();
+    let mut susp = Suspension::new_part(
+        p,
+        q.max(p),
+        cells,
+        setups.len(),
+        contrast,
+        coupling_params(scene),
+    )
+    .map_err(|e| step_error(0, 0.0, e))?;
+    // Chosen for all cells alike (the memory of the whole scene), so that the split between
+    // ranks does not change how a cell is stepped.
+    let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
+        let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+        OperatorStorage::for_budget(setups.len(), p, 1 + usize::from(contrast), budget)
+    });
+    susp.set_operator_storage(storage);
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,
             ..FarSideParams::default()
         };
-        for (c, s) in susp.steppers_mut().iter_mut().enumerate() {
-            s.set_far_side_params(off).map_err(|source| {
-                step_error(
-                    0,
-                    0.0,
-                    CellStepError {
-                        cell: Some(c),
-                        source,
-                    },
-                )
-            })?;
-        }
+        susp.set_far_side_params(off)
+            .map_err(|e| step_error(0, 0.0, e))?;
     }
     Ok(susp)
 }
@@ -628,44 +331,357 @@ fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
     }
 }
 
-/// Run `scene` (whose text is `scene_text`), writing into `out`.
+/// `local` where every rank succeeded; otherwise an error on every rank (its own, or the
+/// lowest failing rank's message), so that no rank waits in a collective the others left.
+fn agreed<T>(comm: &dyn Communicator, local: Result<T, CellRunError>) -> Result<T, CellRunError> {
+    if comm.size() == 1 {
+        return local;
+    }
+    let outcome = local.as_ref().map(|_| ()).map_err(|e| e.to_string());
+    match (comm.agree(outcome), local) {
+        (Ok(()), local) => local,
+        (Err(_), Err(own)) => Err(own),
+        (Err(e), Ok(_)) => Err(CellRunError::Comm(e)),
+    }
+}
+
+fn comm_error(e: CommError) -> CellRunError {
+    CellRunError::Comm(e)
+}
+
+/// Every cell's `width` values from `local` (`(global index, values)`), in global order, at
+/// rank 0 (`None` on the others).
+fn gather_rows(
+    comm: &dyn Communicator,
+    local: Vec<(usize, Vec<f64>)>,
+    n_global: usize,
+    width: usize,
+) -> Result<Option<Vec<Vec<f64>>>, CellRunError> {
+    let mut buf = Vec::with_capacity(local.len() * (width + 1));
+    for (id, v) in local {
+        buf.push(id as f64);
+        buf.extend_from_slice(&v);
+    }
+    let all = comm.gather_f64(&buf, 0).map_err(comm_error)?;
+    if comm.rank() != 0 {
+        return Ok(None);
+    }
+    let mut rows = vec![Vec::new(); n_global];
+    for rec in all.iter().flat_map(|b| b.chunks_exact(width + 1)) {
+        rows[rec[0] as usize] = rec[1..].to_vec();
+    }
+    Ok(Some(rows))
+}
+
+/// Every cell's state at rank 0, global order (`None` on the others).
+fn gather_states(
+    comm: &dyn Communicator,
+    susp: &Suspension,
+    ncoef: usize,
+    n: usize,
+) -> Result<Option<Vec<CellState>>, CellRunError> {
+    let width = CellState::encoded_len(ncoef, n);
+    let local = (0..susp.len())
+        .map(|i| {
+            let mut v = Vec::with_capacity(width);
+            susp.cell_state(i).encode(&mut v);
+            (susp.ids()[i], v)
+        })
+        .collect();
+    let Some(rows) = gather_rows(comm, local, susp.n_global(), width)? else {
+        return Ok(None);
+    };
+    rows.iter()
+        .map(|r| {
+            CellState::decode(r, ncoef, n).map_err(|e| {
+                CellRunError::Comm(CommError::Remote {
+                    rank: 0,
+                    message: e.to_string(),
+                })
+            })
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}
+
+/// Write frame `frames.times().len()` at `time` from every cell's coefficients and tension
+/// (global order).
+fn write_frame(
+    frames: &mut FrameWriter,
+    cells: &[(Vec<f64>, Vec<f64>)],
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    time: f64,
+) -> Result<(), CellRunError> {
+    let n = sht.n_points();
+    let mut x = vec![0.0; 3 * n * cells.len()];
+    for (i, (c, _)) in cells.iter().enumerate() {
+        sht.inverse(c, &mut x[3 * n * i..3 * n * (i + 1)], ws)
+            .map_err(VesicleError::from)?;
+    }
+    let frame: Vec<CellFrame<'_>> = cells
+        .iter()
+        .enumerate()
+        .map(|(i, (c, sigma))| CellFrame {
+            order: sht.order(),
+            coefs: c,
+            positions: &x[3 * n * i..3 * n * (i + 1)],
+            tension: sigma,
+        })
+        .collect();
+    let index = frames.times().len();
+    frames.write_frame(index, time, &frame)?;
+    Ok(())
+}
+
+/// Gather the coefficients and tensions and write a frame at rank 0 (collective; an output
+/// failure is returned on every rank).
+fn gathered_frame(
+    comm: &dyn Communicator,
+    susp: &Suspension,
+    frames: Option<&mut FrameWriter>,
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    time: f64,
+) -> Result<(), CellRunError> {
+    let (ncoef, n) = (sht.n_coefs() * 3, sht.n_points());
+    let local = susp
+        .ids()
+        .iter()
+        .zip(susp.coefs())
+        .zip(susp.steppers())
+        .map(|((&id, c), st)| (id, c.iter().chain(&st.sigma).copied().collect()))
+        .collect();
+    let rows = gather_rows(comm, local, susp.n_global(), ncoef + n)?;
+    let written = match (rows, frames) {
+        (Some(rows), Some(frames)) => {
+            let cells: Vec<(Vec<f64>, Vec<f64>)> = rows
+                .into_iter()
+                .map(|mut r| {
+                    let sigma = r.split_off(ncoef);
+                    (r, sigma)
+                })
+                .collect();
+            write_frame(frames, &cells, sht, ws, time)
+        }
+        _ => Ok(()),
+    };
+    agreed(comm, written)
+}
+
+/// How the run's work was split between ranks (`summary.json`'s `split`).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct SplitSummary {
+    pub ranks: usize,
+    /// Cells per rank at the end: smallest, mean, largest.
+    pub cells_per_rank: [f64; 3],
+    /// Seconds per rank in this invocation, largest and mean over the ranks: the per-cell
+    /// work (tractions and solves, not waiting for other ranks; with re-balanced cells, its
+    /// spread is the imbalance), the coupling (FMM, quadrature setup, self subtraction, ghost exchange, near
+    /// corrections), output (gathers and writing), re-balancing (gathering centres, moving
+    /// cells).
+    pub solve_s: [f64; 2],
+    pub coupling_s: [f64; 2],
+    pub fmm_s: [f64; 2],
+    pub ghost_exchange_s: [f64; 2],
+    pub near_s: [f64; 2],
+    pub output_s: [f64; 2],
+    pub rebalance_s: [f64; 2],
+    /// Bytes a rank sent per step (largest and mean over ranks): in the FMM, of ghost cells,
+    /// of moving cells.
+    pub fmm_bytes_per_step: [f64; 2],
+    pub ghost_bytes_per_step: [f64; 2],
+    pub migration_bytes_per_step: [f64; 2],
+    /// Ghost cells a rank received per step (largest and mean).
+    pub ghost_cells_per_step: [f64; 2],
+    /// Imbalance of the solve time at the end: largest over mean, minus 1.
+    pub solve_imbalance: f64,
+    /// The re-balances of this invocation.
+    pub rebalances: Vec<Rebalance>,
+}
+
+/// One re-balance: when, why, and what it did.
+#[derive(Clone, Debug, Serialize)]
+pub struct Rebalance {
+    /// Taken before this step.
+    pub step: usize,
+    pub reason: Reason,
+    /// Cost imbalance before and after (largest rank over mean, minus 1).
+    pub imbalance_before: f64,
+    pub imbalance_after: f64,
+    /// Fraction of the cells the fresh split put on another rank.
+    pub stale_fraction: f64,
+    pub cells_moved: usize,
+}
+
+/// Per-rank counters of one invocation.
+#[derive(Clone, Copy, Debug, Default)]
+struct RankClock {
+    output_s: f64,
+    rebalance_s: f64,
+    migration_bytes: u64,
+}
+
+/// Check the split (every [`cells_partition::CHECK_EVERY`] steps) and move the cells when it
+/// went stale (collective).
+#[allow(clippy::too_many_arguments)]
+fn rebalance(
+    comm: &dyn Communicator,
+    susp: &mut Suspension,
+    p: usize,
+    setups: &[CellSetup],
+    owners: &mut Vec<usize>,
+    step: usize,
+    clock: &mut RankClock,
+    log: &mut Vec<Rebalance>,
+) -> Result<(), CellRunError> {
+    let k = comm.size();
+    if k == 1 || step % cells_partition::CHECK_EVERY != 0 {
+        return Ok(());
+    }
+    let t = Instant::now();
+    let (centres, costs) = cells_partition::gather_inputs(comm, susp).map_err(comm_error)?;
+    let fresh = cells_partition::split(&centres, &costs, k);
+    let before = cells_partition::imbalance(owners, &costs, k);
+    let stale = owners.iter().zip(&fresh).filter(|(a, b)| a != b).count();
+    let stale_fraction = stale as f64 / owners.len().max(1) as f64;
+    let reason = if before > cells_partition::MAX_IMBALANCE {
+        Some(Reason::Imbalance)
+    } else if stale_fraction > cells_partition::MAX_STALE {
+        Some(Reason::Locality)
+    } else {
+        None
+    };
+    if let Some(reason) = reason {
+        let bytes = cells_partition::migrate(comm, susp, p, setups, &fresh)
+            .map_err(|e| step_error(step + 1, f64::NAN, e))?;
+        clock.migration_bytes += bytes;
+        log.push(Rebalance {
+            step: step + 1,
+            reason,
+            imbalance_before: before,
+            imbalance_after: cells_partition::imbalance(&fresh, &costs, k),
+            stale_fraction,
+            cells_moved: stale,
+        });
+        *owners = fresh;
+    }
+    clock.rebalance_s += t.elapsed().as_secs_f64();
+    Ok(())
+}
+
+/// Run `scene` (whose text is `scene_text`), writing into `out`, on one process.
 pub fn run(
     scene: &CellScene,
     scene_text: &str,
     out: &Path,
     options: &RunOptions,
 ) -> Result<CellRunSummary, CellRunError> {
+    Ok(run_on(&SerialComm, scene, scene_text, out, options)?
+        .expect("rank 0 of one rank has the summary"))
+}
+
+/// [`run`] over the ranks of `comm` (collective: every rank calls it with the same scene).
+/// The cells are split between the ranks ([`cells_partition`]); rank 0 gathers what is
+/// written (frames, checkpoints, the summary, all the same files as on one rank) and returns
+/// the summary; the other ranks return `None`. A failure is returned on every rank.
+pub fn run_on(
+    comm: &dyn Communicator,
+    scene: &CellScene,
+    scene_text: &str,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<Option<CellRunSummary>, CellRunError> {
     let p = scene.numerics.order;
     let q = scene.numerics.upsample * p;
     let dt = scene.numerics.dt;
     let steps = (scene.numerics.t_end / dt).round().max(1.0) as usize;
+    let (k_ranks, root) = (comm.size(), comm.rank() == 0);
     let nc = scene.cells.len();
-    let mut susp = build(scene)?;
-    let mut calc = SurfaceCalculus::new(p)?;
+    let setups = setups(scene)?;
     let sht = ShTransform::new(p).map_err(VesicleError::from)?;
     let mut ws = sht.workspace();
+    let (ncoef, n) = (3 * sht.n_coefs(), sht.n_points());
+    let double_layer = nc > 1 && scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
+    let mut calc = SurfaceCalculus::new(p)?;
+    // Where the run starts: the scene, or the checkpoint (read by every rank).
+    let resumed = if options.resume {
+        let loaded = cells_checkpoint::load(out, nc, ncoef, n, double_layer);
+        Some(agreed(comm, loaded)?)
+    } else {
+        None
+    };
+    let mut owners = match &resumed {
+        Some((_, _, Some(split))) if split.ranks == k_ranks => split.owners.clone(),
+        Some((_, states, _)) => {
+            let centres: Vec<_> = states
+                .iter()
+                .map(|s| cells_partition::centre(&s.coefs))
+                .collect();
+            let costs: Vec<_> = states
+                .iter()
+                .map(|s| cells_partition::cost(s.iterations))
+                .collect();
+            cells_partition::split(&centres, &costs, k_ranks)
+        }
+        None => {
+            let centres: Vec<_> = setups
+                .iter()
+                .map(|s| cells_partition::centre(&s.coefs))
+                .collect();
+            cells_partition::split(&centres, &vec![cells_partition::cost(0); nc], k_ranks)
+        }
+    };
+    let mine: Vec<usize> = (0..nc).filter(|&i| owners[i] == comm.rank()).collect();
+    let mut susp = agreed(comm, build_part(scene, &setups, &mine))?;
     let formats = FrameFormats {
         npy: scene.output.npy,
         hdf5: scene.output.hdf5,
         vtp: scene.output.vtk,
     };
-    let (mut prog, mut frames) = if options.resume {
-        let prog = load_checkpoint(out, &mut susp)?;
-        let frames = FrameWriter::resume(out, formats, &prog.frame_times)?;
-        (prog, frames)
-    } else {
-        let mut prog = Progress::start(dt);
-        for c in susp.coefs() {
-            let (x, a, v, inc) = observe(&mut calc, c)?;
-            prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
+    let (mut prog, mut frames) = match resumed {
+        Some((prog, states, _)) => {
+            let restored = (0..susp.len()).try_for_each(|i| {
+                let id = susp.ids()[i];
+                susp.set_cell_state(i, &states[id]).map_err(|e| {
+                    CellRunError::Resume(format!(
+                        "{}: cell {}: {}",
+                        out.join(CHECKPOINT).display(),
+                        id + 1,
+                        e.source
+                    ))
+                })
+            });
+            agreed(comm, restored)?;
+            let frames = root
+                .then(|| FrameWriter::resume(out, formats, &prog.frame_times))
+                .transpose()
+                .map_err(CellRunError::from);
+            (prog, agreed(comm, frames)?)
         }
-        write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
-        let mut frames = FrameWriter::new(out, formats)?;
-        let t0 = Instant::now();
-        write_frame(&mut frames, &susp, &sht, &mut ws, 0.0)?;
-        prog.output_s += t0.elapsed().as_secs_f64();
-        prog.frame_times = frames.times().to_vec();
-        (prog, frames)
+        None => {
+            let mut prog = Progress::start(dt);
+            let t0 = Instant::now();
+            let opened = if root {
+                (|| -> Result<_, CellRunError> {
+                    for s in &setups {
+                        let (x, a, v, inc) = observe(&mut calc, &s.coefs)?;
+                        prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
+                    }
+                    write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
+                    Ok(Some(FrameWriter::new(out, formats)?))
+                })()
+            } else {
+                Ok(None)
+            };
+            let mut frames = agreed(comm, opened)?;
+            gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, 0.0)?;
+            prog.output_s += t0.elapsed().as_secs_f64();
+            if let Some(f) = &frames {
+                prog.frame_times = f.times().to_vec();
+            }
+            (prog, frames)
+        }
     };
     let adaptive = if scene.numerics.adaptive_dt {
         let order = match scene.numerics.scheme {
@@ -696,35 +712,31 @@ pub fn run(
         susp.set_dt(prog.dt)
             .map_err(|e| step_error(prog.step, prog.time, e))?;
     }
-    let bar = if options.quiet {
-        ProgressBar::hidden()
-    } else {
-        let b = ProgressBar::new(if adaptive.is_some() {
-            1000
-        } else {
-            steps as u64
-        });
-        b.set_style(
-            ProgressStyle::with_template(
-                "{elapsed_precise} [{bar:30}] step {pos}/{len} {msg} ETA {eta}",
-            )
-            .expect("valid template")
-            .progress_chars("=> "),
-        );
-        b.set_position(if adaptive.is_some() {
-            (1000.0 * prog.time / scene.numerics.t_end) as u64
-        } else {
-            prog.step as u64
-        });
-        b
-    };
+    let bar = progress_bar(
+        options.quiet || !root,
+        adaptive.is_some(),
+        steps,
+        &prog,
+        scene,
+    );
     let flow = scene.flow;
     let start = Instant::now();
     let wall0 = prog.wall_s;
-    let mut before_last: Vec<[f64; 3]> = Vec::new();
+    // Centres of this rank's cells before the last step (global index, centre).
+    let mut before_last: Vec<(usize, [f64; 3])> = Vec::new();
     let first = prog.step + 1;
     let mut stopped = false;
     let mut k = prog.step;
+    let mut clock = RankClock::default();
+    let mut log = Vec::new();
+    // Double-layer assemblies of cells that left this rank (their steppers went with them).
+    let mut dl_assemblies = 0usize;
+    let dl_count = |s: &Suspension| {
+        s.steppers()
+            .iter()
+            .map(|s| s.double_layer_assemblies)
+            .sum::<usize>()
+    };
     // The run ends at t_end up to round-off in the sum of adaptive steps.
     let t_done = scene.numerics.t_end * (1.0 - 1e-12);
     // Whether step `k`, reaching time `t`, ends the run.
@@ -736,6 +748,18 @@ pub fn run(
         if ends_run(k, prog.time) {
             break;
         }
+        let held = dl_count(&susp);
+        rebalance(
+            comm,
+            &mut susp,
+            p,
+            &setups,
+            &mut owners,
+            k,
+            &mut clock,
+            &mut log,
+        )?;
+        dl_assemblies += held - dl_count(&susp).min(held);
         k += 1;
         let mut dt_try = match &adaptive {
             None => dt,
@@ -743,8 +767,8 @@ pub fn run(
         };
         if ends_run(k, prog.time + dt_try) {
             before_last.clear();
-            for c in susp.coefs() {
-                before_last.push(observe(&mut calc, c)?.0);
+            for (&id, c) in susp.ids().iter().zip(susp.coefs()) {
+                before_last.push((id, observe(&mut calc, c)?.0));
             }
         }
         let t = Instant::now();
@@ -754,13 +778,13 @@ pub fn run(
                 susp.set_dt(dt_try)
                     .map_err(|e| step_error(k, prog.time + dt_try, e))?;
             }
-            let report = match susp.step(&|x| flow.velocity(x)) {
+            let report = match susp.step_on(comm, &|x| flow.velocity(x)) {
                 Ok(r) => r,
                 Err(e) => {
                     // A solve that failed (stagnated, out of iterations) is retried smaller
                     // with adaptive dt, from the snapshot, down to dt_min.
                     let retry = match (&adaptive, &snapshot) {
-                        (Some(ctl), Some(snap)) if e.source.report().is_some() => {
+                        (Some(ctl), Some(snap)) if e.source.is_solver_failure() => {
                             ctl.after_failure(dt_try).map(|d| (d, snap))
                         }
                         _ => None,
@@ -775,7 +799,11 @@ pub fn run(
                     continue;
                 }
             };
-            let (error, _) = report.area_volume_error();
+            // The largest error over all ranks (a NaN counts as infinite).
+            let (local, _) = report.area_volume_error();
+            let mut error = [if local.is_nan() { f64::INFINITY } else { local }];
+            comm.all_max(&mut error).map_err(comm_error)?;
+            let error = error[0];
             let (Some(ctl), Some(snap)) = (&adaptive, &snapshot) else {
                 prog.error_sum += error;
                 break report;
@@ -802,31 +830,29 @@ pub fn run(
         prog.last_dt = dt_try;
         prog.dt_used[0] = prog.dt_used[0].min(dt_try);
         prog.dt_used[1] = prog.dt_used[1].max(dt_try);
-        for (i, c) in susp.coefs().iter().enumerate() {
-            if let Some(j) = c.iter().position(|c| !c.is_finite()) {
-                return Err(CellRunError::Step {
-                    step: k,
-                    time: prog.time,
-                    cell: Some(i + 1),
-                    source: Box::new(TimestepError::Vesicle(format!(
+        let finite = susp
+            .ids()
+            .iter()
+            .zip(susp.coefs())
+            .find_map(|(&id, c)| Some((id, c.iter().position(|c| !c.is_finite())?)))
+            .map_or(Ok(()), |(id, j)| {
+                Err(CellStepError {
+                    cell: Some(id),
+                    source: TimestepError::Vesicle(format!(
                         "non-finite coefficient {j} after the step (the last checkpoint, \
                          step {}, is kept)",
                         prog.step
-                    ))),
-                });
-            }
-        }
-        let it = report
-            .cells
-            .iter()
-            .map(|r| r.gmres.iterations)
-            .max()
-            .unwrap_or(0);
-        prog.iters_sum += report
-            .cells
-            .iter()
-            .map(|r| r.gmres.iterations)
-            .sum::<usize>();
+                    )),
+                })
+            });
+        agree_cells(comm, finite).map_err(|e| step_error(k, prog.time, e))?;
+        let its = report.cells.iter().map(|r| r.gmres.iterations);
+        let mut it = [its.clone().max().unwrap_or(0) as f64];
+        let mut it_sum = [its.sum::<usize>() as u64];
+        comm.all_max(&mut it).map_err(comm_error)?;
+        comm.all_sum_u64(&mut it_sum).map_err(comm_error)?;
+        let it = it[0] as usize;
+        prog.iters_sum += it_sum[0] as usize;
         prog.iters_max = prog.iters_max.max(it);
         if let Some(st) = susp.coupling_stats() {
             prog.min_gap = prog.min_gap.min(st.min_gap);
@@ -845,46 +871,87 @@ pub fn run(
             }
         }
         prog.step = k;
-        let interrupted = options
-            .stop
-            .as_ref()
-            .is_some_and(|s| s.load(Ordering::Relaxed));
+        // A Ctrl-C (or SIGTERM from mpirun) on any rank stops every rank after this step.
+        let mut interrupted = [f64::from(u8::from(
+            options
+                .stop
+                .as_ref()
+                .is_some_and(|s| s.load(Ordering::Relaxed)),
+        ))];
+        comm.all_max(&mut interrupted).map_err(comm_error)?;
+        let interrupted = interrupted[0] > 0.0;
         let limited = options.max_steps.is_some_and(|m| k + 1 - first >= m);
         let last = ends_run(k, prog.time);
         stopped = !last && (interrupted || limited);
         let t0 = Instant::now();
         if last || k as u64 % scene.output_every == 0 {
-            write_frame(&mut frames, &susp, &sht, &mut ws, prog.time)?;
-            prog.frame_times = frames.times().to_vec();
+            gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, prog.time)?;
+            if let Some(f) = &frames {
+                prog.frame_times = f.times().to_vec();
+            }
         }
         if stopped || last || k as u64 % scene.output.checkpoint_every == 0 {
             prog.wall_s = wall0 + start.elapsed().as_secs_f64();
-            save_checkpoint(out, &susp, &prog)?;
+            let states = gather_states(comm, &susp, ncoef, n)?;
+            let saved = match states {
+                Some(states) => cells_checkpoint::save(
+                    out,
+                    &states,
+                    &prog,
+                    &Split {
+                        ranks: k_ranks,
+                        owners: owners.clone(),
+                    },
+                    double_layer,
+                ),
+                None => Ok(()),
+            };
+            agreed(comm, saved)?;
         }
-        prog.output_s += t0.elapsed().as_secs_f64();
+        let spent = t0.elapsed().as_secs_f64();
+        prog.output_s += spent;
+        clock.output_s += spent;
         if stopped {
             break;
         }
     }
     bar.finish_and_clear();
     if !stopped {
-        frames.finish()?;
+        let finished = frames.take().map_or(Ok(()), |f| f.finish());
+        agreed(comm, finished.map_err(CellRunError::from))?;
     }
     prog.wall_s = wall0 + start.elapsed().as_secs_f64();
+    // Per cell: centre, area, volume, inclination and the centre before the last step.
+    let local = (0..susp.len())
+        .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
+            let id = susp.ids()[i];
+            let (x, a, v, inc) = observe(&mut calc, &susp.coefs()[i])?;
+            let b = before_last
+                .iter()
+                .find(|(j, _)| *j == id)
+                .map_or([f64::NAN; 3], |(_, b)| *b);
+            Ok((id, vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2]]))
+        })
+        .collect::<Result<Vec<_>, _>>();
+    let local = agreed(comm, local)?;
+    let rows = gather_rows(comm, local, nc, 9)?;
+    let split = split_summary(comm, &susp, &clock, &log, k + 1 - first)?;
+    let stats = susp.coupling_stats().unwrap_or_default();
+    let mut dl = [(dl_assemblies + dl_count(&susp)) as u64];
+    comm.all_sum_u64(&mut dl).map_err(comm_error)?;
+    let Some(rows) = rows else {
+        return Ok(None);
+    };
     let mut per_cell = Vec::with_capacity(nc);
-    for (i, c) in susp.coefs().iter().enumerate() {
-        let (centroid, area, volume, inclination) = observe(&mut calc, c)?;
+    for (i, r) in rows.iter().enumerate() {
         let s0 = prog.start_obs[i];
-        let velocity = match before_last.get(i) {
-            Some(b) => std::array::from_fn(|d| (centroid[d] - b[d]) / prog.last_dt),
-            None => [f64::NAN; 3],
-        };
+        let centroid = [r[0], r[1], r[2]];
         per_cell.push(CellSummary {
-            area_drift: (area - s0[3]) / s0[3],
-            volume_drift: (volume - s0[4]) / s0[4],
+            area_drift: (r[3] - s0[3]) / s0[3],
+            volume_drift: (r[4] - s0[4]) / s0[4],
             centroid,
-            centroid_velocity: velocity,
-            inclination_deg: inclination,
+            centroid_velocity: std::array::from_fn(|d| (centroid[d] - r[6 + d]) / prog.last_dt),
+            inclination_deg: r[5],
         });
     }
     let worst = |f: fn(&CellSummary) -> f64| {
@@ -902,8 +969,7 @@ pub fn run(
         }
         m
     };
-    let stats = susp.coupling_stats().unwrap_or_default();
-    let threads = rayon::current_num_threads();
+    let threads = rayon::current_num_threads() * k_ranks;
     let done = prog.step;
     let summary = CellRunSummary {
         cells: nc,
@@ -933,7 +999,7 @@ pub fn run(
         effects: scene.effects.clone(),
         wall_s: prog.wall_s,
         step_s: prog.step_s,
-        coupling_s: stats.setup_s + stats.fmm_s + stats.self_s + stats.near_s,
+        coupling_s: stats.setup_s + stats.fmm_s + stats.self_s + stats.exchange_s + stats.near_s,
         output_s: prog.output_s,
         threads,
         cell_steps_per_core_second: (done * nc) as f64 / (prog.step_s * threads as f64).max(1e-12),
@@ -942,11 +1008,7 @@ pub fn run(
         counters: Counters {
             fmm_builds: stats.fmm_builds,
             repulsion_points: stats.repulsion_points,
-            double_layer_assemblies: susp
-                .steppers()
-                .iter()
-                .map(|s| s.double_layer_assemblies)
-                .sum(),
+            double_layer_assemblies: dl[0] as usize,
             near_points: stats.near_points,
             near_pairs: stats.near_pairs,
             double_layer_fmm_builds: stats.double_layer_fmm_builds,
@@ -963,10 +1025,96 @@ pub fn run(
         min_gap: prog.min_gap.is_finite().then_some(prog.min_gap),
         per_cell,
         frames: prog.frame_times.len(),
+        split,
     };
     let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
     write_atomic(&out.join("summary.json"), json.as_bytes())?;
-    Ok(summary)
+    Ok(Some(summary))
+}
+
+/// The progress bar (hidden when `hidden`).
+fn progress_bar(
+    hidden: bool,
+    adaptive: bool,
+    steps: usize,
+    prog: &Progress,
+    scene: &CellScene,
+) -> ProgressBar {
+    if hidden {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(if adaptive { 1000 } else { steps as u64 });
+    b.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] step {pos}/{len} {msg} ETA {eta}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    b.set_position(if adaptive {
+        (1000.0 * prog.time / scene.numerics.t_end) as u64
+    } else {
+        prog.step as u64
+    });
+    b
+}
+
+/// The ranks' clocks and counters, gathered and summarised (collective; the summary is
+/// meaningful on rank 0).
+fn split_summary(
+    comm: &dyn Communicator,
+    susp: &Suspension,
+    clock: &RankClock,
+    log: &[Rebalance],
+    steps: usize,
+) -> Result<SplitSummary, CellRunError> {
+    let st = susp.coupling_stats().unwrap_or_default();
+    let coupling = st.setup_s + st.fmm_s + st.self_s + st.exchange_s + st.near_s;
+    let per_step = |v: f64| v / steps.max(1) as f64;
+    let mine = [
+        susp.len() as f64,
+        susp.solve_seconds(),
+        coupling,
+        st.fmm_s,
+        st.exchange_s,
+        st.near_s,
+        clock.output_s,
+        clock.rebalance_s,
+        per_step(st.fmm_bytes as f64),
+        per_step(st.ghost_bytes as f64),
+        per_step(clock.migration_bytes as f64),
+        per_step(st.ghost_cells as f64),
+    ];
+    let all = comm.all_gather_f64(&mine).map_err(comm_error)?;
+    let k = all.len() as f64;
+    let col = |j: usize| all.iter().map(move |r| r[j]);
+    let max_mean = |j: usize| [col(j).fold(0.0, f64::max), col(j).sum::<f64>() / k];
+    let solve = max_mean(1);
+    Ok(SplitSummary {
+        ranks: all.len(),
+        cells_per_rank: [
+            col(0).fold(f64::INFINITY, f64::min),
+            col(0).sum::<f64>() / k,
+            col(0).fold(0.0, f64::max),
+        ],
+        solve_s: solve,
+        coupling_s: max_mean(2),
+        fmm_s: max_mean(3),
+        ghost_exchange_s: max_mean(4),
+        near_s: max_mean(5),
+        output_s: max_mean(6),
+        rebalance_s: max_mean(7),
+        fmm_bytes_per_step: max_mean(8),
+        ghost_bytes_per_step: max_mean(9),
+        migration_bytes_per_step: max_mean(10),
+        ghost_cells_per_step: max_mean(11),
+        solve_imbalance: if solve[1] > 0.0 {
+            solve[0] / solve[1] - 1.0
+        } else {
+            0.0
+        },
+        rebalances: log.to_vec(),
+    })
 }
 
 /// The built-in demo scene of `mobo run` without a scene file: one red blood cell in simple

@@ -6,6 +6,8 @@
 pub mod brownian;
 pub mod brownian_run;
 pub mod cells;
+mod cells_checkpoint;
+pub mod cells_partition;
 pub mod cells_run;
 
 use std::path::{Path, PathBuf};

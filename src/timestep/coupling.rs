@@ -45,12 +45,14 @@
 //! contact solver (Lu, Rahimian & Zorin, J. Comput. Phys. 347 (2017) is the method that
 //! guarantees no overlap); its range and strength are scene parameters.
 
+use std::collections::HashMap;
 use std::sync::Mutex;
 use std::time::Instant;
 
 use rayon::prelude::*;
 
 use super::TimestepError;
+use crate::comm::{CommError, Communicator, SerialComm};
 use crate::fmm::blocks::SourceBlock;
 use crate::fmm::{order_for_digits, Fmm, FmmError, FmmKernel, Kernel, Stokeslet, Stresslet};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
@@ -126,13 +128,22 @@ pub struct CouplingStats {
     pub fmm_s: f64,
     pub self_s: f64,
     pub near_s: f64,
+    /// Seconds exchanging ghost cells with other ranks (0 on one rank).
+    pub exchange_s: f64,
+    /// Ghost cells this rank received (cumulative; 0 on one rank).
+    pub ghost_cells: usize,
+    /// Bytes of ghost cells this rank sent (cumulative).
+    pub ghost_bytes: u64,
+    /// Bytes this rank sent in the FMM evaluations (cumulative).
+    pub fmm_bytes: u64,
 }
 
 /// A near-singular correction: target cell, its grid point, the velocity change, the distance
 /// of the point to the source cell's surface.
 type NearCorrection = (usize, usize, [f64; 3], f64);
 
-/// A contact push: target cell, its grid point, source cell, traction.
+/// A contact push: target cell (this rank's index), its grid point, source cell (global
+/// index), traction.
 type Push = (usize, usize, usize, [f64; 3]);
 
 /// Per-thread engines.
@@ -150,6 +161,30 @@ struct Engine {
     block: SourceBlock,
     /// Sources with orientations (the stresslet of the double layer).
     dl_block: SourceBlock,
+}
+
+/// A cell of another rank, copied here for the near-singular corrections at this rank's points.
+struct Ghost {
+    id: usize,
+    coefs: Vec<f64>,
+    traction: Vec<f64>,
+    dl: Option<Vec<f64>>,
+    quad: CellQuadrature,
+}
+
+/// A source cell of the near corrections (own or ghost).
+struct SourceCell<'a> {
+    id: usize,
+    coefs: &'a [f64],
+    traction: &'a [f64],
+    dl: Option<&'a [f64]>,
+    quad: &'a CellQuadrature,
+}
+
+/// Per source cell, the corrections at this rank's points; the contact pushes.
+struct NearResult {
+    corrections: Vec<Vec<NearCorrection>>,
+    pushes: Vec<Push>,
 }
 
 /// One cell's quadrature: upsampled sources and order-`p` targets.
@@ -276,104 +311,42 @@ impl Coupling {
         tractions: &[&[f64]],
         double_layer: &[Option<&[f64]>],
     ) -> Result<Vec<Vec<f64>>, TimestepError> {
+        let ids: Vec<usize> = (0..coefs.len()).collect();
+        self.velocities_on(&SerialComm, &ids, coefs, tractions, double_layer)
+    }
+
+    /// [`Coupling::velocities_with`] over the ranks of `comm` (collective: every rank calls it,
+    /// also one that holds no cell). Each rank passes the cells it holds, `ids[i]` the global
+    /// index of its cell `i` (distinct over the ranks), and gets the velocity all cells of all
+    /// ranks induce on its own. The far field is one distributed FMM ([`Fmm::new_on`]); the
+    /// near-singular corrections and the contact repulsion at a rank's points are computed by
+    /// that rank from **ghost copies** of the cells of other ranks that come near them (their
+    /// coefficients, tractions and double-layer densities, sent only to the ranks whose cells'
+    /// bounding box a cell's near zone reaches). Near pairs are found through a cell list
+    /// (bins of the largest reach), not over all pairs. Corrections are summed in the order
+    /// of the source cells' global indices, so a point's value does not depend on which rank
+    /// holds which cell beyond the FMM's own round-off.
+    pub fn velocities_on(
+        &mut self,
+        comm: &dyn Communicator,
+        ids: &[usize],
+        coefs: &[&[f64]],
+        tractions: &[&[f64]],
+        double_layer: &[Option<&[f64]>],
+    ) -> Result<Vec<Vec<f64>>, TimestepError> {
         let nc = coefs.len();
-        if tractions.len() != nc {
-            return Err(TimestepError::DimensionMismatch {
-                what: "tractions (one per cell)",
-                expected: nc,
-                got: tractions.len(),
-            });
-        }
-        if !double_layer.is_empty() && double_layer.len() != nc {
-            return Err(TimestepError::DimensionMismatch {
-                what: "double-layer densities (one per cell, or none)",
-                expected: nc,
-                got: double_layer.len(),
-            });
-        }
+        agreed(comm, check_inputs(ids, coefs, tractions, double_layer))?;
         let dl_of = |j: usize| double_layer.get(j).copied().flatten();
-        for (j, t) in tractions.iter().enumerate() {
-            if let Some(d) = dl_of(j) {
-                if d.len() != t.len() {
-                    return Err(TimestepError::DimensionMismatch {
-                        what: "double-layer density",
-                        expected: t.len(),
-                        got: d.len(),
-                    });
-                }
-                if !d.iter().all(|v| v.is_finite()) {
-                    return Err(TimestepError::NonFinite {
-                        what: "double-layer density",
-                    });
-                }
-            }
-        }
-        let with_dl = (0..nc).any(|j| dl_of(j).is_some());
+        let mut any_dl = [u64::from((0..nc).any(|j| dl_of(j).is_some()))];
+        comm.all_sum_u64(&mut any_dl).map_err(TimestepError::Comm)?;
+        let with_dl = any_dl[0] > 0;
         let t0 = Instant::now();
-        let mu = self.params.viscosity;
-        let (p, near_factor) = (self.p, self.params.near_factor);
         // 1. Quadrature of every cell.
-        let cells: Vec<CellQuadrature> = (0..nc)
+        let cells: Result<Vec<CellQuadrature>, TimestepError> = (0..nc)
             .into_par_iter()
-            .map(|i| -> Result<CellQuadrature, TimestepError> {
-                let mut guard = self.engine();
-                let e = &mut *guard;
-                e.membrane.set_geometry(coefs[i]).map_err(vesicle)?;
-                let nq = e.membrane.n_points_upsampled();
-                e.fq.resize(3 * nq, 0.0);
-                e.membrane
-                    .upsample(tractions[i], &mut e.fq)
-                    .map_err(vesicle)?;
-                if let Some(d) = dl_of(i) {
-                    e.fu.resize(3 * nq, 0.0);
-                    e.membrane.upsample(d, &mut e.fu).map_err(vesicle)?;
-                }
-                let g = e.membrane.geometry().map_err(vesicle)?;
-                let centroid = g.centroid();
-                let radius = g.x.iter().map(|x| dist(*x, centroid)).fold(0.0, f64::max);
-                let delta = near_factor * g.equivalent_radius() / (p as f64).sqrt();
-                let density = weighted_interleaved(&e.fq, &g.da, mu);
-                let dl_density = if dl_of(i).is_some() {
-                    weighted_interleaved(&e.fu, &g.da, 1.0)
-                } else {
-                    Vec::new()
-                };
-                let sources = g.x.clone();
-                let normals = g.normal.clone();
-                let r_eq = g.equivalent_radius();
-                let np = e.sht.n_points();
-                let mut xg = vec![0.0; 3 * np];
-                e.sht
-                    .inverse(coefs[i], &mut xg, &mut e.ws)
-                    .map_err(VesicleError::from)?;
-                // Grid points that coincide with quadrature points up to round-off (the equator
-                // and shared meridians when the orders allow) are snapped onto them, so that
-                // the kernel's `r = 0` rule drops the pair exactly, in the FMM and in the
-                // subtraction alike (a pair at `r ~ 1e-16` would add `~1e16` to both).
-                let tol2 = (1e-9 * radius).powi(2);
-                let targets = (0..np)
-                    .map(|k| {
-                        let x = [xg[k], xg[np + k], xg[2 * np + k]];
-                        g.x.iter()
-                            .find(|y| dist2(x, **y) < tol2)
-                            .copied()
-                            .unwrap_or(x)
-                    })
-                    .collect();
-                Ok(CellQuadrature {
-                    sources,
-                    normals,
-                    r_eq,
-                    density,
-                    dl_density,
-                    targets,
-                    centroid,
-                    radius,
-                    delta,
-                })
-            })
-            .collect::<Result<_, _>>()?;
-        self.cells = cells;
+            .map(|i| self.quadrature(coefs[i], tractions[i], dl_of(i)))
+            .collect();
+        self.cells = agreed(comm, cells)?;
         let t1 = Instant::now();
         self.stats.setup_s += (t1 - t0).as_secs_f64();
         // 2. All pairs by the FMM.
@@ -392,7 +365,8 @@ impl Coupling {
             .iter()
             .flat_map(|c| c.targets.iter().copied())
             .collect();
-        let u_all = fmm_sum(
+        let (u_all, bytes) = fmm_sum(
+            comm,
             FmmKernel::Stokeslet,
             &sources,
             None,
@@ -401,6 +375,7 @@ impl Coupling {
             self.fmm_order,
         )?;
         self.stats.fmm_builds += 1;
+        self.stats.fmm_bytes += bytes;
         // 2b. The double layers of the cells that have one: one stresslet FMM, sources only on
         //     those cells, the same targets.
         let dl_all = if with_dl {
@@ -412,7 +387,8 @@ impl Coupling {
             let density: Vec<f64> = dl_cells()
                 .flat_map(|c| c.dl_density.iter().copied())
                 .collect();
-            let u = fmm_sum(
+            let (u, bytes) = fmm_sum(
+                comm,
                 FmmKernel::Stresslet,
                 &sources,
                 Some(&normals),
@@ -421,6 +397,7 @@ impl Coupling {
                 self.fmm_order,
             )?;
             self.stats.double_layer_fmm_builds += 1;
+            self.stats.fmm_bytes += bytes;
             u
         } else {
             Vec::new()
@@ -428,59 +405,322 @@ impl Coupling {
         let t2 = Instant::now();
         self.stats.fmm_s += (t2 - t1).as_secs_f64();
         // 3. Minus each cell's own smooth quadrature; to component-major per cell.
-        let np = self.cells.first().map_or(0, |c| c.targets.len());
+        let np = self.n_grid();
         let mut out: Vec<Vec<f64>> = (0..nc)
             .into_par_iter()
-            .map(|i| {
-                let c = &self.cells[i];
-                let mut own = vec![0.0; 3 * np];
-                {
-                    let mut guard = self.engine();
-                    let e = &mut *guard;
-                    e.block.set_points(&c.sources, &c.density, 3);
-                    Stokeslet.eval_block(&c.targets, &e.block.all(), &mut own);
-                }
-                let base = 3 * i * np;
-                let mut u = vec![0.0; 3 * np];
-                for k in 0..np {
-                    for d in 0..3 {
-                        u[d * np + k] = u_all[base + 3 * k + d] - own[3 * k + d];
-                    }
-                }
-                if !dl_all.is_empty() {
-                    let mut own = vec![0.0; 3 * np];
-                    if !c.dl_density.is_empty() {
-                        let mut guard = self.engine();
-                        let e = &mut *guard;
-                        set_oriented(&mut e.dl_block, &c.sources, &c.normals, &c.dl_density);
-                        Stresslet.eval_block(&c.targets, &e.dl_block.all(), &mut own);
-                    }
-                    for k in 0..np {
-                        for d in 0..3 {
-                            u[d * np + k] += dl_all[base + 3 * k + d] - own[3 * k + d];
-                        }
-                    }
-                }
-                u
-            })
+            .map(|i| self.minus_own(i, &u_all, &dl_all))
             .collect();
         let t3 = Instant::now();
         self.stats.self_s += (t3 - t2).as_secs_f64();
-        // 4. Near-singular corrections: for each source cell j, the points of other cells in
-        //    its near zone.
-        // (target cell, point, source cell, traction), sorted before summing: deterministic.
-        let repulsion: Mutex<Vec<Push>> = Mutex::new(Vec::new());
-        let corrections: Vec<Vec<NearCorrection>> = (0..nc)
-            .into_par_iter()
-            .map(|j| -> Result<_, TimestepError> {
-                let cj = &self.cells[j];
-                let reach = cj.radius + cj.delta;
-                let mut cand: Vec<(usize, usize)> = Vec::new();
-                for (i, ci) in self.cells.iter().enumerate() {
-                    if i == j || dist(ci.centroid, cj.centroid) > ci.radius + reach {
-                        continue;
+        // 4. Ghost copies of the other ranks' cells whose near zones reach this rank's cells.
+        let ghosts = agreed(
+            comm,
+            self.exchange_ghosts(comm, ids, coefs, tractions, double_layer),
+        )?;
+        let t4 = Instant::now();
+        self.stats.exchange_s += (t4 - t3).as_secs_f64();
+        // 5. Near-singular corrections and contact pushes at this rank's points, from every
+        //    source cell (own or ghost) in the order of the global indices.
+        let mut sources: Vec<SourceCell<'_>> = (0..nc)
+            .map(|j| SourceCell {
+                id: ids[j],
+                coefs: coefs[j],
+                traction: tractions[j],
+                dl: dl_of(j),
+                quad: &self.cells[j],
+            })
+            .chain(ghosts.iter().map(|g| SourceCell {
+                id: g.id,
+                coefs: &g.coefs,
+                traction: &g.traction,
+                dl: g.dl.as_deref(),
+                quad: &g.quad,
+            }))
+            .collect();
+        sources.sort_by_key(|s| s.id);
+        let near = agreed(comm, self.near_corrections(ids, &sources))?;
+        drop(sources);
+        let mut min_gap = [f64::INFINITY];
+        let mut counts = [0u64; 3];
+        for list in &near.corrections {
+            let mut pairs = std::collections::BTreeSet::new();
+            for &(i, k, du, d) in list {
+                for c in 0..3 {
+                    out[i][c * np + k] += du[c];
+                }
+                min_gap[0] = min_gap[0].min(d);
+                pairs.insert(i);
+                counts[0] += 1;
+            }
+            counts[1] += pairs.len() as u64;
+        }
+        let mut rep = near.pushes;
+        rep.sort_by_key(|a| (ids[a.0], a.1, a.2));
+        counts[2] = rep.len() as u64;
+        comm.all_min(&mut min_gap).map_err(TimestepError::Comm)?;
+        comm.all_sum_u64(&mut counts).map_err(TimestepError::Comm)?;
+        self.stats.near_points += counts[0] as usize;
+        self.stats.near_pairs += counts[1] as usize;
+        self.stats.repulsion_points += counts[2] as usize;
+        self.stats.min_gap = min_gap[0];
+        self.repulsion = if rep.is_empty() {
+            Vec::new()
+        } else {
+            let mut r = vec![vec![0.0; 3 * np]; nc];
+            for &(i, k, _, f) in &rep {
+                for c in 0..3 {
+                    r[i][c * np + k] += f[c];
+                }
+            }
+            r
+        };
+        // A rank without pushes returns no repulsion; every rank agrees on whether any exists
+        // only where it matters (its own cells).
+        self.stats.near_s += t4.elapsed().as_secs_f64();
+        Ok(out)
+    }
+
+    /// Grid points per cell (order `p`).
+    fn n_grid(&self) -> usize {
+        2 * self.p * (self.p + 1)
+    }
+
+    /// One cell's quadrature: upsampled sources and densities, order-`p` targets.
+    fn quadrature(
+        &self,
+        coefs: &[f64],
+        traction: &[f64],
+        dl: Option<&[f64]>,
+    ) -> Result<CellQuadrature, TimestepError> {
+        let (mu, p, near_factor) = (self.params.viscosity, self.p, self.params.near_factor);
+        let mut guard = self.engine();
+        let e = &mut *guard;
+        e.membrane.set_geometry(coefs).map_err(vesicle)?;
+        let nq = e.membrane.n_points_upsampled();
+        e.fq.resize(3 * nq, 0.0);
+        e.membrane.upsample(traction, &mut e.fq).map_err(vesicle)?;
+        if let Some(d) = dl {
+            e.fu.resize(3 * nq, 0.0);
+            e.membrane.upsample(d, &mut e.fu).map_err(vesicle)?;
+        }
+        let g = e.membrane.geometry().map_err(vesicle)?;
+        let centroid = g.centroid();
+        let radius = g.x.iter().map(|x| dist(*x, centroid)).fold(0.0, f64::max);
+        let delta = near_factor * g.equivalent_radius() / (p as f64).sqrt();
+        let density = weighted_interleaved(&e.fq, &g.da, mu);
+        let dl_density = if dl.is_some() {
+            weighted_interleaved(&e.fu, &g.da, 1.0)
+        } else {
+            Vec::new()
+        };
+        let sources = g.x.clone();
+        let normals = g.normal.clone();
+        let r_eq = g.equivalent_radius();
+        let np = e.sht.n_points();
+        let mut xg = vec![0.0; 3 * np];
+        e.sht
+            .inverse(coefs, &mut xg, &mut e.ws)
+            .map_err(VesicleError::from)?;
+        // Grid points that coincide with quadrature points up to round-off (the equator and
+        // shared meridians when the orders allow) are snapped onto them, so that the kernel's
+        // `r = 0` rule drops the pair exactly, in the FMM and in the subtraction alike (a pair
+        // at `r ~ 1e-16` would add `~1e16` to both).
+        let tol2 = (1e-9 * radius).powi(2);
+        let targets = (0..np)
+            .map(|k| {
+                let x = [xg[k], xg[np + k], xg[2 * np + k]];
+                g.x.iter()
+                    .find(|y| dist2(x, **y) < tol2)
+                    .copied()
+                    .unwrap_or(x)
+            })
+            .collect();
+        Ok(CellQuadrature {
+            sources,
+            normals,
+            r_eq,
+            density,
+            dl_density,
+            targets,
+            centroid,
+            radius,
+            delta,
+        })
+    }
+
+    /// The FMM's values at cell `i`'s points minus the cell's own smooth quadrature,
+    /// component-major.
+    fn minus_own(&self, i: usize, u_all: &[f64], dl_all: &[f64]) -> Vec<f64> {
+        let c = &self.cells[i];
+        let np = c.targets.len();
+        let mut own = vec![0.0; 3 * np];
+        {
+            let mut guard = self.engine();
+            let e = &mut *guard;
+            e.block.set_points(&c.sources, &c.density, 3);
+            Stokeslet.eval_block(&c.targets, &e.block.all(), &mut own);
+        }
+        let base = 3 * i * np;
+        let mut u = vec![0.0; 3 * np];
+        for k in 0..np {
+            for d in 0..3 {
+                u[d * np + k] = u_all[base + 3 * k + d] - own[3 * k + d];
+            }
+        }
+        if !dl_all.is_empty() {
+            let mut own = vec![0.0; 3 * np];
+            if !c.dl_density.is_empty() {
+                let mut guard = self.engine();
+                let e = &mut *guard;
+                set_oriented(&mut e.dl_block, &c.sources, &c.normals, &c.dl_density);
+                Stresslet.eval_block(&c.targets, &e.dl_block.all(), &mut own);
+            }
+            for k in 0..np {
+                for d in 0..3 {
+                    u[d * np + k] += dl_all[base + 3 * k + d] - own[3 * k + d];
+                }
+            }
+        }
+        u
+    }
+
+    /// Send each own cell to the other ranks whose cells' bounding box its near zone reaches;
+    /// receive theirs (collective). Each ghost's quadrature is recomputed here from its
+    /// coefficients and densities, as its owner computed it.
+    fn exchange_ghosts(
+        &mut self,
+        comm: &dyn Communicator,
+        ids: &[usize],
+        coefs: &[&[f64]],
+        tractions: &[&[f64]],
+        double_layer: &[Option<&[f64]>],
+    ) -> Result<Vec<Ghost>, TimestepError> {
+        let k = comm.size();
+        if k == 1 {
+            return Ok(Vec::new());
+        }
+        let me = comm.rank();
+        // This rank's targets' box (empty: +∞ … −∞).
+        let mut bbox = [f64::INFINITY, f64::INFINITY, f64::INFINITY, 0.0, 0.0, 0.0];
+        bbox[3..].fill(f64::NEG_INFINITY);
+        for c in &self.cells {
+            for d in 0..3 {
+                bbox[d] = bbox[d].min(c.centroid[d] - c.radius);
+                bbox[3 + d] = bbox[3 + d].max(c.centroid[d] + c.radius);
+            }
+        }
+        let boxes = comm.all_gather_f64(&bbox).map_err(TimestepError::Comm)?;
+        let (ncoef, n3) = (3 * ((self.p + 1) * (self.p + 1) - 1), 3 * self.n_grid());
+        let record = 2 + ncoef + 2 * n3;
+        let mut send: Vec<Vec<f64>> = vec![Vec::new(); k];
+        for (j, c) in self.cells.iter().enumerate() {
+            let reach = c.radius + c.delta;
+            for (r, b) in boxes.iter().enumerate() {
+                if r == me || b.len() != 6 {
+                    continue;
+                }
+                // Distance from the centroid to the box.
+                let d2: f64 = (0..3)
+                    .map(|d| {
+                        (b[d] - c.centroid[d])
+                            .max(c.centroid[d] - b[3 + d])
+                            .max(0.0)
+                    })
+                    .map(|g| g * g)
+                    .sum();
+                if b[0] <= b[3] && d2 <= reach * reach {
+                    let buf = &mut send[r];
+                    buf.push(ids[j] as f64);
+                    let dl = double_layer.get(j).copied().flatten();
+                    buf.push(if dl.is_some() { 1.0 } else { 0.0 });
+                    buf.extend_from_slice(coefs[j]);
+                    buf.extend_from_slice(tractions[j]);
+                    match dl {
+                        Some(d) => buf.extend_from_slice(d),
+                        None => buf.extend(std::iter::repeat_n(0.0, n3)),
                     }
-                    for (k, &x) in ci.targets.iter().enumerate() {
+                }
+            }
+        }
+        self.stats.ghost_bytes += send.iter().map(|b| 8 * b.len() as u64).sum::<u64>();
+        let received = comm.all_to_all_f64(&send).map_err(TimestepError::Comm)?;
+        let mut raw = Vec::new();
+        for (r, buf) in received.iter().enumerate() {
+            if buf.len() % record != 0 {
+                return Err(TimestepError::Comm(CommError::Ranks {
+                    what: "ghost cell records received",
+                    got: buf.len(),
+                    ranks: r,
+                }));
+            }
+            for rec in buf.chunks_exact(record) {
+                let coefs = rec[2..2 + ncoef].to_vec();
+                let traction = rec[2 + ncoef..2 + ncoef + n3].to_vec();
+                let dl = (rec[1] != 0.0).then(|| rec[2 + ncoef + n3..].to_vec());
+                raw.push((rec[0] as usize, coefs, traction, dl));
+            }
+        }
+        self.stats.ghost_cells += raw.len();
+        let this = &*self;
+        raw.into_par_iter()
+            .map(|(id, coefs, traction, dl)| {
+                let quad = this.quadrature(&coefs, &traction, dl.as_deref())?;
+                Ok(Ghost {
+                    id,
+                    coefs,
+                    traction,
+                    dl,
+                    quad,
+                })
+            })
+            .collect()
+    }
+
+    /// For each source cell (in the given order), the corrections at this rank's points in its
+    /// near zone, and the contact pushes it exerts on them.
+    fn near_corrections(
+        &self,
+        ids: &[usize],
+        sources: &[SourceCell<'_>],
+    ) -> Result<NearResult, TimestepError> {
+        let (p, mu) = (self.p, self.params.viscosity);
+        // Cell list of this rank's cells by centroid, bins as wide as the largest reach.
+        let reach_max = sources
+            .iter()
+            .map(|s| s.quad.radius + s.quad.delta)
+            .fold(0.0, f64::max);
+        let radius_max = self.cells.iter().map(|c| c.radius).fold(0.0, f64::max);
+        let h = (reach_max + radius_max).max(f64::MIN_POSITIVE);
+        let bin = |x: [f64; 3]| x.map(|v| (v / h).floor() as i64);
+        let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
+        for (i, c) in self.cells.iter().enumerate() {
+            grid.entry(bin(c.centroid)).or_default().push(i);
+        }
+        let repulsion: Mutex<Vec<Push>> = Mutex::new(Vec::new());
+        let corrections = sources
+            .par_iter()
+            .map(|s| -> Result<_, TimestepError> {
+                let cj = s.quad;
+                let reach = cj.radius + cj.delta;
+                let b = bin(cj.centroid);
+                let mut near_cells: Vec<usize> = Vec::new();
+                for dx in -1..=1 {
+                    for dy in -1..=1 {
+                        for dz in -1..=1 {
+                            if let Some(list) = grid.get(&[b[0] + dx, b[1] + dy, b[2] + dz]) {
+                                near_cells.extend(list.iter().copied().filter(|&i| {
+                                    let ci = &self.cells[i];
+                                    ids[i] != s.id
+                                        && dist(ci.centroid, cj.centroid) <= ci.radius + reach
+                                }));
+                            }
+                        }
+                    }
+                }
+                near_cells.sort_unstable();
+                let mut cand: Vec<(usize, usize)> = Vec::new();
+                for &i in &near_cells {
+                    for (k, &x) in self.cells[i].targets.iter().enumerate() {
                         if dist(x, cj.centroid) <= reach {
                             cand.push((i, k));
                         }
@@ -491,7 +731,7 @@ impl Coupling {
                 }
                 let mut guard = self.engine();
                 let e = &mut *guard;
-                e.near.set_surface(coefs[j]).map_err(vesicle)?;
+                e.near.set_surface(s.coefs).map_err(vesicle)?;
                 let mut near: Vec<(usize, usize, f64)> = Vec::new();
                 let mut push: Vec<Push> = Vec::new();
                 let (range, strength) = (
@@ -527,7 +767,7 @@ impl Coupling {
                         } else {
                             strength * (1.0 - signed / range)
                         };
-                        push.push((i, k, j, cj.normals[kn].map(|v| v * mag)));
+                        push.push((i, k, s.id, cj.normals[kn].map(|v| v * mag)));
                     }
                 }
                 if !push.is_empty() {
@@ -545,7 +785,7 @@ impl Coupling {
                 e.near
                     .evaluate(
                         LayerKernel::SingleLayer { viscosity: mu },
-                        tractions[j],
+                        s.traction,
                         &pts,
                         &mut u_near,
                     )
@@ -554,7 +794,7 @@ impl Coupling {
                 e.block.set_points(&cj.sources, &cj.density, 3);
                 Stokeslet.eval_block(&pts, &e.block.all(), &mut smooth);
                 let m = pts.len();
-                if let Some(dl) = dl_of(j) {
+                if let Some(dl) = s.dl {
                     // The double layer of cell j: near-singular value minus the smooth sum the
                     // FMM counted, at the same points.
                     let mut d_near = vec![0.0; 3 * m];
@@ -564,7 +804,7 @@ impl Coupling {
                             .near_dl
                             .insert(OffSurface::new(p, DOUBLE_LAYER_NEAR).map_err(vesicle)?),
                     };
-                    near_dl.set_surface(coefs[j]).map_err(vesicle)?;
+                    near_dl.set_surface(s.coefs).map_err(vesicle)?;
                     near_dl
                         .evaluate(LayerKernel::DoubleLayer, dl, &pts, &mut d_near)
                         .map_err(vesicle)?;
@@ -587,37 +827,11 @@ impl Coupling {
                     })
                     .collect())
             })
-            .collect::<Result<_, _>>()?;
-        let mut min_gap = f64::INFINITY;
-        for list in &corrections {
-            let mut pairs = std::collections::BTreeSet::new();
-            for &(i, k, du, d) in list {
-                for c in 0..3 {
-                    out[i][c * np + k] += du[c];
-                }
-                min_gap = min_gap.min(d);
-                pairs.insert(i);
-                self.stats.near_points += 1;
-            }
-            self.stats.near_pairs += pairs.len();
-        }
-        self.stats.min_gap = min_gap;
-        let mut rep = repulsion.into_inner().expect("repulsion lock");
-        rep.sort_by_key(|a| (a.0, a.1, a.2));
-        self.repulsion = if rep.is_empty() {
-            Vec::new()
-        } else {
-            let mut r = vec![vec![0.0; 3 * np]; nc];
-            for &(i, k, _, f) in &rep {
-                for c in 0..3 {
-                    r[i][c * np + k] += f[c];
-                }
-            }
-            r
-        };
-        self.stats.repulsion_points += rep.len();
-        self.stats.near_s += t3.elapsed().as_secs_f64();
-        Ok(out)
+            .collect::<Result<Vec<Vec<NearCorrection>>, _>>();
+        Ok(NearResult {
+            corrections: corrections?,
+            pushes: repulsion.into_inner().expect("repulsion lock"),
+        })
     }
 }
 
@@ -629,17 +843,23 @@ impl Coupling {
     }
 }
 
-/// One FMM evaluation of `kind` (3-vector densities, interleaved) at `targets`.
+/// One FMM evaluation of `kind` (3-vector densities, interleaved) at `targets`, over the ranks
+/// of `comm` (each passes its own points); also the bytes this rank sent.
 fn fmm_sum(
+    comm: &dyn Communicator,
     kind: FmmKernel,
     sources: &[[f64; 3]],
     normals: Option<&[[f64; 3]]>,
     targets: &[[f64; 3]],
     density: &[f64],
     order: usize,
-) -> Result<Vec<f64>, TimestepError> {
-    let fail = |e: crate::fmm::FmmError| TimestepError::Vesicle(format!("FMM ({kind:?}): {e}"));
-    let mut fmm = Fmm::new(
+) -> Result<(Vec<f64>, u64), TimestepError> {
+    let fail = |e: FmmError| match e {
+        FmmError::Comm(c) => TimestepError::Comm(c),
+        e => TimestepError::Vesicle(format!("FMM ({kind:?}): {e}")),
+    };
+    let mut fmm = Fmm::new_on(
+        comm,
         kind,
         sources,
         normals,
@@ -649,8 +869,72 @@ fn fmm_sum(
     )
     .map_err(fail)?;
     let mut u = vec![0.0; 3 * targets.len()];
-    fmm.evaluate(density, &mut u).map_err(fail)?;
-    Ok(u)
+    fmm.evaluate_on(comm, density, &mut u).map_err(fail)?;
+    Ok((u, fmm.comm.bytes_sent))
+}
+
+/// Checks of [`Coupling::velocities_on`]'s arguments (one rank's).
+fn check_inputs(
+    ids: &[usize],
+    coefs: &[&[f64]],
+    tractions: &[&[f64]],
+    double_layer: &[Option<&[f64]>],
+) -> Result<(), TimestepError> {
+    let nc = coefs.len();
+    for (what, got) in [
+        ("tractions (one per cell)", tractions.len()),
+        ("cell indices (one per cell)", ids.len()),
+    ] {
+        if got != nc {
+            return Err(TimestepError::DimensionMismatch {
+                what,
+                expected: nc,
+                got,
+            });
+        }
+    }
+    if !double_layer.is_empty() && double_layer.len() != nc {
+        return Err(TimestepError::DimensionMismatch {
+            what: "double-layer densities (one per cell, or none)",
+            expected: nc,
+            got: double_layer.len(),
+        });
+    }
+    for (j, t) in tractions.iter().enumerate() {
+        if let Some(Some(d)) = double_layer.get(j) {
+            if d.len() != t.len() {
+                return Err(TimestepError::DimensionMismatch {
+                    what: "double-layer density",
+                    expected: t.len(),
+                    got: d.len(),
+                });
+            }
+            if !d.iter().all(|v| v.is_finite()) {
+                return Err(TimestepError::NonFinite {
+                    what: "double-layer density",
+                });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `local` where every rank succeeded; otherwise an error on every rank (this rank's own, or
+/// the lowest failing rank's as [`TimestepError::Comm`]), so that no rank goes on to a
+/// collective the others never reach.
+pub(crate) fn agreed<T>(
+    comm: &dyn Communicator,
+    local: Result<T, TimestepError>,
+) -> Result<T, TimestepError> {
+    if comm.size() == 1 {
+        return local;
+    }
+    let outcome = local.as_ref().map(|_| ()).map_err(|e| e.to_string());
+    match (comm.agree(outcome), local) {
+        (Ok(()), local) => local,
+        (Err(_), Err(own)) => Err(own),
+        (Err(e), Ok(_)) => Err(TimestepError::Comm(e)),
+    }
 }
 
 /// `f dA / divisor` at each upsampled point, interleaved (3 per point), from the

@@ -87,6 +87,7 @@
 //! ```
 
 pub mod adaptive;
+pub mod cell_state;
 pub mod coupling;
 mod gmres;
 pub mod grid_frame;
@@ -182,6 +183,18 @@ pub enum TimestepError {
         residual_history(&.0.cycle_residuals)
     )]
     Stagnated(GmresReport),
+    /// Communication between ranks failed, or another rank failed (its message).
+    #[error("{0}")]
+    Comm(#[from] crate::comm::CommError),
+    /// A cell's step failed on another rank (its message, agreed by every rank);
+    /// `solver_failure` says whether it was a failed linear solve ([`TimestepError::report`]
+    /// there), which an adaptive step may retry smaller.
+    #[error("(on rank {rank}) {message}")]
+    Remote {
+        rank: usize,
+        message: String,
+        solver_failure: bool,
+    },
 }
 
 /// The residual history of a solve, shortened to its first three and last five cycles.
@@ -208,6 +221,15 @@ impl TimestepError {
             | TimestepError::Breakdown(r)
             | TimestepError::Stagnated(r) => Some(r),
             _ => None,
+        }
+    }
+
+    /// Whether a linear solve failed (here or, [`TimestepError::Remote`], on another rank):
+    /// what an adaptive step retries with a smaller `dt`.
+    pub fn is_solver_failure(&self) -> bool {
+        match self {
+            TimestepError::Remote { solver_failure, .. } => *solver_failure,
+            e => e.report().is_some(),
         }
     }
 }

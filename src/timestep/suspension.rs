@@ -21,12 +21,26 @@
 //! from the second step on. A restart restores the velocities
 //! ([`VesicleStepper::set_velocity`]). Only what is called for: with every `λ = 1` (or one cell)
 //! no double-layer density is passed and no stresslet FMM is built.
+//!
+//! **Over MPI ranks** ([`Suspension::new_part`], [`Suspension::step_on`]): each rank holds some
+//! of the cells, whole (stepper, coefficients, history), named by their global indices
+//! ([`Suspension::ids`], kept ascending); the coupling is collective
+//! ([`Coupling::velocities_on`]: one distributed FMM, ghost copies of nearby cells), every
+//! per-cell solve stays on its rank. A failure of one cell's step ends the step on every rank
+//! with the failure of the lowest failing cell (its message on the others). Cells move between
+//! ranks as their [`CellState`] ([`Suspension::take_cell`], [`Suspension::insert_cell`]): a
+//! step's result does not depend on where a cell is stepped.
 
 use rayon::prelude::*;
 
+use super::cell_state::CellState;
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
-use super::semi_implicit::{ExplicitTerms, StepReport, VesicleParams, VesicleStepper};
+use super::semi_implicit::{
+    ExplicitTerms, OperatorStorage, StepReport, VesicleParams, VesicleStepper,
+};
 use super::TimestepError;
+use crate::comm::{Communicator, SerialComm};
+use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::skalak::SkalakParams;
 
 /// One cell of a suspension: its initial surface and parameters.
@@ -44,7 +58,7 @@ pub struct CellSetup {
 #[derive(Debug, thiserror::Error)]
 #[error("{}: {source}", match .cell { Some(c) => format!("cell {c}"), None => "inter-cell coupling".to_string() })]
 pub struct CellStepError {
-    /// Index of the cell (`None`: the coupling).
+    /// Global index of the cell (`None`: the coupling).
     pub cell: Option<usize>,
     /// What went wrong.
     pub source: TimestepError,
@@ -53,13 +67,13 @@ pub struct CellStepError {
 /// What one step of the suspension did.
 #[derive(Clone, Debug)]
 pub struct SuspensionReport {
-    /// Per cell: the GMRES solve.
+    /// Per cell of this rank (in the order of [`Suspension::ids`]): the GMRES solve.
     pub cells: Vec<StepReport>,
 }
 
 impl SuspensionReport {
-    /// The largest area/volume error of a cell in this step (the adaptive-`dt` estimate) and
-    /// the cell that committed it.
+    /// The largest area/volume error of a cell (of this rank) in this step (the adaptive-`dt`
+    /// estimate) and the cell (this rank's index) that committed it.
     pub fn area_volume_error(&self) -> (f64, usize) {
         self.cells
             .iter()
@@ -75,31 +89,41 @@ impl SuspensionReport {
     }
 }
 
-/// Everything a step changes, kept to repeat a rejected step (adaptive `dt`).
+/// Everything a step changes, kept to repeat a rejected step (adaptive `dt`): each cell's
+/// [`CellState`].
 #[derive(Clone, Debug)]
 pub struct SuspensionState {
-    coefs: Vec<Vec<f64>>,
-    sigma: Vec<Vec<f64>>,
-    previous: Vec<Option<Vec<f64>>>,
-    previous_dt: Vec<Option<f64>>,
-    membrane_velocities: Vec<Option<Vec<f64>>>,
-    skalak_references: Vec<Option<Vec<f64>>>,
-    velocities: Vec<Vec<f64>>,
-    previous_velocities: Vec<Vec<f64>>,
+    cells: Vec<CellState>,
 }
 
-/// Cells of order `p`, stepped together.
+/// Cells of order `p`, stepped together (all of them, or one rank's share).
 pub struct Suspension {
+    /// Global index of each cell held here, ascending.
+    ids: Vec<usize>,
+    /// Cells over all ranks.
+    n_global: usize,
     steppers: Vec<VesicleStepper>,
     coefs: Vec<Vec<f64>>,
     coupling: Option<Coupling>,
-    /// Inter-cell velocities of the last step (per cell, order-`p` grid), kept for output.
+    /// Inter-cell velocities of the last step (per cell, order-`p` grid; empty: none yet),
+    /// kept for output.
     velocities: Vec<Vec<f64>>,
     /// Those of the step before (BDF2 extrapolates the explicit coupling to `X*`).
     previous_velocities: Vec<Vec<f64>>,
+    /// GMRES iterations of each cell's last solve.
+    iterations: Vec<usize>,
     /// Whether the cells with `λ ≠ 1` pass their double layer to the others (on by default;
     /// switched off only to measure what it does).
     inter_cell_double_layer: bool,
+    /// Whether some cell (on any rank) has `λ ≠ 1`.
+    contrast: bool,
+    /// Operator storage and far-side settings of every cell, also of cells inserted later
+    /// (`None`: the stepper's default).
+    storage: Option<OperatorStorage>,
+    far_side: Option<FarSideParams>,
+    /// Seconds in this rank's per-cell work (tractions and solves), without waiting for other
+    /// ranks (cumulative).
+    solve_s: f64,
 }
 
 impl Suspension {
@@ -111,53 +135,213 @@ impl Suspension {
         cells: Vec<CellSetup>,
         coupling: CouplingParams,
     ) -> Result<Self, CellStepError> {
-        let mut steppers = Vec::with_capacity(cells.len());
-        let mut coefs = Vec::with_capacity(cells.len());
-        let dt0 = cells.first().map(|c| c.params.dt);
-        for (i, c) in cells.into_iter().enumerate() {
-            let err = |source| CellStepError {
-                cell: Some(i),
-                source,
-            };
-            if Some(c.params.dt) != dt0 {
-                return Err(err(TimestepError::InvalidParameter {
-                    name: "dt",
-                    value: format!("{}", c.params.dt),
-                    reason: "all cells of a suspension share one time step",
-                }));
-            }
-            let mut st = VesicleStepper::new(p, c.params).map_err(err)?;
-            if let Some((sk, reference)) = &c.skalak {
-                st.set_skalak(*sk, reference).map_err(err)?;
-            }
-            steppers.push(st);
-            coefs.push(c.coefs);
-        }
-        let coupling = if steppers.len() > 1 {
-            let q = steppers[0].params().upsampled_order.max(p);
-            Some(
-                Coupling::new(p, q, coupling)
-                    .map_err(|source| CellStepError { cell: None, source })?,
-            )
-        } else {
-            None
-        };
-        Ok(Suspension {
-            steppers,
-            coefs,
+        let n = cells.len();
+        let q = cells.first().map_or(p, |c| c.params.upsampled_order.max(p));
+        let contrast = cells.iter().any(|c| c.params.viscosity_ratio != 1.0);
+        Self::new_part(
+            p,
+            q,
+            cells.into_iter().enumerate().collect(),
+            n,
+            contrast,
             coupling,
-            velocities: Vec::new(),
-            previous_velocities: Vec::new(),
-            inter_cell_double_layer: true,
-        })
+        )
     }
 
-    /// Number of cells.
+    /// One rank's share of a suspension of `n_global` cells: `cells` are `(global index,
+    /// setup)`; `q` the upsampled order of every cell, `contrast` whether any cell of any rank
+    /// has `λ ≠ 1`. The coupling is built when `n_global > 1` (also on a rank that holds no
+    /// cell: it takes part in every collective step).
+    pub fn new_part(
+        p: usize,
+        q: usize,
+        cells: Vec<(usize, CellSetup)>,
+        n_global: usize,
+        contrast: bool,
+        coupling: CouplingParams,
+    ) -> Result<Self, CellStepError> {
+        let mut s = Suspension {
+            ids: Vec::new(),
+            n_global,
+            steppers: Vec::new(),
+            coefs: Vec::new(),
+            coupling: None,
+            velocities: Vec::new(),
+            previous_velocities: Vec::new(),
+            iterations: Vec::new(),
+            inter_cell_double_layer: true,
+            contrast,
+            storage: None,
+            far_side: None,
+            solve_s: 0.0,
+        };
+        let dt0 = cells.first().map(|c| c.1.params.dt);
+        for (id, c) in cells {
+            if Some(c.params.dt) != dt0 {
+                return Err(CellStepError {
+                    cell: Some(id),
+                    source: TimestepError::InvalidParameter {
+                        name: "dt",
+                        value: format!("{}", c.params.dt),
+                        reason: "all cells of a suspension share one time step",
+                    },
+                });
+            }
+            s.insert_cell(p, id, &c, None)?;
+        }
+        if n_global > 1 {
+            s.coupling = Some(
+                Coupling::new(p, q, coupling)
+                    .map_err(|source| CellStepError { cell: None, source })?,
+            );
+        }
+        Ok(s)
+    }
+
+    /// Add the cell `id` built from `setup`, in the state `state` (`None`: its initial state),
+    /// at its place in the ascending order of ids (a cell moving to this rank).
+    pub fn insert_cell(
+        &mut self,
+        p: usize,
+        id: usize,
+        setup: &CellSetup,
+        state: Option<&CellState>,
+    ) -> Result<(), CellStepError> {
+        let err = |source| CellStepError {
+            cell: Some(id),
+            source,
+        };
+        let mut st = VesicleStepper::new(p, setup.params).map_err(err)?;
+        if let Some((sk, reference)) = &setup.skalak {
+            st.set_skalak(*sk, reference).map_err(err)?;
+        }
+        if let Some(storage) = self.storage {
+            st.set_operator_storage(storage);
+        }
+        if let Some(far_side) = self.far_side {
+            st.set_far_side_params(far_side).map_err(err)?;
+        }
+        let at = self.ids.partition_point(|&i| i < id);
+        if self.ids.get(at) == Some(&id) {
+            return Err(err(TimestepError::InvalidParameter {
+                name: "cell",
+                value: format!("{id}"),
+                reason: "is already held here",
+            }));
+        }
+        self.ids.insert(at, id);
+        self.steppers.insert(at, st);
+        self.coefs.insert(at, setup.coefs.clone());
+        self.velocities.insert(at, Vec::new());
+        self.previous_velocities.insert(at, Vec::new());
+        self.iterations.insert(at, 0);
+        if let Some(state) = state {
+            self.set_cell_state(at, state)?;
+        }
+        Ok(())
+    }
+
+    /// Remove this rank's cell `i` (a cell moving away): its global index and state.
+    pub fn take_cell(&mut self, i: usize) -> (usize, CellState) {
+        let state = self.cell_state(i);
+        let id = self.ids.remove(i);
+        self.steppers.remove(i);
+        self.coefs.remove(i);
+        self.velocities.remove(i);
+        self.previous_velocities.remove(i);
+        self.iterations.remove(i);
+        (id, state)
+    }
+
+    /// The state of this rank's cell `i`.
+    pub fn cell_state(&self, i: usize) -> CellState {
+        let st = &self.steppers[i];
+        let opt = |v: &Vec<f64>| (!v.is_empty()).then(|| v.clone());
+        CellState {
+            coefs: self.coefs[i].clone(),
+            sigma: st.sigma.clone(),
+            drift_targets: st.drift_targets(),
+            previous_coefs: st.previous_coefs().map(|c| c.to_vec()),
+            previous_dt: st.previous_dt(),
+            membrane_velocity: st.velocity().map(|v| v.to_vec()),
+            skalak_reference: st.skalak_reference().map(|r| r.to_vec()),
+            velocity: opt(&self.velocities[i]),
+            previous_velocity: opt(&self.previous_velocities[i]),
+            iterations: self.iterations[i],
+        }
+    }
+
+    /// Put this rank's cell `i` into `state` (a restart, a cell that moved here, a rejected
+    /// step).
+    pub fn set_cell_state(&mut self, i: usize, state: &CellState) -> Result<(), CellStepError> {
+        let err = |source| CellStepError {
+            cell: Some(self.ids[i]),
+            source,
+        };
+        let st = &mut self.steppers[i];
+        if state.coefs.len() != self.coefs[i].len() || state.sigma.len() != st.sigma.len() {
+            return Err(err(TimestepError::DimensionMismatch {
+                what: "cell state (coefficients and tension)",
+                expected: self.coefs[i].len() + st.sigma.len(),
+                got: state.coefs.len() + state.sigma.len(),
+            }));
+        }
+        self.coefs[i].copy_from_slice(&state.coefs);
+        st.sigma.copy_from_slice(&state.sigma);
+        st.set_drift_targets(state.drift_targets);
+        st.set_previous_coefs(state.previous_coefs.as_deref())
+            .map_err(err)?;
+        st.set_previous_dt(state.previous_dt).map_err(err)?;
+        st.set_velocity(state.membrane_velocity.as_deref())
+            .map_err(err)?;
+        if let Some(r) = &state.skalak_reference {
+            if st.skalak_reference().is_some() {
+                st.set_skalak_reference(r).map_err(err)?;
+            }
+        }
+        self.velocities[i] = state.velocity.clone().unwrap_or_default();
+        self.previous_velocities[i] = state.previous_velocity.clone().unwrap_or_default();
+        self.iterations[i] = state.iterations;
+        Ok(())
+    }
+
+    /// Store the operators of every cell (also of cells inserted later) as `storage`.
+    pub fn set_operator_storage(&mut self, storage: OperatorStorage) {
+        self.storage = Some(storage);
+        for s in &mut self.steppers {
+            s.set_operator_storage(storage);
+        }
+    }
+
+    /// Far-side settings of every cell (also of cells inserted later).
+    pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), CellStepError> {
+        self.far_side = Some(params);
+        for (i, s) in self.steppers.iter_mut().enumerate() {
+            s.set_far_side_params(params)
+                .map_err(|source| CellStepError {
+                    cell: Some(self.ids[i]),
+                    source,
+                })?;
+        }
+        Ok(())
+    }
+
+    /// Global indices of the cells held here, ascending.
+    pub fn ids(&self) -> &[usize] {
+        &self.ids
+    }
+
+    /// Cells over all ranks.
+    pub fn n_global(&self) -> usize {
+        self.n_global
+    }
+
+    /// Number of cells held here.
     pub fn len(&self) -> usize {
         self.steppers.len()
     }
 
-    /// Whether there are no cells.
+    /// Whether no cell is held here.
     pub fn is_empty(&self) -> bool {
         self.steppers.is_empty()
     }
@@ -182,18 +366,30 @@ impl Suspension {
         &mut self.steppers
     }
 
+    /// Seconds this rank spent in its cells' own work (tractions, solves), not counting the
+    /// coupling nor waiting for other ranks (cumulative).
+    pub fn solve_seconds(&self) -> f64 {
+        self.solve_s
+    }
+
+    /// GMRES iterations of each cell's last solve (0 before the first).
+    pub fn iterations(&self) -> &[usize] {
+        &self.iterations
+    }
+
     /// Counters of the coupling (`None` for one cell: nothing coupled, no FMM).
     pub fn coupling_stats(&self) -> Option<CouplingStats> {
         self.coupling.as_ref().map(|c| c.stats)
     }
 
-    /// The velocity the other cells induced on each cell in the last step.
+    /// The velocity the other cells induced on each cell in the last step (an empty vector
+    /// for a cell before its first coupled step).
     pub fn inter_cell_velocities(&self) -> &[Vec<f64>] {
         &self.velocities
     }
 
-    /// The inter-cell velocities at `Xⁿ⁻¹` kept for the BDF2 extrapolation (empty for one cell or
-    /// the Euler scheme before the first step).
+    /// The inter-cell velocities at `Xⁿ⁻¹` kept for the BDF2 extrapolation (empty vectors
+    /// for one cell or the Euler scheme before the first step).
     pub fn previous_inter_cell_velocities(&self) -> &[Vec<f64>] {
         &self.previous_velocities
     }
@@ -207,81 +403,34 @@ impl Suspension {
     pub fn set_dt(&mut self, dt: f64) -> Result<(), CellStepError> {
         for (i, st) in self.steppers.iter_mut().enumerate() {
             st.set_dt(dt).map_err(|source| CellStepError {
-                cell: Some(i),
+                cell: Some(self.ids[i]),
                 source,
             })?;
         }
         Ok(())
     }
 
-    /// A copy of everything [`Suspension::step`] changes (the cells, their tensions, BDF2
-    /// histories and relabelled Skalak references, the inter-cell velocities); [`Suspension::restore`] goes back to it.
+    /// A copy of everything [`Suspension::step`] changes (each cell's [`CellState`]);
+    /// [`Suspension::restore`] goes back to it.
     pub fn snapshot(&self) -> SuspensionState {
         SuspensionState {
-            coefs: self.coefs.clone(),
-            sigma: self.steppers.iter().map(|s| s.sigma.clone()).collect(),
-            previous: self
-                .steppers
-                .iter()
-                .map(|s| s.previous_coefs().map(|c| c.to_vec()))
-                .collect(),
-            previous_dt: self.steppers.iter().map(|s| s.previous_dt()).collect(),
-            membrane_velocities: self
-                .steppers
-                .iter()
-                .map(|s| s.velocity().map(|v| v.to_vec()))
-                .collect(),
-            skalak_references: self
-                .steppers
-                .iter()
-                .map(|s| s.skalak_reference().map(|r| r.to_vec()))
-                .collect(),
-            velocities: self.velocities.clone(),
-            previous_velocities: self.previous_velocities.clone(),
+            cells: (0..self.len()).map(|i| self.cell_state(i)).collect(),
         }
     }
 
-    /// Go back to a [`Suspension::snapshot`] (a rejected step). The drift targets and the
-    /// preconditioners are not part of the state: a step does not change the former, and the
-    /// latter depend only on the targets and `dt`.
+    /// Go back to a [`Suspension::snapshot`] (a rejected step). The preconditioners are not
+    /// part of the state: they depend only on the drift targets and `dt`.
     pub fn restore(&mut self, state: &SuspensionState) -> Result<(), CellStepError> {
-        self.coefs.clone_from(&state.coefs);
-        for (i, st) in self.steppers.iter_mut().enumerate() {
-            let err = |source| CellStepError {
-                cell: Some(i),
-                source,
-            };
-            st.sigma.copy_from_slice(&state.sigma[i]);
-            st.set_previous_coefs(state.previous[i].as_deref())
-                .map_err(err)?;
-            st.set_previous_dt(state.previous_dt[i]).map_err(err)?;
-            st.set_velocity(state.membrane_velocities[i].as_deref())
-                .map_err(err)?;
-            if let Some(r) = &state.skalak_references[i] {
-                st.set_skalak_reference(r).map_err(err)?;
-            }
+        for (i, c) in state.cells.iter().enumerate() {
+            self.set_cell_state(i, c)?;
         }
-        self.velocities.clone_from(&state.velocities);
-        self.previous_velocities
-            .clone_from(&state.previous_velocities);
         Ok(())
-    }
-
-    /// Restore the inter-cell velocities at `Xⁿ` and `Xⁿ⁻¹` (restart).
-    pub fn set_inter_cell_velocities(&mut self, current: Vec<Vec<f64>>, previous: Vec<Vec<f64>>) {
-        self.velocities = current;
-        self.previous_velocities = previous;
     }
 
     /// Whether some cell has a viscosity contrast and there are other cells to feel its double
     /// layer (the inter-cell double layer is then built from the second step on).
     pub fn has_inter_cell_double_layer(&self) -> bool {
-        self.inter_cell_double_layer
-            && self.coupling.is_some()
-            && self
-                .steppers
-                .iter()
-                .any(|s| s.params().viscosity_ratio != 1.0)
+        self.inter_cell_double_layer && self.coupling.is_some() && self.contrast
     }
 
     /// Switch the inter-cell double layer off (or on again): the cells then feel only each
@@ -296,9 +445,20 @@ impl Suspension {
         &mut self,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
     ) -> Result<SuspensionReport, CellStepError> {
+        self.step_on(&SerialComm, u_inf)
+    }
+
+    /// [`Suspension::step`] over the ranks of `comm` (collective: every rank steps its own
+    /// cells, the coupling spans all). A failure on any rank is returned on every rank.
+    pub fn step_on(
+        &mut self,
+        comm: &dyn Communicator,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    ) -> Result<SuspensionReport, CellStepError> {
+        let ids = &self.ids;
+        let t0 = std::time::Instant::now();
         if let Some(coupling) = &mut self.coupling {
-            self.previous_velocities = std::mem::take(&mut self.velocities);
-            let tractions: Vec<Vec<f64>> = self
+            let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
                 .steppers
                 .par_iter_mut()
                 .zip(self.coefs.par_iter())
@@ -306,12 +466,15 @@ impl Suspension {
                 .map(|(i, (st, c))| {
                     let mut f = vec![0.0; 3 * st.n_points()];
                     st.traction(c, &mut f).map_err(|source| CellStepError {
-                        cell: Some(i),
+                        cell: Some(ids[i]),
                         source,
                     })?;
                     Ok(f)
                 })
-                .collect::<Result<_, _>>()?;
+                .collect();
+            self.solve_s += t0.elapsed().as_secs_f64();
+            let tractions = agree_cells(comm, tractions)?;
+            self.previous_velocities = std::mem::take(&mut self.velocities);
             let cref: Vec<&[f64]> = self.coefs.iter().map(|c| c.as_slice()).collect();
             let fref: Vec<&[f64]> = tractions.iter().map(|c| c.as_slice()).collect();
             // Double-layer densities (1 − λ_j) u_j from each cell's last solve (none before the
@@ -331,53 +494,103 @@ impl Suspension {
                 .collect();
             let dref: Vec<Option<&[f64]>> = scaled.iter().map(|d| d.as_deref()).collect();
             self.velocities = coupling
-                .velocities_with(&cref, &fref, &dref)
+                .velocities_on(comm, ids, &cref, &fref, &dref)
                 .map_err(|source| CellStepError { cell: None, source })?;
         }
         // BDF2 takes the explicit terms at X* = (1 + ω)Xⁿ − ωXⁿ⁻¹ (ω = Δtⁿ/Δtⁿ⁻¹):
         // v* = (1 + ω)vⁿ − ωvⁿ⁻¹ (second order; 2vⁿ − vⁿ⁻¹ at a constant step).
-        let extrapolated: Vec<Vec<f64>> = self
+        let explicit: Vec<Option<Vec<f64>>> = self
             .steppers
             .iter()
             .enumerate()
             .map(|(i, st)| {
-                match (
-                    st.extrapolation_ratio(),
-                    self.velocities.get(i),
-                    self.previous_velocities.get(i),
-                ) {
-                    (Some(w), Some(v), Some(u)) => v
-                        .iter()
-                        .zip(u)
-                        .map(|(a, b)| (1.0 + w) * a - w * b)
-                        .collect(),
-                    _ => Vec::new(),
+                let v = self.velocities.get(i).filter(|v| !v.is_empty())?;
+                match (st.extrapolation_ratio(), self.previous_velocities.get(i)) {
+                    (Some(w), Some(u)) if !u.is_empty() => Some(
+                        v.iter()
+                            .zip(u)
+                            .map(|(a, b)| (1.0 + w) * a - w * b)
+                            .collect(),
+                    ),
+                    _ => Some(v.clone()),
                 }
             })
             .collect();
-        let velocities = &self.velocities;
         let repulsion = self.coupling.as_ref().and_then(|c| c.repulsion());
-        let reports = self
+        let t1 = std::time::Instant::now();
+        let reports: Result<Vec<StepReport>, CellStepError> = self
             .steppers
             .par_iter_mut()
             .zip(self.coefs.par_iter_mut())
             .enumerate()
             .map(|(i, (st, c))| {
                 let extra = ExplicitTerms {
-                    velocity: if extrapolated[i].is_empty() {
-                        velocities.get(i).map(|v| v.as_slice())
-                    } else {
-                        Some(extrapolated[i].as_slice())
-                    },
+                    velocity: explicit[i].as_deref(),
                     traction: repulsion.map(|r| r[i].as_slice()),
                 };
                 st.step_with(c, u_inf, extra)
                     .map_err(|source| CellStepError {
-                        cell: Some(i),
+                        cell: Some(ids[i]),
                         source,
                     })
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect();
+        self.solve_s += t1.elapsed().as_secs_f64();
+        let reports = agree_cells(comm, reports)?;
+        for (it, r) in self.iterations.iter_mut().zip(&reports) {
+            *it = r.gmres.iterations;
+        }
         Ok(SuspensionReport { cells: reports })
+    }
+}
+
+/// `local` where every rank succeeded; otherwise, on every rank, the failure of the lowest
+/// failing cell: the original error on its rank, [`TimestepError::Remote`] with its message on
+/// the others (so that all ranks stop at the same step with the same cell named).
+pub(crate) fn agree_cells<T>(
+    comm: &dyn Communicator,
+    local: Result<T, CellStepError>,
+) -> Result<T, CellStepError> {
+    if comm.size() == 1 {
+        return local;
+    }
+    let key = |e: &CellStepError| e.cell.map_or(0, |c| c as u64 + 1);
+    let mine: Vec<u64> = match &local {
+        Ok(_) => Vec::new(),
+        Err(e) => [key(e), u64::from(e.source.is_solver_failure())]
+            .into_iter()
+            .chain(e.source.to_string().bytes().map(u64::from))
+            .collect(),
+    };
+    let all = match comm.all_gather_u64(&mine) {
+        Ok(a) => a,
+        Err(c) => {
+            return Err(CellStepError {
+                cell: None,
+                source: TimestepError::Comm(c),
+            })
+        }
+    };
+    let Some((rank, first)) = all
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.len() >= 2)
+        .min_by_key(|(_, b)| b[0])
+    else {
+        return local;
+    };
+    match local {
+        Err(e) if rank == comm.rank() => Err(e),
+        _ => Err(CellStepError {
+            cell: first[0].checked_sub(1).map(|c| c as usize),
+            source: TimestepError::Remote {
+                rank,
+                message: String::from_utf8_lossy(
+                    &first[2..].iter().map(|&b| b as u8).collect::<Vec<u8>>(),
+                )
+                .into_owned(),
+                solver_failure: first[1] != 0,
+            },
+        }),
     }
 }
