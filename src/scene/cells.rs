@@ -40,6 +40,8 @@
 //! # dt_min = 1e-5, dt_max = 0.1   # adaptive: bounds of dt (defaults dt/1000, max(dt, t_end/10))
 //! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
 //! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
+//! rebalance_every = 10            # under mpirun: steps between checks of the split of the cells
+//! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see cells_partition)
 //!
 //! [output]
 //! every = 10                      # steps between saved frames
@@ -125,6 +127,8 @@ struct NumericsSection {
     dt_max: Option<Spanned<f64>>,
     repulsion_range: Option<Spanned<f64>>,
     repulsion_strength: Option<Spanned<f64>>,
+    rebalance_every: Option<Spanned<u64>>,
+    max_imbalance: Option<Spanned<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -261,6 +265,11 @@ pub struct Numerics {
     /// Contact repulsion strength (traction); `None`: `10 · max(κ_b/R³, μ γ̇, |F|/4πR²)`
     /// over the cells, `γ̇` the flow's rate scale.
     pub repulsion_strength: Option<f64>,
+    /// Under MPI: steps between checks of the split of the cells between ranks (default 10).
+    pub rebalance_every: usize,
+    /// Under MPI: the cost imbalance (largest rank over mean, minus 1) above which cells are
+    /// moved at a check (default 0.1; see [`crate::scene::cells_partition`]).
+    pub max_imbalance: f64,
 }
 
 /// One assembly decision: whether a piece of physics is built, and why.
@@ -527,6 +536,29 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
             }
             Some(v) => Some(*v.get_ref()),
             None => None,
+        },
+        rebalance_every: match n.and_then(|n| n.rebalance_every.as_ref()) {
+            Some(v) if *v.get_ref() == 0 => {
+                return Err(at(
+                    v.span(),
+                    "[numerics] rebalance_every must be at least 1".to_string(),
+                ))
+            }
+            Some(v) => *v.get_ref() as usize,
+            None => crate::scene::cells_partition::CHECK_EVERY,
+        },
+        max_imbalance: match n.and_then(|n| n.max_imbalance.as_ref()) {
+            Some(v) if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0) => {
+                return Err(at(
+                    v.span(),
+                    format!(
+                        "[numerics] max_imbalance must be a non-negative number, got {}",
+                        v.get_ref()
+                    ),
+                ))
+            }
+            Some(v) => *v.get_ref(),
+            None => crate::scene::cells_partition::MAX_IMBALANCE,
         },
     };
     let mut numerics = numerics;

@@ -17,9 +17,10 @@
 //! at p = 6 to 12 on this project's machines: the assembly costs about as much as 10–20
 //! products; see `docs/scaling.md`).
 //!
-//! **Re-balance.** Every [`CHECK_EVERY`] steps the ranks gather every cell's centre and cost
+//! **Re-balance.** Every [`CHECK_EVERY`] steps (scene: `[numerics] rebalance_every`) the ranks gather every cell's centre and cost
 //! (5 values a cell) and compute a fresh split; the cells move to it when the current split's
-//! cost imbalance (largest rank cost over mean, minus 1) exceeds [`MAX_IMBALANCE`], or when
+//! cost imbalance (largest rank cost over mean, minus 1) exceeds [`MAX_IMBALANCE`] (scene:
+//! `max_imbalance`), or when
 //! more than [`MAX_STALE`] of the cells would change rank (the cells have moved along the
 //! curve, and ghost exchanges grow with the lost locality). A moving cell travels as its
 //! [`CellState`] (one all-to-all), and is rebuilt from its setup on its new rank.
@@ -32,9 +33,9 @@ use crate::timestep::TimestepError;
 
 /// Cost of a cell step besides its GMRES iterations, in iterations.
 pub const ASSEMBLY_COST: f64 = 12.0;
-/// Steps between checks of the split.
+/// Steps between checks of the split (default).
 pub const CHECK_EVERY: usize = 10;
-/// Cost imbalance above which cells are moved.
+/// Cost imbalance above which cells are moved (default).
 pub const MAX_IMBALANCE: f64 = 0.10;
 /// Fraction of cells on a stale rank above which cells are moved.
 pub const MAX_STALE: f64 = 0.25;

@@ -522,8 +522,8 @@ struct RankClock {
     migration_bytes: u64,
 }
 
-/// Check the split (every [`cells_partition::CHECK_EVERY`] steps) and move the cells when it
-/// went stale (collective).
+/// Check the split (every `every` steps, after step `step`) and move the cells when it went
+/// stale (collective).
 #[allow(clippy::too_many_arguments)]
 fn rebalance(
     comm: &dyn Communicator,
@@ -531,12 +531,12 @@ fn rebalance(
     p: usize,
     setups: &[CellSetup],
     owners: &mut Vec<usize>,
-    step: usize,
+    (step, every, max_imbalance): (usize, usize, f64),
     clock: &mut RankClock,
     log: &mut Vec<Rebalance>,
 ) -> Result<(), CellRunError> {
     let k = comm.size();
-    if k == 1 || step % cells_partition::CHECK_EVERY != 0 {
+    if k == 1 || step % every != 0 {
         return Ok(());
     }
     let t = Instant::now();
@@ -545,7 +545,7 @@ fn rebalance(
     let before = cells_partition::imbalance(owners, &costs, k);
     let stale = owners.iter().zip(&fresh).filter(|(a, b)| a != b).count();
     let stale_fraction = stale as f64 / owners.len().max(1) as f64;
-    let reason = if before > cells_partition::MAX_IMBALANCE {
+    let reason = if before > max_imbalance {
         Some(Reason::Imbalance)
     } else if stale_fraction > cells_partition::MAX_STALE {
         Some(Reason::Locality)
@@ -755,7 +755,7 @@ pub fn run_on(
             p,
             &setups,
             &mut owners,
-            k,
+            (k, scene.numerics.rebalance_every, scene.numerics.max_imbalance),
             &mut clock,
             &mut log,
         )?;
