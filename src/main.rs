@@ -399,22 +399,7 @@ fn run(
     let comm = fmm_command::world();
     let root = comm.rank() == 0;
     let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
-    {
-        let stop = stop.clone();
-        // Ctrl-C, or the SIGTERM that mpirun sends every rank on Ctrl-C: stop after this step
-        // (every rank agrees at the end of each step). A second one (or no handler) falls back
-        // to the default: the process ends.
-        let _ = ctrlc::set_handler(move || {
-            if stop.swap(true, std::sync::atomic::Ordering::Relaxed) {
-                std::process::exit(130);
-            }
-            if root {
-                eprintln!(
-                    "\nmobo run: stopping after this step (checkpoint follows); Ctrl-C again to abort"
-                );
-            }
-        });
-    }
+    watch_stop_signals(stop.clone(), root);
     let options = cells_run::RunOptions {
         quiet: quiet || !root,
         resume: resume.is_some(),
@@ -482,6 +467,51 @@ fn run(
         out.display()
     );
     Ok(())
+}
+
+/// Set by SIGUSR1 (async-signal-safe: one atomic store).
+static USR1: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+extern "C" fn on_usr1(_: libc::c_int) {
+    USR1.store(true, std::sync::atomic::Ordering::Relaxed);
+}
+
+/// Stop a run after the current step (every rank agrees at the end of each step, then a
+/// checkpoint is written) on Ctrl-C, SIGTERM or SIGUSR1. `mpirun` forwards SIGUSR1 to every
+/// rank; on Ctrl-C it sends every rank SIGTERM (after the terminal's SIGINT) and SIGKILL a few
+/// seconds later (`OMPI_MCA_odls_base_sigkill_timeout`, see docs/scaling.md). Signals within
+/// 3 s of the first count as one; a later one ends the process at once (exit status 130).
+fn watch_stop_signals(stop: std::sync::Arc<std::sync::atomic::AtomicBool>, root: bool) {
+    use std::sync::atomic::Ordering;
+    let first = std::sync::Mutex::new(None::<std::time::Instant>);
+    let flag = stop.clone();
+    let _ = ctrlc::set_handler(move || {
+        let mut f = first.lock().unwrap_or_else(|e| e.into_inner());
+        match *f {
+            Some(t) if t.elapsed().as_secs_f64() > 3.0 => std::process::exit(130),
+            Some(_) => {}
+            None => {
+                *f = Some(std::time::Instant::now());
+                flag.store(true, Ordering::Relaxed);
+                if root {
+                    eprintln!(
+                        "\nmobo run: stopping after this step (checkpoint follows); Ctrl-C again to abort"
+                    );
+                }
+            }
+        }
+    });
+    // SAFETY: installs a handler that only stores to an atomic.
+    unsafe {
+        libc::signal(libc::SIGUSR1, on_usr1 as *const () as libc::sighandler_t);
+    }
+    std::thread::spawn(move || loop {
+        if USR1.load(Ordering::Relaxed) {
+            stop.store(true, Ordering::Relaxed);
+            return;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    });
 }
 
 fn brownian(

@@ -15,6 +15,16 @@
 //! ([`crate::timestep::adaptive`]: steps whose area/volume error is too large are repeated
 //! smaller). Scenes that ask for what is not built are refused with a message
 //! that says what is missing.
+//!
+//! **Over MPI ranks** ([`run_on`]): every rank reads the scene and builds every cell's setup,
+//! holds a share of the cells ([`super::cells_partition`]) and steps them
+//! ([`Suspension::step_on`]); rank 0 gathers the coefficients and tensions for each frame and
+//! every cell's state for each checkpoint and writes the same files as one rank (the memory
+//! at rank 0 is that of every cell's state during a checkpoint, `docs/scaling.md`). A
+//! checkpoint records the split: resumed on as many ranks it continues bit for bit; on another
+//! number it is split afresh and continues to round-off. A failure on any rank (a cell's step,
+//! an output file) is returned on every rank; a stop request on any rank stops all after the
+//! step, with a checkpoint.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -545,7 +555,9 @@ fn rebalance(
     let before = cells_partition::imbalance(owners, &costs, k);
     let stale = owners.iter().zip(&fresh).filter(|(a, b)| a != b).count();
     let stale_fraction = stale as f64 / owners.len().max(1) as f64;
-    let reason = if before > max_imbalance {
+    let reason = if stale == 0 {
+        None
+    } else if before > max_imbalance {
         Some(Reason::Imbalance)
     } else if stale_fraction > cells_partition::MAX_STALE {
         Some(Reason::Locality)
@@ -755,7 +767,11 @@ pub fn run_on(
             p,
             &setups,
             &mut owners,
-            (k, scene.numerics.rebalance_every, scene.numerics.max_imbalance),
+            (
+                k,
+                scene.numerics.rebalance_every,
+                scene.numerics.max_imbalance,
+            ),
             &mut clock,
             &mut log,
         )?;
