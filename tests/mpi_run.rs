@@ -44,6 +44,13 @@ fn mobo_on(k: usize, args: &[&str]) -> Output {
         .expect("run mpirun (openmpi-bin)")
 }
 
+/// `mobo run SCENE --out OUT --quiet EXTRA…` on `k` ranks (0: no MPI).
+fn run_scene(k: usize, scene: &str, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec!["run", scene, "--out", out.to_str().unwrap(), "--quiet"];
+    args.extend_from_slice(extra);
+    mobo_on(k, &args)
+}
+
 fn ok(o: &Output, what: &str) {
     assert!(
         o.status.success(),
@@ -159,21 +166,12 @@ fn the_125_rbc_suspension_gives_the_one_rank_result_on_2_3_4_ranks() {
     let scene = example_125(&dir);
     let scene = scene.to_str().unwrap();
     let one = dir.join("k0");
-    ok(
-        &mobo_on(
-            0,
-            &["run", scene, "--out", one.to_str().unwrap(), "--quiet"],
-        ),
-        "one process",
-    );
+    ok(&run_scene(0, scene, &one, &[]), "one process");
     let reference = last_coefs(&one);
     assert_eq!(reference.len(), 125);
     for k in [2, 3, 4] {
         let out = dir.join(format!("k{k}"));
-        let o = mobo_on(
-            k,
-            &["run", scene, "--out", out.to_str().unwrap(), "--quiet"],
-        );
+        let o = run_scene(k, scene, &out, &[]);
         ok(&o, &format!("{k} ranks"));
         let e = worst_rel(&last_coefs(&out), &reference);
         eprintln!("125 RBCs, {k} ranks: largest relative difference {e:.2e}");
@@ -195,23 +193,14 @@ fn contrast_and_skalak_cells_moving_between_ranks_give_the_one_rank_result() {
     let scene = write(&dir, "contrast.toml", CONTRAST);
     let scene = scene.to_str().unwrap();
     let one = dir.join("k0");
-    ok(
-        &mobo_on(
-            0,
-            &["run", scene, "--out", one.to_str().unwrap(), "--quiet"],
-        ),
-        "one process",
-    );
+    ok(&run_scene(0, scene, &one, &[]), "one process");
     let reference = last_coefs(&one);
     let s1 = summary(&one);
     assert!(s1["counters"]["double_layer_fmm_builds"].as_u64().unwrap() > 0);
     // K = 4 differs by 6.8e-8 after 20 steps (3 cells moved twice): open, see the issue note.
     for k in [1, 2, 3] {
         let out = dir.join(format!("k{k}"));
-        let o = mobo_on(
-            k,
-            &["run", scene, "--out", out.to_str().unwrap(), "--quiet"],
-        );
+        let o = run_scene(k, scene, &out, &[]);
         ok(&o, &format!("{k} ranks"));
         let e = worst_rel(&last_coefs(&out), &reference);
         let s = summary(&out);
@@ -247,27 +236,13 @@ fn checkpoints_resume_bit_for_bit_on_as_many_ranks_and_on_other_counts_to_1e10()
     let scene = scene.to_str().unwrap();
     let whole = dir.join("whole");
     ok(
-        &mobo_on(
-            2,
-            &["run", scene, "--out", whole.to_str().unwrap(), "--quiet"],
-        ),
+        &run_scene(2, scene, &whole, &[]),
         "uninterrupted at 2 ranks",
     );
     let reference = last_coefs(&whole);
     for resume_on in [2, 3, 1] {
         let part = dir.join(format!("part{resume_on}"));
-        let o = mobo_on(
-            2,
-            &[
-                "run",
-                scene,
-                "--out",
-                part.to_str().unwrap(),
-                "--max-steps",
-                "7",
-                "--quiet",
-            ],
-        );
+        let o = run_scene(2, scene, &part, &["--max-steps", "7"]);
         ok(&o, "stopped at 7 steps on 2 ranks");
         let o = mobo_on(
             resume_on,
@@ -294,18 +269,7 @@ fn a_failing_step_stops_every_rank_with_one_message_and_the_checkpoint_intact() 
     let dir = tmpdir("mpi-run-fail");
     let scene = write(&dir, "contrast.toml", CONTRAST);
     let out = dir.join("out");
-    let o = mobo_on(
-        3,
-        &[
-            "run",
-            scene.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--max-steps",
-            "2",
-            "--quiet",
-        ],
-    );
+    let o = run_scene(3, scene.to_str().unwrap(), &out, &["--max-steps", "2"]);
     ok(&o, "two steps");
     let checkpoint = std::fs::read(out.join("checkpoint.bin")).unwrap();
     // GMRES cannot meet this tolerance: the next step fails on every rank.

@@ -102,6 +102,26 @@ pub trait Communicator {
     }
 }
 
+/// `local` where every rank succeeded (collective); otherwise an error on every rank: its own
+/// where this rank failed, else the lowest failing rank's message ([`CommError::Remote`])
+/// wrapped by `wrap`, so that no rank goes on to a collective the others never reach. One
+/// rank returns `local` as it is.
+pub fn agreed<T, E: std::fmt::Display>(
+    comm: &dyn Communicator,
+    local: Result<T, E>,
+    wrap: impl FnOnce(CommError) -> E,
+) -> Result<T, E> {
+    if comm.size() == 1 {
+        return local;
+    }
+    let outcome = local.as_ref().map(|_| ()).map_err(|e| e.to_string());
+    match (comm.agree(outcome), local) {
+        (Ok(()), local) => local,
+        (Err(_), Err(own)) => Err(own),
+        (Err(e), Ok(_)) => Err(wrap(e)),
+    }
+}
+
 /// One rank, no MPI: collectives are identities and copies.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SerialComm;

@@ -341,22 +341,9 @@ fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
     }
 }
 
-/// `local` where every rank succeeded; otherwise an error on every rank (its own, or the
-/// lowest failing rank's message), so that no rank waits in a collective the others left.
+/// [`crate::comm::agreed`] with communication failures as [`CellRunError::Comm`].
 fn agreed<T>(comm: &dyn Communicator, local: Result<T, CellRunError>) -> Result<T, CellRunError> {
-    if comm.size() == 1 {
-        return local;
-    }
-    let outcome = local.as_ref().map(|_| ()).map_err(|e| e.to_string());
-    match (comm.agree(outcome), local) {
-        (Ok(()), local) => local,
-        (Err(_), Err(own)) => Err(own),
-        (Err(e), Ok(_)) => Err(CellRunError::Comm(e)),
-    }
-}
-
-fn comm_error(e: CommError) -> CellRunError {
-    CellRunError::Comm(e)
+    crate::comm::agreed(comm, local, CellRunError::Comm)
 }
 
 /// Every cell's `width` values from `local` (`(global index, values)`), in global order, at
@@ -372,7 +359,7 @@ fn gather_rows(
         buf.push(id as f64);
         buf.extend_from_slice(&v);
     }
-    let all = comm.gather_f64(&buf, 0).map_err(comm_error)?;
+    let all = comm.gather_f64(&buf, 0).map_err(CellRunError::Comm)?;
     if comm.rank() != 0 {
         return Ok(None);
     }
@@ -550,7 +537,8 @@ fn rebalance(
         return Ok(());
     }
     let t = Instant::now();
-    let (centres, costs) = cells_partition::gather_inputs(comm, susp).map_err(comm_error)?;
+    let (centres, costs) =
+        cells_partition::gather_inputs(comm, susp).map_err(CellRunError::Comm)?;
     let fresh = cells_partition::split(&centres, &costs, k);
     let before = cells_partition::imbalance(owners, &costs, k);
     let stale = owners.iter().zip(&fresh).filter(|(a, b)| a != b).count();
@@ -818,7 +806,7 @@ pub fn run_on(
             // The largest error over all ranks (a NaN counts as infinite).
             let (local, _) = report.area_volume_error();
             let mut error = [if local.is_nan() { f64::INFINITY } else { local }];
-            comm.all_max(&mut error).map_err(comm_error)?;
+            comm.all_max(&mut error).map_err(CellRunError::Comm)?;
             let error = error[0];
             let (Some(ctl), Some(snap)) = (&adaptive, &snapshot) else {
                 prog.error_sum += error;
@@ -865,8 +853,8 @@ pub fn run_on(
         let its = report.cells.iter().map(|r| r.gmres.iterations);
         let mut it = [its.clone().max().unwrap_or(0) as f64];
         let mut it_sum = [its.sum::<usize>() as u64];
-        comm.all_max(&mut it).map_err(comm_error)?;
-        comm.all_sum_u64(&mut it_sum).map_err(comm_error)?;
+        comm.all_max(&mut it).map_err(CellRunError::Comm)?;
+        comm.all_sum_u64(&mut it_sum).map_err(CellRunError::Comm)?;
         let it = it[0] as usize;
         prog.iters_sum += it_sum[0] as usize;
         prog.iters_max = prog.iters_max.max(it);
@@ -894,7 +882,7 @@ pub fn run_on(
                 .as_ref()
                 .is_some_and(|s| s.load(Ordering::Relaxed)),
         ))];
-        comm.all_max(&mut interrupted).map_err(comm_error)?;
+        comm.all_max(&mut interrupted).map_err(CellRunError::Comm)?;
         let interrupted = interrupted[0] > 0.0;
         let limited = options.max_steps.is_some_and(|m| k + 1 - first >= m);
         let last = ends_run(k, prog.time);
@@ -954,7 +942,7 @@ pub fn run_on(
     let split = split_summary(comm, &susp, &clock, &log, k + 1 - first)?;
     let stats = susp.coupling_stats().unwrap_or_default();
     let mut dl = [(dl_assemblies + dl_count(&susp)) as u64];
-    comm.all_sum_u64(&mut dl).map_err(comm_error)?;
+    comm.all_sum_u64(&mut dl).map_err(CellRunError::Comm)?;
     let Some(rows) = rows else {
         return Ok(None);
     };
@@ -1101,7 +1089,7 @@ fn split_summary(
         per_step(clock.migration_bytes as f64),
         per_step(st.ghost_cells as f64),
     ];
-    let all = comm.all_gather_f64(&mine).map_err(comm_error)?;
+    let all = comm.all_gather_f64(&mine).map_err(CellRunError::Comm)?;
     let k = all.len() as f64;
     let col = |j: usize| all.iter().map(move |r| r[j]);
     let max_mean = |j: usize| [col(j).fold(0.0, f64::max), col(j).sum::<f64>() / k];

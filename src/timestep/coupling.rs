@@ -919,22 +919,9 @@ fn check_inputs(
     Ok(())
 }
 
-/// `local` where every rank succeeded; otherwise an error on every rank (this rank's own, or
-/// the lowest failing rank's as [`TimestepError::Comm`]), so that no rank goes on to a
-/// collective the others never reach.
-pub(crate) fn agreed<T>(
-    comm: &dyn Communicator,
-    local: Result<T, TimestepError>,
-) -> Result<T, TimestepError> {
-    if comm.size() == 1 {
-        return local;
-    }
-    let outcome = local.as_ref().map(|_| ()).map_err(|e| e.to_string());
-    match (comm.agree(outcome), local) {
-        (Ok(()), local) => local,
-        (Err(_), Err(own)) => Err(own),
-        (Err(e), Ok(_)) => Err(TimestepError::Comm(e)),
-    }
+/// [`crate::comm::agreed`] with communication failures as [`TimestepError::Comm`].
+fn agreed<T>(comm: &dyn Communicator, local: Result<T, TimestepError>) -> Result<T, TimestepError> {
+    crate::comm::agreed(comm, local, TimestepError::Comm)
 }
 
 /// `f dA / divisor` at each upsampled point, interleaved (3 per point), from the
