@@ -79,10 +79,9 @@ pub(crate) fn world() -> Box<dyn Communicator> {
     Box::new(SerialComm)
 }
 
-/// Rows `[r·n/K, (r+1)·n/K)` of `n`.
+/// This rank's block of the `n` rows ([`mobo::comm::block_rows`]).
 fn my_rows(n: usize, comm: &dyn Communicator) -> Range<usize> {
-    let (r, k) = (comm.rank(), comm.size());
-    r * n / k..(r + 1) * n / k
+    mobo::comm::block_rows(n, comm.rank(), comm.size())
 }
 
 /// This rank's rows of an `.npy` array of `rows × cols` finite values (`cols = 1` also

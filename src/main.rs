@@ -519,16 +519,37 @@ fn brownian(
     out: Option<std::path::PathBuf>,
     quiet: bool,
 ) -> Result<(), CliError> {
+    // Every rank reads the scene and runs every step (its rows of the O(N²) pass); any error
+    // is every rank's, so rank 0 alone reports it.
+    let comm = fmm_command::world();
+    let root = comm.rank() == 0;
+    let result = brownian_on(comm.as_ref(), scene, out, quiet || !root);
+    match result {
+        Err(_) if !root => Err(CliError::ReportedElsewhere),
+        r => r,
+    }
+}
+
+fn brownian_on(
+    comm: &dyn mobo::comm::Communicator,
+    scene: &std::path::Path,
+    out: Option<std::path::PathBuf>,
+    quiet: bool,
+) -> Result<(), CliError> {
     let sc = mobo::scene::brownian::load(scene)?;
     let out = out
         .unwrap_or_else(|| std::path::Path::new("out").join(scene.file_stem().unwrap_or_default()));
     if !quiet {
         eprintln!(
-            "mobo brownian: {} ({} beads, {} steps, noise {:?}) -> {}",
+            "mobo brownian: {} ({} beads, {} steps, noise {:?}{}) -> {}",
             scene.display(),
             sc.positions.len(),
             sc.steps,
             sc.params.noise,
+            match comm.size() {
+                1 => String::new(),
+                k => format!(", {k} ranks"),
+            },
             out.display()
         );
         for e in mobo::scene::brownian_run::effects(&sc) {
@@ -540,10 +561,12 @@ fn brownian(
             );
         }
     }
-    let s = mobo::scene::brownian_run::run(&sc, &out, !quiet)?;
-    println!(
-        "{} beads, {} steps in {:.2} s ({:.0} steps/s); D_CM estimate {:.4} (D0 = {:.4}); <Rg^2> = {:.4}; <Ree^2> = {:.4}",
-        s.beads, s.steps, s.wall_s, s.steps_per_second, s.com_diffusion_estimate, s.d0, s.mean_rg2, s.mean_end_to_end_sq
-    );
+    let s = mobo::scene::brownian_run::run_on(comm, &sc, &out, !quiet)?;
+    if comm.rank() == 0 {
+        println!(
+            "{} beads, {} steps in {:.2} s ({:.0} steps/s); D_CM estimate {:.4} (D0 = {:.4}); <Rg^2> = {:.4}; <Ree^2> = {:.4}",
+            s.beads, s.steps, s.wall_s, s.steps_per_second, s.com_diffusion_estimate, s.d0, s.mean_rg2, s.mean_end_to_end_sq
+        );
+    }
     Ok(())
 }

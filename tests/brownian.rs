@@ -3,7 +3,9 @@
 use faer::Mat;
 use mobo::brownian::noise::{cholesky_factor, lanczos_sqrt, symmetric_sqrt};
 use mobo::brownian::rpy::{apply_mobility, dense_mobility, rpy_block};
-use mobo::brownian::tea_hi::{fused_pass, tea_hi_noise, FusedSums, Soa, TeaHiCoefficients};
+use mobo::brownian::tea_hi::{
+    fused_pass, fused_rows, tea_hi_noise, FusedSums, Soa, TeaHiCoefficients, ROW_VALUES,
+};
 use mobo::brownian::{
     BrownianParams, BrownianSimulation, ForceField, NoiseModel, SubcellularElement,
 };
@@ -271,6 +273,16 @@ fn lanczos_matches_symmetric_square_root() {
     }
 }
 
+/// The sub-cellular-element potential of the force tests.
+fn sce() -> SubcellularElement {
+    SubcellularElement {
+        u0: 0.7,
+        rho: 2.0,
+        r_eq: 1.8,
+        cutoff: 4.0,
+    }
+}
+
 #[test]
 fn forces_are_minus_energy_gradient() {
     let pos = vec![
@@ -285,12 +297,7 @@ fn forces_are_minus_energy_gradient() {
         bond_length: 2.0,
         repulsion: 30.0,
         radius: 1.0,
-        sce: Some(SubcellularElement {
-            u0: 0.7,
-            rho: 2.0,
-            r_eq: 1.8,
-            cutoff: 4.0,
-        }),
+        sce: Some(sce()),
         external: [0.1, -0.2, 0.3],
     };
     let mut f = vec![[0.0; 3]; pos.len()];
@@ -418,5 +425,81 @@ fn simd_pair_loop_matches_scalar_reference() {
             let want = row_sums_portable(&pos, &f, &xi, 1.0, i);
             assert_close(&format!("row sums n={n} i={i}"), &got, &want, 1e-13);
         }
+    }
+}
+
+/// The row split of the MPI runs: the fused pass and the pair forces over blocks of rows,
+/// concatenated, are the whole pass bit for bit, on one thread and on several (below and
+/// above the parallel threshold).
+#[test]
+fn rows_split_in_blocks_give_the_whole_pass_bit_for_bit() {
+    for (n, seed) in [(37, 1), (300, 2)] {
+        let pos = random_config(n, 25.0, seed);
+        let f = Soa::from_points(&random_config(n, 2.0, seed + 10));
+        let xi = Soa::from_points(&random_config(n, 2.0, seed + 20));
+        let p = Soa::from_points(&pos);
+        let mut whole = FusedSums::default();
+        fused_pass(&p, &f, &xi, 1.0, &mut whole);
+        let one_thread = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let mut serial = FusedSums::default();
+        one_thread.install(|| fused_pass(&p, &f, &xi, 1.0, &mut serial));
+        assert_eq!(serial.drift, whole.drift, "n = {n}: thread count");
+        assert_eq!(serial.entry_sum.to_bits(), whole.entry_sum.to_bits());
+        for k in [2, 3, 5] {
+            let mut rows = Vec::new();
+            let mut part = Vec::new();
+            for r in 0..k {
+                fused_rows(&p, &f, &xi, 1.0, mobo::comm::block_rows(n, r, k), &mut part);
+                rows.extend_from_slice(&part);
+            }
+            assert_eq!(rows.len(), ROW_VALUES * n);
+            let mut split = FusedSums::default();
+            split.fill_from_rows(&rows);
+            assert_eq!(split.drift, whole.drift, "n = {n}, {k} blocks");
+            assert_eq!(split.noise_sum, whole.noise_sum);
+            assert_eq!(split.square_sum, whole.square_sum);
+            assert_eq!(split.entry_sum.to_bits(), whole.entry_sum.to_bits());
+        }
+        // Pair forces by rows, against the whole and against a symmetric pair loop.
+        let ff = ForceField {
+            repulsion: 30.0,
+            radius: 1.0,
+            sce: Some(sce()),
+            ..Default::default()
+        };
+        let mut all = vec![[0.0; 3]; n];
+        ff.pair_forces(&pos, 0..n, &mut all);
+        let mut sym = vec![[0.0; 3]; n];
+        for i in 0..n {
+            for j in i + 1..n {
+                let r: [f64; 3] = std::array::from_fn(|c| pos[i][c] - pos[j][c]);
+                let d = (r[0] * r[0] + r[1] * r[1] + r[2] * r[2]).sqrt();
+                // −dU/dr along r̂ from the energy of the pair, by central differences.
+                let e = |x: f64| ff.energy(&[[0.0; 3], [x, 0.0, 0.0]]);
+                let f = -(e(d + 1e-6) - e(d - 1e-6)) / 2e-6;
+                for c in 0..3 {
+                    sym[i][c] += f * r[c] / d;
+                    sym[j][c] -= f * r[c] / d;
+                }
+            }
+        }
+        let got: Vec<f64> = all.iter().flatten().copied().collect();
+        let want: Vec<f64> = sym.iter().flatten().copied().collect();
+        assert!(
+            got.iter().any(|&v| v != 0.0),
+            "n = {n}: no pair is in range"
+        );
+        assert_close("pair forces vs −∇U pairwise", &got, &want, 1e-6);
+        let mut pieces = Vec::new();
+        for r in 0..3 {
+            let rows = mobo::comm::block_rows(n, r, 3);
+            let mut part = vec![[0.0; 3]; rows.len()];
+            ff.pair_forces(&pos, rows, &mut part);
+            pieces.extend(part);
+        }
+        assert_eq!(pieces, all, "n = {n}: pair forces by blocks");
     }
 }

@@ -303,3 +303,131 @@ fn a_failing_step_stops_every_rank_with_one_message_and_the_checkpoint_intact() 
         "the last checkpoint changed"
     );
 }
+
+/// A cloud of 300 beads (above the fused pass's parallel threshold) with overlap repulsion,
+/// the sub-cellular-element potential and gravity, TEA-HI noise.
+const BROWNIAN_CLOUD: &str = r#"
+[brownian]
+radius = 1.0
+kT = 1.0
+viscosity = 0.05305164769729845
+dt = 1e-3
+steps = 200
+seed = 5
+noise = "tea-hi"
+save_every = 20
+
+[brownian.system]
+kind = "random"
+beads = 300
+box = 30.0
+repulsion = 50.0
+external_force = [0.0, 0.0, -0.5]
+
+[brownian.sce]
+u0 = 1.0
+rho = 2.0
+r_eq = 2.0
+cutoff = 5.0
+"#;
+
+/// `mobo brownian SCENE --out OUT --quiet` on `k` ranks (0: no MPI).
+fn brownian_on(k: usize, scene: impl AsRef<Path>, out: &Path) -> Output {
+    let scene = scene.as_ref().to_str().unwrap();
+    mobo_on(
+        k,
+        &["brownian", scene, "--out", out.to_str().unwrap(), "--quiet"],
+    )
+}
+
+fn read(p: &Path) -> Vec<u8> {
+    std::fs::read(p).unwrap_or_else(|e| panic!("{}: {e}", p.display()))
+}
+
+#[test]
+fn brownian_runs_give_the_one_rank_trajectory_bit_for_bit() {
+    let dir = tmpdir("mpi-brownian");
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scenes");
+    let cloud = write(&dir, "cloud.toml", BROWNIAN_CLOUD);
+    // The 20-bead TEA-HI chain and the exact-noise dimer of the examples, shortened.
+    let shorten = |name: &str| {
+        let text = std::fs::read_to_string(root.join(name)).unwrap();
+        let text = text.replace("steps = 20000", "steps = 300");
+        assert!(text.contains("steps = 300"), "{name}");
+        write(&dir, name, &text)
+    };
+    let scenes = [
+        (cloud, true),
+        (shorten("brownian_polymer.toml"), true),
+        (shorten("brownian_dimer.toml"), false),
+    ];
+    for (scene, split) in scenes {
+        let scene = scene.to_str().unwrap();
+        let one = dir.join("one");
+        let o = brownian_on(0, scene, &one);
+        ok(&o, &format!("{scene}: one process"));
+        for k in [2, 3, 4] {
+            let out = dir.join(format!("k{k}"));
+            let o = brownian_on(k, scene, &out);
+            ok(&o, &format!("{scene}: {k} ranks"));
+            for f in ["trajectory.npy", "observables.csv"] {
+                assert!(
+                    read(&out.join(f)) == read(&one.join(f)),
+                    "{scene}: {k} ranks: {f} differs from one process"
+                );
+            }
+            let s = summary(&out);
+            assert_eq!(s["split"]["ranks"].as_u64(), Some(k as u64));
+            assert_eq!(s["split"]["noise_split"].as_bool(), Some(split));
+            assert!(summary(&one)["split"].is_null());
+        }
+    }
+}
+
+#[test]
+fn a_brownian_run_that_blows_up_stops_every_rank_with_one_message() {
+    let dir = tmpdir("mpi-brownian-fail");
+    // A stiff chain with a step far beyond its bond relaxation time.
+    let scene = write(
+        &dir,
+        "blow.toml",
+        r#"
+[brownian]
+radius = 1.0
+kT = 1.0
+viscosity = 0.05305164769729845
+dt = 0.5
+steps = 400
+seed = 5
+noise = "tea-hi"
+
+[brownian.system]
+kind = "chain"
+beads = 12
+bond_length = 2.0
+bond_stiffness = 1e6
+repulsion = 50.0
+"#,
+    );
+    let out = dir.join("out");
+    let one = brownian_on(0, &scene, &out);
+    assert!(!one.status.success(), "one process should fail");
+    let message = String::from_utf8_lossy(&one.stderr)
+        .lines()
+        .find(|l| l.contains("left the finite numbers"))
+        .expect("the one-process error")
+        .to_string();
+    let o = brownian_on(3, &scene, &out);
+    assert!(!o.status.success(), "3 ranks should fail");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(
+        err.matches("left the finite numbers").count(),
+        1,
+        "one message from rank 0: {err}"
+    );
+    assert!(
+        err.contains(&message),
+        "the same error as one process: {err}"
+    );
+    assert!(!out.join("trajectory.npy").exists(), "no partial output");
+}

@@ -99,10 +99,56 @@ impl ForceField {
         f
     }
 
-    /// Forces `F = −∇U` on every bead (overwrites `out`).
+    /// Forces `F = −∇U` on every bead (overwrites `out`): [`Self::pair_forces`] over all
+    /// beads, then [`Self::add_bonded_and_external`].
     pub fn forces(&self, pos: &[[f64; 3]], out: &mut [[f64; 3]]) {
+        self.pair_forces(pos, 0..pos.len(), out);
+        self.add_bonded_and_external(pos, out);
+    }
+
+    /// Whether any pair potential (overlap repulsion, sub-cellular element) acts.
+    pub fn has_pair_forces(&self) -> bool {
+        self.repulsion > 0.0 || self.sce.is_some()
+    }
+
+    /// The pair forces on the beads `rows` (overwrites `out`, one entry a row): for each, the
+    /// sum over every other bead in ascending order, so the result does not depend on how the
+    /// rows are split (between MPI ranks). `O(|rows| · N)`.
+    pub fn pair_forces(
+        &self,
+        pos: &[[f64; 3]],
+        rows: std::ops::Range<usize>,
+        out: &mut [[f64; 3]],
+    ) {
         for o in out.iter_mut() {
-            *o = self.external;
+            *o = [0.0; 3];
+        }
+        if !self.has_pair_forces() {
+            return;
+        }
+        for (i, o) in rows.zip(out.iter_mut()) {
+            for (j, &pj) in pos.iter().enumerate() {
+                if j == i {
+                    continue;
+                }
+                let r = sub(pos[i], pj);
+                let d = norm(r);
+                let f = self.pair_force(d);
+                if f != 0.0 {
+                    for k in 0..3 {
+                        o[k] += f * r[k] / d;
+                    }
+                }
+            }
+        }
+    }
+
+    /// Add the bond and external forces to `out` (all beads), in bond order.
+    pub fn add_bonded_and_external(&self, pos: &[[f64; 3]], out: &mut [[f64; 3]]) {
+        for o in out.iter_mut() {
+            for (v, e) in o.iter_mut().zip(self.external) {
+                *v += e;
+            }
         }
         for &(i, j) in &self.bonds {
             let r = sub(pos[i], pos[j]);
@@ -111,21 +157,6 @@ impl ForceField {
             for k in 0..3 {
                 out[i][k] += f * r[k];
                 out[j][k] -= f * r[k];
-            }
-        }
-        if self.repulsion > 0.0 || self.sce.is_some() {
-            for i in 0..pos.len() {
-                for j in i + 1..pos.len() {
-                    let r = sub(pos[i], pos[j]);
-                    let d = norm(r);
-                    let f = self.pair_force(d);
-                    if f != 0.0 {
-                        for k in 0..3 {
-                            out[i][k] += f * r[k] / d;
-                            out[j][k] -= f * r[k] / d;
-                        }
-                    }
-                }
             }
         }
     }

@@ -11,8 +11,9 @@ use rand_distr::{Distribution, StandardNormal};
 use super::forces::ForceField;
 use super::noise::{cholesky_factor, lanczos_sqrt};
 use super::rpy::apply_mobility;
-use super::tea_hi::{fused_pass, tea_hi_noise, FusedSums, Soa, TeaHiCoefficients};
+use super::tea_hi::{fused_rows, tea_hi_noise, FusedSums, Soa, TeaHiCoefficients, ROW_VALUES};
 use super::BrownianError;
+use crate::comm::{block_rows, Communicator, SerialComm};
 
 /// How the noise (and with it the hydrodynamic coupling) is computed.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -72,6 +73,21 @@ pub struct BrownianSimulation {
     noise: Vec<[f64; 3]>,
     soa: (Soa, Soa, Soa),
     sums: FusedSums,
+    /// This rank's rows: pair forces, then the fused pass.
+    rows: Vec<f64>,
+    /// Where each rank spent its time (one entry on one rank).
+    pub timings: StepTimings,
+}
+
+/// Seconds a rank spent in the steps so far, and what it sent.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StepTimings {
+    /// Its rows of the pair forces and of the fused pass (or of the whole step on one rank).
+    pub rows_s: f64,
+    /// Waiting for and exchanging the rows of the other ranks.
+    pub exchange_s: f64,
+    /// Bytes sent to other ranks.
+    pub bytes_sent: u64,
 }
 
 impl BrownianSimulation {
@@ -104,15 +120,50 @@ impl BrownianSimulation {
             noise: vec![[0.0; 3]; n],
             soa: Default::default(),
             sums: FusedSums::default(),
+            rows: Vec::new(),
+            timings: StepTimings::default(),
         })
     }
 
     /// One step.
     pub fn step(&mut self) -> Result<(), BrownianError> {
+        self.step_on(&SerialComm)
+    }
+
+    /// One step with the `O(N²)` work split by rows over the ranks of `comm` (collective).
+    ///
+    /// Every rank holds every bead and draws the whole `ξ` from the same stream, computes the
+    /// pair forces and the fused TEA-HI pass for its block of rows ([`block_rows`]), and
+    /// all-gathers the rows; each row is a sequential sum over all beads, so every rank ends
+    /// with the same numbers as one rank, bit for bit, whatever the rank or thread count. The
+    /// Cholesky and Lanczos references are not split: every rank computes them whole.
+    pub fn step_on(&mut self, comm: &dyn Communicator) -> Result<(), BrownianError> {
         let p = self.params;
         let a = p.radius;
         let d0 = p.d0();
-        self.forces.forces(&self.positions, &mut self.f);
+        let n = self.positions.len();
+        let mine = block_rows(n, comm.rank(), comm.size());
+        let t0 = std::time::Instant::now();
+        let mut exchange = std::time::Duration::ZERO;
+        let bytes0 = comm.bytes_sent();
+        // Pair forces of this rank's rows, everyone's gathered, then bonds and external.
+        if self.forces.has_pair_forces() && comm.size() > 1 {
+            let mut part = vec![[0.0; 3]; mine.len()];
+            self.forces
+                .pair_forces(&self.positions, mine.clone(), &mut part);
+            let flat: Vec<f64> = part.into_iter().flatten().collect();
+            let te = std::time::Instant::now();
+            let all = comm.all_gather_f64(&flat)?;
+            exchange += te.elapsed();
+            check_gathered(&all, 3 * n)?;
+            for (f, v) in self.f.iter_mut().zip(all.concat().chunks_exact(3)) {
+                *f = [v[0], v[1], v[2]];
+            }
+            self.forces
+                .add_bonded_and_external(&self.positions, &mut self.f);
+        } else {
+            self.forces.forces(&self.positions, &mut self.f);
+        }
         for x in self.xi.iter_mut().flatten() {
             *x = StandardNormal.sample(&mut self.rng);
         }
@@ -126,15 +177,24 @@ impl BrownianSimulation {
                 pos.fill(&self.positions);
                 frc.fill(&self.f);
                 xi.fill(&self.xi);
-                fused_pass(pos, frc, xi, a, &mut self.sums);
-                let coef =
-                    TeaHiCoefficients::from_entry_sum(self.sums.entry_sum, self.positions.len())
-                        .ok_or(BrownianError::TeaHiBreakdown {
-                            step: self.steps,
-                            epsilon: self.sums.entry_sum
-                                / (9.0
-                                    * (self.positions.len() * (self.positions.len() - 1)) as f64),
-                        })?;
+                fused_rows(pos, frc, xi, a, mine, &mut self.rows);
+                if comm.size() > 1 {
+                    let te = std::time::Instant::now();
+                    let all = comm.all_gather_f64(&self.rows)?;
+                    exchange += te.elapsed();
+                    check_gathered(&all, ROW_VALUES * n)?;
+                    self.rows.clear();
+                    for r in &all {
+                        self.rows.extend_from_slice(r);
+                    }
+                }
+                self.sums.fill_from_rows(&self.rows);
+                let coef = TeaHiCoefficients::from_entry_sum(self.sums.entry_sum, n).ok_or(
+                    BrownianError::TeaHiBreakdown {
+                        step: self.steps,
+                        epsilon: self.sums.entry_sum / (9.0 * (n * (n - 1)) as f64),
+                    },
+                )?;
                 self.last_tea_hi = Some(coef);
                 self.drift.copy_from_slice(&self.sums.drift);
                 tea_hi_noise(&self.sums, xi, coef, &mut self.noise);
@@ -175,6 +235,23 @@ impl BrownianSimulation {
         }
         self.steps += 1;
         self.time += p.dt;
+        self.timings.rows_s += (t0.elapsed() - exchange).as_secs_f64();
+        self.timings.exchange_s += exchange.as_secs_f64();
+        self.timings.bytes_sent += comm.bytes_sent() - bytes0;
         Ok(())
+    }
+}
+
+/// The gathered rows must add up to `len` values (every rank ran the same step).
+fn check_gathered(all: &[Vec<f64>], len: usize) -> Result<(), BrownianError> {
+    let got: usize = all.iter().map(Vec::len).sum();
+    if got == len {
+        Ok(())
+    } else {
+        Err(BrownianError::Comm(crate::comm::CommError::Ranks {
+            what: "gathered Brownian rows",
+            got,
+            ranks: all.len(),
+        }))
     }
 }

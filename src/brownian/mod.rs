@@ -50,4 +50,7 @@ pub enum BrownianError {
     /// A position became NaN or infinite.
     #[error("particle {particle} left the finite numbers at step {step} (time step too large?)")]
     NonFinite { step: u64, particle: usize },
+    /// Exchanging rows between MPI ranks failed.
+    #[error("{0}")]
+    Comm(#[from] crate::comm::CommError),
 }

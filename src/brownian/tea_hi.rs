@@ -30,6 +30,8 @@ pub struct FusedSums {
     pub square_sum: Vec<[f64; 3]>,
     /// Sum of all entries of the off-diagonal blocks.
     pub entry_sum: f64,
+    /// Scratch: the rows of the last [`fused_pass`].
+    rows: Vec<f64>,
 }
 
 /// The TEA-HI coefficients of a configuration.
@@ -93,45 +95,72 @@ impl Soa {
     }
 }
 
-/// Particle count from which [`fused_pass`] runs over rayon threads.
+/// Particle count from which [`fused_rows`] runs over rayon threads.
 pub const PARALLEL_THRESHOLD: usize = 256;
 
-/// The fused pass: drift, noise sum, square sums and entry sum for every particle.
-/// `pos`, `force` and `xi` are structure-of-arrays of the same length.
-pub fn fused_pass(pos: &Soa, force: &Soa, xi: &Soa, a: f64, out: &mut FusedSums) {
-    let n = pos.x.len();
-    out.drift.resize(n, [0.0; 3]);
-    out.noise_sum.resize(n, [0.0; 3]);
-    out.square_sum.resize(n, [0.0; 3]);
-    let row = |i: usize, d: &mut [f64; 3], s: &mut [f64; 3], q: &mut [f64; 3]| -> f64 {
+/// Values per row of [`fused_rows`]: `D̃F` (self term included, 3), `Σ D̃ξ` (3), `Σ D̃²` per
+/// row (3) and the row's sum of entries (1).
+pub const ROW_VALUES: usize = 10;
+
+/// The fused pass over the particles `rows` (a range of `0..n`, all `n` sources for each):
+/// [`ROW_VALUES`] values per row, in row order, written to `out` (resized). Every row is a
+/// sequential sum over `j`, so the values do not depend on the thread count or on how the
+/// rows are split between callers (the MPI ranks of a Brownian run).
+pub fn fused_rows(
+    pos: &Soa,
+    force: &Soa,
+    xi: &Soa,
+    a: f64,
+    rows: std::ops::Range<usize>,
+    out: &mut Vec<f64>,
+) {
+    out.resize(ROW_VALUES * rows.len(), 0.0);
+    let row = |i: usize, o: &mut [f64]| {
         let r = row_sums(pos, force, xi, a, i);
-        *d = [r[0] + force.x[i], r[1] + force.y[i], r[2] + force.z[i]];
-        *s = [r[3], r[4], r[5]];
-        *q = [r[6], r[7], r[8]];
-        r[9]
+        o.copy_from_slice(&r);
+        o[0] += force.x[i];
+        o[1] += force.y[i];
+        o[2] += force.z[i];
     };
     // Below a few hundred particles a parallel dispatch costs more than the pairs.
-    let entry: f64 = if n < PARALLEL_THRESHOLD {
-        let mut e = 0.0;
-        for i in 0..n {
-            e += row(
-                i,
-                &mut out.drift[i],
-                &mut out.noise_sum[i],
-                &mut out.square_sum[i],
-            );
+    if pos.x.len() < PARALLEL_THRESHOLD {
+        for (i, o) in rows.zip(out.chunks_exact_mut(ROW_VALUES)) {
+            row(i, o);
         }
-        e
     } else {
-        out.drift
-            .par_iter_mut()
-            .zip(out.noise_sum.par_iter_mut())
-            .zip(out.square_sum.par_iter_mut())
+        out.par_chunks_exact_mut(ROW_VALUES)
             .enumerate()
-            .map(|(i, ((d, s), q))| row(i, d, s, q))
-            .sum()
-    };
-    out.entry_sum = entry;
+            .for_each(|(k, o)| row(rows.start + k, o));
+    }
+}
+
+impl FusedSums {
+    /// The sums of all `n` particles from the rows of [`fused_rows`] over `0..n` (or their
+    /// pieces concatenated in row order); the entry sum adds the rows in order.
+    pub fn fill_from_rows(&mut self, rows: &[f64]) {
+        let n = rows.len() / ROW_VALUES;
+        self.drift.resize(n, [0.0; 3]);
+        self.noise_sum.resize(n, [0.0; 3]);
+        self.square_sum.resize(n, [0.0; 3]);
+        let mut e = 0.0;
+        for (i, r) in rows.chunks_exact(ROW_VALUES).enumerate() {
+            self.drift[i] = [r[0], r[1], r[2]];
+            self.noise_sum[i] = [r[3], r[4], r[5]];
+            self.square_sum[i] = [r[6], r[7], r[8]];
+            e += r[9];
+        }
+        self.entry_sum = e;
+    }
+}
+
+/// The fused pass: drift, noise sum, square sums and entry sum for every particle.
+/// `pos`, `force` and `xi` are structure-of-arrays of the same length. The same numbers on
+/// any thread count ([`fused_rows`] over all rows, then [`FusedSums::fill_from_rows`]).
+pub fn fused_pass(pos: &Soa, force: &Soa, xi: &Soa, a: f64, out: &mut FusedSums) {
+    let mut rows = std::mem::take(&mut out.rows);
+    fused_rows(pos, force, xi, a, 0..pos.x.len(), &mut rows);
+    out.fill_from_rows(&rows);
+    out.rows = rows;
 }
 
 /// The ten row sums of particle `i` over all `j ≠ i`:

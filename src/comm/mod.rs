@@ -122,6 +122,16 @@ pub fn agreed<T, E: std::fmt::Display>(
     }
 }
 
+/// The block of rows `[r·n/K, (r+1)·n/K)` of `n` that rank `r` of `K` takes (contiguous,
+/// sizes differing by at most one, in rank order).
+///
+/// ```
+/// assert_eq!(mobo::comm::block_rows(10, 2, 3), 6..10);
+/// ```
+pub fn block_rows(n: usize, rank: usize, ranks: usize) -> std::ops::Range<usize> {
+    rank * n / ranks..(rank + 1) * n / ranks
+}
+
 /// One rank, no MPI: collectives are identities and copies.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SerialComm;

@@ -19,6 +19,7 @@ use crate::brownian::observables::{
     radius_of_gyration_sq,
 };
 use crate::brownian::{BrownianError, BrownianSimulation, NoiseModel};
+use crate::comm::{agreed, block_rows, CommError, Communicator, SerialComm};
 use crate::io::{npy, write_atomic, IoError};
 
 /// Errors of a run.
@@ -30,6 +31,9 @@ pub enum RunError {
     /// Output could not be written.
     #[error("{0}")]
     Io(#[from] IoError),
+    /// Another rank failed, or the ranks could not communicate.
+    #[error("{0}")]
+    Comm(#[from] CommError),
 }
 
 /// One effect the run builds, with the reason.
@@ -67,6 +71,25 @@ pub struct BrownianSummary {
     pub orientation_correlation: [f64; 3],
     pub tea_hi_epsilon: Option<f64>,
     pub tea_hi_beta: Option<f64>,
+    /// How the rows were split over MPI ranks (`None` on one rank).
+    pub split: Option<BrownianSplit>,
+}
+
+/// How a run over `K` ranks split its work: each rank its block of rows of the pair forces
+/// and of the fused TEA-HI pass ([`BrownianSimulation::step_on`]).
+#[derive(Clone, Debug, Serialize)]
+pub struct BrownianSplit {
+    pub ranks: usize,
+    /// Rows per rank, min and max.
+    pub rows_per_rank: [usize; 2],
+    /// Seconds in the rank's own rows (forces, fused pass, update), max and mean over ranks.
+    pub rows_s: [f64; 2],
+    /// Seconds exchanging (and waiting for) the other ranks' rows, max and mean.
+    pub exchange_s: [f64; 2],
+    /// Bytes a rank sends per step, max over ranks.
+    pub bytes_per_step: f64,
+    /// Whether the noise model splits over ranks (Cholesky and Lanczos run whole on each).
+    pub noise_split: bool,
 }
 
 /// The effects a scene calls for, each with its reason.
@@ -115,30 +138,26 @@ pub fn effects(scene: &BrownianScene) -> Vec<Effect> {
 
 /// Run a scene, writing results to `out`.
 pub fn run(scene: &BrownianScene, out: &Path, progress: bool) -> Result<BrownianSummary, RunError> {
+    run_on(&SerialComm, scene, out, progress)
+}
+
+/// Run a scene over the ranks of `comm` (collective): every rank steps every bead with its
+/// block of the `O(N²)` rows ([`BrownianSimulation::step_on`]), so the trajectory is the one
+/// rank's for the same seed, bit for bit; rank 0 writes the files. Every rank returns the
+/// summary, or the same error.
+pub fn run_on(
+    comm: &dyn Communicator,
+    scene: &BrownianScene,
+    out: &Path,
+    progress: bool,
+) -> Result<BrownianSummary, RunError> {
+    let root = comm.rank() == 0;
     let mut sim =
         BrownianSimulation::new(scene.params, scene.positions.clone(), scene.forces.clone())?;
     let n = sim.positions.len();
-    let mut frames: Vec<f64> = Vec::new();
-    let mut times = Vec::new();
-    let mut com = Vec::new();
-    let mut u = Vec::new();
-    let mut rg2 = Vec::new();
-    let mut ree2 = Vec::new();
-    let mut record = |sim: &BrownianSimulation| {
-        frames.extend(sim.positions.iter().flatten());
-        times.push(sim.time);
-        com.push(center_of_mass(&sim.positions));
-        rg2.push(radius_of_gyration_sq(&sim.positions));
-        let e = end_to_end(&sim.positions);
-        ree2.push(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
-        u.push(if n > 1 {
-            orientation(&sim.positions)
-        } else {
-            [0.0; 3]
-        });
-    };
-    record(&sim);
-    let bar = if progress {
+    let mut obs = Observed::default();
+    obs.record(&sim, root);
+    let bar = if progress && root {
         let b = ProgressBar::new(scene.steps);
         b.set_style(
             ProgressStyle::with_template(
@@ -153,27 +172,19 @@ pub fn run(scene: &BrownianScene, out: &Path, progress: bool) -> Result<Brownian
     };
     let start = Instant::now();
     for s in 1..=scene.steps {
-        sim.step()?;
+        sim.step_on(comm)?;
         if s % scene.save_every == 0 {
-            record(&sim);
+            obs.record(&sim, root);
             bar.set_position(s);
             bar.set_message(format!("t = {:.4}", sim.time));
         }
     }
     bar.finish_and_clear();
     let wall = start.elapsed().as_secs_f64();
-    let nf = times.len();
-    npy::write_f64(&out.join("trajectory.npy"), &[nf, n, 3], &frames)?;
-    let mut csv = String::from("t,com_x,com_y,com_z,rg2,ree2,u_x,u_y,u_z\n");
-    for f in 0..nf {
-        let (c, o) = (com[f], u[f]);
-        let _ = writeln!(
-            csv,
-            "{},{},{},{},{},{},{},{},{}",
-            times[f], c[0], c[1], c[2], rg2[f], ree2[f], o[0], o[1], o[2]
-        );
-    }
-    write_atomic(&out.join("observables.csv"), csv.as_bytes())?;
+    let split = split_summary(comm, &sim, scene.steps)?;
+    let nf = obs.times.len();
+    let written = if root { obs.write(out, n) } else { Ok(()) };
+    agreed(comm, written, RunError::Comm)?;
     let frame_dt = scene.params.dt * scene.save_every as f64;
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     let summary = BrownianSummary {
@@ -189,18 +200,109 @@ pub fn run(scene: &BrownianScene, out: &Path, progress: bool) -> Result<Brownian
         wall_s: wall,
         steps_per_second: scene.steps as f64 / wall.max(1e-12),
         frames: nf,
-        com_diffusion_estimate: mean_square_displacement(&com, 1) / (6.0 * frame_dt),
-        mean_rg2: mean(&rg2),
-        mean_end_to_end_sq: mean(&ree2),
+        com_diffusion_estimate: mean_square_displacement(&obs.com, 1) / (6.0 * frame_dt),
+        mean_rg2: mean(&obs.rg2),
+        mean_end_to_end_sq: mean(&obs.ree2),
         orientation_correlation: [
-            autocorrelation(&u, 1),
-            autocorrelation(&u, 10),
-            autocorrelation(&u, 100),
+            autocorrelation(&obs.u, 1),
+            autocorrelation(&obs.u, 10),
+            autocorrelation(&obs.u, 100),
         ],
         tea_hi_epsilon: sim.last_tea_hi.map(|c| c.epsilon),
         tea_hi_beta: sim.last_tea_hi.map(|c| c.beta),
+        split,
     };
-    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
-    write_atomic(&out.join("summary.json"), json.as_bytes())?;
+    let written = if root {
+        let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+        write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(RunError::from)
+    } else {
+        Ok(())
+    };
+    agreed(comm, written, RunError::Comm)?;
     Ok(summary)
+}
+
+/// The split of a run over more than one rank (collective).
+fn split_summary(
+    comm: &dyn Communicator,
+    sim: &BrownianSimulation,
+    steps: u64,
+) -> Result<Option<BrownianSplit>, RunError> {
+    let k = comm.size();
+    if k == 1 {
+        return Ok(None);
+    }
+    let t = sim.timings;
+    let all = comm.all_gather_f64(&[t.rows_s, t.exchange_s, t.bytes_sent as f64])?;
+    let col = |c: usize| {
+        all.iter()
+            .map(move |v| v.get(c).copied().unwrap_or(f64::NAN))
+    };
+    let max_mean = |c: usize| {
+        [
+            col(c).fold(f64::NEG_INFINITY, f64::max),
+            col(c).sum::<f64>() / k as f64,
+        ]
+    };
+    let n = sim.positions.len();
+    let sizes = (0..k).map(|r| block_rows(n, r, k).len());
+    Ok(Some(BrownianSplit {
+        ranks: k,
+        rows_per_rank: [sizes.clone().min().unwrap_or(0), sizes.max().unwrap_or(0)],
+        rows_s: max_mean(0),
+        exchange_s: max_mean(1),
+        bytes_per_step: max_mean(2)[0] / steps.max(1) as f64,
+        noise_split: matches!(
+            sim.params.noise,
+            NoiseModel::TeaHi | NoiseModel::FreeDraining
+        ),
+    }))
+}
+
+/// The saved frames and the observables of each.
+#[derive(Default)]
+struct Observed {
+    /// Positions of every frame (kept where the files are written).
+    frames: Vec<f64>,
+    times: Vec<f64>,
+    com: Vec<[f64; 3]>,
+    /// End-to-end unit vectors.
+    u: Vec<[f64; 3]>,
+    rg2: Vec<f64>,
+    ree2: Vec<f64>,
+}
+
+impl Observed {
+    fn record(&mut self, sim: &BrownianSimulation, keep_positions: bool) {
+        if keep_positions {
+            self.frames.extend(sim.positions.iter().flatten());
+        }
+        self.times.push(sim.time);
+        self.com.push(center_of_mass(&sim.positions));
+        self.rg2.push(radius_of_gyration_sq(&sim.positions));
+        let e = end_to_end(&sim.positions);
+        self.ree2.push(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]);
+        self.u.push(if sim.positions.len() > 1 {
+            orientation(&sim.positions)
+        } else {
+            [0.0; 3]
+        });
+    }
+
+    /// `trajectory.npy` and `observables.csv` (atomically).
+    fn write(&self, out: &Path, n: usize) -> Result<(), RunError> {
+        let nf = self.times.len();
+        npy::write_f64(&out.join("trajectory.npy"), &[nf, n, 3], &self.frames)?;
+        let mut csv = String::from("t,com_x,com_y,com_z,rg2,ree2,u_x,u_y,u_z\n");
+        for f in 0..nf {
+            let (c, o) = (self.com[f], self.u[f]);
+            let _ = writeln!(
+                csv,
+                "{},{},{},{},{},{},{},{},{}",
+                self.times[f], c[0], c[1], c[2], self.rg2[f], self.ree2[f], o[0], o[1], o[2]
+            );
+        }
+        write_atomic(&out.join("observables.csv"), csv.as_bytes())?;
+        Ok(())
+    }
 }
