@@ -126,7 +126,7 @@ impl ForceField {
         if !self.has_pair_forces() {
             return;
         }
-        for (i, o) in rows.zip(out.iter_mut()) {
+        let row = |i: usize, o: &mut [f64; 3]| {
             for (j, &pj) in pos.iter().enumerate() {
                 if j == i {
                     continue;
@@ -140,6 +140,17 @@ impl ForceField {
                     }
                 }
             }
+        };
+        // Rows are independent (the same numbers on any thread count).
+        if pos.len() < super::tea_hi::PARALLEL_THRESHOLD {
+            for (i, o) in rows.zip(out.iter_mut()) {
+                row(i, o);
+            }
+        } else {
+            use rayon::prelude::*;
+            out.par_iter_mut()
+                .enumerate()
+                .for_each(|(k, o)| row(rows.start + k, o));
         }
     }
 
