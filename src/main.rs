@@ -478,8 +478,9 @@ extern "C" fn on_usr1(_: libc::c_int) {
 
 /// Stop a run after the current step (every rank agrees at the end of each step, then a
 /// checkpoint is written) on Ctrl-C, SIGTERM or SIGUSR1. `mpirun` forwards SIGUSR1 to every
-/// rank; on Ctrl-C it sends every rank SIGTERM (after the terminal's SIGINT) and SIGKILL a few
-/// seconds later (`OMPI_MCA_odls_base_sigkill_timeout`, see docs/scaling.md). Signals within
+/// rank; on Ctrl-C (OpenMPI 4.1, measured) it sends SIGCONT, then SIGTERM after
+/// `OMPI_MCA_odls_base_sigkill_timeout` seconds and SIGKILL as many seconds later, which is the
+/// time a rank has to finish its step and the checkpoint. Signals within
 /// 3 s of the first count as one; a later one ends the process at once (exit status 130).
 fn watch_stop_signals(stop: std::sync::Arc<std::sync::atomic::AtomicBool>, root: bool) {
     use std::sync::atomic::Ordering;

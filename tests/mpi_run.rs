@@ -4,13 +4,15 @@
 //! cell's coefficients agree with the one-process run to 1e-10 relative. A run checkpointed
 //! at 2 ranks resumes at 2 ranks bit for bit and at 3 and 1 ranks to 1e-10; a failing step
 //! ends every rank with one message naming the step and the cell and leaves the last
-//! checkpoint as it was; Ctrl-C on `mpirun` stops every rank with a checkpoint.
+//! checkpoint as it was; SIGUSR1 and Ctrl-C on `mpirun` stop every rank with a checkpoint.
+//! `mpirun -n K mobo brownian` writes the one-process trajectory byte for byte.
 //!
 //! Needs `mpirun` (Debian's `openmpi-bin`) and the `mpi` feature (the binary must be built
 //! with MPI).
 
 mod common;
 
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
@@ -430,4 +432,113 @@ repulsion = 50.0
         "the same error as one process: {err}"
     );
     assert!(!out.join("trajectory.npy").exists(), "no partial output");
+}
+
+/// SIGUSR1 (forwarded by mpirun) and Ctrl-C (SIGINT to mpirun; OpenMPI 4.1 then sends the
+/// ranks SIGCONT, SIGTERM after `odls_base_sigkill_timeout` seconds and SIGKILL as many
+/// seconds later, so the ranks have that long to finish the step) stop every rank after the
+/// step in progress, with a checkpoint from which the run goes on.
+#[test]
+fn sigusr1_and_ctrl_c_on_mpirun_stop_every_rank_with_a_checkpoint() {
+    let dir = tmpdir("mpi-run-signal");
+    let scene = write(
+        &dir,
+        "long.toml",
+        &CONTRAST.replace("t_end = 0.2", "t_end = 0.9"),
+    );
+    for signal in ["USR1", "INT"] {
+        let out = dir.join(signal);
+        let mut c = Command::new("mpirun");
+        c.args(["--allow-run-as-root", "--oversubscribe", "-n", "2"])
+            .arg(env!("CARGO_BIN_EXE_mobo"))
+            .args([
+                "run",
+                scene.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .arg("--quiet")
+            .env("OMPI_MCA_btl_vader_single_copy_mechanism", "none")
+            .env("OMPI_MCA_odls_base_sigkill_timeout", "15")
+            .env("RAYON_NUM_THREADS", "1")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped());
+        // As from a terminal: a test harness started in the background may have SIGINT
+        // ignored, which mpirun would inherit.
+        // SAFETY: only async-signal-safe calls between fork and exec.
+        unsafe {
+            c.pre_exec(|| {
+                libc::signal(libc::SIGINT, libc::SIG_DFL);
+                libc::signal(libc::SIGTERM, libc::SIG_DFL);
+                Ok(())
+            });
+        }
+        let child = c.spawn().expect("run mpirun (openmpi-bin)");
+        // Signal once three checkpoints were written (one a step: the run is past its setup
+        // and stepping steadily).
+        let t = Instant::now();
+        let mut seen = Vec::new();
+        while seen.len() < 3 {
+            assert!(
+                t.elapsed() < Duration::from_secs(300),
+                "{signal}: no checkpoints"
+            );
+            if let Ok(m) = std::fs::metadata(out.join("checkpoint.bin")).and_then(|m| m.modified())
+            {
+                if !seen.contains(&m) {
+                    seen.push(m);
+                }
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let kill = Command::new("kill")
+            .args([&format!("-{signal}"), &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let o = child.wait_with_output().unwrap();
+        let stdout = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            !o.status.success(),
+            "{signal}: an interrupted run exits non-zero"
+        );
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        // The summary of the stopped run: not completed, the step of the checkpoint.
+        let s = summary(&out);
+        assert_eq!(
+            s["completed"].as_bool(),
+            Some(false),
+            "{signal}: not stopped\n{stdout}\n{stderr}"
+        );
+        let step = s["steps"].as_u64().unwrap();
+        assert!(step < 90, "{signal}: ran to the end");
+        assert_eq!(
+            stderr.matches("stopping after this step").count(),
+            usize::from(signal == "INT"),
+            "{signal}: rank 0 alone says it is stopping\n{stderr}"
+        );
+        // Rank 0's last words; with Ctrl-C mpirun may drop them (its I/O forwarding waits
+        // in the kill sequence), so only SIGUSR1 is held to them.
+        if signal == "USR1" {
+            assert_eq!(
+                stdout.matches(&format!("stopped at step {step} ")).count(),
+                1,
+                "{stdout}"
+            );
+        }
+        // The checkpoint holds that step: one more step from it.
+        let o = mobo_on(
+            2,
+            &[
+                "run",
+                "--resume",
+                out.to_str().unwrap(),
+                "--max-steps",
+                "1",
+                "--quiet",
+            ],
+        );
+        ok(&o, &format!("{signal}: resumed"));
+        assert_eq!(summary(&out)["steps"].as_u64(), Some(step + 1), "{signal}");
+    }
 }
