@@ -416,10 +416,7 @@ fn run(
             sc.numerics.order,
             sc.numerics.dt,
             sc.numerics.t_end,
-            match comm.size() {
-                1 => String::new(),
-                k => format!(", {k} ranks"),
-            },
+            ranks_note(comm.size()),
             out.display()
         );
         for e in &sc.effects {
@@ -467,6 +464,14 @@ fn run(
         out.display()
     );
     Ok(())
+}
+
+/// ", K ranks" for a banner line under MPI, nothing on one rank.
+fn ranks_note(ranks: usize) -> String {
+    match ranks {
+        1 => String::new(),
+        k => format!(", {k} ranks"),
+    }
 }
 
 /// Set by SIGUSR1 (async-signal-safe: one atomic store).
@@ -547,10 +552,7 @@ fn brownian_on(
             sc.positions.len(),
             sc.steps,
             sc.params.noise,
-            match comm.size() {
-                1 => String::new(),
-                k => format!(", {k} ranks"),
-            },
+            ranks_note(comm.size()),
             out.display()
         );
         for e in mobo::scene::brownian_run::effects(&sc) {

@@ -120,9 +120,7 @@ impl ForceField {
         rows: std::ops::Range<usize>,
         out: &mut [[f64; 3]],
     ) {
-        for o in out.iter_mut() {
-            *o = [0.0; 3];
-        }
+        out.fill([0.0; 3]);
         if !self.has_pair_forces() {
             return;
         }

@@ -147,23 +147,19 @@ impl BrownianSimulation {
         let mut exchange = std::time::Duration::ZERO;
         let bytes0 = comm.bytes_sent();
         // Pair forces of this rank's rows, everyone's gathered, then bonds and external.
+        self.forces
+            .pair_forces(&self.positions, mine.clone(), &mut self.f[mine.clone()]);
         if self.forces.has_pair_forces() && comm.size() > 1 {
-            let mut part = vec![[0.0; 3]; mine.len()];
-            self.forces
-                .pair_forces(&self.positions, mine.clone(), &mut part);
-            let flat: Vec<f64> = part.into_iter().flatten().collect();
-            let te = std::time::Instant::now();
-            let all = comm.all_gather_f64(&flat)?;
-            exchange += te.elapsed();
-            check_gathered(&all, 3 * n)?;
-            for (f, v) in self.f.iter_mut().zip(all.concat().chunks_exact(3)) {
-                *f = [v[0], v[1], v[2]];
-            }
-            self.forces
-                .add_bonded_and_external(&self.positions, &mut self.f);
-        } else {
-            self.forces.forces(&self.positions, &mut self.f);
+            let all = gather_blocks(
+                comm,
+                self.f[mine.clone()].as_flattened(),
+                3 * n,
+                &mut exchange,
+            )?;
+            self.f.as_flattened_mut().copy_from_slice(&all);
         }
+        self.forces
+            .add_bonded_and_external(&self.positions, &mut self.f);
         for x in self.xi.iter_mut().flatten() {
             *x = StandardNormal.sample(&mut self.rng);
         }
@@ -179,14 +175,7 @@ impl BrownianSimulation {
                 xi.fill(&self.xi);
                 fused_rows(pos, frc, xi, a, mine, &mut self.rows);
                 if comm.size() > 1 {
-                    let te = std::time::Instant::now();
-                    let all = comm.all_gather_f64(&self.rows)?;
-                    exchange += te.elapsed();
-                    check_gathered(&all, ROW_VALUES * n)?;
-                    self.rows.clear();
-                    for r in &all {
-                        self.rows.extend_from_slice(r);
-                    }
+                    self.rows = gather_blocks(comm, &self.rows, ROW_VALUES * n, &mut exchange)?;
                 }
                 self.sums.fill_from_rows(&self.rows);
                 let coef = TeaHiCoefficients::from_entry_sum(self.sums.entry_sum, n).ok_or(
@@ -242,11 +231,20 @@ impl BrownianSimulation {
     }
 }
 
-/// The gathered rows must add up to `len` values (every rank ran the same step).
-fn check_gathered(all: &[Vec<f64>], len: usize) -> Result<(), BrownianError> {
+/// Every rank's block of rows, concatenated in rank order (collective): `len` values in all,
+/// or an error if the ranks did not run the same step. The time spent is added to `waited`.
+fn gather_blocks(
+    comm: &dyn Communicator,
+    local: &[f64],
+    len: usize,
+    waited: &mut std::time::Duration,
+) -> Result<Vec<f64>, BrownianError> {
+    let t = std::time::Instant::now();
+    let all = comm.all_gather_f64(local)?;
+    *waited += t.elapsed();
     let got: usize = all.iter().map(Vec::len).sum();
     if got == len {
-        Ok(())
+        Ok(all.concat())
     } else {
         Err(BrownianError::Comm(crate::comm::CommError::Ranks {
             what: "gathered Brownian rows",

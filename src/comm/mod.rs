@@ -122,6 +122,44 @@ pub fn agreed<T, E: std::fmt::Display>(
     }
 }
 
+/// One value over the ranks: its smallest, mean and largest.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Spread {
+    pub min: f64,
+    pub mean: f64,
+    pub max: f64,
+}
+
+/// The [`Spread`] over the ranks of each of `local`'s values (collective; every rank passes
+/// as many values, in the same order): how a per-rank clock or counter varies between ranks.
+///
+/// ```
+/// use mobo::comm::{spread, SerialComm};
+/// let s = spread(&SerialComm, &[2.0, 5.0]).unwrap();
+/// assert_eq!((s[1].min, s[1].mean, s[1].max), (5.0, 5.0, 5.0));
+/// ```
+pub fn spread(comm: &dyn Communicator, local: &[f64]) -> Result<Vec<Spread>, CommError> {
+    let all = comm.all_gather_f64(local)?;
+    if let Some(r) = all.iter().find(|r| r.len() != local.len()) {
+        return Err(CommError::Ranks {
+            what: "per-rank values to spread",
+            got: r.len(),
+            ranks: all.len(),
+        });
+    }
+    let k = all.len() as f64;
+    Ok((0..local.len())
+        .map(|j| {
+            let col = || all.iter().map(|r| r[j]);
+            Spread {
+                min: col().fold(f64::INFINITY, f64::min),
+                mean: col().sum::<f64>() / k,
+                max: col().fold(f64::NEG_INFINITY, f64::max),
+            }
+        })
+        .collect())
+}
+
 /// The block of rows `[r·n/K, (r+1)·n/K)` of `n` that rank `r` of `K` takes (contiguous,
 /// sizes differing by at most one, in rank order).
 ///

@@ -19,7 +19,7 @@ use crate::brownian::observables::{
     radius_of_gyration_sq,
 };
 use crate::brownian::{BrownianError, BrownianSimulation, NoiseModel};
-use crate::comm::{agreed, block_rows, CommError, Communicator, SerialComm};
+use crate::comm::{agreed, block_rows, spread, CommError, Communicator, SerialComm};
 use crate::io::{npy, write_atomic, IoError};
 
 /// Errors of a run.
@@ -183,8 +183,6 @@ pub fn run_on(
     let wall = start.elapsed().as_secs_f64();
     let split = split_summary(comm, &sim, scene.steps)?;
     let nf = obs.times.len();
-    let written = if root { obs.write(out, n) } else { Ok(()) };
-    agreed(comm, written, RunError::Comm)?;
     let frame_dt = scene.params.dt * scene.save_every as f64;
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
     let summary = BrownianSummary {
@@ -212,9 +210,12 @@ pub fn run_on(
         tea_hi_beta: sim.last_tea_hi.map(|c| c.beta),
         split,
     };
+    // Rank 0 writes every file; the others learn whether it could.
     let written = if root {
-        let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
-        write_atomic(&out.join("summary.json"), json.as_bytes()).map_err(RunError::from)
+        obs.write(out, n).and_then(|()| {
+            let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+            Ok(write_atomic(&out.join("summary.json"), json.as_bytes())?)
+        })
     } else {
         Ok(())
     };
@@ -233,25 +234,15 @@ fn split_summary(
         return Ok(None);
     }
     let t = sim.timings;
-    let all = comm.all_gather_f64(&[t.rows_s, t.exchange_s, t.bytes_sent as f64])?;
-    let col = |c: usize| {
-        all.iter()
-            .map(move |v| v.get(c).copied().unwrap_or(f64::NAN))
-    };
-    let max_mean = |c: usize| {
-        [
-            col(c).fold(f64::NEG_INFINITY, f64::max),
-            col(c).sum::<f64>() / k as f64,
-        ]
-    };
     let n = sim.positions.len();
-    let sizes = (0..k).map(|r| block_rows(n, r, k).len());
+    let rows = block_rows(n, comm.rank(), k).len() as f64;
+    let s = spread(comm, &[rows, t.rows_s, t.exchange_s, t.bytes_sent as f64])?;
     Ok(Some(BrownianSplit {
         ranks: k,
-        rows_per_rank: [sizes.clone().min().unwrap_or(0), sizes.max().unwrap_or(0)],
-        rows_s: max_mean(0),
-        exchange_s: max_mean(1),
-        bytes_per_step: max_mean(2)[0] / steps.max(1) as f64,
+        rows_per_rank: [s[0].min as usize, s[0].max as usize],
+        rows_s: [s[1].max, s[1].mean],
+        exchange_s: [s[2].max, s[2].mean],
+        bytes_per_step: s[3].max / steps.max(1) as f64,
         noise_split: matches!(
             sim.params.noise,
             NoiseModel::TeaHi | NoiseModel::FreeDraining

@@ -37,7 +37,7 @@ use serde::Serialize;
 use super::cells::{CellScene, Effect, Flow, Scheme};
 use super::cells_checkpoint::{self, Progress, Split};
 use super::cells_partition::{self, Reason};
-use crate::comm::{CommError, Communicator, SerialComm};
+use crate::comm::{spread, CommError, Communicator, SerialComm};
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
@@ -1089,18 +1089,12 @@ fn split_summary(
         per_step(clock.migration_bytes as f64),
         per_step(st.ghost_cells as f64),
     ];
-    let all = comm.all_gather_f64(&mine).map_err(CellRunError::Comm)?;
-    let k = all.len() as f64;
-    let col = |j: usize| all.iter().map(move |r| r[j]);
-    let max_mean = |j: usize| [col(j).fold(0.0, f64::max), col(j).sum::<f64>() / k];
+    let s = spread(comm, &mine).map_err(CellRunError::Comm)?;
+    let max_mean = |j: usize| [s[j].max, s[j].mean];
     let solve = max_mean(1);
     Ok(SplitSummary {
-        ranks: all.len(),
-        cells_per_rank: [
-            col(0).fold(f64::INFINITY, f64::min),
-            col(0).sum::<f64>() / k,
-            col(0).fold(0.0, f64::max),
-        ],
+        ranks: comm.size(),
+        cells_per_rank: [s[0].min, s[0].mean, s[0].max],
         solve_s: solve,
         coupling_s: max_mean(2),
         fmm_s: max_mean(3),
