@@ -37,7 +37,7 @@ use std::ops::Range;
 use super::box_key::{BoxKey, Domain, FINE, KEY_END};
 /// Interaction lists, per box of the rank's tree (empty for the boxes it does not compute).
 pub use super::octree::Lists;
-use super::octree::MAX_DEPTH;
+use super::octree::{bounding_box, MAX_DEPTH};
 use crate::comm::{CommError, Communicator};
 
 /// What a rank holds of a box.
@@ -417,14 +417,7 @@ impl DistTree {
         let leaf_size = input.leaf_size.max(1);
         let (k, me) = (comm.size(), comm.rank());
         // 1. Domain.
-        let mut lo = [f64::INFINITY; 3];
-        let mut hi = [f64::NEG_INFINITY; 3];
-        for p in input.sources.iter().chain(input.targets) {
-            for c in 0..3 {
-                lo[c] = lo[c].min(p[c]);
-                hi[c] = hi[c].max(p[c]);
-            }
-        }
+        let (mut lo, mut hi) = bounding_box(input.sources.iter().chain(input.targets));
         comm.all_min(&mut lo)?;
         comm.all_max(&mut hi)?;
         let domain = Domain::from_bounds(lo, hi);

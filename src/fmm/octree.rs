@@ -96,6 +96,18 @@ pub(super) fn spread(v: u64) -> u64 {
     x
 }
 
+/// The smallest box `[lo, hi]` holding `points` (`lo = +∞`, `hi = −∞` when there are none).
+pub fn bounding_box<'a>(points: impl IntoIterator<Item = &'a [f64; 3]>) -> ([f64; 3], [f64; 3]) {
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for p in points {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (lo, hi)
+}
+
 /// Morton key of a point in the cube `[lo, lo + side)³`.
 pub fn morton_key(p: [f64; 3], lo: [f64; 3], side: f64) -> u64 {
     let scale = (1u64 << BITS) as f64 / side;
@@ -120,13 +132,7 @@ impl Octree {
         min_width: f64,
     ) -> Self {
         let leaf_size = leaf_size.max(1);
-        let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
-        for p in sources.iter().chain(targets) {
-            for k in 0..3 {
-                lo[k] = lo[k].min(p[k]);
-                hi[k] = hi[k].max(p[k]);
-            }
-        }
+        let (mut lo, mut hi) = bounding_box(sources.iter().chain(targets));
         if sources.is_empty() && targets.is_empty() {
             lo = [0.0; 3];
             hi = [1.0; 3];

@@ -2,7 +2,7 @@
 //!
 //! **Split.** Cells are ordered along the Morton (Z-order) curve of their centres (the mean
 //! of their grid parametrisation, `c₀₀/√(4π)` per component), in the bounding cube of all
-//! centres at 21 bits per axis ([`morton_key`]), ties broken by the cell index, and the curve is cut into `K`
+//! centres at 21 bits per axis ([`Domain::key`]), ties broken by the cell index, and the curve is cut into `K`
 //! consecutive pieces of equal total **cost** (a cell goes to the rank whose share of the cost
 //! contains the middle of its own). Consecutive pieces of a space-filling curve are compact
 //! in space, which is what the distributed FMM's own partition of points does (it cuts the
@@ -26,8 +26,9 @@
 //! [`CellState`] (one all-to-all), and is rebuilt from its setup on its new rank.
 
 use crate::comm::{CommError, Communicator};
-use crate::fmm::octree::morton_key;
-use crate::timestep::cell_state::CellState;
+use crate::fmm::box_key::Domain;
+use crate::fmm::octree::bounding_box;
+use crate::timestep::cell_state::{CellState, CellStateError};
 use crate::timestep::suspension::{CellSetup, CellStepError, Suspension};
 use crate::timestep::TimestepError;
 
@@ -70,21 +71,10 @@ pub fn split(centres: &[[f64; 3]], costs: &[f64], ranks: usize) -> Vec<usize> {
     if ranks <= 1 || n == 0 {
         return vec![0; n];
     }
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for c in centres {
-        for d in 0..3 {
-            lo[d] = lo[d].min(c[d]);
-            hi[d] = hi[d].max(c[d]);
-        }
-    }
-    // The cube of the centres, a little wider so that the largest centre keeps its key.
-    let side = (0..3)
-        .map(|d| hi[d] - lo[d])
-        .fold(0.0, f64::max)
-        .max(1e-300)
-        * (1.0 + 1e-9);
-    let key = |c: &[f64; 3]| morton_key(*c, lo, side);
+    // The cube of the centres, as the FMM's tree takes it.
+    let (lo, hi) = bounding_box(centres);
+    let domain = Domain::from_bounds(lo, hi);
+    let key = |c: &[f64; 3]| domain.key(*c);
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by_key(|&i| (key(&centres[i]), i));
     let total: f64 = costs.iter().sum();
@@ -177,17 +167,20 @@ pub fn migrate(
     for buf in &received {
         for rec in buf.chunks(record) {
             let id = rec[0] as usize;
-            let done = match (CellState::decode(&rec[1..], ncoef, n), setups.get(id)) {
-                (Ok(state), Some(setup)) => susp.insert_cell(p, id, setup, Some(&state)),
-                (Err(e), _) => Err(CellStepError {
+            let done = setups
+                .get(id)
+                .ok_or_else(|| {
+                    CellStateError(format!(
+                        "cell {id} is not one of the run's {} cells",
+                        setups.len()
+                    ))
+                })
+                .and_then(|setup| Ok((setup, CellState::decode(&rec[1..], ncoef, n)?)))
+                .map_err(|source| CellStepError {
                     cell: Some(id),
-                    source: TimestepError::Vesicle(format!("moving to rank {me}: {e}")),
-                }),
-                (_, None) => Err(CellStepError {
-                    cell: Some(id),
-                    source: TimestepError::Vesicle(format!("moving to rank {me}: no such cell")),
-                }),
-            };
+                    source: TimestepError::Moved { rank: me, source },
+                })
+                .and_then(|(setup, state)| susp.insert_cell(p, id, setup, Some(&state)));
             if outcome.is_ok() {
                 outcome = done;
             }

@@ -42,7 +42,7 @@ use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::adaptive::AdaptiveDt;
-use crate::timestep::cell_state::CellState;
+use crate::timestep::cell_state::{CellState, CellStateError};
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{OperatorStorage, TimeScheme, VesicleParams};
 use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
@@ -76,6 +76,9 @@ pub enum CellRunError {
     /// Communication between ranks failed, or another rank failed (its message).
     #[error("{0}")]
     Comm(CommError),
+    /// A cell state gathered from the ranks does not decode.
+    #[error("{0}")]
+    State(#[from] CellStateError),
 }
 
 /// Per-cell observables at the end of the run.
@@ -389,14 +392,7 @@ fn gather_states(
         return Ok(None);
     };
     rows.iter()
-        .map(|r| {
-            CellState::decode(r, ncoef, n).map_err(|e| {
-                CellRunError::Comm(CommError::Remote {
-                    rank: 0,
-                    message: e.to_string(),
-                })
-            })
-        })
+        .map(|r| CellState::decode(r, ncoef, n).map_err(CellRunError::from))
         .collect::<Result<Vec<_>, _>>()
         .map(Some)
 }

@@ -186,6 +186,13 @@ pub enum TimestepError {
     /// Communication between ranks failed, or another rank failed (its message).
     #[error("{0}")]
     Comm(#[from] crate::comm::CommError),
+    /// A cell sent to this rank could not be taken in (its state does not decode, or it is
+    /// not one of the run's cells).
+    #[error("a cell moving to rank {rank}: {source}")]
+    Moved {
+        rank: usize,
+        source: cell_state::CellStateError,
+    },
     /// A cell's step failed on another rank (its message, agreed by every rank);
     /// `solver_failure` says whether it was a failed linear solve ([`TimestepError::report`]
     /// there), which an adaptive step may retry smaller.
