@@ -87,19 +87,29 @@ pub trait Communicator {
     fn agree(&self, local: Result<(), String>) -> Result<(), CommError> {
         let bytes: Vec<u64> = match &local {
             Ok(()) => Vec::new(),
-            Err(m) => std::iter::once(1).chain(m.bytes().map(u64::from)).collect(),
+            Err(m) => std::iter::once(1).chain(text_words(m)).collect(),
         };
         let all = self.all_gather_u64(&bytes)?;
         for (rank, b) in all.iter().enumerate() {
             if !b.is_empty() {
-                let message =
-                    String::from_utf8_lossy(&b[1..].iter().map(|&c| c as u8).collect::<Vec<u8>>())
-                        .into_owned();
-                return Err(CommError::Remote { rank, message });
+                return Err(CommError::Remote {
+                    rank,
+                    message: words_text(&b[1..]),
+                });
             }
         }
         Ok(())
     }
+}
+
+/// A message as words for the `u64` collectives, one byte a word ([`words_text`] reads it).
+pub(crate) fn text_words(text: &str) -> impl Iterator<Item = u64> + '_ {
+    text.bytes().map(u64::from)
+}
+
+/// The message of [`text_words`] back.
+pub(crate) fn words_text(words: &[u64]) -> String {
+    String::from_utf8_lossy(&words.iter().map(|&c| c as u8).collect::<Vec<u8>>()).into_owned()
 }
 
 /// `local` where every rank succeeded (collective); otherwise an error on every rank: its own

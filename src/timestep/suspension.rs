@@ -39,7 +39,7 @@ use super::semi_implicit::{
     ExplicitTerms, OperatorStorage, StepReport, VesicleParams, VesicleStepper,
 };
 use super::TimestepError;
-use crate::comm::{Communicator, SerialComm};
+use crate::comm::{text_words, words_text, Communicator, SerialComm};
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::skalak::SkalakParams;
 
@@ -559,7 +559,7 @@ pub(crate) fn agree_cells<T>(
         Ok(_) => Vec::new(),
         Err(e) => [key(e), u64::from(e.source.is_solver_failure())]
             .into_iter()
-            .chain(e.source.to_string().bytes().map(u64::from))
+            .chain(text_words(&e.source.to_string()))
             .collect(),
     };
     let all = match comm.all_gather_u64(&mine) {
@@ -585,10 +585,7 @@ pub(crate) fn agree_cells<T>(
             cell: first[0].checked_sub(1).map(|c| c as usize),
             source: TimestepError::Remote {
                 rank,
-                message: String::from_utf8_lossy(
-                    &first[2..].iter().map(|&b| b as u8).collect::<Vec<u8>>(),
-                )
-                .into_owned(),
+                message: words_text(&first[2..]),
                 solver_failure: first[1] != 0,
             },
         }),
