@@ -14,41 +14,15 @@ steps=${STEPS:-20}
 threads=${THREADS:-1}
 out=${OUT:-target/brownian-scaling}
 results=${RESULTS:-benches/RESULTS.md}
-command -v mpirun >/dev/null || {
-    echo "scripts/brownian_scaling.sh: needs mpirun (apt install openmpi-bin libopenmpi-dev libclang-dev)" >&2
-    exit 1
-}
-cargo build --release --features mpi --quiet
-mkdir -p "$out"
-export OMPI_MCA_btl_vader_single_copy_mechanism=none
-export RAYON_NUM_THREADS=$threads
+. scripts/mpi_common.sh
+mpi_setup scripts/brownian_scaling.sh "$threads" "$out"
 # Number density of 300 beads in a 30³ box.
 side=$(python3 -c "print(round(30 * (${beads} / 300) ** (1 / 3), 2))")
 scene="$out/cloud_${beads}.toml"
-cat >"$scene" <<EOF
-[brownian]
-radius = 1.0
-kT = 1.0
-viscosity = 0.05305164769729845
-dt = 1e-3
-steps = $steps
-seed = 5
-noise = "tea-hi"
-save_every = $steps
-
-[brownian.system]
-kind = "random"
-beads = $beads
-box = $side
-repulsion = 50.0
-external_force = [0.0, 0.0, -0.5]
-
-[brownian.sce]
-u0 = 1.0
-rho = 2.0
-r_eq = 2.0
-cutoff = 5.0
-EOF
+# The example cloud at BEADS beads, the same density, STEPS steps.
+sed -e "s/^beads = .*/beads = $beads/" -e "s/^box = .*/box = $side/" \
+    -e "s/^steps = .*/steps = $steps/" -e "s/^save_every = .*/save_every = $steps/" \
+    examples/scenes/brownian_cloud.toml >"$scene"
 dirs=()
 for k in $ks; do
     dir="$out/k$k"
@@ -76,13 +50,8 @@ for s in runs:
     print(f"| {k} | {s['beads']} | {t:.4f} | {t0 * k0 / (t * k):.2f} | {cols} | same bytes as K = {k0} |")
 EOF
 )
-cpu=$(lscpu | sed -n 's/^Model name: *//p' | head -1)
-header="### Strong scaling of \`mpirun -n K mobo brownian\` — $(date +%Y-%m-%d), $cpu, $(nproc) cores
+header="### Strong scaling of \`mpirun -n K mobo brownian\` — $(machine)
 
 $beads beads, TEA-HI, repulsion + SCE + gravity, $steps steps, ${threads} rayon thread(s) per rank,
 \`scripts/brownian_scaling.sh\` (BEADS=$beads KS=\"$ks\")."
-printf '%s\n\n%s\n' "$header" "$table"
-if [ "$results" != "-" ]; then
-    printf '\n%s\n\n%s\n' "$header" "$table" >>"$results"
-    echo "scripts/brownian_scaling.sh: appended to $results" >&2
-fi
+publish scripts/brownian_scaling.sh "$header" "$table" "$results"

@@ -30,15 +30,8 @@ steps=${STEPS:-10}
 threads=${THREADS:-1}
 out=${OUT:-target/scaling}
 results=${RESULTS:-benches/RESULTS.md}
-command -v mpirun >/dev/null || {
-    echo "scripts/scaling.sh: needs mpirun (apt install openmpi-bin libopenmpi-dev libclang-dev)" >&2
-    exit 1
-}
-cargo build --release --features mpi --quiet
-mkdir -p "$out"
-export OMPI_MCA_btl_vader_single_copy_mechanism=none
-export RAYON_NUM_THREADS=$threads
-export MOBO_OPERATOR_CACHE=${MOBO_OPERATOR_CACHE:-$PWD/target/operator-cache}
+. scripts/mpi_common.sh
+mpi_setup scripts/scaling.sh "$threads" "$out"
 rows=()
 for k in $ks; do
     n=$cells
@@ -105,13 +98,8 @@ for k, n, s in runs:
     )
 EOF
 )
-cpu=$(lscpu | sed -n 's/^Model name: *//p' | head -1)
-header="### ${mode^} scaling of \`mpirun -n K mobo run\` — $(date +%Y-%m-%d), $cpu, $(nproc) cores
+header="### ${mode^} scaling of \`mpirun -n K mobo run\` — $(machine)
 
 RBC suspension (Skalak), p = $order, $steps steps of dt = 0.02, FMM 5 digits, GMRES 1e-6,
 ${threads} rayon thread(s) per rank, \`scripts/scaling.sh $mode\` (KS=\"$ks\", CELLS=$cells)."
-printf '%s\n\n%s\n' "$header" "$table"
-if [ "$results" != "-" ]; then
-    printf '\n%s\n\n%s\n' "$header" "$table" >>"$results"
-    echo "scripts/scaling.sh: appended to $results" >&2
-fi
+publish scripts/scaling.sh "$header" "$table" "$results"

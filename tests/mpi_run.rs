@@ -316,33 +316,6 @@ fn a_failing_step_stops_every_rank_with_one_message_and_the_checkpoint_intact() 
     );
 }
 
-/// A cloud of 300 beads (above the fused pass's parallel threshold) with overlap repulsion,
-/// the sub-cellular-element potential and gravity, TEA-HI noise.
-const BROWNIAN_CLOUD: &str = r#"
-[brownian]
-radius = 1.0
-kT = 1.0
-viscosity = 0.05305164769729845
-dt = 1e-3
-steps = 200
-seed = 5
-noise = "tea-hi"
-save_every = 20
-
-[brownian.system]
-kind = "random"
-beads = 300
-box = 30.0
-repulsion = 50.0
-external_force = [0.0, 0.0, -0.5]
-
-[brownian.sce]
-u0 = 1.0
-rho = 2.0
-r_eq = 2.0
-cutoff = 5.0
-"#;
-
 /// `mobo brownian SCENE --out OUT --quiet` on `k` ranks (0: no MPI).
 fn brownian_on(k: usize, scene: impl AsRef<Path>, out: &Path) -> Output {
     let scene = scene.as_ref().to_str().unwrap();
@@ -360,8 +333,8 @@ fn read(p: &Path) -> Vec<u8> {
 fn brownian_runs_give_the_one_rank_trajectory_bit_for_bit() {
     let dir = tmpdir("mpi-brownian");
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scenes");
-    let cloud = write(&dir, "cloud.toml", BROWNIAN_CLOUD);
-    // The 20-bead TEA-HI chain and the exact-noise dimer of the examples, shortened.
+    // The 300-bead cloud (above the fused pass's parallel threshold; repulsion, SCE and
+    // gravity), and the 20-bead TEA-HI chain and the exact-noise dimer, shortened.
     let shorten = |name: &str| {
         let text = std::fs::read_to_string(root.join(name)).unwrap();
         let text = text.replace("steps = 20000", "steps = 300");
@@ -369,7 +342,7 @@ fn brownian_runs_give_the_one_rank_trajectory_bit_for_bit() {
         write(&dir, name, &text)
     };
     let scenes = [
-        (cloud, true),
+        (root.join("brownian_cloud.toml"), true),
         (shorten("brownian_polymer.toml"), true),
         (shorten("brownian_dimer.toml"), false),
     ];
