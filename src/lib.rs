@@ -13,6 +13,7 @@ pub mod check;
 pub mod comm;
 pub mod durable;
 pub mod fmm;
+pub mod gpu;
 pub mod io;
 pub mod report;
 pub mod scene;

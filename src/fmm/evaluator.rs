@@ -22,13 +22,14 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 
-use super::blocks::{SourceBlock, SourceView};
+use super::blocks::SourceBlock;
 use super::dist_tree::{DistTree, Role, TreeInput};
 use super::fit_cache;
 use super::kernels::{
     Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, StokesletSource, Stresslet,
 };
 use super::m2l_fft::{offset_index, FftM2l};
+use super::near_field::{CpuNearField, NearField, NearList};
 use super::operators::{gemm, Translations, DOWN_EQUIV, INNER, UP_CHECK};
 use super::surface::CubeSurface;
 use super::FmmError;
@@ -178,7 +179,15 @@ pub struct FmmTimings {
     pub l2l: f64,
     pub l2p: f64,
     pub m2p: f64,
+    /// The near-field pass ([`super::near_field`]): wall seconds of its backend (on the GPU:
+    /// uploads, kernel and read-back included).
     pub p2p: f64,
+    /// Whether the near field ran beside the CPU's far field (a GPU backend).
+    pub near_concurrent: bool,
+    /// Wall seconds of the CPU's far field from the ghost exchange on (top of the upward pass,
+    /// M2L, downward pass, L2P, M2P): with a concurrent near field, `total` is about
+    /// `max(p2p, far_wall)` plus the rest, rather than their sum.
+    pub far_wall: f64,
     pub total: f64,
 }
 
@@ -219,6 +228,10 @@ pub struct Fmm {
     pub timings: FmmTimings,
     /// Communication of the last evaluation.
     pub comm: FmmComm,
+    /// The direct interactions of the leaves, batched (built with the tree).
+    near_list: NearList,
+    /// The backend that evaluates `near_list` (CPU unless [`Fmm::set_near_field`] chose another).
+    near_field: Box<dyn NearField>,
 }
 
 /// Per-thread scratch of the leaf phase.
@@ -314,6 +327,7 @@ impl Fmm {
         let (tree, (ops, m2l)) = (tree?, ops?);
         let identity: Vec<usize> = (0..tree.sources.len()).collect();
         let block = SourceBlock::new(&tree.sources, tree.normals.as_deref(), &identity);
+        let near_list = NearList::build(&tree, ops.surf.len());
         Ok(Fmm {
             kind,
             near,
@@ -328,7 +342,35 @@ impl Fmm {
             setup_s: start.elapsed().as_secs_f64(),
             timings: FmmTimings::default(),
             comm: FmmComm::default(),
+            near_list,
+            near_field: Box::new(CpuNearField::new(kind.near())),
         })
+    }
+
+    /// The batched near field of this rank's leaves.
+    pub fn near_list(&self) -> &NearList {
+        &self.near_list
+    }
+
+    /// This rank's sorted sources and targets as the near field sees them (positions,
+    /// orientations), for building a backend.
+    pub fn near_points(&self) -> (&[[f64; 3]], Option<&[[f64; 3]]>, &[[f64; 3]]) {
+        (
+            &self.tree.sources,
+            self.tree.normals.as_deref(),
+            &self.tree.targets,
+        )
+    }
+
+    /// Evaluate the near field with `backend` from now on (built for this FMM's
+    /// [`Fmm::near_list`] and [`Fmm::near_points`]); the CPU backend is the default.
+    pub fn set_near_field(&mut self, backend: Box<dyn NearField>) {
+        self.near_field = backend;
+    }
+
+    /// What evaluates the near field (`"cpu"`, or the GPU and its precision).
+    pub fn near_field_description(&self) -> String {
+        self.near_field.describe()
     }
 
     /// The kernel.
@@ -443,10 +485,44 @@ impl Fmm {
                 *v = dens[i * ds + c];
             }
         }
-        self.upward(&mut up, Role::Top, &clock);
-        let down = self.downward(&up, &clock);
-        let sorted = self.leaves(&up, &down, &clock);
         let dt = self.near.output_dim();
+        let n_sorted = self.tree.targets.len() * dt;
+        let mut far = |clock: &PhaseClock| {
+            let t = Instant::now();
+            self.upward(&mut up, Role::Top, clock);
+            let down = self.downward(&up, clock);
+            let sorted = self.leaves(&up, &down, clock);
+            (sorted, t.elapsed().as_secs_f64())
+        };
+        let near = |out: &mut [f64]| {
+            let t = Instant::now();
+            let r =
+                self.near_field
+                    .evaluate(&self.near_list, &self.sources, &self.tree.targets, out);
+            r.map(|()| t.elapsed().as_secs_f64())
+        };
+        let concurrent = self.near_field.concurrent();
+        let (sorted, far_wall, near_wall) = if concurrent {
+            // The near field on its device while rayon does the far field here (MOBO's overlap).
+            std::thread::scope(|s| {
+                let gpu = s.spawn(|| {
+                    let mut out = vec![0.0; n_sorted];
+                    near(&mut out).map(|w| (out, w))
+                });
+                let (mut sorted, far_wall) = far(&clock);
+                let (near_out, near_wall) = gpu
+                    .join()
+                    .map_err(|_| FmmError::Shape("the near-field thread panicked".into()))??;
+                for (o, v) in sorted.iter_mut().zip(&near_out) {
+                    *o += v;
+                }
+                Ok::<_, FmmError>((sorted, far_wall, near_wall))
+            })?
+        } else {
+            let (mut sorted, far_wall) = far(&clock);
+            let near_wall = near(&mut sorted)?;
+            (sorted, far_wall, near_wall)
+        };
         let tc = Instant::now();
         self.tree.target_route.backward(comm, &sorted, dt, out)?;
         comm_s += tc.elapsed().as_secs_f64();
@@ -459,7 +535,9 @@ impl Fmm {
             l2l: clock.get(5),
             l2p: clock.get(6),
             m2p: clock.get(7),
-            p2p: clock.get(8),
+            p2p: near_wall,
+            near_concurrent: concurrent,
+            far_wall,
             total: t0.elapsed().as_secs_f64(),
         };
         let ne = self.ops.n_equiv() as u64;
@@ -620,7 +698,9 @@ impl Fmm {
             check.par_chunks_mut(nc).zip(&sel).for_each_init(
                 || Vec::with_capacity(self.ops.surf.len()),
                 |pts, (col, &bx)| {
-                    if tree.lists.x[bx].is_empty() || self.x_direct(bx) {
+                    if tree.lists.x[bx].is_empty()
+                        || NearList::x_direct(tree, bx, self.ops.surf.len())
+                    {
                         return;
                     }
                     let node = &tree.boxes[bx];
@@ -743,7 +823,8 @@ impl Fmm {
         clock.add(2, t);
     }
 
-    /// Leaves: L2P, M2P and P2P into this rank's targets' values in key order.
+    /// Leaves: L2P and M2P into this rank's targets' values in key order (the near field is
+    /// a pass of its own, [`NearField`]).
     fn leaves(&self, up: &[f64], down: &[f64], clock: &PhaseClock) -> Vec<f64> {
         let dt = self.near.output_dim();
         let ne = self.ops.n_equiv();
@@ -786,46 +867,18 @@ impl Fmm {
                     );
                 }
                 t = clock.add(6, t);
-                // M2P, or P2P from a leaf with fewer sources than surface points.
+                // M2P (the W list's small leaves are in the near field).
                 for &w in &tree.lists.w[bx] {
                     let wn = &tree.boxes[w];
-                    if wn.n_sources == 0 {
-                        continue;
-                    }
-                    if wn.leaf && wn.n_sources <= n_surf {
-                        self.near
-                            .eval_block(tgts, &self.sources.view(wn.sources.clone()), vals);
+                    if wn.n_sources == 0 || NearList::w_direct(tree, w, n_surf) {
                         continue;
                     }
                     self.equivalent_to_targets(s, &up[w * ne..(w + 1) * ne], w, INNER, tgts, vals);
                 }
-                t = clock.add(7, t);
-                // P2P: U list, and the X list of a small leaf (instead of P2L).
-                if self.x_direct(bx) {
-                    for &x in &tree.lists.x[bx] {
-                        let xn = &tree.boxes[x];
-                        self.near
-                            .eval_block(tgts, &self.sources.view(xn.sources.clone()), vals);
-                    }
-                }
-                for &u in &tree.lists.u[bx] {
-                    let un = &tree.boxes[u];
-                    if !un.sources.is_empty() {
-                        let view: SourceView = self.sources.view(un.sources.clone());
-                        self.near.eval_block(tgts, &view, vals);
-                    }
-                }
-                clock.add(8, t);
+                clock.add(7, t);
             },
         );
         sorted
-    }
-
-    /// Whether the X list of box `b` acts directly on its targets (a leaf with fewer targets
-    /// than surface points) rather than through its downward check surface.
-    fn x_direct(&self, b: usize) -> bool {
-        let node = &self.tree.boxes[b];
-        node.leaf && node.n_targets <= self.ops.surf.len()
     }
 
     /// Add the field of box `b`'s normalised equivalent density (on its surface of radius

@@ -7,7 +7,8 @@
 //!   essential tree each rank needs, which the evaluator runs on (one rank: the whole tree).
 //! * [`evaluator::Fmm`]: the KIFMM of Ying, Biros & Zorin (J. Comput. Phys. 196, 2004) with
 //!   level-independent operators ([`operators`]), M2L by FFT ([`m2l_fft`], the scheme of PVFMM,
-//!   Malhotra & Biros 2015) and batched P2P ([`p2p`]); accuracy in digits via
+//!   Malhotra & Biros 2015) and batched P2P ([`p2p`]) over the near field's one list
+//!   ([`near_field`]), on the CPU or the GPU ([`gpu_near`]); accuracy in digits via
 //!   [`calibration`]. [`kifmm`] is the first, dense reference version kept for comparison.
 //!
 //! ```
@@ -34,9 +35,11 @@ pub mod direct;
 pub mod dist_tree;
 pub mod evaluator;
 pub mod fit_cache;
+pub mod gpu_near;
 pub mod kernels;
 pub mod kifmm;
 pub mod m2l_fft;
+pub mod near_field;
 pub mod octree;
 pub mod operators;
 pub mod p2p;
@@ -65,4 +68,7 @@ pub enum FmmError {
     /// The on-disk operator cache (`MOBO_OPERATOR_CACHE`) could not be written.
     #[error(transparent)]
     Cache(#[from] fit_cache::FitCacheError),
+    /// The GPU near field failed or was asked for where there is none.
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
 }

@@ -1,0 +1,204 @@
+//! The FMM's near field on the GPU ([`crate::gpu`]), and the choice between GPU and CPU.
+//!
+//! [`choose`] decides once per plan, and says why: with [`GpuChoice::Auto`] the GPU is used
+//! where the `gpu` feature is built, an adapter is a hardware GPU (not a CPU rasteriser such as
+//! lavapipe), its precision serves the digits asked for ([`GpuPrecision::max_digits`]) and the
+//! near field has at least [`AUTO_MIN_PAIRS`] pairs; [`GpuChoice::On`] uses any adapter and
+//! fails with a clear error where there is none; [`GpuChoice::Off`] keeps the CPU.
+
+use super::{Fmm, FmmError, FmmKernel};
+use crate::gpu::{GpuChoice, GpuError, GpuKernel, GpuPrecision};
+
+/// Smallest near field (target–source pairs) that `auto` sends to the GPU: about 20 ms of the
+/// CPU's AVX2 Stokeslet loop on two cores, well above the fixed cost of a launch and a
+/// read-back.
+pub const AUTO_MIN_PAIRS: u64 = 20_000_000;
+
+/// Where the near field runs and why.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct NearDecision {
+    /// `"cpu"` or `"gpu"`.
+    pub device: String,
+    /// The adapter, where a GPU was looked at.
+    pub adapter: Option<String>,
+    /// Precision of the GPU kernels, where the GPU runs.
+    pub precision: Option<GpuPrecision>,
+    /// Why.
+    pub reason: String,
+}
+
+impl NearDecision {
+    fn cpu(adapter: Option<String>, reason: String) -> Self {
+        NearDecision {
+            device: "cpu".into(),
+            adapter,
+            precision: None,
+            reason,
+        }
+    }
+}
+
+/// The GPU kernel of an FMM kernel's near field.
+pub fn gpu_kernel(kind: FmmKernel) -> GpuKernel {
+    match kind {
+        FmmKernel::Laplace => GpuKernel::Laplace,
+        FmmKernel::LaplaceDoubleLayer => GpuKernel::LaplaceDoubleLayer,
+        FmmKernel::Stokeslet => GpuKernel::Stokeslet,
+        FmmKernel::Stresslet => GpuKernel::Stresslet,
+        FmmKernel::Rpy { radius } => GpuKernel::Rpy { radius },
+    }
+}
+
+/// Decide where `fmm`'s near field runs for a request of `digits` (None: unknown, treated as
+/// needing `f64`) and set its backend accordingly. `precision` forces a GPU precision.
+pub fn choose(
+    fmm: &mut Fmm,
+    choice: GpuChoice,
+    precision: Option<GpuPrecision>,
+    digits: Option<u32>,
+) -> Result<NearDecision, FmmError> {
+    if choice == GpuChoice::Off {
+        return Ok(NearDecision::cpu(None, "GPU not asked for".into()));
+    }
+    attach(fmm, choice, precision, digits)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn attach(
+    _fmm: &mut Fmm,
+    choice: GpuChoice,
+    _precision: Option<GpuPrecision>,
+    _digits: Option<u32>,
+) -> Result<NearDecision, FmmError> {
+    match choice {
+        GpuChoice::On => Err(GpuError::NotBuilt.into()),
+        _ => Ok(NearDecision::cpu(
+            None,
+            "built without the gpu feature".into(),
+        )),
+    }
+}
+
+#[cfg(feature = "gpu")]
+fn attach(
+    fmm: &mut Fmm,
+    choice: GpuChoice,
+    precision: Option<GpuPrecision>,
+    digits: Option<u32>,
+) -> Result<NearDecision, FmmError> {
+    use crate::gpu::p2p::{PairPoints, PairSum, RowList};
+    use crate::gpu::Gpu;
+    let auto = choice == GpuChoice::Auto;
+    let gpu = match Gpu::shared() {
+        Ok(g) => g,
+        Err(e) if auto => return Ok(NearDecision::cpu(None, e.to_string())),
+        Err(e) => return Err(e.into()),
+    };
+    let adapter = Some(gpu.describe());
+    if auto && !gpu.is_hardware() {
+        return Ok(NearDecision::cpu(
+            adapter,
+            "the adapter is not a hardware GPU (a CPU rasteriser would only compete with the CPU loops)".into(),
+        ));
+    }
+    let want = digits.unwrap_or(u32::MAX);
+    let prec = match precision {
+        Some(GpuPrecision::F64) if !gpu.has_f64() => {
+            return Err(GpuError::NoF64(gpu.describe()).into())
+        }
+        Some(p) => p,
+        None if gpu.has_f64() => GpuPrecision::F64,
+        None => GpuPrecision::F32,
+    };
+    if want > prec.max_digits() {
+        let why = format!(
+            "{} digits asked for; the GPU's {} near field serves at most {}",
+            want,
+            prec.name(),
+            prec.max_digits()
+        );
+        if auto {
+            return Ok(NearDecision::cpu(adapter, why));
+        }
+        return Err(GpuError::Shape(why).into());
+    }
+    let pairs = fmm.near_list().pairs();
+    if auto && pairs < AUTO_MIN_PAIRS {
+        return Ok(NearDecision::cpu(
+            adapter,
+            format!("near field of {pairs} pairs, below the {AUTO_MIN_PAIRS} where the GPU gains"),
+        ));
+    }
+    let list = fmm.near_list();
+    let (sources, normals, targets) = fmm.near_points();
+    let kernel = gpu_kernel(fmm.kernel());
+    let sum = PairSum::new(
+        gpu.clone(),
+        kernel,
+        prec,
+        PairPoints {
+            sources,
+            normals,
+            targets,
+        },
+        RowList {
+            rows: &list.rows,
+            offsets: &list.offsets,
+            ranges: &list.ranges,
+        },
+    )?;
+    fmm.set_near_field(Box::new(backend::GpuNearField { sum }));
+    Ok(NearDecision {
+        device: "gpu".into(),
+        adapter,
+        precision: Some(prec),
+        reason: if auto {
+            format!(
+                "hardware GPU, {} precision serves the request, {pairs} near pairs",
+                prec.name()
+            )
+        } else {
+            "GPU asked for".into()
+        },
+    })
+}
+
+#[cfg(feature = "gpu")]
+mod backend {
+    use super::super::blocks::SourceBlock;
+    use super::super::near_field::{NearField, NearList};
+    use super::super::FmmError;
+    use crate::gpu::p2p::PairSum;
+
+    /// The near field as a [`PairSum`] on the GPU (sources and list resident there).
+    pub struct GpuNearField {
+        pub sum: PairSum,
+    }
+
+    impl NearField for GpuNearField {
+        fn describe(&self) -> String {
+            format!(
+                "gpu {} ({})",
+                self.sum.precision().name(),
+                self.sum.gpu().describe()
+            )
+        }
+
+        fn concurrent(&self) -> bool {
+            true
+        }
+
+        fn evaluate(
+            &self,
+            _list: &NearList,
+            sources: &SourceBlock,
+            _targets: &[[f64; 3]],
+            out: &mut [f64],
+        ) -> Result<(), FmmError> {
+            let q: Vec<&[f64]> = sources.q.iter().map(|c| c.as_slice()).collect();
+            let ds = self.sum.density_dim();
+            self.sum.evaluate(&q[..ds], out)?;
+            Ok(())
+        }
+    }
+}

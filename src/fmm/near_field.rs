@@ -1,0 +1,188 @@
+//! The near field of a tree as one batched list, and the backends that evaluate it.
+//!
+//! When a tree is built, every direct interaction of its leaves — the U list (adjacent
+//! leaves), the W list's leaves with fewer sources than surface points (cheaper directly than
+//! through their equivalent densities), and the X list of leaves with fewer targets than
+//! surface points (instead of P2L) — is collected into a [`NearList`]: one row per target leaf
+//! with its target range and the source ranges it sums, compressed-row. The near field is then
+//!
+//! `u(x_i) += Σ_{ranges r of row(i)} Σ_{j ∈ r} K(x_i − y_j) q_j`,
+//!
+//! a pass of its own, separate from L2P and M2P, that a [`NearField`] backend evaluates: the
+//! CPU backend ([`CpuNearField`], the reference, the AVX2/portable loops of [`super::p2p`]
+//! over rayon) or the GPU backend of `crate::gpu` (feature `gpu`). The backend is chosen once
+//! per FMM plan ([`super::Fmm::set_near_field`]), not per call.
+
+use std::ops::Range;
+
+use rayon::prelude::*;
+
+use super::blocks::SourceBlock;
+use super::dist_tree::{DistTree, Role};
+use super::kernels::Kernel;
+use super::FmmError;
+
+/// The direct interactions of a tree's leaves, compressed-row: row `r` sums the sources in
+/// `ranges[offsets[r]..offsets[r + 1]]` (ranges of the tree's sorted sources) into the targets
+/// `rows[r]` (a range of the tree's sorted targets). Rows are disjoint and sorted by target.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NearList {
+    /// Target range of each row.
+    pub rows: Vec<Range<usize>>,
+    /// Start of each row's source ranges in `ranges` (`rows.len() + 1` entries).
+    pub offsets: Vec<usize>,
+    /// Source ranges of all rows.
+    pub ranges: Vec<Range<usize>>,
+}
+
+impl NearList {
+    /// The near field of `tree`'s owned leaves with targets; `n_surf` is the number of points
+    /// of an equivalent surface (the W and X thresholds above).
+    pub fn build(tree: &DistTree, n_surf: usize) -> Self {
+        let mut leaves: Vec<usize> = (0..tree.boxes.len())
+            .filter(|&b| {
+                let bx = &tree.boxes[b];
+                bx.role == Role::Owned && bx.leaf && !bx.targets.is_empty()
+            })
+            .collect();
+        leaves.sort_by_key(|&b| tree.boxes[b].targets.start);
+        let mut list = NearList {
+            offsets: vec![0],
+            ..Default::default()
+        };
+        for &b in &leaves {
+            let node = &tree.boxes[b];
+            let mut push = |s: &Range<usize>| {
+                if !s.is_empty() {
+                    list.ranges.push(s.clone());
+                }
+            };
+            for &w in &tree.lists.w[b] {
+                if Self::w_direct(tree, w, n_surf) {
+                    push(&tree.boxes[w].sources);
+                }
+            }
+            if Self::x_direct(tree, b, n_surf) {
+                for &x in &tree.lists.x[b] {
+                    push(&tree.boxes[x].sources);
+                }
+            }
+            for &u in &tree.lists.u[b] {
+                push(&tree.boxes[u].sources);
+            }
+            list.rows.push(node.targets.clone());
+            list.offsets.push(list.ranges.len());
+        }
+        list
+    }
+
+    /// Whether W-list box `w` acts on a leaf's targets directly (a leaf with fewer sources than
+    /// surface points) rather than through its equivalent density (M2P).
+    pub fn w_direct(tree: &DistTree, w: usize, n_surf: usize) -> bool {
+        let wn = &tree.boxes[w];
+        wn.leaf && wn.n_sources > 0 && wn.n_sources <= n_surf
+    }
+
+    /// Whether the X list of leaf `b` acts directly on its targets (a leaf with fewer targets
+    /// than surface points) rather than through its downward check surface (P2L).
+    pub fn x_direct(tree: &DistTree, b: usize, n_surf: usize) -> bool {
+        let node = &tree.boxes[b];
+        node.leaf && node.n_targets <= n_surf
+    }
+
+    /// Source ranges of row `r`.
+    pub fn row_ranges(&self, r: usize) -> &[Range<usize>] {
+        &self.ranges[self.offsets[r]..self.offsets[r + 1]]
+    }
+
+    /// Number of target–source pairs (the work of one evaluation).
+    pub fn pairs(&self) -> u64 {
+        (0..self.rows.len())
+            .map(|r| {
+                let ns: usize = self.row_ranges(r).iter().map(|s| s.len()).sum();
+                (ns * self.rows[r].len()) as u64
+            })
+            .sum()
+    }
+}
+
+/// A backend that evaluates a [`NearList`] for the current densities.
+pub trait NearField: Sync {
+    /// What runs the pass, for summaries (`"cpu"`, `"gpu f64 (NVIDIA H100 …)"`).
+    fn describe(&self) -> String;
+    /// Whether the pass runs beside the CPU's far field (on another device) rather than on the
+    /// same cores after it.
+    fn concurrent(&self) -> bool;
+    /// Add the near field of `sources` (positions as built, densities as set) to `out`
+    /// (`output_dim` values per sorted target).
+    fn evaluate(
+        &self,
+        list: &NearList,
+        sources: &SourceBlock,
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+    ) -> Result<(), FmmError>;
+}
+
+/// The CPU near field: the serial kernels of [`super::p2p`] over the rows, rows in parallel.
+pub struct CpuNearField {
+    kernel: Box<dyn Kernel>,
+}
+
+impl CpuNearField {
+    /// The CPU backend for `kernel` (the FMM's near kernel).
+    pub fn new(kernel: Box<dyn Kernel>) -> Self {
+        CpuNearField { kernel }
+    }
+}
+
+impl NearField for CpuNearField {
+    fn describe(&self) -> String {
+        "cpu".into()
+    }
+
+    fn concurrent(&self) -> bool {
+        false
+    }
+
+    fn evaluate(
+        &self,
+        list: &NearList,
+        sources: &SourceBlock,
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+    ) -> Result<(), FmmError> {
+        let dt = self.kernel.output_dim();
+        for_each_row(list, out, dt, |r, vals| {
+            let tgts = &targets[list.rows[r].clone()];
+            for s in list.row_ranges(r) {
+                self.kernel.eval_block(tgts, &sources.view(s.clone()), vals);
+            }
+        });
+        Ok(())
+    }
+}
+
+/// Run `f(row, values of the row's targets)` over the rows in parallel (`dt` values per
+/// target of `out`, in sorted target order).
+pub fn for_each_row<F: Fn(usize, &mut [f64]) + Sync>(
+    list: &NearList,
+    out: &mut [f64],
+    dt: usize,
+    f: F,
+) {
+    let mut chunks = Vec::with_capacity(list.rows.len());
+    let mut rest = out;
+    let mut at = 0;
+    for r in &list.rows {
+        let (_, tail) = rest.split_at_mut((r.start - at) * dt);
+        let (mine, tail) = tail.split_at_mut(r.len() * dt);
+        chunks.push(mine);
+        rest = tail;
+        at = r.end;
+    }
+    chunks
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(r, vals)| f(r, vals));
+}

@@ -1,0 +1,83 @@
+//! One wgpu device per process.
+
+use std::sync::{Arc, OnceLock};
+
+use super::GpuError;
+
+/// An open GPU: adapter, device and queue, and what the adapter offers.
+pub struct Gpu {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    f64: bool,
+    /// Largest storage-buffer binding, bytes.
+    pub(crate) max_binding: u64,
+    /// Largest workgroup count per dispatch dimension.
+    pub(crate) max_groups: u32,
+}
+
+static SHARED: OnceLock<Result<Arc<Gpu>, GpuError>> = OnceLock::new();
+
+impl Gpu {
+    /// The process's GPU, opened on first use (the adapter wgpu prefers for high performance;
+    /// `WGPU_BACKEND` and `WGPU_ADAPTER_NAME` narrow the choice).
+    pub fn shared() -> Result<Arc<Gpu>, GpuError> {
+        SHARED.get_or_init(|| Gpu::open().map(Arc::new)).clone()
+    }
+
+    fn open() -> Result<Gpu, GpuError> {
+        let instance =
+            wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let options = wgpu::RequestAdapterOptions {
+            power_preference: wgpu::PowerPreference::HighPerformance,
+            ..Default::default()
+        };
+        let adapter = pollster::block_on(instance.request_adapter(&options))
+            .map_err(|e| GpuError::NoAdapter(e.to_string()))?;
+        let info = adapter.get_info();
+        let f64 = adapter.features().contains(wgpu::Features::SHADER_F64);
+        let limits = adapter.limits();
+        let desc = wgpu::DeviceDescriptor {
+            label: Some("mobo"),
+            required_features: if f64 {
+                wgpu::Features::SHADER_F64
+            } else {
+                wgpu::Features::empty()
+            },
+            required_limits: limits.clone(),
+            ..Default::default()
+        };
+        let (device, queue) =
+            pollster::block_on(adapter.request_device(&desc)).map_err(|e| GpuError::Device {
+                adapter: info.name.clone(),
+                reason: e.to_string(),
+            })?;
+        Ok(Gpu {
+            device,
+            queue,
+            f64,
+            max_binding: (limits.max_storage_buffer_binding_size as u64)
+                .min(limits.max_buffer_size),
+            max_groups: limits.max_compute_workgroups_per_dimension,
+            info,
+        })
+    }
+
+    /// Whether `f64` shaders are available.
+    pub fn has_f64(&self) -> bool {
+        self.f64
+    }
+
+    /// Whether the adapter is a hardware GPU (not a CPU rasteriser such as lavapipe).
+    pub fn is_hardware(&self) -> bool {
+        matches!(
+            self.info.device_type,
+            wgpu::DeviceType::DiscreteGpu | wgpu::DeviceType::IntegratedGpu
+        )
+    }
+
+    /// `"NVIDIA H100 … (Vulkan)"`.
+    pub fn describe(&self) -> String {
+        format!("{} ({:?})", self.info.name, self.info.backend)
+    }
+}

@@ -1,0 +1,263 @@
+//! The GPU backend (feature `gpu`) against the CPU: the near field of every kernel on the three
+//! clouds in each precision the adapter offers, an all-pairs sum against `direct_sum`, and the
+//! FMM with its near field on the GPU against direct sums at 3 and 6 digits.
+//!
+//! Without a GPU these run on Mesa's lavapipe (scripts/test.sh installs it). Where no adapter
+//! exists they skip with a message, except in CI (`CI=true`), where that is a failure.
+
+use std::sync::Arc;
+
+use mobo::fmm::blocks::SourceBlock;
+use mobo::fmm::clouds::Cloud;
+use mobo::fmm::gpu_near::{choose, gpu_kernel};
+use mobo::fmm::near_field::{CpuNearField, NearField};
+use mobo::fmm::{direct_sum, order_for_digits, Fmm, FmmError, FmmKernel, SumInput};
+use mobo::gpu::p2p::{PairPoints, PairSum, RowList};
+use mobo::gpu::{Gpu, GpuChoice, GpuError, GpuPrecision};
+
+const KERNELS: [FmmKernel; 5] = [
+    FmmKernel::Laplace,
+    FmmKernel::LaplaceDoubleLayer,
+    FmmKernel::Stokeslet,
+    FmmKernel::Stresslet,
+    // Overlapping pairs (r < 2a) in the near field of all three clouds.
+    FmmKernel::Rpy { radius: 0.004 },
+];
+const CLOUDS: [Cloud; 3] = [Cloud::Uniform, Cloud::Blobs, Cloud::Spheres];
+
+/// The process's GPU, or `None` (with a message) where there is none outside CI.
+fn gpu() -> Option<Arc<Gpu>> {
+    match Gpu::shared() {
+        Ok(g) => {
+            eprintln!("GPU: {} (f64: {})", g.describe(), g.has_f64());
+            Some(g)
+        }
+        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
+            panic!("CI=true and no GPU adapter: {e}")
+        }
+        Err(e) => {
+            eprintln!("skipping the GPU tests: {e}");
+            None
+        }
+    }
+}
+
+fn precisions(g: &Gpu) -> Vec<GpuPrecision> {
+    if g.has_f64() {
+        vec![GpuPrecision::F32, GpuPrecision::F64]
+    } else {
+        vec![GpuPrecision::F32]
+    }
+}
+
+/// Relative L2 difference.
+fn rel(a: &[f64], b: &[f64]) -> f64 {
+    let num: f64 = a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum();
+    let den: f64 = b.iter().map(|y| y * y).sum();
+    (num / den).sqrt()
+}
+
+/// Tolerance of a GPU sum against the CPU's `f64` loops: `f64` differs only in the order of
+/// the sums; `f32` by the rounding of each pair's value (see `mobo::gpu`).
+fn tolerance(p: GpuPrecision) -> f64 {
+    match p {
+        GpuPrecision::F64 => 1e-12,
+        GpuPrecision::F32 => 1e-6,
+    }
+}
+
+#[test]
+fn near_field_matches_the_cpu_for_every_kernel_cloud_and_precision() {
+    let Some(g) = gpu() else { return };
+    let n = 4000;
+    let mut worst = Vec::new();
+    for cloud in CLOUDS {
+        let pts = cloud.points(n, 3);
+        let nrm = Cloud::unit_vectors(n, 4);
+        for kind in KERNELS {
+            let near = kind.near();
+            let ds = near.density_dim();
+            let dens = Cloud::densities(n * ds, 5);
+            // A leaf size well below the default gives many rows and ranges.
+            let fmm = Fmm::new(kind, &pts, Some(&nrm), &pts, 6, 120).unwrap();
+            let list = fmm.near_list();
+            assert!(list.pairs() > 0);
+            let (src, normals, tgt) = fmm.near_points();
+            let identity: Vec<usize> = (0..src.len()).collect();
+            let mut block = SourceBlock::new(src, normals, &identity);
+            // The FMM sorts sources; densities here are simply per sorted source.
+            block.set_density(&dens, ds, &identity);
+            let dt = near.output_dim();
+            let mut want = vec![0.0; tgt.len() * dt];
+            CpuNearField::new(kind.near())
+                .evaluate(list, &block, tgt, &mut want)
+                .unwrap();
+            for prec in precisions(&g) {
+                let sum = PairSum::new(
+                    g.clone(),
+                    gpu_kernel(kind),
+                    prec,
+                    PairPoints {
+                        sources: src,
+                        normals,
+                        targets: tgt,
+                    },
+                    RowList {
+                        rows: &list.rows,
+                        offsets: &list.offsets,
+                        ranges: &list.ranges,
+                    },
+                )
+                .unwrap();
+                assert_eq!(sum.pairs(), list.pairs());
+                let q: Vec<&[f64]> = block.q[..ds].iter().map(|c| c.as_slice()).collect();
+                let mut got = vec![0.0; want.len()];
+                sum.evaluate(&q, &mut got).unwrap();
+                // Twice on the same device buffers: densities are the only input per call.
+                let mut again = vec![0.0; want.len()];
+                sum.evaluate(&q, &mut again).unwrap();
+                assert_eq!(got, again);
+                let e = rel(&got, &want);
+                eprintln!(
+                    "{:9} {:10} {}: {:.2e}",
+                    cloud.name(),
+                    near.name(),
+                    prec.name(),
+                    e
+                );
+                worst.push((e, tolerance(prec), cloud.name(), near.name(), prec));
+            }
+        }
+    }
+    let bad: Vec<_> = worst.iter().filter(|w| !(w.0 <= w.1)).collect();
+    assert!(bad.is_empty(), "GPU near field off the CPU: {bad:?}");
+}
+
+#[test]
+fn all_pairs_sum_matches_direct_sum() {
+    // One row of all targets and one range of all sources: the RPY mobility product of
+    // Brownian dynamics, with overlapping beads and the self term.
+    let Some(g) = gpu() else { return };
+    let n = 1500;
+    let pts = Cloud::Blobs.points(n, 7);
+    let a = 0.01;
+    let dens = Cloud::densities(3 * n, 8);
+    let mut want = vec![0.0; 3 * n];
+    let input = SumInput {
+        sources: &pts,
+        density: &dens,
+        normals: None,
+        targets: &pts,
+    };
+    direct_sum(&mobo::fmm::Rpy { radius: a }, &input, &mut want).unwrap();
+    let comps: Vec<Vec<f64>> = (0..3)
+        .map(|c| (0..n).map(|i| dens[3 * i + c]).collect())
+        .collect();
+    let q: Vec<&[f64]> = comps.iter().map(|c| c.as_slice()).collect();
+    for prec in precisions(&g) {
+        let sum = PairSum::new(
+            g.clone(),
+            mobo::gpu::GpuKernel::Rpy { radius: a },
+            prec,
+            PairPoints {
+                sources: &pts,
+                normals: None,
+                targets: &pts,
+            },
+            RowList {
+                rows: &[0..n],
+                offsets: &[0, 1],
+                ranges: &[0..n],
+            },
+        )
+        .unwrap();
+        let mut got = vec![0.0; 3 * n];
+        sum.evaluate(&q, &mut got).unwrap();
+        let e = rel(&got, &want);
+        eprintln!("all pairs rpy {}: {e:.2e}", prec.name());
+        assert!(e <= tolerance(prec), "{}: {e:e}", prec.name());
+    }
+}
+
+/// Relative L2 error of an FMM evaluation against the direct sum at every `stride`-th target.
+fn fmm_error(fmm: &mut Fmm, pts: &[[f64; 3]], dens: &[f64], kind: FmmKernel) -> f64 {
+    let dt = kind.near().output_dim();
+    let mut u = vec![0.0; pts.len() * dt];
+    fmm.evaluate(dens, &mut u).unwrap();
+    let idx: Vec<usize> = (0..pts.len()).step_by(7).collect();
+    let tg: Vec<[f64; 3]> = idx.iter().map(|&i| pts[i]).collect();
+    let mut want = vec![0.0; tg.len() * dt];
+    let input = SumInput {
+        sources: pts,
+        density: dens,
+        normals: None,
+        targets: &tg,
+    };
+    direct_sum(kind.near().as_ref(), &input, &mut want).unwrap();
+    let got: Vec<f64> = idx
+        .iter()
+        .flat_map(|&i| u[i * dt..(i + 1) * dt].to_vec())
+        .collect();
+    rel(&got, &want)
+}
+
+#[test]
+fn fmm_with_the_gpu_near_field_meets_3_and_6_digits() {
+    let Some(g) = gpu() else { return };
+    let n = 12000;
+    let pts = Cloud::Spheres.points(n, 11);
+    for kind in [FmmKernel::Laplace, FmmKernel::Stokeslet] {
+        let ds = kind.near().density_dim();
+        let dens = Cloud::densities(n * ds, 12);
+        for digits in [3u32, 6] {
+            let order = order_for_digits(kind, digits).unwrap();
+            let mut fmm =
+                Fmm::new(kind, &pts, None, &pts, order, kind.default_leaf_size(order)).unwrap();
+            let cpu_err = fmm_error(&mut fmm, &pts, &dens, kind);
+            let mut precs = precisions(&g);
+            precs.retain(|p| digits <= p.max_digits());
+            for prec in precs {
+                let d = choose(&mut fmm, GpuChoice::On, Some(prec), Some(digits)).unwrap();
+                assert_eq!(d.device, "gpu");
+                assert!(fmm.near_field_description().starts_with("gpu"));
+                let err = fmm_error(&mut fmm, &pts, &dens, kind);
+                eprintln!(
+                    "{} {digits} digits: cpu {cpu_err:.2e}, gpu {} {err:.2e}",
+                    kind.near().name(),
+                    prec.name()
+                );
+                assert!(fmm.timings.near_concurrent);
+                assert!(err < 10f64.powi(-(digits as i32)), "{err:e}");
+                // The GPU changes the near field by its rounding only.
+                assert!((err - cpu_err).abs() < 0.1 * 10f64.powi(-(digits as i32)));
+            }
+        }
+    }
+}
+
+#[test]
+fn choice_is_explained_and_refusals_are_errors() {
+    let Some(g) = gpu() else { return };
+    let pts = Cloud::Uniform.points(2000, 1);
+    let mut fmm = Fmm::new(FmmKernel::Stokeslet, &pts, None, &pts, 4, 400).unwrap();
+    let off = choose(&mut fmm, GpuChoice::Off, None, Some(3)).unwrap();
+    assert_eq!(off.device, "cpu");
+    let auto = choose(&mut fmm, GpuChoice::Auto, None, Some(3)).unwrap();
+    if g.is_hardware() {
+        // 2000 points: far below the pairs where the GPU gains.
+        assert_eq!(auto.device, "cpu");
+        assert!(auto.reason.contains("pairs"), "{}", auto.reason);
+    } else {
+        assert_eq!(auto.device, "cpu");
+        assert!(
+            auto.reason.contains("not a hardware GPU"),
+            "{}",
+            auto.reason
+        );
+    }
+    assert_eq!(fmm.near_field_description(), "cpu");
+    // f32 cannot serve 9 digits: `true` says so rather than quietly losing them.
+    let e = choose(&mut fmm, GpuChoice::On, Some(GpuPrecision::F32), Some(9)).unwrap_err();
+    assert!(matches!(e, FmmError::Gpu(GpuError::Shape(_))), "{e}");
+    assert!(e.to_string().contains("9 digits"), "{e}");
+}
