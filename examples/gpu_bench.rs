@@ -4,8 +4,8 @@
 //!   uniform points, best of several launches, both precisions where offered) and the CPU's
 //!   AVX2 loop over all rayon threads on the same points (a 4096-target slice);
 //! * `gpu_bench fmm KERNEL CLOUD N DIGITS MODE [LEAF_FACTOR]` — one FMM on N points with its
-//!   near field on `cpu`, `gpu` (f64 where offered) or `gpu32`: setup, best of three
-//!   evaluations, the phases, and the error against direct sums at 200 sampled targets.
+//!   near field on `cpu`, `gpu` (f64 where offered) or `gpu32`: setup, best of `REPS` (default
+//!   3) evaluations, the phases, and the error against direct sums at 200 sampled targets.
 //!
 //! `cargo run --release --features gpu --example gpu_bench -- p2p 65536`
 use std::time::Instant;
@@ -129,7 +129,11 @@ fn fmm(kernel: &str, cloud: &str, n: usize, digits: u32, mode: &str, leaf_factor
     let mut u = vec![0.0; n * near.output_dim()];
     let mut best = f64::INFINITY;
     let mut timings = fmm.timings;
-    for _ in 0..3 {
+    let reps: usize = std::env::var("REPS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(3);
+    for _ in 0..reps.max(1) {
         u.fill(0.0);
         let t = Instant::now();
         fmm.evaluate(&dens, &mut u).expect("evaluate");

@@ -6,7 +6,8 @@
 # The suite runs with --all-features, so the system libraries of the features are installed
 # first when missing (as root, with apt-get); otherwise it stops and says what to install.
 #   hdf5: libhdf5-dev, pkg-config; mpi: libopenmpi-dev, openmpi-bin, libclang-dev,
-#   openssh-client;
+#   openssh-client; gpu: mesa-vulkan-drivers, libvulkan1 (lavapipe: a Vulkan adapter on the CPU,
+#   so tests/gpu.rs runs the GPU kernels without a GPU; with CI=true a missing adapter fails);
 #   the report plots: fonts-dejavu-core
 # MOBO_DEPS_ONLY=1 installs/checks the system libraries and exits (used by .ci/run before clippy).
 set -euo pipefail
@@ -31,6 +32,13 @@ missing_pkgs() {
     if ! ls /usr/lib/llvm-*/lib/libclang*.so* /usr/lib/*/libclang*.so* >/dev/null 2>&1; then
         pkgs="$pkgs libclang-dev"
     fi
+    # gpu: the Vulkan loader and Mesa's drivers (lavapipe where there is no GPU).
+    if ! ls /usr/lib/*/libvulkan.so.1 >/dev/null 2>&1; then
+        pkgs="$pkgs libvulkan1"
+    fi
+    if ! ls /usr/share/vulkan/icd.d/*.json >/dev/null 2>&1; then
+        pkgs="$pkgs mesa-vulkan-drivers"
+    fi
     echo "$pkgs"
 }
 
@@ -39,11 +47,11 @@ system_deps() {
     pkgs="$(missing_pkgs)"
     [ -z "$pkgs" ] && return 0
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-        echo "scripts/test.sh: installing$pkgs (needed by the hdf5 and mpi features)" >&2
+        echo "scripts/test.sh: installing$pkgs (needed by the hdf5, mpi and gpu features)" >&2
         apt-get update -qq
         DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $pkgs >&2
     else
-        echo "scripts/test.sh: the hdf5 and mpi features (tested with --all-features) need" >&2
+        echo "scripts/test.sh: the hdf5, mpi and gpu features (tested with --all-features) need" >&2
         echo "  system libraries that are missing; install them, e.g. as root:" >&2
         echo "  apt-get update && apt-get install -y$pkgs" >&2
         exit 1
@@ -76,4 +84,7 @@ fi
 # The KIFMM fits (truncated SVDs, a minute each at 9 digits for Stokes) are computed once and
 # shared by the test binaries and their MPI ranks (src/fmm/fit_cache.rs).
 export MOBO_OPERATOR_CACHE="${MOBO_OPERATOR_CACHE:-$PWD/target/operator-cache}"
+# wgpu: Vulkan only (skips probing GL); lavapipe needs no display but wants a runtime dir.
+export WGPU_BACKEND="${WGPU_BACKEND:-vulkan}"
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 cargo test --all-features "$@"

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use mobo::comm::{CommError, Communicator, SerialComm};
-use mobo::fmm::gpu_near::choose;
+use mobo::fmm::gpu_near::{choose, gpu_expected, GPU_LEAF_FACTOR};
 use mobo::fmm::{order_for_digits, Fmm, FmmError, FmmKernel};
 use mobo::gpu::{GpuChoice, GpuPrecision};
 
@@ -54,7 +54,8 @@ pub struct FmmArgs {
     /// selects from the calibration table.
     #[arg(long)]
     order: Option<usize>,
-    /// Maximum points per leaf box (default: chosen from kernel and order).
+    /// Maximum points per leaf box (default: chosen from kernel and order, 4× larger where the
+    /// near field goes to a GPU).
     #[arg(long)]
     leaf_size: Option<usize>,
     /// Exact direct summation instead of the FMM (one rank only).
@@ -144,7 +145,7 @@ fn points(v: Vec<f64>) -> Vec<[f64; 3]> {
 }
 
 /// The kernel and order the arguments ask for (the same on every rank).
-fn settings(a: &FmmArgs) -> Result<(FmmKernel, usize, usize), CliError> {
+fn settings(a: &FmmArgs) -> Result<(FmmKernel, usize, usize, GpuChoice), CliError> {
     if !(3..=10).contains(&a.digits) {
         return Err(CliError::Arg(format!(
             "--digits must be between 3 and 10, got {}",
@@ -176,11 +177,21 @@ fn settings(a: &FmmArgs) -> Result<(FmmKernel, usize, usize), CliError> {
         Some(p) => p,
         None => order_for_digits(kind, a.digits)?,
     };
-    let leaf = a.leaf_size.unwrap_or_else(|| kind.default_leaf_size(order));
+    let gpu = GpuChoice::parse(&a.gpu).ok_or_else(|| {
+        CliError::Arg(format!("--gpu takes auto, true or false, got '{}'", a.gpu))
+    })?;
+    let leaf = a.leaf_size.unwrap_or_else(|| {
+        let factor = if gpu_expected(gpu) && !a.direct {
+            GPU_LEAF_FACTOR
+        } else {
+            1
+        };
+        kind.default_leaf_size(order) * factor
+    });
     if leaf == 0 {
         return Err(CliError::Arg("--leaf-size must be positive".into()));
     }
-    Ok((kind, order, leaf))
+    Ok((kind, order, leaf, gpu))
 }
 
 /// This rank's inputs.
@@ -241,10 +252,7 @@ fn every_rank_has(e: &CliError) -> bool {
 }
 
 fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
-    let (kind, order, leaf) = settings(a)?;
-    let gpu = GpuChoice::parse(&a.gpu).ok_or_else(|| {
-        CliError::Arg(format!("--gpu takes auto, true or false, got '{}'", a.gpu))
-    })?;
+    let (kind, order, leaf, gpu) = settings(a)?;
     let gpu_precision = match a.gpu_precision.as_deref() {
         None => None,
         Some("f32") => Some(GpuPrecision::F32),

@@ -199,6 +199,21 @@ fn many_cells_on_a_lattice_and_at_random_do_not_overlap() {
 }
 
 #[test]
+fn gpu_setting_is_auto_true_or_false() {
+    use mobo::gpu::GpuChoice;
+    let base = "[[cells]]\nshape = \"sphere\"\n";
+    assert_eq!(parse(file(), base).unwrap().numerics.gpu, GpuChoice::Auto);
+    for (v, want) in [
+        ("\"auto\"", GpuChoice::Auto),
+        ("true", GpuChoice::On),
+        ("false", GpuChoice::Off),
+    ] {
+        let text = format!("{base}[numerics]\ngpu = {v}\n");
+        assert_eq!(parse(file(), &text).unwrap().numerics.gpu, want, "{v}");
+    }
+}
+
+#[test]
 fn bad_scenes_name_the_file_the_line_and_the_problem() {
     let cases: &[(&str, &str)] = &[
         ("[[cells]]\nshape = \"sphere\"\ncolour = 1\n", "scene.toml:3"),
@@ -221,6 +236,10 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
         (
             "[[cells]]\nshape = \"sphere\"\n[numerics]\noperator_storage = \"sparse\"\n",
             "scene.toml:4:20: [numerics] operator_storage: unknown storage \"sparse\"",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\n[numerics]\ngpu = \"sometimes\"\n",
+            "scene.toml:4:7: [numerics] gpu must be \"auto\", true or false, got \"sometimes\"",
         ),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"shear\"\n", "needs rate"),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"vortex\"\nrate = 1.0\n", "unknown flow"),

@@ -261,3 +261,52 @@ fn choice_is_explained_and_refusals_are_errors() {
     assert!(matches!(e, FmmError::Gpu(GpuError::Shape(_))), "{e}");
     assert!(e.to_string().contains("9 digits"), "{e}");
 }
+
+mod common;
+
+/// Two sedimenting vesicles, `[numerics] gpu = true` against `false`: the same trajectory to
+/// the FMM's rounding, and summary.json says where the near field ran and why.
+#[test]
+fn a_cell_scene_with_gpu_true_follows_the_cpu_run() {
+    let Some(_g) = gpu() else { return };
+    let dir = common::tmpdir("gpu-scene");
+    let run = |gpu: &str| {
+        let text = format!(
+            r#"
+[[cells]]
+shape = "sphere"
+force = [0.0, 0.0, -1.0]
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+center = [2.6, 0.0, 0.0]
+force = [0.0, 0.0, -1.0]
+[numerics]
+order = 6
+dt = 0.05
+t_end = 0.15
+fmm_digits = 6
+gpu = {gpu}
+[output]
+vtk = false
+"#
+        );
+        let scene = common::write(&dir, &format!("two_{gpu}.toml"), &text);
+        let out = dir.join(format!("out_{gpu}"));
+        let o = common::mobo(&["run", &scene, "--out", out.to_str().unwrap(), "--quiet"]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        common::summary(&out)
+    };
+    let cpu = run("false");
+    let gpu = run("true");
+    assert_eq!(cpu["near_field"]["device"], "cpu");
+    assert_eq!(gpu["near_field"]["device"], "gpu");
+    assert!(gpu["near_field"]["adapter"].as_str().is_some());
+    for c in 0..2 {
+        for d in 0..3 {
+            let a = cpu["per_cell"][c]["centroid"][d].as_f64().unwrap();
+            let b = gpu["per_cell"][c]["centroid"][d].as_f64().unwrap();
+            assert!((a - b).abs() < 1e-9, "cell {c} axis {d}: {a} vs {b}");
+        }
+    }
+}

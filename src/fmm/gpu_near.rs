@@ -14,6 +14,33 @@ use crate::gpu::{GpuChoice, GpuError, GpuKernel, GpuPrecision};
 /// read-back.
 pub const AUTO_MIN_PAIRS: u64 = 20_000_000;
 
+/// How much larger leaves are when the near field runs on a GPU: larger leaves move work from
+/// the CPU's far field to the GPU's near field. Measured on an H100 with 16 CPU threads
+/// (Stokeslet, 6 digits, 10⁶ points on spheres): evaluation 4.87 s at the CPU's leaf size,
+/// 3.19 s at ×4, and in a later run 1.53 s (×4), 1.55 s (×8), 1.67 s (×16) (benches/RESULTS.md).
+pub const GPU_LEAF_FACTOR: usize = 4;
+
+/// Whether `choice` will put the near field on a GPU if the problem is large enough (`true`,
+/// or `auto` with a hardware adapter in a build with the `gpu` feature): callers then build the
+/// tree with leaves [`GPU_LEAF_FACTOR`] times larger.
+pub fn gpu_expected(choice: GpuChoice) -> bool {
+    match choice {
+        GpuChoice::Off => false,
+        GpuChoice::On => true,
+        GpuChoice::Auto => hardware_gpu(),
+    }
+}
+
+#[cfg(feature = "gpu")]
+fn hardware_gpu() -> bool {
+    crate::gpu::Gpu::shared().is_ok_and(|g| g.is_hardware())
+}
+
+#[cfg(not(feature = "gpu"))]
+fn hardware_gpu() -> bool {
+    false
+}
+
 /// Where the near field runs and why.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct NearDecision {

@@ -14,6 +14,9 @@ pub struct Gpu {
     pub(crate) max_binding: u64,
     /// Largest workgroup count per dispatch dimension.
     pub(crate) max_groups: u32,
+    /// Largest workgroup: invocations, and bytes of workgroup memory.
+    pub(crate) max_invocations: u32,
+    pub(crate) max_workgroup_bytes: u32,
 }
 
 static SHARED: OnceLock<Result<Arc<Gpu>, GpuError>> = OnceLock::new();
@@ -59,6 +62,10 @@ impl Gpu {
             max_binding: (limits.max_storage_buffer_binding_size as u64)
                 .min(limits.max_buffer_size),
             max_groups: limits.max_compute_workgroups_per_dimension,
+            max_invocations: limits
+                .max_compute_invocations_per_workgroup
+                .min(limits.max_compute_workgroup_size_x),
+            max_workgroup_bytes: limits.max_compute_workgroup_storage_size,
             info,
         })
     }

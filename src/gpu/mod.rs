@@ -9,8 +9,9 @@
 //! for the kernels of [`GpuKernel`], over a compressed-row list of target rows and source
 //! ranges (the near field of an FMM, or one row of all pairs for a direct sum): sources,
 //! targets and the list are uploaded once and stay on the device; only densities and results
-//! move per evaluation. Each workgroup of [`WORKGROUP`] threads takes up to that many targets
-//! of one row and walks the row's sources in tiles staged through workgroup memory.
+//! move per evaluation. Each workgroup of [`WORKGROUP`] threads takes up to
+//! `WORKGROUP · TARGETS_PER_THREAD` targets of one row and walks the row's sources in tiles
+//! staged through workgroup memory.
 //!
 //! **Precision.** WGSL has `f64` only where the adapter offers `SHADER_F64` (NVIDIA, lavapipe),
 //! and then only add, multiply, divide, square root and FMA are trustworthy — the kernels need
@@ -32,8 +33,13 @@ mod shader;
 #[cfg(feature = "gpu")]
 pub use context::Gpu;
 
-/// Threads per workgroup (targets per work item, sources per tile).
-pub const WORKGROUP: u32 = 64;
+/// Threads per workgroup (sources per tile). With two targets per thread, 64 to 256 threads
+/// gave the same Stokeslet rate within 3 % on an H100 (benches/RESULTS.md); 256 was fastest.
+pub const WORKGROUP: u32 = 256;
+
+/// Targets each thread keeps in registers (a work item holds `WORKGROUP · TARGETS_PER_THREAD`
+/// targets of one row): every source read from workgroup memory serves that many pairs.
+pub const TARGETS_PER_THREAD: u32 = 2;
 
 /// Errors of the GPU backend.
 #[derive(Clone, Debug, thiserror::Error, PartialEq, Eq)]

@@ -5,7 +5,7 @@ use std::sync::{Arc, Mutex};
 
 use wgpu::util::DeviceExt;
 
-use super::{shader, Gpu, GpuError, GpuKernel, GpuPrecision, WORKGROUP};
+use super::{shader, Gpu, GpuError, GpuKernel, GpuPrecision, TARGETS_PER_THREAD, WORKGROUP};
 
 /// The rows of a pair sum, compressed-row (as `crate::fmm::near_field::NearList`): row `r`
 /// sums the sources in `ranges[offsets[r]..offsets[r + 1]]` into its targets `rows[r]`.
@@ -87,6 +87,26 @@ fn pack_density(q: &[&[f64]], n: usize, prec: GpuPrecision) -> Vec<u8> {
     }
 }
 
+/// Targets per thread: [`TARGETS_PER_THREAD`], or `MOBO_GPU_TARGETS_PER_THREAD` (1 to 8), a
+/// tuning knob for other GPUs.
+fn targets_per_thread() -> u32 {
+    std::env::var("MOBO_GPU_TARGETS_PER_THREAD")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|t| (1..=8).contains(t))
+        .unwrap_or(TARGETS_PER_THREAD)
+}
+
+/// Threads per workgroup: [`WORKGROUP`], or `MOBO_GPU_WORKGROUP` (32, 64, 128 or 256); halved
+/// where the adapter's workgroup limits ask for less.
+fn workgroup_size() -> u32 {
+    std::env::var("MOBO_GPU_WORKGROUP")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|w| [32, 64, 128, 256].contains(w))
+        .unwrap_or(WORKGROUP)
+}
+
 impl PairSum {
     /// Upload `points` and `list` for `kernel` in `precision` and build the pipeline.
     pub fn new(
@@ -111,10 +131,25 @@ impl PairSum {
             ));
         }
         let (ns, nt) = (points.sources.len(), points.targets.len());
-        if list.rows.iter().any(|r| r.end > nt) || list.ranges.iter().any(|r| r.end > ns) {
+        let bad = |r: &Range<usize>, n: usize| r.start > r.end || r.end > n;
+        if list.rows.iter().any(|r| bad(r, nt)) || list.ranges.iter().any(|r| bad(r, ns)) {
             return Err(GpuError::Shape(
                 "a row or range runs past the points".into(),
             ));
+        }
+        if list.offsets.windows(2).any(|w| w[0] > w[1])
+            || list.offsets.last().is_some_and(|&o| o > list.ranges.len())
+        {
+            return Err(GpuError::Shape(
+                "row offsets must be non-decreasing and within the ranges".into(),
+            ));
+        }
+        if ns.max(nt) >= (u32::MAX / 8) as usize {
+            return Err(GpuError::TooLarge {
+                what: format!("{} points", ns.max(nt)),
+                bytes: 0,
+                limit: gpu.max_binding,
+            });
         }
         let too_large = |what: &str, b: usize| -> Result<(), GpuError> {
             if b as u64 > gpu.max_binding || b > u32::MAX as usize / 2 {
@@ -128,7 +163,25 @@ impl PairSum {
             }
         };
         // Work items: up to WORKGROUP targets of one row each.
-        let wg = WORKGROUP as usize;
+        let tpt = targets_per_thread();
+        // Workgroup memory per source of a tile: position (and its lo part in f32), density,
+        // orientation where used.
+        let per_source = (2
+            + usize::from(precision == GpuPrecision::F32)
+            + usize::from(shader::uses_normals(kernel)))
+            * 4
+            * match precision {
+                GpuPrecision::F32 => 4,
+                GpuPrecision::F64 => 8,
+            };
+        let mut wgs = workgroup_size();
+        while wgs > 32
+            && (wgs > gpu.max_invocations
+                || wgs as usize * per_source > gpu.max_workgroup_bytes as usize)
+        {
+            wgs /= 2;
+        }
+        let wg = (wgs * tpt) as usize;
         let mut plan: Vec<u32> = Vec::new();
         let mut pairs = 0u64;
         for (r, t) in list.rows.iter().enumerate() {
@@ -177,10 +230,17 @@ impl PairSum {
         too_large("the near-field list", plan.len() * 4)?;
 
         let dev = &gpu.device;
-        let module = dev.create_shader_module(wgpu::ShaderModuleDescriptor {
+        let desc = wgpu::ShaderModuleDescriptor {
             label: Some(kernel.name()),
-            source: wgpu::ShaderSource::Wgsl(shader::source(kernel, precision).into()),
-        });
+            source: wgpu::ShaderSource::Wgsl(shader::source(kernel, precision, wgs, tpt).into()),
+        };
+        // SAFETY: every index the shader forms is in bounds by construction, checked above on
+        // the host: work items, row offsets and ranges lie inside the plan, sources and targets
+        // (`rows` and `ranges` validated against the point counts), and workgroup indices are
+        // below WORKGROUP. Without runtime checks the inner loop has no index clamps.
+        let module = unsafe {
+            dev.create_shader_module_trusted(desc, wgpu::ShaderRuntimeChecks::unchecked())
+        };
         let pipeline = dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(kernel.name()),
             layout: None,

@@ -6,7 +6,7 @@
 //! then the row offsets, then the source ranges `(start, end)`), `out` (`f64`: three values per
 //! target; `f32`: three `hi` then three `lo`), `consts` (the RPY radius) and `params`.
 
-use super::{GpuKernel, GpuPrecision, WORKGROUP};
+use super::{GpuKernel, GpuPrecision};
 
 /// Bindings a kernel's shader uses (the pipeline's layout is derived from the shader, so the
 /// bind group names exactly these).
@@ -54,9 +54,8 @@ fn pair_body(k: GpuKernel, p: GpuPrecision) -> String {
 }
 
 /// The complete shader.
-pub fn source(k: GpuKernel, p: GpuPrecision) -> String {
+pub fn source(k: GpuKernel, p: GpuPrecision, wg: u32, tpt: u32) -> String {
     let real = p.name();
-    let wg = WORKGROUP;
     let normals = uses_normals(k);
     let pair = pair_body(k, p);
     let nrm_decl = if normals {
@@ -72,30 +71,34 @@ pub fn source(k: GpuKernel, p: GpuPrecision) -> String {
     let nrm_load = if normals { "sn[li] = nrm[j];" } else { "" };
     let nrm_use = if normals { "sn[k]" } else { "vec4<R>(R(0.0))" };
     // Per precision: how positions are read and differenced, and how partial sums are kept.
-    let (lo_decl, tgt_read, src_load, diff, fold, write) = match p {
+    let (lo_decl, tgt_read, src_load, src_regs, diff, fold, write) = match p {
         GpuPrecision::F64 => (
             "",
-            "let x = tgt[ti].xyz;",
+            "xh[t] = tgt[ti].xyz;",
             "sp[li] = src[j];",
-            "let d = x - sp[k].xyz;",
-            "total += acc; acc = vec3<R>(R(0.0));",
-            "out[3u * ti] = total.x; out[3u * ti + 1u] = total.y; out[3u * ti + 2u] = total.z;",
+            "let yh = sp[k].xyz;",
+            "let d = xh[t] - yh;",
+            "total[t] += acc[t]; acc[t] = vec3<R>(R(0.0));",
+            "out[3u * ti] = total[t].x; out[3u * ti + 1u] = total[t].y; out[3u * ti + 2u] = total[t].z;",
         ),
         GpuPrecision::F32 => (
             "var<workgroup> sl: array<vec4<R>, WG>;",
-            "let xh = tgt[2u * ti].xyz; let xl = tgt[2u * ti + 1u].xyz;",
+            "xh[t] = tgt[2u * ti].xyz; xl[t] = tgt[2u * ti + 1u].xyz;",
             "sp[li] = src[2u * j]; sl[li] = src[2u * j + 1u];",
+            "let yh = sp[k].xyz; let yl = sl[k].xyz;",
             // Sterbenz: xh − yh is exact for close points; the lo parts carry the rest.
-            "let d = (xh - sp[k].xyz) + (xl - sl[k].xyz);",
+            "let d = (xh[t] - yh) + (xl[t] - yl);",
             // Two-sum of the running total and the tile's partial sum; errors gathered in lo.
-            "let s = total + acc; let bb = s - total; lo += (total - (s - bb)) + (acc - bb); total = s; acc = vec3<R>(R(0.0));",
-            "out[6u * ti] = total.x; out[6u * ti + 1u] = total.y; out[6u * ti + 2u] = total.z; \
-             out[6u * ti + 3u] = lo.x; out[6u * ti + 4u] = lo.y; out[6u * ti + 5u] = lo.z;",
+            "let s = total[t] + acc[t]; let bb = s - total[t]; \
+             lo[t] += (total[t] - (s - bb)) + (acc[t] - bb); total[t] = s; acc[t] = vec3<R>(R(0.0));",
+            "out[6u * ti] = total[t].x; out[6u * ti + 1u] = total[t].y; out[6u * ti + 2u] = total[t].z; \
+             out[6u * ti + 3u] = lo[t].x; out[6u * ti + 4u] = lo[t].y; out[6u * ti + 5u] = lo[t].z;",
         ),
     };
     format!(
         r#"alias R = {real};
 const WG: u32 = {wg}u;
+const TPT: u32 = {tpt}u;
 
 struct Params {{
     n_items: u32,
@@ -131,11 +134,20 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let row = plan[3u * item];
     let t0 = plan[3u * item + 1u];
     let tn = plan[3u * item + 2u];
-    let ti = t0 + min(li, tn - 1u);
-    {tgt_read}
-    var acc = vec3<R>(R(0.0));
-    var total = vec3<R>(R(0.0));
-    var lo = vec3<R>(R(0.0));
+    // Thread li takes targets li, li + WG, ... of the item (clamped: extra lanes recompute the
+    // last target and do not write).
+    var xh: array<vec3<R>, TPT>;
+    var xl: array<vec3<R>, TPT>;
+    var acc: array<vec3<R>, TPT>;
+    var total: array<vec3<R>, TPT>;
+    var lo: array<vec3<R>, TPT>;
+    for (var t = 0u; t < TPT; t++) {{
+        let ti = t0 + min(li + t * WG, tn - 1u);
+        {tgt_read}
+        acc[t] = vec3<R>(R(0.0));
+        total[t] = vec3<R>(R(0.0));
+        lo[t] = vec3<R>(R(0.0));
+    }}
     let r0 = plan[params.offsets_at + row];
     let r1 = plan[params.offsets_at + row + 1u];
     for (var r = r0; r < r1; r++) {{
@@ -151,15 +163,25 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
             workgroupBarrier();
             let m = min(WG, s1 - base);
             for (var k = 0u; k < m; k++) {{
-                {diff}
-                acc += pair(d, sq[k], {nrm_use});
+                {src_regs}
+                let q = sq[k];
+                let n = {nrm_use};
+                for (var t = 0u; t < TPT; t++) {{
+                    {diff}
+                    acc[t] += pair(d, q, n);
+                }}
             }}
-            {fold}
+            for (var t = 0u; t < TPT; t++) {{
+                {fold}
+            }}
             workgroupBarrier();
         }}
     }}
-    if (li < tn) {{
-        {write}
+    for (var t = 0u; t < TPT; t++) {{
+        if (li + t * WG < tn) {{
+            let ti = t0 + li + t * WG;
+            {write}
+        }}
     }}
 }}
 "#

@@ -42,6 +42,7 @@
 //! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
 //! rebalance_every = 10            # under mpirun: steps between checks of the split of the cells
 //! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see cells_partition)
+//! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [output]
 //! every = 10                      # steps between saved frames
@@ -60,6 +61,7 @@ use serde::Deserialize;
 use toml::Spanned;
 
 use super::{line_col, parse_toml, read_scene_file, SceneError};
+use crate::gpu::GpuChoice;
 use crate::timestep::semi_implicit::OperatorStorage;
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 
@@ -129,6 +131,15 @@ struct NumericsSection {
     repulsion_strength: Option<Spanned<f64>>,
     rebalance_every: Option<Spanned<u64>>,
     max_imbalance: Option<Spanned<f64>>,
+    gpu: Option<Spanned<GpuSetting>>,
+}
+
+/// `[numerics] gpu`: `"auto"`, or a boolean.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum GpuSetting {
+    Flag(bool),
+    Word(String),
 }
 
 #[derive(Debug, Deserialize)]
@@ -270,6 +281,9 @@ pub struct Numerics {
     /// Under MPI: the cost imbalance (largest rank over mean, minus 1) above which cells are
     /// moved at a check (default 0.1; see [`crate::scene::cells_partition`]).
     pub max_imbalance: f64,
+    /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
+    /// ([`crate::fmm::gpu_near::choose`]).
+    pub gpu: GpuChoice,
 }
 
 /// One assembly decision: whether a piece of physics is built, and why.
@@ -559,6 +573,20 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
             }
             Some(v) => *v.get_ref(),
             None => crate::scene::cells_partition::MAX_IMBALANCE,
+        },
+        gpu: match n.and_then(|n| n.gpu.as_ref()) {
+            None => GpuChoice::Auto,
+            Some(g) => match g.get_ref() {
+                GpuSetting::Flag(true) => GpuChoice::On,
+                GpuSetting::Flag(false) => GpuChoice::Off,
+                GpuSetting::Word(w) if w == "auto" => GpuChoice::Auto,
+                GpuSetting::Word(w) => {
+                    return Err(at(
+                        g.span(),
+                        format!("[numerics] gpu must be \"auto\", true or false, got \"{w}\""),
+                    ))
+                }
+            },
         },
     };
     let mut numerics = numerics;

@@ -26,6 +26,7 @@
 //! an output file) is returned on every rank; a stop request on any rank stops all after the
 //! step, with a checkpoint.
 
+use crate::fmm::gpu_near::NearDecision;
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
@@ -113,6 +114,8 @@ pub struct CellRunSummary {
     pub scheme: &'static str,
     pub gmres_tol: f64,
     pub fmm_digits: Option<u32>,
+    /// Where the FMM's near field ran (on rank 0) and why (`null`: no FMM was built).
+    pub near_field: Option<NearDecision>,
     pub effects: Vec<Effect>,
     pub wall_s: f64,
     pub step_s: f64,
@@ -283,6 +286,7 @@ fn coupling_params(scene: &CellScene) -> CouplingParams {
         fmm_digits: scene.numerics.fmm_digits,
         repulsion_range: scene.numerics.repulsion_range,
         repulsion_strength: scene.numerics.repulsion_strength.unwrap_or(auto_strength),
+        gpu: scene.numerics.gpu,
         ..Default::default()
     }
 }
@@ -996,6 +1000,7 @@ pub fn run_on(
         },
         gmres_tol: scene.numerics.gmres_tol,
         fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
+        near_field: susp.near_field_decision(),
         effects: scene.effects.clone(),
         wall_s: prog.wall_s,
         step_s: prog.step_s,

@@ -54,7 +54,9 @@ use rayon::prelude::*;
 use super::TimestepError;
 use crate::comm::{CommError, Communicator, SerialComm};
 use crate::fmm::blocks::SourceBlock;
+use crate::fmm::gpu_near::{choose, gpu_expected, NearDecision, GPU_LEAF_FACTOR};
 use crate::fmm::{order_for_digits, Fmm, FmmError, FmmKernel, Kernel, Stokeslet, Stresslet};
+use crate::gpu::GpuChoice;
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::layer::LayerKernel;
 use crate::vesicle::membrane::Membrane;
@@ -91,6 +93,8 @@ pub struct CouplingParams {
     /// `d < d_r` from another cell feels `s (1 − d/d_r)²` along that cell's outward normal,
     /// and `s (1 + d/d_r)` when it is inside that cell (overlap).
     pub repulsion_strength: f64,
+    /// Near field of the FMM on a GPU ([`crate::fmm::gpu_near::choose`]).
+    pub gpu: GpuChoice,
 }
 
 impl Default for CouplingParams {
@@ -101,6 +105,7 @@ impl Default for CouplingParams {
             near_factor: 2.0,
             repulsion_range: 0.05,
             repulsion_strength: 0.0,
+            gpu: GpuChoice::Auto,
         }
     }
 }
@@ -219,6 +224,8 @@ pub struct Coupling {
     repulsion: Vec<Vec<f64>>,
     /// Cumulative counters.
     pub stats: CouplingStats,
+    /// Where the last FMM's near field ran and why.
+    pub near_field: Option<NearDecision>,
 }
 
 fn vesicle(e: VesicleError) -> TimestepError {
@@ -280,6 +287,7 @@ impl Coupling {
                 min_gap: f64::INFINITY,
                 ..Default::default()
             },
+            near_field: None,
         })
     }
 
@@ -368,11 +376,11 @@ impl Coupling {
         let (u_all, bytes) = fmm_sum(
             comm,
             FmmKernel::Stokeslet,
-            &sources,
-            None,
-            &targets,
+            (&sources, None, &targets),
             &density,
             self.fmm_order,
+            (self.params.gpu, self.params.fmm_digits),
+            &mut self.near_field,
         )?;
         self.stats.fmm_builds += 1;
         self.stats.fmm_bytes += bytes;
@@ -390,11 +398,11 @@ impl Coupling {
             let (u, bytes) = fmm_sum(
                 comm,
                 FmmKernel::Stresslet,
-                &sources,
-                Some(&normals),
-                &targets,
+                (&sources, Some(&normals), &targets),
                 &density,
                 self.fmm_order,
+                (self.params.gpu, self.params.fmm_digits),
+                &mut self.near_field,
             )?;
             self.stats.double_layer_fmm_builds += 1;
             self.stats.fmm_bytes += bytes;
@@ -843,31 +851,33 @@ impl Coupling {
     }
 }
 
-/// One FMM evaluation of `kind` (3-vector densities, interleaved) at `targets`, over the ranks
-/// of `comm` (each passes its own points); also the bytes this rank sent.
+/// Sources, their normals (double layers) and targets of one FMM sum.
+type SumPoints<'a> = (&'a [[f64; 3]], Option<&'a [[f64; 3]]>, &'a [[f64; 3]]);
+
+/// One FMM evaluation of `kind` (3-vector densities, interleaved) at the targets, over the
+/// ranks of `comm` (each passes its own points), its near field where `gpu` (with the digits
+/// asked for) puts it, recorded in `decision`; also the bytes this rank sent.
 fn fmm_sum(
     comm: &dyn Communicator,
     kind: FmmKernel,
-    sources: &[[f64; 3]],
-    normals: Option<&[[f64; 3]]>,
-    targets: &[[f64; 3]],
+    (sources, normals, targets): SumPoints,
     density: &[f64],
     order: usize,
+    (gpu, digits): (GpuChoice, u32),
+    decision: &mut Option<NearDecision>,
 ) -> Result<(Vec<f64>, u64), TimestepError> {
     let fail = |e: FmmError| match e {
         FmmError::Comm(c) => TimestepError::Comm(c),
         e => TimestepError::Vesicle(format!("FMM ({kind:?}): {e}")),
     };
-    let mut fmm = Fmm::new_on(
-        comm,
-        kind,
-        sources,
-        normals,
-        targets,
-        order,
-        kind.default_leaf_size(order),
-    )
-    .map_err(fail)?;
+    let leaf = kind.default_leaf_size(order)
+        * if gpu_expected(gpu) {
+            GPU_LEAF_FACTOR
+        } else {
+            1
+        };
+    let mut fmm = Fmm::new_on(comm, kind, sources, normals, targets, order, leaf).map_err(fail)?;
+    *decision = Some(choose(&mut fmm, gpu, None, Some(digits)).map_err(fail)?);
     let mut u = vec![0.0; 3 * targets.len()];
     fmm.evaluate_on(comm, density, &mut u).map_err(fail)?;
     Ok((u, fmm.comm.bytes_sent))

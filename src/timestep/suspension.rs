@@ -382,6 +382,11 @@ impl Suspension {
         self.coupling.as_ref().map(|c| c.stats)
     }
 
+    /// Where the last FMM's near field ran and why (`None` before any FMM).
+    pub fn near_field_decision(&self) -> Option<crate::fmm::gpu_near::NearDecision> {
+        self.coupling.as_ref().and_then(|c| c.near_field.clone())
+    }
+
     /// The velocity the other cells induced on each cell in the last step (an empty vector
     /// for a cell before its first coupled step).
     pub fn inter_cell_velocities(&self) -> &[Vec<f64>] {
