@@ -14,7 +14,7 @@ use mobo::fmm::blocks::SourceBlock;
 use mobo::fmm::clouds::Cloud;
 use mobo::fmm::gpu_near::{choose, gpu_kernel};
 use mobo::fmm::{order_for_digits, Fmm, FmmKernel};
-use mobo::gpu::p2p::{PairPoints, PairSum, RowList};
+use mobo::gpu::p2p::{PairPoints, PairSum};
 use mobo::gpu::{Gpu, GpuChoice, GpuPrecision};
 use rayon::prelude::*;
 
@@ -60,7 +60,7 @@ fn p2p(n: usize) {
                 rates.push(None);
                 continue;
             }
-            let sum = PairSum::new(
+            let sum = PairSum::all_pairs(
                 gpu.clone(),
                 gk,
                 prec,
@@ -68,11 +68,6 @@ fn p2p(n: usize) {
                     sources: &pts,
                     normals: Some(&nrm),
                     targets: &pts,
-                },
-                RowList {
-                    rows: &[0..n],
-                    offsets: &[0, 1],
-                    ranges: &[0..n],
                 },
             )
             .expect("pair sum");

@@ -29,7 +29,7 @@ use super::kernels::{
     Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, StokesletSource, Stresslet,
 };
 use super::m2l_fft::{offset_index, FftM2l};
-use super::near_field::{CpuNearField, NearField, NearList};
+use super::near_field::{CpuNearField, NearField, NearList, NearPoints};
 use super::operators::{gemm, Translations, DOWN_EQUIV, INNER, UP_CHECK};
 use super::surface::CubeSurface;
 use super::FmmError;
@@ -354,12 +354,12 @@ impl Fmm {
 
     /// This rank's sorted sources and targets as the near field sees them (positions,
     /// orientations), for building a backend.
-    pub fn near_points(&self) -> (&[[f64; 3]], Option<&[[f64; 3]]>, &[[f64; 3]]) {
-        (
-            &self.tree.sources,
-            self.tree.normals.as_deref(),
-            &self.tree.targets,
-        )
+    pub fn near_points(&self) -> NearPoints<'_> {
+        NearPoints {
+            sources: &self.tree.sources,
+            normals: self.tree.normals.as_deref(),
+            targets: &self.tree.targets,
+        }
     }
 
     /// Evaluate the near field with `backend` from now on (built for this FMM's

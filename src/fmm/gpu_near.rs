@@ -157,16 +157,16 @@ fn attach(
         ));
     }
     let list = fmm.near_list();
-    let (sources, normals, targets) = fmm.near_points();
+    let points = fmm.near_points();
     let kernel = gpu_kernel(fmm.kernel());
     let sum = PairSum::new(
         gpu.clone(),
         kernel,
         prec,
         PairPoints {
-            sources,
-            normals,
-            targets,
+            sources: points.sources,
+            normals: points.normals,
+            targets: points.targets,
         },
         RowList {
             rows: &list.rows,

@@ -106,6 +106,15 @@ impl NearList {
     }
 }
 
+/// A rank's sorted points as the near field sees them.
+#[derive(Clone, Copy, Debug)]
+pub struct NearPoints<'a> {
+    pub sources: &'a [[f64; 3]],
+    /// Source orientations (double-layer kernels).
+    pub normals: Option<&'a [[f64; 3]]>,
+    pub targets: &'a [[f64; 3]],
+}
+
 /// A backend that evaluates a [`NearList`] for the current densities.
 pub trait NearField: Sync {
     /// What runs the pass, for summaries (`"cpu"`, `"gpu f64 (NVIDIA H100 …)"`).

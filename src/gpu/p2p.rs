@@ -352,6 +352,30 @@ impl PairSum {
         })
     }
 
+    /// Every target against every source (one row, one range): a direct sum such as the RPY
+    /// mobility product of Brownian dynamics.
+    pub fn all_pairs(
+        gpu: Arc<Gpu>,
+        kernel: GpuKernel,
+        precision: GpuPrecision,
+        points: PairPoints,
+    ) -> Result<Self, GpuError> {
+        let rows = [Range {
+            start: 0,
+            end: points.targets.len(),
+        }];
+        let ranges = [Range {
+            start: 0,
+            end: points.sources.len(),
+        }];
+        let list = RowList {
+            rows: &rows,
+            offsets: &[0, 1],
+            ranges: &ranges,
+        };
+        Self::new(gpu, kernel, precision, points, list)
+    }
+
     /// The precision the kernels run in.
     pub fn precision(&self) -> GpuPrecision {
         self.precision
