@@ -7,6 +7,9 @@
 //!   near field on `cpu`, `gpu` (f64 where offered) or `gpu32`: setup, best of `REPS` (default
 //!   3) evaluations, the phases, and the error against direct sums at 200 sampled targets.
 //!
+//! * `gpu_bench tea-hi N` — the TEA-HI fused pass (all pairs of N beads): the GPU pass alone
+//!   against the CPU's AVX2 pass over all rayon threads (a 2048-row slice).
+//!
 //! `cargo run --release --features gpu --example gpu_bench -- p2p 65536`
 use std::time::Instant;
 
@@ -95,6 +98,66 @@ fn p2p(n: usize) {
     }
 }
 
+fn comps(s: &mobo::brownian::tea_hi::Soa) -> [&[f64]; 3] {
+    [&s.x, &s.y, &s.z]
+}
+
+/// The TEA-HI fused pass: GPU (pass alone) against the CPU's AVX2 pass on all threads.
+fn tea_hi(n: usize) {
+    use mobo::brownian::tea_hi::{fused_rows, Soa};
+    use mobo::gpu::tea_hi::{GpuTeaHi, FLOPS_PER_PAIR};
+    let gpu = Gpu::shared().expect("a GPU adapter");
+    // Beads of radius 0.5 at unit number density: both RPY branches occur.
+    let side = (n as f64).cbrt();
+    let pts: Vec<[f64; 3]> = Cloud::Uniform
+        .points(n, 1)
+        .iter()
+        .map(|p| p.map(|c| c * side))
+        .collect();
+    let a = 0.5;
+    let pos = Soa::from_points(&pts);
+    let v = |seed| {
+        let d = Cloud::densities(3 * n, seed);
+        Soa::from_points(
+            &d.chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (force, xi) = (v(2), v(3));
+    let nt = 2048.min(n);
+    let mut rows = Vec::new();
+    let mut best_cpu = f64::INFINITY;
+    for _ in 0..3 {
+        let t = Instant::now();
+        fused_rows(&pos, &force, &xi, a, 0..nt, &mut rows);
+        best_cpu = best_cpu.min(t.elapsed().as_secs_f64());
+    }
+    let cpu_rate = (nt * n) as f64 / best_cpu;
+    let mut cells = Vec::new();
+    for prec in [GpuPrecision::F32, GpuPrecision::F64] {
+        if prec == GpuPrecision::F64 && !gpu.has_f64() {
+            cells.push("— | —".to_string());
+            continue;
+        }
+        let pass = GpuTeaHi::new(gpu.clone(), prec, n).expect("pass");
+        pass.rows(comps(&pos), comps(&force), comps(&xi), a, 0..n, &mut rows)
+            .expect("rows");
+        let mut best = f64::INFINITY;
+        for _ in 0..3 {
+            best = best.min(pass.time_pass(3).expect("time"));
+        }
+        let rate = (n * n) as f64 / best;
+        cells.push(format!("{rate:.3e} | {:.2}", rate * FLOPS_PER_PAIR * 1e-12));
+    }
+    println!("| pass | N | flops/pair | CPU pairs/s ({} threads) | GPU f32 pairs/s | f32 TFLOP/s | GPU f64 pairs/s | f64 TFLOP/s |", rayon::current_num_threads());
+    println!("|---|---|---|---|---|---|---|---|");
+    println!(
+        "| TEA-HI | {n} | {FLOPS_PER_PAIR} | {cpu_rate:.3e} | {} | {} |",
+        cells[0], cells[1]
+    );
+}
+
 fn fmm(kernel: &str, cloud: &str, n: usize, digits: u32, mode: &str, leaf_factor: f64) {
     let kind = FmmKernel::from_name(kernel, Some(0.0005)).expect("kernel");
     let cloud = Cloud::from_name(cloud).expect("cloud");
@@ -169,6 +232,7 @@ fn main() {
     let a: Vec<String> = std::env::args().collect();
     match a.get(1).map(String::as_str) {
         Some("p2p") => p2p(a.get(2).map_or(65536, |s| s.parse().expect("N"))),
+        Some("tea-hi") => tea_hi(a.get(2).map_or(65536, |s| s.parse().expect("N"))),
         Some("fmm") if a.len() >= 7 => fmm(
             &a[2],
             &a[3],
@@ -177,6 +241,6 @@ fn main() {
             &a[6],
             a.get(7).map_or(1.0, |s| s.parse().expect("LEAF_FACTOR")),
         ),
-        _ => eprintln!("usage: gpu_bench p2p N | gpu_bench fmm KERNEL CLOUD N DIGITS cpu|gpu|gpu32 [LEAF_FACTOR]"),
+        _ => eprintln!("usage: gpu_bench p2p N | gpu_bench tea-hi N | gpu_bench fmm KERNEL CLOUD N DIGITS cpu|gpu|gpu32 [LEAF_FACTOR]"),
     }
 }

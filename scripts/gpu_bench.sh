@@ -42,6 +42,10 @@ echo "### Pair rates, all pairs of $N_P2P uniform points (GPU kernel alone; CPU 
 echo
 RAYON_NUM_THREADS="$ALL" "$BIN" p2p "$N_P2P"
 echo
+echo "### TEA-HI fused pass, all pairs of $N_P2P beads (GPU pass alone; CPU AVX2 pass on $ALL threads)"
+echo
+RAYON_NUM_THREADS="$ALL" "$BIN" tea-hi "$N_P2P"
+echo
 echo "### FMM on $N_FMM points (best of 3 evaluations; error vs direct sums at 200 targets)"
 echo
 echo "| kernel | cloud | N | digits | order | leaf | threads | near field | error | setup s | eval s | near s | far wall s | near pairs |"

@@ -342,3 +342,107 @@ vtk = false
         }
     }
 }
+
+/// Per column `c` of rows of `w` values: relative L2 difference of `got` against `want`.
+fn worst_column(got: &[f64], want: &[f64], w: usize) -> f64 {
+    (0..w)
+        .map(|c| {
+            let a: Vec<f64> = got.iter().skip(c).step_by(w).copied().collect();
+            let b: Vec<f64> = want.iter().skip(c).step_by(w).copied().collect();
+            rel(&a, &b)
+        })
+        .fold(0.0, f64::max)
+}
+
+#[test]
+fn tea_hi_pass_matches_the_cpu_rows() {
+    use mobo::brownian::gpu_pass;
+    use mobo::brownian::tea_hi::{fused_rows, Soa, ROW_VALUES};
+    let Some(g) = gpu() else { return };
+    let n = 1200;
+    // Beads of radius 0.02 in blobs: overlapping pairs (r < 2a) and far ones.
+    let a = 0.02;
+    let pos = Soa::from_points(&Cloud::Blobs.points(n, 21));
+    let vec3 = |seed| -> Soa {
+        let d = Cloud::densities(3 * n, seed);
+        Soa::from_points(
+            &d.chunks_exact(3)
+                .map(|c| [c[0], c[1], c[2]])
+                .collect::<Vec<_>>(),
+        )
+    };
+    let (force, xi) = (vec3(22), vec3(23));
+    for rows in [0..n, 250..731] {
+        let mut want = Vec::new();
+        fused_rows(&pos, &force, &xi, a, rows.clone(), &mut want);
+        for prec in precisions(&g) {
+            let (pass, d) = gpu_pass::choose(GpuChoice::On, Some(prec), n).unwrap();
+            assert_eq!(d.device, "gpu");
+            let mut got = Vec::new();
+            pass.unwrap()
+                .rows(&pos, &force, &xi, a, rows.clone(), &mut got)
+                .unwrap();
+            assert_eq!(got.len(), want.len());
+            let e = worst_column(&got, &want, ROW_VALUES);
+            eprintln!("tea-hi rows {rows:?} {}: {e:.2e}", prec.name());
+            let tol = match prec {
+                GpuPrecision::F64 => 1e-12,
+                GpuPrecision::F32 => 5e-6,
+            };
+            assert!(e <= tol, "{} rows {rows:?}: {e:e}", prec.name());
+        }
+    }
+}
+
+#[test]
+fn brownian_steps_with_the_gpu_pass_follow_the_cpu() {
+    use mobo::brownian::{BrownianParams, BrownianSimulation, ForceField, NoiseModel};
+    let Some(g) = gpu() else { return };
+    let n = 600;
+    let start: Vec<[f64; 3]> = Cloud::Uniform
+        .points(n, 31)
+        .iter()
+        .map(|p| p.map(|c| 40.0 * c))
+        .collect();
+    let params = BrownianParams {
+        radius: 1.0,
+        kt: 1.0,
+        viscosity: 1.0 / (6.0 * std::f64::consts::PI),
+        dt: 1e-3,
+        noise: NoiseModel::TeaHi,
+        seed: 5,
+    };
+    let forces = ForceField {
+        repulsion: 50.0,
+        radius: 1.0,
+        external: [0.0, 0.0, -1.0],
+        ..Default::default()
+    };
+    let run = |gpu: Option<GpuPrecision>| {
+        let mut sim = BrownianSimulation::new(params, start.clone(), forces.clone()).unwrap();
+        if let Some(p) = gpu {
+            let d = sim.use_gpu(GpuChoice::On, Some(p)).unwrap();
+            assert_eq!(d.device, "gpu");
+        }
+        for _ in 0..10 {
+            sim.step().unwrap();
+        }
+        (sim.positions, sim.last_tea_hi.unwrap())
+    };
+    let (cpu, coef) = run(None);
+    for prec in precisions(&g) {
+        let (got, c) = run(Some(prec));
+        let tol = match prec {
+            GpuPrecision::F64 => 1e-12,
+            GpuPrecision::F32 => 1e-7,
+        };
+        let worst = got
+            .iter()
+            .zip(&cpu)
+            .flat_map(|(a, b)| (0..3).map(move |k| (a[k] - b[k]).abs()))
+            .fold(0.0, f64::max);
+        eprintln!("brownian {} after 10 steps: {worst:.2e}", prec.name());
+        assert!(worst <= tol * 40.0, "{}: {worst:e}", prec.name());
+        assert!((c.epsilon - coef.epsilon).abs() <= tol * coef.epsilon.abs().max(1e-3));
+    }
+}

@@ -77,6 +77,8 @@ pub struct BrownianSimulation {
     rows: Vec<f64>,
     /// Where each rank spent its time (one entry on one rank).
     pub timings: StepTimings,
+    /// The TEA-HI pass on a GPU ([`BrownianSimulation::use_gpu`]); `None`: the CPU's.
+    gpu: Option<super::gpu_pass::GpuPass>,
 }
 
 /// Seconds a rank spent in the steps so far, and what it sent.
@@ -91,6 +93,18 @@ pub struct StepTimings {
 }
 
 impl BrownianSimulation {
+    /// Run the TEA-HI pass where `choice` says ([`super::gpu_pass::choose`]; `precision`
+    /// forces a GPU precision); returns where it runs and why. The CPU pass is the default.
+    pub fn use_gpu(
+        &mut self,
+        choice: crate::gpu::GpuChoice,
+        precision: Option<crate::gpu::GpuPrecision>,
+    ) -> Result<crate::gpu::GpuDecision, BrownianError> {
+        let (pass, decision) = super::gpu_pass::choose(choice, precision, self.positions.len())?;
+        self.gpu = pass;
+        Ok(decision)
+    }
+
     /// A simulation of the given beads.
     pub fn new(
         params: BrownianParams,
@@ -122,6 +136,7 @@ impl BrownianSimulation {
             sums: FusedSums::default(),
             rows: Vec::new(),
             timings: StepTimings::default(),
+            gpu: None,
         })
     }
 
@@ -173,7 +188,10 @@ impl BrownianSimulation {
                 pos.fill(&self.positions);
                 frc.fill(&self.f);
                 xi.fill(&self.xi);
-                fused_rows(pos, frc, xi, a, mine, &mut self.rows);
+                match &self.gpu {
+                    Some(g) => g.rows(pos, frc, xi, a, mine, &mut self.rows)?,
+                    None => fused_rows(pos, frc, xi, a, mine, &mut self.rows),
+                }
                 if comm.size() > 1 {
                     self.rows = gather_blocks(comm, &self.rows, ROW_VALUES * n, &mut exchange)?;
                 }

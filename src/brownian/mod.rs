@@ -25,6 +25,7 @@
 //! sources from structure-of-arrays inputs, nothing stored between pairs.
 
 pub mod forces;
+pub mod gpu_pass;
 pub mod integrator;
 pub mod noise;
 pub mod observables;
@@ -53,4 +54,7 @@ pub enum BrownianError {
     /// Exchanging rows between MPI ranks failed.
     #[error("{0}")]
     Comm(#[from] crate::comm::CommError),
+    /// The GPU pass failed or was asked for where there is none.
+    #[error(transparent)]
+    Gpu(#[from] crate::gpu::GpuError),
 }

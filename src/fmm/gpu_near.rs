@@ -7,7 +7,7 @@
 //! fails with a clear error where there is none; [`GpuChoice::Off`] keeps the CPU.
 
 use super::{Fmm, FmmError, FmmKernel};
-use crate::gpu::{GpuChoice, GpuError, GpuKernel, GpuPrecision};
+use crate::gpu::{GpuChoice, GpuDecision, GpuError, GpuKernel, GpuPrecision};
 
 /// Smallest near field (target–source pairs) that `auto` sends to the GPU: about 20 ms of the
 /// CPU's AVX2 Stokeslet loop on two cores, well above the fixed cost of a launch and a
@@ -42,28 +42,7 @@ fn hardware_gpu() -> bool {
 }
 
 /// Where the near field runs and why.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
-pub struct NearDecision {
-    /// `"cpu"` or `"gpu"`.
-    pub device: String,
-    /// The adapter, where a GPU was looked at.
-    pub adapter: Option<String>,
-    /// Precision of the GPU kernels, where the GPU runs.
-    pub precision: Option<GpuPrecision>,
-    /// Why.
-    pub reason: String,
-}
-
-impl NearDecision {
-    fn cpu(adapter: Option<String>, reason: String) -> Self {
-        NearDecision {
-            device: "cpu".into(),
-            adapter,
-            precision: None,
-            reason,
-        }
-    }
-}
+pub type NearDecision = GpuDecision;
 
 /// The GPU kernel of an FMM kernel's near field.
 pub fn gpu_kernel(kind: FmmKernel) -> GpuKernel {
@@ -85,7 +64,7 @@ pub fn choose(
     digits: Option<u32>,
 ) -> Result<NearDecision, FmmError> {
     if choice == GpuChoice::Off {
-        return Ok(NearDecision::cpu(None, "GPU not asked for".into()));
+        return Ok(GpuDecision::cpu(None, "GPU not asked for".into()));
     }
     attach(fmm, choice, precision, digits)
 }
@@ -99,7 +78,7 @@ fn attach(
 ) -> Result<NearDecision, FmmError> {
     match choice {
         GpuChoice::On => Err(GpuError::NotBuilt.into()),
-        _ => Ok(NearDecision::cpu(
+        _ => Ok(GpuDecision::cpu(
             None,
             "built without the gpu feature".into(),
         )),
@@ -118,12 +97,12 @@ fn attach(
     let auto = choice == GpuChoice::Auto;
     let gpu = match Gpu::shared() {
         Ok(g) => g,
-        Err(e) if auto => return Ok(NearDecision::cpu(None, e.to_string())),
+        Err(e) if auto => return Ok(GpuDecision::cpu(None, e.to_string())),
         Err(e) => return Err(e.into()),
     };
     let adapter = Some(gpu.describe());
     if auto && !gpu.is_hardware() {
-        return Ok(NearDecision::cpu(
+        return Ok(GpuDecision::cpu(
             adapter,
             "the adapter is not a hardware GPU (a CPU rasteriser would only compete with the CPU loops)".into(),
         ));
@@ -145,13 +124,13 @@ fn attach(
             prec.max_digits()
         );
         if auto {
-            return Ok(NearDecision::cpu(adapter, why));
+            return Ok(GpuDecision::cpu(adapter, why));
         }
         return Err(GpuError::Shape(why).into());
     }
     let pairs = fmm.near_list().pairs();
     if auto && pairs < AUTO_MIN_PAIRS {
-        return Ok(NearDecision::cpu(
+        return Ok(GpuDecision::cpu(
             adapter,
             format!("near field of {pairs} pairs, below the {AUTO_MIN_PAIRS} where the GPU gains"),
         ));
@@ -175,7 +154,7 @@ fn attach(
         },
     )?;
     fmm.set_near_field(Box::new(backend::GpuNearField { sum }));
-    Ok(NearDecision {
+    Ok(GpuDecision {
         device: "gpu".into(),
         adapter,
         precision: Some(prec),

@@ -29,6 +29,8 @@ mod context;
 pub mod p2p;
 #[cfg(feature = "gpu")]
 mod shader;
+#[cfg(feature = "gpu")]
+pub mod tea_hi;
 
 #[cfg(feature = "gpu")]
 pub use context::Gpu;
@@ -175,6 +177,31 @@ impl GpuKernel {
             GpuKernel::Stokeslet => "stokeslet",
             GpuKernel::Stresslet => "stresslet",
             GpuKernel::Rpy { .. } => "rpy",
+        }
+    }
+}
+
+/// Where a pass runs and why (the `near_field` / `pair_pass` entries of the JSON summaries).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct GpuDecision {
+    /// `"cpu"` or `"gpu"`.
+    pub device: String,
+    /// The adapter, where a GPU was looked at.
+    pub adapter: Option<String>,
+    /// Precision of the GPU kernels, where the GPU runs.
+    pub precision: Option<GpuPrecision>,
+    /// Why.
+    pub reason: String,
+}
+
+impl GpuDecision {
+    /// The CPU, for `reason`.
+    pub fn cpu(adapter: Option<String>, reason: String) -> Self {
+        GpuDecision {
+            device: "cpu".into(),
+            adapter,
+            precision: None,
+            reason,
         }
     }
 }

@@ -11,6 +11,7 @@
 //! noise = "tea-hi"        # "tea-hi" | "exact" | "lanczos" | "free-draining"
 //! lanczos_tol = 1e-6      # for "lanczos"
 //! save_every = 100        # steps between saved frames
+//! gpu = "auto"            # TEA-HI pass on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [brownian.system]
 //! kind = "chain"          # "dimer" | "chain" | "positions" | "random"
@@ -37,6 +38,7 @@ use serde::Deserialize;
 
 use super::{parse_toml, read_scene_file, SceneError};
 use crate::brownian::{BrownianParams, ForceField, NoiseModel, SubcellularElement};
+use crate::gpu::GpuChoice;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -63,6 +65,16 @@ struct BrownianSection {
     save_every: u64,
     system: SystemSection,
     sce: Option<SubcellularElement>,
+    /// The TEA-HI pass on a GPU: "auto" (default), true or false.
+    gpu: Option<GpuFlag>,
+}
+
+/// `gpu`: `"auto"`, or a boolean.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum GpuFlag {
+    Flag(bool),
+    Word(String),
 }
 
 fn default_noise() -> String {
@@ -107,6 +119,8 @@ pub struct BrownianScene {
     pub save_every: u64,
     /// The system kind, as written.
     pub kind: String,
+    /// The TEA-HI pass on a GPU (`[brownian] gpu`, default `"auto"`).
+    pub gpu: GpuChoice,
 }
 
 /// Read and validate a Brownian scene file.
@@ -133,6 +147,18 @@ pub fn parse(file: &Path, text: &str) -> Result<BrownianScene, SceneError> {
     if b.save_every == 0 {
         return Err(bad("save_every", "must be at least 1"));
     }
+    let gpu = match &b.gpu {
+        None => GpuChoice::Auto,
+        Some(GpuFlag::Flag(true)) => GpuChoice::On,
+        Some(GpuFlag::Flag(false)) => GpuChoice::Off,
+        Some(GpuFlag::Word(w)) if w == "auto" => GpuChoice::Auto,
+        Some(GpuFlag::Word(w)) => {
+            return Err(bad(
+                "gpu",
+                &format!("must be \"auto\", true or false, got \"{w}\""),
+            ))
+        }
+    };
     let noise = match b.noise.as_str() {
         "tea-hi" => NoiseModel::TeaHi,
         "exact" => NoiseModel::Cholesky,
@@ -256,6 +282,7 @@ pub fn parse(file: &Path, text: &str) -> Result<BrownianScene, SceneError> {
         steps: b.steps,
         save_every: b.save_every,
         kind: s.kind,
+        gpu,
     })
 }
 

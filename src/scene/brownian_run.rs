@@ -20,6 +20,7 @@ use crate::brownian::observables::{
 };
 use crate::brownian::{BrownianError, BrownianSimulation, NoiseModel};
 use crate::comm::{agreed, block_rows, spread, CommError, Communicator, SerialComm};
+use crate::gpu::GpuDecision;
 use crate::io::{npy, write_atomic, IoError};
 
 /// Errors of a run.
@@ -73,6 +74,8 @@ pub struct BrownianSummary {
     pub tea_hi_beta: Option<f64>,
     /// How the rows were split over MPI ranks (`None` on one rank).
     pub split: Option<BrownianSplit>,
+    /// Where the TEA-HI pass ran (on rank 0) and why (`null`: no TEA-HI noise).
+    pub pair_pass: Option<GpuDecision>,
 }
 
 /// How a run over `K` ranks split its work: each rank its block of rows of the pair forces
@@ -155,6 +158,10 @@ pub fn run_on(
     let mut sim =
         BrownianSimulation::new(scene.params, scene.positions.clone(), scene.forces.clone())?;
     let n = sim.positions.len();
+    let pair_pass = match scene.params.noise {
+        NoiseModel::TeaHi => Some(sim.use_gpu(scene.gpu, None)?),
+        _ => None,
+    };
     let mut obs = Observed::default();
     obs.record(&sim, root);
     let bar = if progress && root {
@@ -209,6 +216,7 @@ pub fn run_on(
         tea_hi_epsilon: sim.last_tea_hi.map(|c| c.epsilon),
         tea_hi_beta: sim.last_tea_hi.map(|c| c.beta),
         split,
+        pair_pass,
     };
     // Rank 0 writes every file; the others learn whether it could.
     let written = if root {
