@@ -294,8 +294,8 @@ impl GpuTeaHi {
             }
             GpuPrecision::F32 => {
                 let mut p: Vec<f32> = Vec::with_capacity(8 * n);
-                for i in 0..n {
-                    let x = [pos[0][i], pos[1][i], pos[2][i]];
+                for ((&x0, &x1), &x2) in pos[0].iter().zip(pos[1]).zip(pos[2]) {
+                    let x = [x0, x1, x2];
                     let hi = x.map(|c| c as f32);
                     p.extend_from_slice(&[hi[0], hi[1], hi[2], 0.0]);
                     for (c, h) in x.iter().zip(hi) {
