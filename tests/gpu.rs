@@ -446,3 +446,67 @@ fn brownian_steps_with_the_gpu_pass_follow_the_cpu() {
         assert!((c.epsilon - coef.epsilon).abs() <= tol * coef.epsilon.abs().max(1e-3));
     }
 }
+
+/// `mobo fmm --gpu` against `mobo fmm` on the same files: the same values to the FMM's
+/// rounding, the JSON line saying where the near field ran; a bad `--gpu` value is refused.
+#[test]
+fn mobo_fmm_with_gpu_matches_the_cpu_run() {
+    let Some(_g) = gpu() else { return };
+    let dir = common::tmpdir("gpu-cli");
+    let n = 5000;
+    let pts = Cloud::Spheres.points(n, 41);
+    let f = Cloud::densities(3 * n, 42);
+    let flat: Vec<f64> = pts.iter().flatten().copied().collect();
+    let (src, den) = (dir.join("x.npy"), dir.join("f.npy"));
+    mobo::io::npy::write_f64(&src, &[n, 3], &flat).unwrap();
+    mobo::io::npy::write_f64(&den, &[n, 3], &f).unwrap();
+    let run = |extra: &[&str], out: &str| {
+        let out = dir.join(out);
+        let mut args = vec![
+            "fmm",
+            "--kernel",
+            "stokeslet",
+            "--sources",
+            src.to_str().unwrap(),
+            "--density",
+            den.to_str().unwrap(),
+            "--digits",
+            "6",
+            "--leaf-size",
+            "600",
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = common::mobo(&args);
+        (o, out)
+    };
+    let (cpu, cpu_out) = run(&[], "cpu.npy");
+    assert!(
+        cpu.status.success(),
+        "{}",
+        String::from_utf8_lossy(&cpu.stderr)
+    );
+    let (gpu, gpu_out) = run(&["--gpu", "--repeat", "2"], "gpu.npy");
+    assert!(
+        gpu.status.success(),
+        "{}",
+        String::from_utf8_lossy(&gpu.stderr)
+    );
+    let line: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&gpu.stdout).trim()).unwrap();
+    assert_eq!(line["near_field"]["device"], "gpu", "{line}");
+    assert_eq!(line["repeat"], 2);
+    assert_eq!(line["phases_s"]["near_concurrent"], true);
+    let cpu_line: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&cpu.stdout).trim()).unwrap();
+    assert_eq!(cpu_line["near_field"]["device"], "cpu");
+    let (_, a) = mobo::io::npy::read_f64(&cpu_out).unwrap();
+    let (_, b) = mobo::io::npy::read_f64(&gpu_out).unwrap();
+    let e = rel(&b, &a);
+    assert!(e < 1e-12, "GPU run off the CPU run by {e:e}");
+    let (bad, _) = run(&["--gpu", "sometimes"], "bad.npy");
+    assert!(!bad.status.success());
+    let msg = String::from_utf8_lossy(&bad.stderr);
+    assert!(msg.contains("--gpu takes auto, true or false"), "{msg}");
+}
