@@ -1,6 +1,7 @@
 //! One wgpu device per process.
 
-use std::sync::{Arc, OnceLock};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
 
 use super::GpuError;
 
@@ -17,6 +18,9 @@ pub struct Gpu {
     /// Largest workgroup: invocations, and bytes of workgroup memory.
     pub(crate) max_invocations: u32,
     pub(crate) max_workgroup_bytes: u32,
+    /// Compiled pipelines by shader source: a cell run builds an FMM (and a pair sum) every
+    /// step, and compiling WGSL each time costs more than the sums.
+    pipelines: Mutex<HashMap<String, wgpu::ComputePipeline>>,
 }
 
 static SHARED: OnceLock<Result<Arc<Gpu>, GpuError>> = OnceLock::new();
@@ -66,8 +70,46 @@ impl Gpu {
                 .max_compute_invocations_per_workgroup
                 .min(limits.max_compute_workgroup_size_x),
             max_workgroup_bytes: limits.max_compute_workgroup_storage_size,
+            pipelines: Mutex::new(HashMap::new()),
             info,
         })
+    }
+
+    /// The compute pipeline of WGSL `source` (entry point `main`, layout from the shader),
+    /// compiled once per process without runtime bounds checks.
+    ///
+    /// # Safety
+    /// Every index `source` forms must be in bounds for the buffers bound to it.
+    pub(crate) unsafe fn trusted_pipeline(
+        &self,
+        label: &str,
+        source: &str,
+    ) -> wgpu::ComputePipeline {
+        let mut cache = self.pipelines.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(p) = cache.get(source) {
+            return p.clone();
+        }
+        let desc = wgpu::ShaderModuleDescriptor {
+            label: Some(label),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        };
+        // SAFETY: the caller's promise (indices in bounds).
+        let module = unsafe {
+            self.device
+                .create_shader_module_trusted(desc, wgpu::ShaderRuntimeChecks::unchecked())
+        };
+        let pipeline = self
+            .device
+            .create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(label),
+                layout: None,
+                module: &module,
+                entry_point: Some("main"),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+        cache.insert(source.to_string(), pipeline.clone());
+        pipeline
     }
 
     /// Whether `f64` shaders are available.

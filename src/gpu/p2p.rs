@@ -230,25 +230,12 @@ impl PairSum {
         too_large("the near-field list", plan.len() * 4)?;
 
         let dev = &gpu.device;
-        let desc = wgpu::ShaderModuleDescriptor {
-            label: Some(kernel.name()),
-            source: wgpu::ShaderSource::Wgsl(shader::source(kernel, precision, wgs, tpt).into()),
-        };
+        let source = shader::source(kernel, precision, wgs, tpt);
         // SAFETY: every index the shader forms is in bounds by construction, checked above on
         // the host: work items, row offsets and ranges lie inside the plan, sources and targets
         // (`rows` and `ranges` validated against the point counts), and workgroup indices are
-        // below WORKGROUP. Without runtime checks the inner loop has no index clamps.
-        let module = unsafe {
-            dev.create_shader_module_trusted(desc, wgpu::ShaderRuntimeChecks::unchecked())
-        };
-        let pipeline = dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(kernel.name()),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        // below the workgroup size. Without runtime checks the inner loop has no index clamps.
+        let pipeline = unsafe { gpu.trusted_pipeline(kernel.name(), &source) };
         let storage = wgpu::BufferUsages::STORAGE;
         let init = |label: &str, contents: &[u8], usage| {
             // Empty bindings are not allowed: pad to one element.

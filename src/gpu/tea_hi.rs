@@ -194,24 +194,10 @@ impl GpuTeaHi {
             }
         }
         let dev = &gpu.device;
-        let desc = wgpu::ShaderModuleDescriptor {
-            label: Some("tea-hi"),
-            source: wgpu::ShaderSource::Wgsl(shader(precision).into()),
-        };
         // SAFETY: indices are in bounds by construction: rows are clamped to `nrows`, rows and
-        // sources lie in `0..n` (checked in `evaluate`), workgroup indices are below WG, and
-        // the buffers are sized for `n` particles here.
-        let module = unsafe {
-            dev.create_shader_module_trusted(desc, wgpu::ShaderRuntimeChecks::unchecked())
-        };
-        let pipeline = dev.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("tea-hi"),
-            layout: None,
-            module: &module,
-            entry_point: Some("main"),
-            compilation_options: Default::default(),
-            cache: None,
-        });
+        // sources lie in `0..n` (checked in `rows`), workgroup indices are below WG, and the
+        // buffers are sized for `n` particles here.
+        let pipeline = unsafe { gpu.trusted_pipeline("tea-hi", &shader(precision)) };
         let buf = |label: &str, size: usize, usage: wgpu::BufferUsages| {
             dev.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(label),
