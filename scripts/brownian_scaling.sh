@@ -28,7 +28,7 @@ for k in $ks; do
     dir="$out/k$k"
     rm -rf "$dir"
     echo "scripts/brownian_scaling.sh: $beads beads, $k ranks" >&2
-    mpirun --allow-run-as-root --oversubscribe -n "$k" target/release/mobo brownian "$scene" --out "$dir" --quiet >&2
+    mpirun --allow-run-as-root --oversubscribe -n "$k" "$MOBO_BIN" brownian "$scene" --out "$dir" --quiet >&2
     cmp -s "${dirs[0]:-$dir}/trajectory.npy" "$dir/trajectory.npy" || {
         echo "scripts/brownian_scaling.sh: $k ranks: trajectory differs from ${dirs[0]}" >&2
         exit 1

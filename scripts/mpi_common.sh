@@ -7,7 +7,11 @@ mpi_setup() {
         echo "$1: needs mpirun (apt install openmpi-bin libopenmpi-dev libclang-dev)" >&2
         exit 1
     }
-    cargo build --release --features mpi --quiet
+    # MOBO_BIN: a binary built elsewhere (a machine without cargo), else build one here.
+    if [ -z "${MOBO_BIN:-}" ]; then
+        cargo build --release --features mpi --quiet
+    fi
+    export MOBO_BIN=${MOBO_BIN:-target/release/mobo}
     mkdir -p "$3"
     export OMPI_MCA_btl_vader_single_copy_mechanism=none
     export RAYON_NUM_THREADS=$2

@@ -8,6 +8,7 @@
 # 60), ORDER (SH order p, default 6), STEPS (default 10), THREADS (rayon threads per rank,
 # default 1: one core a rank), OUT (work directory, default target/scaling), RESULTS (the
 # file the table is appended to, default benches/RESULTS.md; "-" prints it only).
+# MOBO_BIN: a prebuilt binary with the mpi feature (no cargo build).
 # The cells are placed at random at a volume fraction of about 6 % (the box grows with the
 # cell count); the flow is simple shear. Each run's summary.json gives the phases per rank
 # (largest and mean), bytes sent per step and the solve imbalance; efficiency is
@@ -69,7 +70,7 @@ EOF
     dir="$out/${mode}_k${k}"
     rm -rf "$dir"
     echo "scripts/scaling.sh: $mode, $n cells, p = $order, $k ranks" >&2
-    mpirun --allow-run-as-root --oversubscribe -n "$k" target/release/mobo run "$scene" --out "$dir" --quiet >&2
+    mpirun --allow-run-as-root --oversubscribe -n "$k" "$MOBO_BIN" run "$scene" --out "$dir" --quiet >&2
     rows+=("$k $n $dir")
 done
 table=$(python3 - "$mode" "$order" "$steps" "${rows[@]}" <<'EOF'
