@@ -10,6 +10,7 @@
 
 pub mod brownian;
 pub mod check;
+pub mod dpd;
 pub mod comm;
 pub mod durable;
 pub mod fmm;

@@ -1,0 +1,285 @@
+//! Viscosity from the periodic (reverse) Poiseuille flow, and the kinetic-theory estimate it
+//! is compared with.
+//!
+//! # Measurement (Backer, Lowe, Hoefsloot & Iedema 2005)
+//! The body force `+g x̂` on particles with `z < L_z/2` and `−g x̂` on the others drives two
+//! counter-flowing Poiseuille flows whose planes of symmetry `z = 0, L_z/2` are planes of zero
+//! velocity. With `n` the number density and `η` the dynamic viscosity, the steady profile is
+//!
+//! ```text
+//! u_x(z) = (n g / 2η) φ(z),   φ(z) = z (L_z/2 − z) for z < L_z/2,  −(z − L_z/2)(L_z − z) else.
+//! ```
+//!
+//! The profile (binned in `z`, averaged per block of samples) is fitted by least squares with
+//! `u = c φ` (the bin averages of `φ`), `η = n g / 2c`; the standard error comes from the
+//! spread of `c` over the blocks (block averaging).
+//!
+//! # Kinetic theory (Marsh 1998; Groot & Warren 1997)
+//! For `w_D = w^{2k}`, `w = 1 − r/r_c`:
+//!
+//! ```text
+//! η_K = m n D / 2,  D = 3 k_BT / (γ n ∫ w_D d³r),  ∫ w_D d³r = 8π r_c³ / ((2k+1)(2k+2)(2k+3)),
+//! η_D = (2π γ n² / 15) ∫₀^{r_c} r⁴ w_D dr = (2π γ n² r_c⁵ / 15) · 24 / Π_{m=1..5}(2k+m).
+//! ```
+//!
+//! (`k = 1`: `D = 45 k_BT / 2πγn r_c³`, `η_D = 2πγn² r_c⁵/1575`, Groot & Warren's eq. 32.)
+//! The estimate ignores the conservative force and correlations: measured viscosities differ
+//! from it by 10–30 % at the usual parameters (Marsh, Backer et al.); `docs/dpd_validation.md`
+//! states the deviation measured here.
+
+use serde::Serialize;
+
+use super::system::DpdSystem;
+
+/// The kinetic-theory viscosity and its two parts.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct KineticViscosity {
+    /// Kinetic (momentum carried by particles) part `η_K`.
+    pub kinetic: f64,
+    /// Dissipative (momentum passed by the dissipative force) part `η_D`.
+    pub dissipative: f64,
+    /// `η_K + η_D`.
+    pub total: f64,
+}
+
+/// The kinetic-theory estimate of the dynamic viscosity (see the module docs).
+pub fn kinetic_theory_viscosity(
+    density: f64,
+    gamma: f64,
+    kbt: f64,
+    rc: f64,
+    power: f64,
+    mass: f64,
+) -> KineticViscosity {
+    let k2 = 2.0 * power;
+    let int_wd = 8.0 * std::f64::consts::PI * rc.powi(3) / ((k2 + 1.0) * (k2 + 2.0) * (k2 + 3.0));
+    let d = 3.0 * kbt / (gamma * density * int_wd);
+    let kinetic = mass * density * d / 2.0;
+    let prod: f64 = (1..=5).map(|m| k2 + m as f64).product();
+    let dissipative =
+        2.0 * std::f64::consts::PI * gamma * density * density * rc.powi(5) / 15.0 * 24.0 / prod;
+    KineticViscosity {
+        kinetic,
+        dissipative,
+        total: kinetic + dissipative,
+    }
+}
+
+/// The shape `φ(z)` of the reverse-Poiseuille profile averaged over the bin `[z0, z1]` (the
+/// bin must not straddle `L_z/2`).
+pub fn profile_shape(z0: f64, z1: f64, lz: f64) -> f64 {
+    let half = 0.5 * lz;
+    // Antiderivative of z(h − z) is h z²/2 − z³/3.
+    let prim = |z: f64| half * z * z / 2.0 - z * z * z / 3.0;
+    if z1 <= half + 1e-12 * lz {
+        (prim(z1) - prim(z0)) / (z1 - z0)
+    } else {
+        -(prim(z1 - half) - prim(z0 - half)) / (z1 - z0)
+    }
+}
+
+/// Least-squares `c` of `u ≈ c φ` over the bins.
+pub fn fit_amplitude(u: &[f64], phi: &[f64]) -> f64 {
+    let num: f64 = u.iter().zip(phi).map(|(u, p)| u * p).sum();
+    let den: f64 = phi.iter().map(|p| p * p).sum();
+    num / den
+}
+
+/// Velocity and density profiles along `z`, sampled every few steps and averaged per block.
+#[derive(Clone, Debug)]
+pub struct ProfileSampler {
+    /// Number of bins (even, so no bin straddles `L_z/2`).
+    pub bins: usize,
+    lz: f64,
+    /// Per bin, current block: `Σ v_x`, particle count.
+    sum_v: Vec<f64>,
+    count: Vec<u64>,
+    samples_in_block: usize,
+    /// Samples per block.
+    pub block_samples: usize,
+    /// Completed blocks: mean `v_x` per bin.
+    pub blocks: Vec<Vec<f64>>,
+    /// Over all samples: `Σ v_x` and counts per bin.
+    total_v: Vec<f64>,
+    total_count: Vec<u64>,
+    /// Samples taken.
+    pub samples: usize,
+}
+
+/// The fitted viscosity with its standard error.
+#[derive(Clone, Debug, Serialize)]
+pub struct ViscosityFit {
+    /// `η = n g / 2c`.
+    pub value: f64,
+    /// Standard error from the block spread of `c`.
+    pub stderr: f64,
+    /// Blocks averaged over.
+    pub blocks: usize,
+    /// Samples (one every `sample_every` steps) in all blocks.
+    pub samples: usize,
+}
+
+impl ProfileSampler {
+    /// A sampler with `bins` bins (rounded up to even) and `block_samples` samples per block.
+    pub fn new(lz: f64, bins: usize, block_samples: usize) -> Self {
+        let bins = (bins.max(2) + 1) / 2 * 2;
+        ProfileSampler {
+            bins,
+            lz,
+            sum_v: vec![0.0; bins],
+            count: vec![0; bins],
+            samples_in_block: 0,
+            block_samples: block_samples.max(1),
+            blocks: Vec::new(),
+            total_v: vec![0.0; bins],
+            total_count: vec![0; bins],
+            samples: 0,
+        }
+    }
+
+    /// Add the current state.
+    pub fn sample(&mut self, sys: &DpdSystem) {
+        let p = &sys.particles;
+        let scale = self.bins as f64 / self.lz;
+        for (z, v) in p.z.iter().zip(&p.vx) {
+            let b = ((z * scale) as usize).min(self.bins - 1);
+            self.sum_v[b] += v;
+            self.count[b] += 1;
+        }
+        self.samples += 1;
+        self.samples_in_block += 1;
+        if self.samples_in_block == self.block_samples {
+            let mean: Vec<f64> = self
+                .sum_v
+                .iter()
+                .zip(&self.count)
+                .map(|(s, &c)| if c > 0 { s / c as f64 } else { 0.0 })
+                .collect();
+            self.blocks.push(mean);
+            for b in 0..self.bins {
+                self.total_v[b] += self.sum_v[b];
+                self.total_count[b] += self.count[b];
+            }
+            self.sum_v.iter_mut().for_each(|s| *s = 0.0);
+            self.count.iter_mut().for_each(|c| *c = 0);
+            self.samples_in_block = 0;
+        }
+    }
+
+    /// Bin edges `(z0, z1)`.
+    pub fn bin(&self, b: usize) -> (f64, f64) {
+        let h = self.lz / self.bins as f64;
+        (b as f64 * h, (b + 1) as f64 * h)
+    }
+
+    /// The profile over the completed blocks: per bin `(z centre, mean v_x, number density)`.
+    pub fn profile(&self, area: f64) -> Vec<(f64, f64, f64)> {
+        let nblocks = self.blocks.len().max(1) as f64;
+        let h = self.lz / self.bins as f64;
+        (0..self.bins)
+            .map(|b| {
+                let (z0, z1) = self.bin(b);
+                let v = if self.total_count[b] > 0 {
+                    self.total_v[b] / self.total_count[b] as f64
+                } else {
+                    0.0
+                };
+                let samples = nblocks * self.block_samples as f64;
+                let density = self.total_count[b] as f64 / (samples * area * h);
+                (0.5 * (z0 + z1), v, density)
+            })
+            .collect()
+    }
+
+    /// The viscosity fitted to the blocks (`None` with fewer than two blocks).
+    pub fn viscosity(&self, density: f64, force: f64) -> Option<ViscosityFit> {
+        let nb = self.blocks.len();
+        if nb < 2 {
+            return None;
+        }
+        let phi: Vec<f64> = (0..self.bins)
+            .map(|b| {
+                let (z0, z1) = self.bin(b);
+                profile_shape(z0, z1, self.lz)
+            })
+            .collect();
+        let c: Vec<f64> = self.blocks.iter().map(|u| fit_amplitude(u, &phi)).collect();
+        let mean = c.iter().sum::<f64>() / nb as f64;
+        let var = c.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (nb - 1) as f64;
+        let se_c = (var / nb as f64).sqrt();
+        let value = density * force / (2.0 * mean);
+        Some(ViscosityFit {
+            value,
+            stderr: value * se_c / mean.abs(),
+            blocks: nb,
+            samples: nb * self.block_samples,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kinetic_estimate_matches_groot_warren_for_k1() {
+        // Groot & Warren eq. 32 with n = 3, γ = 4.5, k_BT = 1, r_c = 1.
+        let v = kinetic_theory_viscosity(3.0, 4.5, 1.0, 1.0, 1.0, 1.0);
+        let d = 45.0 / (2.0 * std::f64::consts::PI * 4.5 * 3.0);
+        let want_k = 3.0 * d / 2.0;
+        let want_d = 2.0 * std::f64::consts::PI * 4.5 * 9.0 / 1575.0;
+        assert!((v.kinetic - want_k).abs() < 1e-12 * want_k);
+        assert!((v.dissipative - want_d).abs() < 1e-12 * want_d);
+    }
+
+    #[test]
+    fn kinetic_estimate_integrals_match_quadrature_for_any_k() {
+        // ∫ w_D d³r and ∫ r⁴ w_D dr by the midpoint rule against the closed forms.
+        for k in [0.25, 0.5, 1.0, 2.0] {
+            let m = 200_000;
+            let h = 1.0 / m as f64;
+            let (mut i2, mut i4) = (0.0, 0.0);
+            for q in 0..m {
+                let r = (q as f64 + 0.5) * h;
+                let wd = (1.0 - r).powf(2.0 * k);
+                i2 += 4.0 * std::f64::consts::PI * r * r * wd * h;
+                i4 += r.powi(4) * wd * h;
+            }
+            let (n, g) = (3.0, 4.5);
+            let v = kinetic_theory_viscosity(n, g, 1.0, 1.0, k, 1.0);
+            let want_k = n * (3.0 / (g * n * i2)) / 2.0;
+            let want_d = 2.0 * std::f64::consts::PI * g * n * n / 15.0 * i4;
+            assert!((v.kinetic / want_k - 1.0).abs() < 1e-6, "k = {k}");
+            assert!((v.dissipative / want_d - 1.0).abs() < 1e-6, "k = {k}");
+        }
+    }
+
+    #[test]
+    fn fit_recovers_an_exact_profile() {
+        let lz = 10.0;
+        let bins = 20;
+        let h = lz / bins as f64;
+        let phi: Vec<f64> = (0..bins)
+            .map(|b| profile_shape(b as f64 * h, (b + 1) as f64 * h, lz))
+            .collect();
+        // Bin averages of the exact profile by fine quadrature.
+        let c = 0.37;
+        let u: Vec<f64> = (0..bins)
+            .map(|b| {
+                let m = 1000;
+                (0..m)
+                    .map(|q| {
+                        let z = b as f64 * h + (q as f64 + 0.5) * h / m as f64;
+                        let f = if z < lz / 2.0 {
+                            z * (lz / 2.0 - z)
+                        } else {
+                            -(z - lz / 2.0) * (lz - z)
+                        };
+                        c * f / m as f64
+                    })
+                    .sum()
+            })
+            .collect();
+        assert!((fit_amplitude(&u, &phi) / c - 1.0).abs() < 1e-6);
+    }
+}

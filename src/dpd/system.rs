@@ -1,0 +1,466 @@
+//! A DPD fluid in a periodic box: state, time step and observables.
+//!
+//! The step is velocity-Verlet (Groot & Warren 1997 with `λ = ½`):
+//!
+//! ```text
+//! v ← v + (dt/2m) F;   x ← x + dt v;   F ← F(x, v);   v ← v + (dt/2m) F,
+//! ```
+//!
+//! the dissipative force seeing the half-step velocity. After the drift the particles are
+//! wrapped into the box, binned and sorted by cell ([`super::cell_list`]); the pair forces
+//! follow ([`super::pair_force::cell_forces`]), then the body force. The pair noise of the
+//! force evaluation that ends step `s` is keyed on `(seed, s)`, so a run restarted from a
+//! checkpoint (which stores positions, velocities, forces and ids in their current order)
+//! continues bit for bit.
+
+use super::cell_list::{CellGrid, CellList};
+use super::pair_force::{cell_forces, PairParams, Particles};
+use super::rng::{normal, step_key, stream, unit_interval};
+use super::{require, DpdError};
+
+/// A body force on every particle.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub enum BodyForce {
+    /// None.
+    None,
+    /// The same force on every particle.
+    Constant([f64; 3]),
+    /// The periodic (reverse) Poiseuille force of Backer et al. (2005): `+g x̂` on particles
+    /// with `z < L_z/2`, `−g x̂` on the others. Two counter-flowing Poiseuille profiles form,
+    /// `u_x(z) = (n g / 2η) z (L_z/2 − z)` in the lower half (`n` the number density).
+    ReversePoiseuille { force: f64 },
+}
+
+/// Fluid parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DpdParams {
+    /// Box side lengths (periodic in every direction).
+    pub box_len: [f64; 3],
+    /// The pair force.
+    pub pair: PairParams,
+    /// Time step.
+    pub dt: f64,
+    /// Particle mass.
+    pub mass: f64,
+    /// Seed of the noise and of the initial state.
+    pub seed: u64,
+}
+
+impl DpdParams {
+    /// Check the parameters.
+    pub fn validate(&self) -> Result<(), DpdError> {
+        self.pair.validate()?;
+        require(
+            self.dt.is_finite() && self.dt > 0.0,
+            "dt",
+            self.dt,
+            "must be positive",
+        )?;
+        require(
+            self.mass.is_finite() && self.mass > 0.0,
+            "mass",
+            self.mass,
+            "must be positive",
+        )?;
+        CellGrid::new(self.box_len, self.pair.rc).map(|_| ())
+    }
+
+    /// Box volume.
+    pub fn volume(&self) -> f64 {
+        self.box_len.iter().product()
+    }
+}
+
+/// Wall-clock seconds per phase, summed over steps.
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct DpdTimings {
+    /// Kicks and drift.
+    pub integrate_s: f64,
+    /// Binning and sorting by cell.
+    pub sort_s: f64,
+    /// Pair forces.
+    pub forces_s: f64,
+}
+
+/// The fluid: parameters, particles (sorted by cell), forces, step counter.
+#[derive(Clone, Debug)]
+pub struct DpdSystem {
+    /// Parameters.
+    pub params: DpdParams,
+    /// Body force.
+    pub body: BodyForce,
+    /// Particles, sorted by cell.
+    pub particles: Particles,
+    /// Forces on the particles at the current positions (pair + body).
+    pub fx: Vec<f64>,
+    pub fy: Vec<f64>,
+    pub fz: Vec<f64>,
+    /// Steps done.
+    pub step: u64,
+    /// Virial `Σ_{i<j} r_ij·F^C_ij` of the last force evaluation.
+    pub virial: f64,
+    /// Time per phase.
+    pub timings: DpdTimings,
+    cells: CellList,
+    perm: Vec<u32>,
+    scratch: Vec<f64>,
+    scratch_id: Vec<u32>,
+    virials: Vec<f64>,
+}
+
+impl DpdSystem {
+    /// A fluid of number density `density`: `round(density·V)` particles placed uniformly at
+    /// random, velocities Maxwellian at `k_BT` with the mean removed (all from the seed).
+    pub fn random_fluid(
+        params: DpdParams,
+        density: f64,
+        body: BodyForce,
+    ) -> Result<Self, DpdError> {
+        params.validate()?;
+        require(
+            density.is_finite() && density > 0.0,
+            "density",
+            density,
+            "must be positive",
+        )?;
+        let n = (density * params.volume()).round() as usize;
+        require(
+            n >= 2 && n < u32::MAX as usize,
+            "particle count",
+            n as f64,
+            "density × volume must give between 2 and 2³² particles",
+        )?;
+        let seed = params.seed;
+        let l = params.box_len;
+        let u = |tag: u64, i: usize| unit_interval(stream(seed, tag, i as u64));
+        let g = |tag: u64, i: usize| {
+            normal(
+                stream(seed, tag, 2 * i as u64),
+                stream(seed, tag, 2 * i as u64 + 1),
+            )
+        };
+        let s = (params.pair.kbt / params.mass).sqrt();
+        let mut p = Particles {
+            x: (0..n).map(|i| u(1, i) * l[0]).collect(),
+            y: (0..n).map(|i| u(2, i) * l[1]).collect(),
+            z: (0..n).map(|i| u(3, i) * l[2]).collect(),
+            vx: (0..n).map(|i| s * g(4, i)).collect(),
+            vy: (0..n).map(|i| s * g(5, i)).collect(),
+            vz: (0..n).map(|i| s * g(6, i)).collect(),
+            id: (0..n as u32).collect(),
+        };
+        for v in [&mut p.vx, &mut p.vy, &mut p.vz] {
+            let mean = v.iter().sum::<f64>() / n as f64;
+            v.iter_mut().for_each(|c| *c -= mean);
+        }
+        Self::from_particles(params, body, p)
+    }
+
+    /// A system from given particles (positions inside the box); computes the forces.
+    pub fn from_particles(
+        params: DpdParams,
+        body: BodyForce,
+        particles: Particles,
+    ) -> Result<Self, DpdError> {
+        params.validate()?;
+        let n = particles.len();
+        for (what, len) in [
+            ("y", particles.y.len()),
+            ("z", particles.z.len()),
+            ("vx", particles.vx.len()),
+            ("vy", particles.vy.len()),
+            ("vz", particles.vz.len()),
+            ("id", particles.id.len()),
+        ] {
+            if len != n {
+                return Err(DpdError::Length {
+                    what,
+                    len,
+                    expected: n,
+                });
+            }
+        }
+        let mut sys = DpdSystem {
+            cells: CellList::new(CellGrid::new(params.box_len, params.pair.rc)?),
+            params,
+            body,
+            particles,
+            fx: vec![0.0; n],
+            fy: vec![0.0; n],
+            fz: vec![0.0; n],
+            step: 0,
+            virial: 0.0,
+            timings: DpdTimings::default(),
+            perm: Vec::new(),
+            scratch: Vec::new(),
+            scratch_id: Vec::new(),
+            virials: Vec::new(),
+        };
+        sys.wrap_and_check(0)?;
+        sys.sort();
+        sys.compute_forces();
+        Ok(sys)
+    }
+
+    /// A system restored from a checkpoint: particles in their stored order with their
+    /// stored forces (no force evaluation), so stepping continues bit for bit.
+    pub fn restore(
+        params: DpdParams,
+        body: BodyForce,
+        particles: Particles,
+        forces: [Vec<f64>; 3],
+        step: u64,
+    ) -> Result<Self, DpdError> {
+        let mut sys = Self::from_particles(params, body, particles)?;
+        let n = sys.particles.len();
+        for f in &forces {
+            if f.len() != n {
+                return Err(DpdError::Length {
+                    what: "forces",
+                    len: f.len(),
+                    expected: n,
+                });
+            }
+        }
+        // from_particles sorted stably: a stored (already sorted) order is unchanged, but map
+        // the stored forces through the permutation in case it was not.
+        let [gx, gy, gz] = forces;
+        sys.fx = sys.perm.iter().map(|&o| gx[o as usize]).collect();
+        sys.fy = sys.perm.iter().map(|&o| gy[o as usize]).collect();
+        sys.fz = sys.perm.iter().map(|&o| gz[o as usize]).collect();
+        sys.step = step;
+        Ok(sys)
+    }
+
+    /// Number of particles.
+    pub fn len(&self) -> usize {
+        self.particles.len()
+    }
+
+    /// Whether there are no particles.
+    pub fn is_empty(&self) -> bool {
+        self.particles.is_empty()
+    }
+
+    /// Simulated time.
+    pub fn time(&self) -> f64 {
+        self.step as f64 * self.params.dt
+    }
+
+    /// Number density.
+    pub fn density(&self) -> f64 {
+        self.len() as f64 / self.params.volume()
+    }
+
+    /// One velocity-Verlet step.
+    pub fn step(&mut self) -> Result<(), DpdError> {
+        let t0 = std::time::Instant::now();
+        let h = 0.5 * self.params.dt / self.params.mass;
+        let dt = self.params.dt;
+        let p = &mut self.particles;
+        for (v, f) in [
+            (&mut p.vx, &self.fx),
+            (&mut p.vy, &self.fy),
+            (&mut p.vz, &self.fz),
+        ] {
+            v.iter_mut().zip(f).for_each(|(v, f)| *v += h * f);
+        }
+        for (x, v) in [(&mut p.x, &p.vx), (&mut p.y, &p.vy), (&mut p.z, &p.vz)] {
+            x.iter_mut().zip(v).for_each(|(x, v)| *x += dt * v);
+        }
+        self.step += 1;
+        self.wrap_and_check(self.step)?;
+        let t1 = std::time::Instant::now();
+        self.sort();
+        let t2 = std::time::Instant::now();
+        self.compute_forces();
+        let t3 = std::time::Instant::now();
+        let p = &mut self.particles;
+        for (v, f) in [
+            (&mut p.vx, &self.fx),
+            (&mut p.vy, &self.fy),
+            (&mut p.vz, &self.fz),
+        ] {
+            v.iter_mut().zip(f).for_each(|(v, f)| *v += h * f);
+        }
+        let t4 = std::time::Instant::now();
+        self.timings.integrate_s += (t1 - t0).as_secs_f64() + (t4 - t3).as_secs_f64();
+        self.timings.sort_s += (t2 - t1).as_secs_f64();
+        self.timings.forces_s += (t3 - t2).as_secs_f64();
+        Ok(())
+    }
+
+    /// Wrap positions into `[0, L)`; an error if a particle moved more than a box length or
+    /// is not finite.
+    fn wrap_and_check(&mut self, step: u64) -> Result<(), DpdError> {
+        let l = self.params.box_len;
+        let p = &mut self.particles;
+        let mut bad = None;
+        for (k, x) in [&mut p.x, &mut p.y, &mut p.z].into_iter().enumerate() {
+            let lk = l[k];
+            for (i, c) in x.iter_mut().enumerate() {
+                if *c < 0.0 {
+                    *c += lk;
+                } else if *c >= lk {
+                    *c -= lk;
+                }
+                if !(*c >= 0.0 && *c < lk) {
+                    if *c == lk {
+                        *c = 0.0;
+                    } else {
+                        bad = Some(i);
+                    }
+                }
+            }
+        }
+        match bad {
+            None => Ok(()),
+            Some(i) => Err(DpdError::Unstable {
+                step,
+                particle: p.id[i] as usize,
+                position: [p.x[i], p.y[i], p.z[i]],
+            }),
+        }
+    }
+
+    /// Bin and sort the particles by cell (every per-particle array permuted).
+    fn sort(&mut self) {
+        let p = &mut self.particles;
+        self.cells.sort(&p.x, &p.y, &p.z, &mut self.perm);
+        let perm = &self.perm;
+        let n = perm.len();
+        for arr in [
+            &mut p.x, &mut p.y, &mut p.z, &mut p.vx, &mut p.vy, &mut p.vz,
+        ] {
+            self.scratch.clear();
+            self.scratch.extend(perm.iter().map(|&o| arr[o as usize]));
+            std::mem::swap(arr, &mut self.scratch);
+        }
+        self.scratch_id.clear();
+        self.scratch_id
+            .extend(perm.iter().map(|&o| p.id[o as usize]));
+        std::mem::swap(&mut p.id, &mut self.scratch_id);
+        debug_assert_eq!(p.id.len(), n);
+    }
+
+    /// Pair forces (noise of the current step) plus the body force.
+    fn compute_forces(&mut self) {
+        let key = step_key(self.params.seed, self.step);
+        self.virial = cell_forces(
+            &self.params.pair,
+            &self.particles,
+            &self.cells,
+            key,
+            self.params.dt,
+            &mut self.fx,
+            &mut self.fy,
+            &mut self.fz,
+            &mut self.virials,
+        );
+        match self.body {
+            BodyForce::None => {}
+            BodyForce::Constant(g) => {
+                self.fx.iter_mut().for_each(|f| *f += g[0]);
+                self.fy.iter_mut().for_each(|f| *f += g[1]);
+                self.fz.iter_mut().for_each(|f| *f += g[2]);
+            }
+            BodyForce::ReversePoiseuille { force } => {
+                let half = 0.5 * self.params.box_len[2];
+                for (f, z) in self.fx.iter_mut().zip(&self.particles.z) {
+                    *f += if *z < half { force } else { -force };
+                }
+            }
+        }
+    }
+
+    /// Total momentum `m Σ v`.
+    pub fn momentum(&self) -> [f64; 3] {
+        let p = &self.particles;
+        let m = self.params.mass;
+        [&p.vx, &p.vy, &p.vz].map(|v| m * v.iter().sum::<f64>())
+    }
+
+    /// Kinetic temperature `m Σ |v − v̄|² / (3N − 3)` (the mean velocity's 3 degrees of
+    /// freedom removed).
+    pub fn kinetic_temperature(&self) -> f64 {
+        let p = &self.particles;
+        let n = self.len() as f64;
+        let mut s = 0.0;
+        for v in [&p.vx, &p.vy, &p.vz] {
+            let mean = v.iter().sum::<f64>() / n;
+            s += v.iter().map(|c| (c - mean) * (c - mean)).sum::<f64>();
+        }
+        self.params.mass * s / (3.0 * n - 3.0)
+    }
+
+    /// Virial pressure `p = n k_BT + Σ_{i<j} r_ij·F^C_ij / 3V` (`k_BT` the kinetic temperature).
+    pub fn pressure(&self) -> f64 {
+        self.density() * self.kinetic_temperature() + self.virial / (3.0 * self.params.volume())
+    }
+
+    /// Positions in the stored (cell-sorted) order.
+    pub fn positions(&self) -> Vec<[f64; 3]> {
+        let p = &self.particles;
+        (0..self.len()).map(|i| [p.x[i], p.y[i], p.z[i]]).collect()
+    }
+
+    /// Velocities in the stored order.
+    pub fn velocities(&self) -> Vec<[f64; 3]> {
+        let p = &self.particles;
+        (0..self.len())
+            .map(|i| [p.vx[i], p.vy[i], p.vz[i]])
+            .collect()
+    }
+
+    /// The radial distribution function `g(r)` on `bins` bins of `[0, r_max)` (bin centres
+    /// and values): pair counts over the ideal-gas count `n · 4π r² dr · N / 2`. Needs
+    /// `r_max ≤ L/3` per axis.
+    pub fn radial_distribution(
+        &self,
+        r_max: f64,
+        bins: usize,
+    ) -> Result<(Vec<f64>, Vec<f64>), DpdError> {
+        require(bins > 0, "bins", bins as f64, "must be positive")?;
+        let grid = CellGrid::new(self.params.box_len, r_max)?;
+        let mut list = CellList::new(grid);
+        let p = &self.particles;
+        let mut perm = Vec::new();
+        list.sort(&p.x, &p.y, &p.z, &mut perm);
+        let xs: Vec<[f64; 3]> = perm
+            .iter()
+            .map(|&o| [p.x[o as usize], p.y[o as usize], p.z[o as usize]])
+            .collect();
+        let dr = r_max / bins as f64;
+        let mut counts = vec![0u64; bins];
+        for i in 0..xs.len() {
+            for (nc, s) in list.grid.neighbours(list.cell[i] as usize) {
+                for (j, xj) in xs
+                    .iter()
+                    .enumerate()
+                    .take(list.starts[nc + 1])
+                    .skip(list.starts[nc])
+                {
+                    if j <= i {
+                        continue;
+                    }
+                    let d = [0, 1, 2].map(|k| xs[i][k] - xj[k] - s[k]);
+                    let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                    if r < r_max {
+                        counts[((r / dr) as usize).min(bins - 1)] += 1;
+                    }
+                }
+            }
+        }
+        let n = xs.len() as f64;
+        let rho = self.density();
+        let centres: Vec<f64> = (0..bins).map(|b| (b as f64 + 0.5) * dr).collect();
+        let g = (0..bins)
+            .map(|b| {
+                let (r0, r1) = (b as f64 * dr, (b + 1) as f64 * dr);
+                let shell = 4.0 / 3.0 * std::f64::consts::PI * (r1.powi(3) - r0.powi(3));
+                counts[b] as f64 / (0.5 * n * rho * shell)
+            })
+            .collect();
+        Ok((centres, g))
+    }
+}
