@@ -72,36 +72,62 @@ impl CellGrid {
     /// The 27 cells around cell `c` (itself included) with the shift to add to a neighbour's
     /// position to bring it next to `c` across the periodic faces.
     pub fn neighbours(&self, c: usize) -> [(usize, [f64; 3]); 27] {
-        let cc = self.coords(c);
         let mut out = [(0usize, [0.0; 3]); 27];
         let mut m = 0;
         for dz in -1i64..=1 {
             for dy in -1i64..=1 {
                 for dx in -1i64..=1 {
-                    let mut idx = [0usize; 3];
-                    let mut shift = [0.0; 3];
-                    for (k, d) in [dx, dy, dz].into_iter().enumerate() {
-                        let n = self.dims[k] as i64;
-                        let v = cc[k] as i64 + d;
-                        let (w, s) = if v < 0 {
-                            (v + n, -self.box_len[k])
-                        } else if v >= n {
-                            (v - n, self.box_len[k])
-                        } else {
-                            (v, 0.0)
-                        };
-                        idx[k] = w as usize;
-                        shift[k] = s;
-                    }
-                    out[m] = (
-                        (idx[2] * self.dims[1] + idx[1]) * self.dims[0] + idx[0],
-                        shift,
-                    );
+                    out[m] = self.offset_cell(c, [dx, dy, dz]);
                     m += 1;
                 }
             }
         }
         out
+    }
+
+    /// The half stencil of cell `c`: the 13 of its 26 neighbours "above" it (`dz = 1`; or
+    /// `dz = 0, dy = 1`; or `dz = dy = 0, dx = 1`), with their shifts. Every pair of
+    /// distinct neighbouring cells is one cell's half neighbour exactly once.
+    pub fn half_neighbours(&self, c: usize) -> [(usize, [f64; 3]); 13] {
+        let mut out = [(0usize, [0.0; 3]); 13];
+        let mut m = 0;
+        for dy in -1i64..=1 {
+            for dx in -1i64..=1 {
+                out[m] = self.offset_cell(c, [dx, dy, 1]);
+                m += 1;
+            }
+        }
+        for dx in -1i64..=1 {
+            out[m] = self.offset_cell(c, [dx, 1, 0]);
+            m += 1;
+        }
+        out[m] = self.offset_cell(c, [1, 0, 0]);
+        out
+    }
+
+    /// The cell at offset `d` (each component in −1..=1) from `c`, wrapped, and the shift.
+    #[inline]
+    fn offset_cell(&self, c: usize, d: [i64; 3]) -> (usize, [f64; 3]) {
+        let cc = self.coords(c);
+        let mut idx = [0usize; 3];
+        let mut shift = [0.0; 3];
+        for k in 0..3 {
+            let n = self.dims[k] as i64;
+            let v = cc[k] as i64 + d[k];
+            let (w, s) = if v < 0 {
+                (v + n, -self.box_len[k])
+            } else if v >= n {
+                (v - n, self.box_len[k])
+            } else {
+                (v, 0.0)
+            };
+            idx[k] = w as usize;
+            shift[k] = s;
+        }
+        (
+            (idx[2] * self.dims[1] + idx[1]) * self.dims[0] + idx[0],
+            shift,
+        )
     }
 }
 
@@ -190,7 +216,7 @@ mod tests {
         let mut perm = Vec::new();
         list.sort(&x, &y, &z, &mut perm);
         assert_eq!(list.starts[grid.n_cells()], 200);
-        let mut seen = vec![false; 200];
+        let mut seen = [false; 200];
         for c in 0..grid.n_cells() {
             let members = &perm[list.starts[c]..list.starts[c + 1]];
             assert!(members.windows(2).all(|w| w[0] < w[1]), "stable");
@@ -227,5 +253,23 @@ mod tests {
             }
         }
         assert!(CellGrid::new([2.5, 4.0, 4.0], 1.0).is_err());
+        // Half stencils: every unordered pair of neighbouring distinct cells exactly once.
+        let mut pairs = std::collections::HashMap::new();
+        for c in 0..grid.n_cells() {
+            for (n, _) in grid.half_neighbours(c) {
+                assert_ne!(n, c);
+                *pairs.entry((c.min(n), c.max(n))).or_insert(0) += 1;
+            }
+        }
+        let mut full = std::collections::HashSet::new();
+        for c in 0..grid.n_cells() {
+            for (n, _) in grid.neighbours(c) {
+                if n != c {
+                    full.insert((c.min(n), c.max(n)));
+                }
+            }
+        }
+        assert_eq!(pairs.len(), full.len());
+        assert!(pairs.values().all(|&k| k == 1));
     }
 }

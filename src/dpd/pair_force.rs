@@ -13,8 +13,6 @@
 //! exactly in exact arithmetic. The fluctuation–dissipation relation `w_D = w_R²`,
 //! `σ² = 2γk_BT` (Español & Warren 1995) fixes the temperature.
 
-use rayon::prelude::*;
-
 use super::cell_list::CellList;
 use super::rng::pair_noise;
 use super::{require, DpdError};
@@ -183,13 +181,30 @@ impl Particles {
     }
 }
 
-/// Particles per parallel work item of [`cell_forces`].
-const CHUNK: usize = 1024;
+/// Raw force arrays shared by the slab tasks of [`cell_forces`], which write disjoint
+/// particle ranges at any one time.
+#[derive(Clone, Copy)]
+struct ForceOut {
+    fx: *mut f64,
+    fy: *mut f64,
+    fz: *mut f64,
+}
+
+// SAFETY: the pointers are only written through in `slab_forces`, and the slabs of one phase
+// of `cell_forces` touch disjoint particle ranges (see there).
+unsafe impl Send for ForceOut {}
+unsafe impl Sync for ForceOut {}
 
 /// The pair forces of all particles from the cell list (`cells` sorted for `pts`), written
-/// into `fx, fy, fz` (overwritten). Each particle sums over the 27 cells around its own, in a
-/// fixed order, so the result does not depend on the number of threads. Returns the virial
-/// `Σ_{i<j} r_ij · F^C_ij` of the conservative force (for the pressure).
+/// into `fx, fy, fz` (overwritten). Returns the virial `Σ_{i<j} r_ij · F^C_ij` of the
+/// conservative force (for the pressure).
+///
+/// Each pair is computed once (Newton's third law: `F_ji = −F_ij`, the noise being
+/// symmetric), from the half stencil of its lower cell. The work is split into slabs of
+/// cells (one `z` layer each); a slab's pairs write its own particles and those of the slab
+/// above, so the even slabs run in parallel, then the odd ones (and, with an odd number of
+/// layers, the last one alone, as it wraps onto layer 0). Within a slab the order is fixed,
+/// so the forces, bit for bit, do not depend on the number of threads.
 #[allow(clippy::too_many_arguments)]
 pub fn cell_forces(
     p: &PairParams,
@@ -202,86 +217,120 @@ pub fn cell_forces(
     fz: &mut [f64],
     virials: &mut Vec<f64>,
 ) -> f64 {
+    use rayon::prelude::*;
     let n = pts.len();
-    let chunks = n.div_ceil(CHUNK);
+    assert!(
+        fx.len() == n && fy.len() == n && fz.len() == n,
+        "force arrays of length N"
+    );
+    fx.fill(0.0);
+    fy.fill(0.0);
+    fz.fill(0.0);
+    let nz = cells.grid.dims[2];
     virials.clear();
-    virials.resize(chunks, 0.0);
-    fx.par_chunks_mut(CHUNK)
-        .zip(fy.par_chunks_mut(CHUNK))
-        .zip(fz.par_chunks_mut(CHUNK))
-        .zip(virials.par_iter_mut())
-        .enumerate()
-        .for_each(|(c, (((gx, gy), gz), vir))| {
-            *vir = chunk_forces(p, pts, cells, key, dt, c * CHUNK, gx, gy, gz);
-        });
-    0.5 * virials.iter().sum::<f64>()
+    virials.resize(nz, 0.0);
+    let out = ForceOut {
+        fx: fx.as_mut_ptr(),
+        fy: fy.as_mut_ptr(),
+        fz: fz.as_mut_ptr(),
+    };
+    let last_alone = nz % 2 == 1;
+    let phase_end = if last_alone { nz - 1 } else { nz };
+    for parity in 0..2 {
+        let slabs: Vec<usize> = (parity..phase_end).step_by(2).collect();
+        let v: Vec<f64> = slabs
+            .par_iter()
+            // SAFETY: slabs of one parity are two layers apart, so the layers each writes
+            // (its own and the next, wrapping only for the last layer, which with an odd count
+            // runs alone below) are disjoint.
+            .map(|&layer| unsafe { slab_forces(p, pts, cells, key, dt, layer, out) })
+            .collect();
+        for (&layer, v) in slabs.iter().zip(v) {
+            virials[layer] = v;
+        }
+    }
+    if last_alone {
+        // SAFETY: no other task runs.
+        virials[nz - 1] = unsafe { slab_forces(p, pts, cells, key, dt, nz - 1, out) };
+    }
+    virials.iter().sum()
 }
 
-/// The forces on particles `start..start + gx.len()` (serial kernel). Returns their virial
-/// sum `Σ_i Σ_{j≠i} r_ij · F^C_ij` (each pair twice).
+/// The pairs whose lower cell is in `z` layer `layer`, accumulated into `out` (serial
+/// kernel). Returns their conservative virial.
+///
+/// # Safety
+/// No other thread may access the particles of layers `layer` and `layer + 1 (mod n_z)` of
+/// `out` during the call; `out` points at arrays of `pts.len()` values.
 #[allow(clippy::too_many_arguments)]
-fn chunk_forces(
+unsafe fn slab_forces(
     p: &PairParams,
     pts: &Particles,
     cells: &CellList,
     key: u64,
     dt: f64,
-    start: usize,
-    gx: &mut [f64],
-    gy: &mut [f64],
-    gz: &mut [f64],
+    layer: usize,
+    out: ForceOut,
 ) -> f64 {
-    let (rc, inv_rc, rc2) = (p.rc, 1.0 / p.rc, p.rc * p.rc);
+    let (inv_rc, rc2) = (1.0 / p.rc, p.rc * p.rc);
     let (a, gamma, power) = (p.a, p.gamma, p.power);
     let sigma_dt = p.sigma() / dt.sqrt();
-    let _ = rc;
     let (x, y, z, vx, vy, vz, id) = (&pts.x, &pts.y, &pts.z, &pts.vx, &pts.vy, &pts.vz, &pts.id);
-    let mut last_cell = u32::MAX;
-    let mut nb = [(0usize, [0.0; 3]); 27];
+    let per_layer = cells.grid.dims[0] * cells.grid.dims[1];
     let mut virial = 0.0;
-    for (m, ((ox, oy), oz)) in gx
-        .iter_mut()
-        .zip(gy.iter_mut())
-        .zip(gz.iter_mut())
-        .enumerate()
-    {
-        let i = start + m;
-        let c = cells.cell[i];
-        if c != last_cell {
-            nb = cells.grid.neighbours(c as usize);
-            last_cell = c;
+    for c in layer * per_layer..(layer + 1) * per_layer {
+        let (c0, c1) = (cells.starts[c], cells.starts[c + 1]);
+        if c0 == c1 {
+            continue;
         }
-        let (xi, yi, zi) = (x[i], y[i], z[i]);
-        let (vxi, vyi, vzi, idi) = (vx[i], vy[i], vz[i], id[i]);
-        let (mut sx, mut sy, mut sz, mut vir) = (0.0, 0.0, 0.0, 0.0);
-        for &(nc, s) in &nb {
-            let (xs, ys, zs) = (xi - s[0], yi - s[1], zi - s[2]);
-            for j in cells.starts[nc]..cells.starts[nc + 1] {
-                let dx = xs - x[j];
-                let dy = ys - y[j];
-                let dz = zs - z[j];
+        let half = cells.grid.half_neighbours(c);
+        for i in c0..c1 {
+            let (xi, yi, zi) = (x[i], y[i], z[i]);
+            let (vxi, vyi, vzi, idi) = (vx[i], vy[i], vz[i], id[i]);
+            let (mut sx, mut sy, mut sz, mut vir) = (0.0, 0.0, 0.0, 0.0);
+            let mut pair = |j: usize, s: [f64; 3]| {
+                let dx = xi - s[0] - x[j];
+                let dy = yi - s[1] - y[j];
+                let dz = zi - s[2] - z[j];
                 let r2 = dx * dx + dy * dy + dz * dz;
-                if r2 >= rc2 || j == i || r2 == 0.0 {
-                    continue;
+                if r2 >= rc2 || r2 == 0.0 {
+                    return;
                 }
                 let r = r2.sqrt();
                 let inv_r = 1.0 / r;
                 let w = 1.0 - r * inv_rc;
                 let wr = weight_r(power, w);
                 let ve = ((vxi - vx[j]) * dx + (vyi - vy[j]) * dy + (vzi - vz[j]) * dz) * inv_r;
-                let xi_ij = pair_noise(key, idi, id[j]);
                 let fc = a * w;
-                let f = (fc - gamma * wr * wr * ve + sigma_dt * wr * xi_ij) * inv_r;
+                let f = (fc - gamma * wr * wr * ve + sigma_dt * wr * pair_noise(key, idi, id[j]))
+                    * inv_r;
                 sx += f * dx;
                 sy += f * dy;
                 sz += f * dz;
+                // SAFETY: j is in this layer or the next (the caller's contract).
+                unsafe {
+                    *out.fx.add(j) -= f * dx;
+                    *out.fy.add(j) -= f * dy;
+                    *out.fz.add(j) -= f * dz;
+                }
                 vir += fc * r;
+            };
+            for j in i + 1..c1 {
+                pair(j, [0.0; 3]);
             }
+            for &(nc, s) in &half {
+                for j in cells.starts[nc]..cells.starts[nc + 1] {
+                    pair(j, s);
+                }
+            }
+            // SAFETY: i is in this layer.
+            unsafe {
+                *out.fx.add(i) += sx;
+                *out.fy.add(i) += sy;
+                *out.fz.add(i) += sz;
+            }
+            virial += vir;
         }
-        *ox = sx;
-        *oy = sy;
-        *oz = sz;
-        virial += vir;
     }
     virial
 }

@@ -122,7 +122,7 @@ pub struct ViscosityFit {
 impl ProfileSampler {
     /// A sampler with `bins` bins (rounded up to even) and `block_samples` samples per block.
     pub fn new(lz: f64, bins: usize, block_samples: usize) -> Self {
-        let bins = (bins.max(2) + 1) / 2 * 2;
+        let bins = bins.max(2).div_ceil(2) * 2;
         ProfileSampler {
             bins,
             lz,
@@ -164,6 +164,60 @@ impl ProfileSampler {
             self.count.iter_mut().for_each(|c| *c = 0);
             self.samples_in_block = 0;
         }
+    }
+
+    /// The sampler's whole state as numbers (for checkpoints) and its shape:
+    /// `[bins, block_samples, samples_in_block, samples, blocks]`, then per bin the current
+    /// block's `Σ v_x` and counts, the totals' `Σ v_x` and counts, then the blocks' profiles.
+    pub fn state(&self) -> (Vec<f64>, Vec<usize>) {
+        let mut v = vec![
+            self.bins as f64,
+            self.block_samples as f64,
+            self.samples_in_block as f64,
+            self.samples as f64,
+            self.blocks.len() as f64,
+        ];
+        v.extend(&self.sum_v);
+        v.extend(self.count.iter().map(|&c| c as f64));
+        v.extend(&self.total_v);
+        v.extend(self.total_count.iter().map(|&c| c as f64));
+        for b in &self.blocks {
+            v.extend(b);
+        }
+        let len = v.len();
+        (v, vec![len])
+    }
+
+    /// The sampler back from [`Self::state`] (`None` if the numbers do not form a state).
+    pub fn from_state(lz: f64, v: &[f64], shape: &[usize]) -> Option<Self> {
+        if shape != [v.len()]
+            || v.len() < 5
+            || v[..5].iter().any(|x| !(*x >= 0.0 && x.fract() == 0.0))
+        {
+            return None;
+        }
+        let [bins, block_samples, in_block, samples, nblocks] =
+            [v[0], v[1], v[2], v[3], v[4]].map(|x| x as usize);
+        if bins < 2 || v.len() != 5 + 4 * bins + nblocks.checked_mul(bins)? {
+            return None;
+        }
+        let part = |k: usize| &v[5 + k * bins..5 + (k + 1) * bins];
+        let counts = |k: usize| part(k).iter().map(|&c| c as u64).collect::<Vec<u64>>();
+        Some(ProfileSampler {
+            bins,
+            lz,
+            sum_v: part(0).to_vec(),
+            count: counts(1),
+            samples_in_block: in_block,
+            block_samples: block_samples.max(1),
+            blocks: v[5 + 4 * bins..]
+                .chunks_exact(bins)
+                .map(|b| b.to_vec())
+                .collect(),
+            total_v: part(2).to_vec(),
+            total_count: counts(3),
+            samples,
+        })
     }
 
     /// Bin edges `(z0, z1)`.

@@ -9,6 +9,8 @@ pub mod cells;
 mod cells_checkpoint;
 pub mod cells_partition;
 pub mod cells_run;
+pub mod dpd;
+pub mod dpd_run;
 
 use std::path::{Path, PathBuf};
 

@@ -1,0 +1,246 @@
+//! `mobo dpd`: scene errors that name the file, the place and the problem; a run's files;
+//! bit-for-bit restart from a checkpoint; the example scene.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use mobo::io::checkpoint::Checkpoint;
+use mobo::scene::dpd::parse;
+
+fn tmpdir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("mobo-dpd-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+const BASE: &str = r#"[dpd]
+box = [5.0, 5.0, 8.0]
+density = 3.0
+a = 25.0
+gamma = 4.5
+kbt = 1.0
+dt = 0.02
+steps = 120
+seed = 3
+flow = "periodic_poiseuille"
+force = 0.2
+equilibrate = 20
+sample_every = 5
+blocks = 4
+bins = 8
+save_every = 40
+"#;
+
+fn err_of(text: &str) -> String {
+    parse(Path::new("s.toml"), text).unwrap_err().to_string()
+}
+
+#[test]
+fn bad_scenes_name_the_file_the_line_and_the_problem() {
+    assert!(parse(Path::new("s.toml"), BASE).is_ok());
+    let e = err_of(&BASE.replace("gamma = 4.5", "gamma = -1.0"));
+    assert!(e.starts_with("s.toml:5:") && e.contains("gamma"), "{e}");
+    let e = err_of(&BASE.replace("seed = 3", "seed = 3\nviscosity = 2.0"));
+    assert!(
+        e.starts_with("s.toml:10:") && e.contains("viscosity"),
+        "{e}"
+    );
+    let e = err_of(&BASE.replace("box = [5.0, 5.0, 8.0]", "box = [5.0, 2.0, 8.0]"));
+    assert!(
+        e.contains("box") && e.contains("side y") && e.contains("3 rc"),
+        "{e}"
+    );
+    let e = err_of(&BASE.replace("steps = 120", "steps = 120\nt_end = 3.0"));
+    assert!(e.contains("either steps or t_end"), "{e}");
+    let e = err_of(&BASE.replace("flow = \"periodic_poiseuille\"", "flow = \"couette\""));
+    assert!(e.contains("unknown flow \"couette\""), "{e}");
+    let e = err_of(&BASE.replace("force = 0.2\n", ""));
+    assert!(e.contains("force") && e.contains("required"), "{e}");
+    let e = err_of(&BASE.replace("seed = 3", "seed = 3\nwalls = \"plane\""));
+    assert!(e.contains("walls") && e.contains("not built yet"), "{e}");
+    let e = err_of(&BASE.replace("equilibrate = 20", "equilibrate = 500"));
+    assert!(e.contains("equilibrate"), "{e}");
+    let e = err_of(&BASE.replace("density = 3.0", "density = \"dense\""));
+    assert!(e.starts_with("s.toml:3:"), "{e}");
+}
+
+fn mobo(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_mobo"))
+        .args(args)
+        .output()
+        .expect("mobo runs")
+}
+
+fn ok(o: &Output, what: &str) {
+    assert!(
+        o.status.success(),
+        "{what}: {}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+fn arrays(dir: &Path) -> Vec<(String, Vec<u64>)> {
+    let c = Checkpoint::read(&dir.join("checkpoint.bin")).unwrap();
+    [
+        "x",
+        "y",
+        "z",
+        "vx",
+        "vy",
+        "vz",
+        "fx",
+        "fy",
+        "fz",
+        "id",
+        "profile_sampler",
+    ]
+    .iter()
+    .map(|n| {
+        let a = c.get(n).unwrap_or_else(|| panic!("array {n}"));
+        (n.to_string(), a.data.iter().map(|v| v.to_bits()).collect())
+    })
+    .collect()
+}
+
+#[test]
+fn a_run_writes_its_files_and_a_resumed_run_continues_bit_for_bit() {
+    let dir = tmpdir("restart");
+    let scene = dir.join("s.toml");
+    std::fs::write(&scene, BASE).unwrap();
+    let s = scene.to_str().unwrap();
+    let whole = dir.join("whole");
+    ok(
+        &mobo(&["dpd", s, "--out", whole.to_str().unwrap(), "--quiet"]),
+        "whole run",
+    );
+    for f in [
+        "summary.json",
+        "observables.csv",
+        "profile.csv",
+        "scene.toml",
+        "checkpoint.bin",
+    ] {
+        assert!(whole.join(f).is_file(), "{f} missing");
+    }
+    let sum: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(whole.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(sum["particles"].as_u64(), Some(600));
+    assert_eq!(sum["steps"].as_u64(), Some(120));
+    assert!(sum["particle_steps_per_second"].as_f64().unwrap() > 0.0);
+    assert!(sum["viscosity"]["value"].as_f64().unwrap().is_finite());
+    assert!(sum["viscosity"]["stderr"].as_f64().unwrap() > 0.0);
+    assert_eq!(sum["viscosity"]["equilibration_steps"].as_u64(), Some(20));
+    // The body force sums to zero only when the halves hold equal numbers of particles.
+    assert!(sum["momentum_drift"].as_f64().unwrap().is_finite());
+    let profile = std::fs::read_to_string(whole.join("profile.csv")).unwrap();
+    assert_eq!(profile.lines().count(), 9, "{profile}");
+    assert!(profile.starts_with("z,vx,density,vx_fit"));
+
+    // Stop after 50 steps, then resume twice (the second resume has nothing left to do but
+    // must not change the state).
+    let part = dir.join("part");
+    let o = mobo(&[
+        "dpd",
+        s,
+        "--out",
+        part.to_str().unwrap(),
+        "--quiet",
+        "--max-steps",
+        "50",
+    ]);
+    ok(&o, "first part");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("stopped at step 50"));
+    ok(
+        &mobo(&["dpd", "--resume", part.to_str().unwrap(), "--quiet"]),
+        "resume",
+    );
+    assert_eq!(
+        arrays(&part),
+        arrays(&whole),
+        "resumed run differs from the whole run"
+    );
+    let a = std::fs::read_to_string(part.join("observables.csv")).unwrap();
+    let b = std::fs::read_to_string(whole.join("observables.csv")).unwrap();
+    // Rows at the same steps are identical (the stopped run adds one row at step 50).
+    let rows = |t: &str| -> Vec<String> {
+        t.lines()
+            .filter(|l| {
+                l.split(',')
+                    .next()
+                    .is_some_and(|s| s.parse::<u64>().is_ok_and(|s| s % 40 == 0 || s == 120))
+            })
+            .map(String::from)
+            .collect()
+    };
+    assert_eq!(rows(&a), rows(&b));
+}
+
+#[test]
+fn bad_input_exits_non_zero_with_a_located_message() {
+    let dir = tmpdir("bad");
+    let scene = dir.join("bad.toml");
+    std::fs::write(&scene, BASE.replace("dt = 0.02", "dt = 0")).unwrap();
+    let o = mobo(&[
+        "dpd",
+        scene.to_str().unwrap(),
+        "--quiet",
+        "--out",
+        dir.join("o").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("bad.toml:7:") && err.contains("dt"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    // A damaged checkpoint: named, no panic.
+    let run = dir.join("run");
+    let missing = dir.join("missing.toml");
+    let o = mobo(&["dpd", missing.to_str().unwrap(), "--quiet"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("missing.toml") && err.contains("cannot read"),
+        "{err}"
+    );
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(run.join("scene.toml"), BASE).unwrap();
+    std::fs::write(run.join("checkpoint.bin"), b"MOBOCKPT garbage").unwrap();
+    let o = mobo(&["dpd", "--resume", run.to_str().unwrap(), "--quiet"]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("checkpoint.bin") && !err.contains("panicked"),
+        "{err}"
+    );
+}
+
+#[test]
+fn the_example_scene_runs_shortened() {
+    let dir = tmpdir("example");
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/scenes/dpd_poiseuille.toml"),
+    )
+    .unwrap();
+    assert!(parse(Path::new("dpd_poiseuille.toml"), &text).is_ok());
+    let short = text
+        .replace("steps = 20000", "steps = 300")
+        .replace("equilibrate = 4000", "equilibrate = 100");
+    let scene = dir.join("dpd_poiseuille.toml");
+    std::fs::write(&scene, short).unwrap();
+    let out = dir.join("out");
+    ok(
+        &mobo(&[
+            "dpd",
+            scene.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]),
+        "example",
+    );
+    let sum: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(sum["particles"].as_u64(), Some(6000));
+    assert!(sum["viscosity"].is_object());
+}
