@@ -587,7 +587,7 @@ impl MembraneParams {
     fn spring(&self, l: f64, l0: f64, kp: f64, want_energy: bool) -> Option<(f64, f64)> {
         let lmax = l0 / self.x0;
         let x = l / lmax;
-        if !(x < 1.0) || !(l > 0.0) {
+        if x.is_nan() || x >= 1.0 || l.is_nan() || l <= 0.0 {
             return None;
         }
         let ks = self.kbt / self.persistence_length;
@@ -797,7 +797,7 @@ impl Membrane {
         let mut l0 = Vec::with_capacity(topology.edges.len());
         for (e, &[i, j]) in topology.edges.iter().enumerate() {
             let l = norm(sub(reference[i], reference[j]));
-            if !(l > 0.0) {
+            if l.is_nan() || l <= 0.0 {
                 return Err(DpdError::Mesh(format!(
                     "edge {e} ({i}–{j}) has zero length"
                 )));
@@ -807,7 +807,7 @@ impl Membrane {
         let mut a0 = Vec::with_capacity(topology.triangles.len());
         for (t, &[a, b, c]) in topology.triangles.iter().enumerate() {
             let (area, _) = tri_area(reference[a], reference[b], reference[c]);
-            if !(area > 0.0) {
+            if area.is_nan() || area <= 0.0 {
                 return Err(DpdError::Mesh(format!("triangle {t} has zero area")));
             }
             a0.push(area);
@@ -815,7 +815,7 @@ impl Membrane {
         let kp = l0.iter().map(|&l| params.kp(l)).collect();
         let area0 = a0.iter().sum();
         let volume0 = volume_of(&topology.triangles, reference);
-        if !(volume0 > 0.0) {
+        if volume0.is_nan() || volume0 <= 0.0 {
             return Err(DpdError::Mesh(format!(
                 "the enclosed volume is {volume0}: the triangles must be counter-clockwise seen \
                  from outside"
