@@ -259,6 +259,12 @@ pub fn cell_forces(
 /// The pairs whose lower cell is in `z` layer `layer`, accumulated into `out` (serial
 /// kernel). Returns their conservative virial.
 ///
+/// Cells are numbered with `x` fastest and particles are sorted by cell, so the three cells
+/// of a half-stencil row (`dx = −1, 0, 1`) hold one contiguous range of particles, as do a
+/// cell and its `+x` neighbour: a cell's candidates are about five ranges, each with one
+/// periodic shift. For each particle and range, a branch-free pass computes squared
+/// distances and compacts the candidates within `r_c`; the forces of those pairs follow.
+///
 /// # Safety
 /// No other thread may access the particles of layers `layer` and `layer + 1 (mod n_z)` of
 /// `out` during the call; `out` points at arrays of `pts.len()` values.
@@ -278,49 +284,83 @@ unsafe fn slab_forces(
     let (x, y, z, vx, vy, vz, id) = (&pts.x, &pts.y, &pts.z, &pts.vx, &pts.vy, &pts.vz, &pts.id);
     let per_layer = cells.grid.dims[0] * cells.grid.dims[1];
     let mut virial = 0.0;
+    // Candidate ranges of a cell (start, end, shift): at most 14.
+    let mut segs = [(0usize, 0usize, [0.0f64; 3]); 14];
+    let mut hits = [0u32; 256];
     for c in layer * per_layer..(layer + 1) * per_layer {
         let (c0, c1) = (cells.starts[c], cells.starts[c + 1]);
         if c0 == c1 {
             continue;
         }
+        // Segment 0: the cell itself (its particles after i), merged with following ranges.
+        let mut ns = 1;
+        segs[0] = (c0, c1, [0.0; 3]);
         let half = cells.grid.half_neighbours(c);
+        // The +x neighbour first (it may extend segment 0), then the rows.
+        for &(nc, s) in half[12..].iter().chain(half[..12].iter()) {
+            let (b0, b1) = (cells.starts[nc], cells.starts[nc + 1]);
+            if b0 == b1 {
+                continue;
+            }
+            let last = &mut segs[ns - 1];
+            if last.1 == b0 && last.2 == s && (ns > 1 || nc == c + 1) {
+                last.1 = b1;
+            } else {
+                segs[ns] = (b0, b1, s);
+                ns += 1;
+            }
+        }
         for i in c0..c1 {
             let (xi, yi, zi) = (x[i], y[i], z[i]);
             let (vxi, vyi, vzi, idi) = (vx[i], vy[i], vz[i], id[i]);
             let (mut sx, mut sy, mut sz, mut vir) = (0.0, 0.0, 0.0, 0.0);
-            let mut pair = |j: usize, s: [f64; 3]| {
-                let dx = xi - s[0] - x[j];
-                let dy = yi - s[1] - y[j];
-                let dz = zi - s[2] - z[j];
-                let r2 = dx * dx + dy * dy + dz * dz;
-                if r2 >= rc2 || r2 == 0.0 {
-                    return;
-                }
-                let r = r2.sqrt();
-                let inv_r = 1.0 / r;
-                let w = 1.0 - r * inv_rc;
-                let wr = weight_r(power, w);
-                let ve = ((vxi - vx[j]) * dx + (vyi - vy[j]) * dy + (vzi - vz[j]) * dz) * inv_r;
-                let fc = a * w;
-                let f = (fc - gamma * wr * wr * ve + sigma_dt * wr * pair_noise(key, idi, id[j]))
-                    * inv_r;
-                sx += f * dx;
-                sy += f * dy;
-                sz += f * dz;
-                // SAFETY: j is in this layer or the next (the caller's contract).
-                unsafe {
-                    *out.fx.add(j) -= f * dx;
-                    *out.fy.add(j) -= f * dy;
-                    *out.fz.add(j) -= f * dz;
-                }
-                vir += fc * r;
-            };
-            for j in i + 1..c1 {
-                pair(j, [0.0; 3]);
-            }
-            for &(nc, s) in &half {
-                for j in cells.starts[nc]..cells.starts[nc + 1] {
-                    pair(j, s);
+            for (q, &(b0, b1, s)) in segs[..ns].iter().enumerate() {
+                let b0 = if q == 0 { i + 1 } else { b0 };
+                let (xs, ys, zs) = (xi - s[0], yi - s[1], zi - s[2]);
+                let mut k = b0;
+                while k < b1 {
+                    // Branch-free distance pass over a block of candidates.
+                    let end = b1.min(k + hits.len());
+                    let mut nh = 0usize;
+                    for j in k..end {
+                        let dx = xs - x[j];
+                        let dy = ys - y[j];
+                        let dz = zs - z[j];
+                        let r2 = dx * dx + dy * dy + dz * dz;
+                        hits[nh] = j as u32;
+                        nh += (r2 < rc2) as usize;
+                    }
+                    k = end;
+                    for &j in &hits[..nh] {
+                        let j = j as usize;
+                        let dx = xs - x[j];
+                        let dy = ys - y[j];
+                        let dz = zs - z[j];
+                        let r2 = dx * dx + dy * dy + dz * dz;
+                        if r2 == 0.0 {
+                            continue;
+                        }
+                        let r = r2.sqrt();
+                        let inv_r = 1.0 / r;
+                        let w = 1.0 - r * inv_rc;
+                        let wr = weight_r(power, w);
+                        let ve =
+                            ((vxi - vx[j]) * dx + (vyi - vy[j]) * dy + (vzi - vz[j]) * dz) * inv_r;
+                        let fc = a * w;
+                        let f = (fc - gamma * wr * wr * ve
+                            + sigma_dt * wr * pair_noise(key, idi, id[j]))
+                            * inv_r;
+                        sx += f * dx;
+                        sy += f * dy;
+                        sz += f * dz;
+                        // SAFETY: j is in this layer or the next (the caller's contract).
+                        unsafe {
+                            *out.fx.add(j) -= f * dx;
+                            *out.fy.add(j) -= f * dy;
+                            *out.fz.add(j) -= f * dz;
+                        }
+                        vir += fc * r;
+                    }
                 }
             }
             // SAFETY: i is in this layer.
