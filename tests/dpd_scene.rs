@@ -28,7 +28,7 @@ force = 0.2
 equilibrate = 20
 sample_every = 5
 blocks = 4
-bins = 8
+bins = 16
 save_every = 40
 "#;
 
@@ -59,6 +59,8 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
     assert!(e.contains("force") && e.contains("required"), "{e}");
     let e = err_of(&BASE.replace("seed = 3", "seed = 3\nwalls = \"plane\""));
     assert!(e.contains("walls") && e.contains("not built yet"), "{e}");
+    let e = err_of(&BASE.replace("bins = 16", "bins = 8"));
+    assert!(e.contains("bins") && e.contains("at least 12"), "{e}");
     let e = err_of(&BASE.replace("equilibrate = 20", "equilibrate = 500"));
     assert!(e.contains("equilibrate"), "{e}");
     let e = err_of(&BASE.replace("density = 3.0", "density = \"dense\""));
@@ -135,7 +137,7 @@ fn a_run_writes_its_files_and_a_resumed_run_continues_bit_for_bit() {
     // The body force sums to zero only when the halves hold equal numbers of particles.
     assert!(sum["momentum_drift"].as_f64().unwrap().is_finite());
     let profile = std::fs::read_to_string(whole.join("profile.csv")).unwrap();
-    assert_eq!(profile.lines().count(), 9, "{profile}");
+    assert_eq!(profile.lines().count(), 17, "{profile}");
     assert!(profile.starts_with("z,vx,density,vx_fit"));
 
     // Stop after 50 steps, then resume twice (the second resume has nothing left to do but

@@ -103,7 +103,7 @@ pub struct DpdSystem {
     pub timings: DpdTimings,
     cells: CellList,
     perm: Vec<u32>,
-    scratch: Vec<f64>,
+    scratch: [Vec<f64>; 6],
     scratch_id: Vec<u32>,
     virials: Vec<f64>,
 }
@@ -192,7 +192,7 @@ impl DpdSystem {
             virial: 0.0,
             timings: DpdTimings::default(),
             perm: Vec::new(),
-            scratch: Vec::new(),
+            scratch: Default::default(),
             scratch_id: Vec::new(),
             virials: Vec::new(),
         };
@@ -258,16 +258,12 @@ impl DpdSystem {
         let h = 0.5 * self.params.dt / self.params.mass;
         let dt = self.params.dt;
         let p = &mut self.particles;
-        for (v, f) in [
-            (&mut p.vx, &self.fx),
-            (&mut p.vy, &self.fy),
-            (&mut p.vz, &self.fz),
-        ] {
-            v.iter_mut().zip(f).for_each(|(v, f)| *v += h * f);
-        }
-        for (x, v) in [(&mut p.x, &p.vx), (&mut p.y, &p.vy), (&mut p.z, &p.vz)] {
-            x.iter_mut().zip(v).for_each(|(x, v)| *x += dt * v);
-        }
+        axpy3(
+            [&mut p.vx, &mut p.vy, &mut p.vz],
+            [&self.fx, &self.fy, &self.fz],
+            h,
+        );
+        axpy3([&mut p.x, &mut p.y, &mut p.z], [&p.vx, &p.vy, &p.vz], dt);
         self.step += 1;
         self.wrap_and_check(self.step)?;
         let t1 = std::time::Instant::now();
@@ -276,13 +272,11 @@ impl DpdSystem {
         self.compute_forces();
         let t3 = std::time::Instant::now();
         let p = &mut self.particles;
-        for (v, f) in [
-            (&mut p.vx, &self.fx),
-            (&mut p.vy, &self.fy),
-            (&mut p.vz, &self.fz),
-        ] {
-            v.iter_mut().zip(f).for_each(|(v, f)| *v += h * f);
-        }
+        axpy3(
+            [&mut p.vx, &mut p.vy, &mut p.vz],
+            [&self.fx, &self.fy, &self.fz],
+            h,
+        );
         let t4 = std::time::Instant::now();
         self.timings.integrate_s += (t1 - t0).as_secs_f64() + (t4 - t3).as_secs_f64();
         self.timings.sort_s += (t2 - t1).as_secs_f64();
@@ -329,13 +323,17 @@ impl DpdSystem {
         self.cells.sort(&p.x, &p.y, &p.z, &mut self.perm);
         let perm = &self.perm;
         let n = perm.len();
-        for arr in [
+        use rayon::prelude::*;
+        [
             &mut p.x, &mut p.y, &mut p.z, &mut p.vx, &mut p.vy, &mut p.vz,
-        ] {
-            self.scratch.clear();
-            self.scratch.extend(perm.iter().map(|&o| arr[o as usize]));
-            std::mem::swap(arr, &mut self.scratch);
-        }
+        ]
+        .into_par_iter()
+        .zip(self.scratch.par_iter_mut())
+        .for_each(|(arr, s)| {
+            s.clear();
+            s.extend(perm.iter().map(|&o| arr[o as usize]));
+            std::mem::swap(arr, s);
+        });
         self.scratch_id.clear();
         self.scratch_id
             .extend(perm.iter().map(|&o| p.id[o as usize]));
@@ -462,5 +460,16 @@ impl DpdSystem {
             })
             .collect();
         Ok((centres, g))
+    }
+}
+
+/// `y_c += s x_c` for the three components, in parallel chunks.
+fn axpy3(y: [&mut Vec<f64>; 3], x: [&Vec<f64>; 3], s: f64) {
+    use rayon::prelude::*;
+    const CHUNK: usize = 16384;
+    for (y, x) in y.into_iter().zip(x) {
+        y.par_chunks_mut(CHUNK)
+            .zip(x.par_chunks(CHUNK))
+            .for_each(|(y, x)| y.iter_mut().zip(x).for_each(|(y, x)| *y += s * x));
     }
 }

@@ -233,6 +233,15 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
             }
             BodyForce::None
         }
+        "periodic_poiseuille" if d.bins < 12 => {
+            return Err(located(
+                "bins",
+                format!(
+                    "{} bins are too few for the viscosity fit (it uses the middle 70 % of each half-channel); give at least 12",
+                    d.bins
+                ),
+            ))
+        }
         "periodic_poiseuille" => match d.force {
             Some(g) if g.is_finite() && g != 0.0 => BodyForce::ReversePoiseuille { force: g },
             Some(g) => {

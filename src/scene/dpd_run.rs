@@ -84,6 +84,8 @@ pub struct ViscositySummary {
     pub sample_every: u64,
     /// Steps discarded before averaging.
     pub equilibration_steps: u64,
+    /// The fraction of each half-channel fitted (`dpd::poiseuille::FIT_WINDOW`).
+    pub fit_window: f64,
     /// Steps averaged over (`samples × sample_every`).
     pub averaged_steps: u64,
     /// The kinetic-theory estimate (Marsh; Groot & Warren) for comparison.
@@ -323,6 +325,7 @@ fn summarise(
                     samples: fit.samples,
                     sample_every: scene.sample_every,
                     equilibration_steps: scene.equilibrate,
+                fit_window: fit.window,
                     averaged_steps: fit.samples as u64 * scene.sample_every,
                     kinetic_theory: kinetic_theory_viscosity(
                         sys.density(),
@@ -392,23 +395,19 @@ fn write_outputs(
     write_atomic(&out.join("observables.csv"), csv.as_bytes())?;
     if !sampler.blocks.is_empty() {
         let l = scene.params.box_len;
-        let fit_c = match (scene.body, &summary.viscosity) {
-            (BodyForce::ReversePoiseuille { force }, Some(v)) => {
-                Some(sys.density() * force / (2.0 * v.value))
-            }
+        let fit = match scene.body {
+            BodyForce::ReversePoiseuille { force } => sampler.viscosity(sys.density(), force),
             _ => None,
         };
-        let mut csv = String::from(if fit_c.is_some() {
+        let mut csv = String::from(if fit.is_some() {
             "z,vx,density,vx_fit\n"
         } else {
             "z,vx,density\n"
         });
         for (b, (z, v, d)) in sampler.profile(l[0] * l[1]).into_iter().enumerate() {
-            match fit_c {
-                Some(c) => {
-                    let (z0, z1) = sampler.bin(b);
-                    let phi = crate::dpd::poiseuille::profile_shape(z0, z1, l[2]);
-                    let _ = writeln!(csv, "{z},{v},{d},{}", c * phi);
+            match &fit {
+                Some(f) => {
+                    let _ = writeln!(csv, "{z},{v},{d},{}", sampler.fitted(f, b));
                 }
                 None => {
                     let _ = writeln!(csv, "{z},{v},{d}");
