@@ -20,8 +20,16 @@ rc=$?
   echo
   echo "Published pressures: Allen & Tildesley's DPD example (Lowe thermostat, no time-step error in k_BT) at"
   echo "aρ/k_BT = 75; the a = 0 row is the ideal gas p = ρk_BT. Criteria: k_BT within 1 %, pressure within 1 % of the"
-  echo "published value, η within 35 % of the kinetic-theory estimate (η_K + η_D of Marsh / Groot & Warren, which"
-  echo "ignores the conservative force and pair correlations)."
+  echo "published value; η resolved to a standard error below 8 % and within 0.8–1.8 of the kinetic-theory"
+  echo "estimate (η_K + η_D of Marsh / Groot & Warren, which ignores the conservative force and pair correlations:"
+  echo "the band is the deviation measured here, not a property of the estimate). The viscosity is fitted to the"
+  echo "middle 70 % of each half-channel (a parabola u = A + Cζ²), away from the planes where the force flips."
+  echo
+  echo "Measured deviation of the kinetic-theory estimate: −4 % for the standard fluid (a = 25, γ = 4.5, ρ = 3),"
+  echo "+15 % to +35 % at other densities, temperatures, kernel exponents and for the ideal gas (a = 0), +60 % at γ = 20:"
+  echo "the estimate misses the velocity correlations between neighbours that a larger γ or a softer kernel"
+  echo "builds, as Pagonabarraga, Hagen & Frenkel (1998) found (\"the existing theory is only valid under very"
+  echo "special conditions\"). Use the measured value (\`mobo dpd\` with flow = \"periodic_poiseuille\") for a parameter set."
   echo
   if [ $rc -eq 0 ]; then echo "**All criteria passed.**"; else
     echo "**FAILED:** $(printf '%s\n' "$log" | grep -A2 panicked | tail -2)"; fi

@@ -24,6 +24,23 @@
 //! it); its vertices are particles with spring (WLC + POW), bending (Kantor–Nelson or Jülicher),
 //! area and volume forces, and membrane viscosity (Fedosov, Caswell & Karniadakis 2010), the
 //! parameters mapped from the physical moduli.
+//!
+//! # Example
+//!
+//! ```
+//! use mobo::dpd::pair_force::PairParams;
+//! use mobo::dpd::system::{BodyForce, DpdParams, DpdSystem};
+//!
+//! let pair = PairParams { a: 25.0, gamma: 4.5, kbt: 1.0, rc: 1.0, power: 1.0 };
+//! let params = DpdParams { box_len: [5.0; 3], pair, dt: 0.01, mass: 1.0, seed: 1 };
+//! let mut fluid = DpdSystem::random_fluid(params, 3.0, BodyForce::None)?;
+//! for _ in 0..20 {
+//!     fluid.step()?;
+//! }
+//! assert_eq!(fluid.len(), 375);
+//! println!("k_BT = {:.3}, p = {:.2}", fluid.kinetic_temperature(), fluid.pressure());
+//! # Ok::<(), mobo::dpd::DpdError>(())
+//! ```
 
 pub mod cell_list;
 pub mod membrane;
