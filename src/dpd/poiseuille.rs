@@ -267,20 +267,12 @@ impl ProfileSampler {
             return None;
         }
         let quarter = 0.25 * self.lz;
-        let half = 0.5 * self.lz;
-        let mut bins = Vec::new();
-        for b in 0..self.bins {
-            let (z0, z1) = self.bin(b);
-            let (sign, off) = if z1 <= half + 1e-12 * self.lz {
-                (1.0, 0.0)
-            } else {
-                (-1.0, half)
-            };
-            let (a, c) = (z0 - off - quarter, z1 - off - quarter);
-            if (0.5 * (a + c)).abs() <= FIT_WINDOW * quarter {
-                bins.push((b, sign, (c * c * c - a * a * a) / (3.0 * (c - a))));
-            }
-        }
+        let bins: Vec<(usize, f64, f64)> = (0..self.bins)
+            .filter_map(|b| {
+                let (sign, centre, z2) = self.folded(b);
+                (centre.abs() <= FIT_WINDOW * quarter).then_some((b, sign, z2))
+            })
+            .collect();
         // At least two distinct bin averages of ζ² per fit (else the curvature is undefined).
         let z2 = bins.first()?.2;
         if !bins
@@ -315,6 +307,13 @@ impl ProfileSampler {
 
     /// The fitted profile `±(A + C ζ²)` averaged over bin `b` (for plotting).
     pub fn fitted(&self, fit: &ViscosityFit, b: usize) -> f64 {
+        let (sign, _, z2) = self.folded(b);
+        sign * (fit.offset + fit.curvature * z2)
+    }
+
+    /// Bin `b` folded onto the lower half: the sign of the flow there, the bin centre's `ζ`
+    /// (`z − L_z/4` after folding) and the bin average of `ζ²`.
+    fn folded(&self, b: usize) -> (f64, f64, f64) {
         let (quarter, half) = (0.25 * self.lz, 0.5 * self.lz);
         let (z0, z1) = self.bin(b);
         let (sign, off) = if z1 <= half + 1e-12 * self.lz {
@@ -323,7 +322,11 @@ impl ProfileSampler {
             (-1.0, half)
         };
         let (a, c) = (z0 - off - quarter, z1 - off - quarter);
-        sign * (fit.offset + fit.curvature * (c * c * c - a * a * a) / (3.0 * (c - a)))
+        (
+            sign,
+            0.5 * (a + c),
+            (c * c * c - a * a * a) / (3.0 * (c - a)),
+        )
     }
 }
 

@@ -22,6 +22,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use serde_json::json;
 
+pub use super::brownian_run::Effect;
 use super::dpd::DpdScene;
 use crate::dpd::pair_force::Particles;
 use crate::dpd::poiseuille::{kinetic_theory_viscosity, KineticViscosity, ProfileSampler};
@@ -60,14 +61,6 @@ pub struct DpdRunOptions {
     pub max_steps: Option<u64>,
     /// Set to stop after the current step (with a checkpoint).
     pub stop: Option<Arc<AtomicBool>>,
-}
-
-/// One effect the run builds, with the reason.
-#[derive(Clone, Debug, Serialize)]
-pub struct Effect {
-    pub name: &'static str,
-    pub enabled: bool,
-    pub reason: String,
 }
 
 /// The fitted viscosity in `summary.json`.
@@ -325,7 +318,7 @@ fn summarise(
                     samples: fit.samples,
                     sample_every: scene.sample_every,
                     equilibration_steps: scene.equilibrate,
-                fit_window: fit.window,
+                    fit_window: fit.window,
                     averaged_steps: fit.samples as u64 * scene.sample_every,
                     kinetic_theory: kinetic_theory_viscosity(
                         sys.density(),
