@@ -188,3 +188,96 @@ fn poiseuille_viscosity_agrees_with_kinetic_theory_within_its_known_deviation() 
         fit.value
     );
 }
+
+/// Poiseuille flow between walls: no particle gets into the wall, the no-slip condition holds
+/// to within 20 % of the centre velocity, and the viscosity fitted to the profile in the
+/// middle of the channel (or pipe) agrees with the periodic-Poiseuille value of the same fluid
+/// (0.917 ± 0.037, docs/dpd_validation.md) within 20 % — two independent flows, one with
+/// frozen-particle walls and bounce-back, one without any wall. Measured: channel 0.85 ± 0.07,
+/// pipe (R = 3.5 r_c) 0.78 ± 0.05 here and 0.80 ± 0.04 over 20 000 steps: the pipe reads
+/// about 13 % low, not understood yet (docs/dpd.md).
+fn wall_flow(
+    wall_of: impl Fn(&DpdParams) -> mobo::dpd::walls::Wall,
+    box_len: [f64; 3],
+    g: f64,
+    warm: usize,
+) -> (f64, f64, f64) {
+    use mobo::dpd::poiseuille::{FlowGeometry, ProfileSampler};
+    use mobo::dpd::walls::Wall;
+    let prm = params(box_len, 25.0, 4.5, 1.0, 0.01, 31);
+    let wall = wall_of(&prm);
+    let mut sys =
+        DpdSystem::with_wall(prm, 3.0, BodyForce::Constant([g, 0.0, 0.0]), wall, 200).unwrap();
+    let geometry = match wall {
+        Wall::Planes { lo, hi } => FlowGeometry::Channel { lo, hi },
+        Wall::Cylinder { radius, center } => FlowGeometry::Pipe { center, radius },
+    };
+    // The flow starts from rest: wait ~3 decay times of its slowest mode (h²/π²ν, a²/j₀²ν).
+    for _ in 0..warm {
+        sys.step().unwrap();
+    }
+    let mut sampler = ProfileSampler::with_geometry(geometry, box_len, 20, 60);
+    for s in 1..=4800 {
+        sys.step().unwrap();
+        if s % 10 == 0 {
+            sampler.sample(&sys);
+        }
+    }
+    assert_eq!(sys.leaked, 0, "particles left inside the wall");
+    let p = &sys.particles;
+    for i in 0..sys.len() {
+        if p.moves[i] != 0.0 {
+            assert!(
+                wall.sdf([p.x[i], p.y[i], p.z[i]]) < 0.0,
+                "particle {i} in the wall"
+            );
+        }
+    }
+    assert!(sys.bounces > 0);
+    let fit = sampler.viscosity(sys.density(), g).unwrap();
+    // Slip: the fitted parabola at the wall relative to its centre value.
+    let edge = match wall {
+        Wall::Planes { lo, hi } => 0.5 * (hi - lo),
+        Wall::Cylinder { radius, .. } => radius,
+    };
+    let slip = (fit.offset + fit.curvature * edge * edge) / fit.offset;
+    println!(
+        "{wall:?}: η = {:.3} ± {:.3}, wall slip u(wall)/u(0) = {slip:.3}, n = {:.3}",
+        fit.value,
+        fit.stderr,
+        sys.density()
+    );
+    (fit.value, fit.stderr, slip)
+}
+
+#[test]
+fn plane_poiseuille_between_walls_gives_the_periodic_viscosity() {
+    let (eta, se, slip) = wall_flow(
+        |p| mobo::dpd::walls::Wall::channel(6.0, p.box_len[2], 1.0).unwrap(),
+        [6.0, 6.0, 8.0],
+        0.04,
+        4000,
+    );
+    assert!(se < 0.1 * eta, "stderr {se}");
+    assert!(
+        (eta / 0.917 - 1.0).abs() < 0.2,
+        "η between walls {eta} vs periodic 0.917"
+    );
+    assert!(slip.abs() < 0.2, "slip {slip}");
+}
+
+#[test]
+fn pipe_poiseuille_gives_the_periodic_viscosity() {
+    let (eta, se, slip) = wall_flow(
+        |p| mobo::dpd::walls::Wall::pipe(3.5, p.box_len[1], p.box_len[2], 1.0).unwrap(),
+        [5.0, 9.0, 9.0],
+        0.12,
+        3000,
+    );
+    assert!(se < 0.1 * eta, "stderr {se}");
+    assert!(
+        (eta / 0.917 - 1.0).abs() < 0.2,
+        "η in the pipe {eta} vs periodic 0.917"
+    );
+    assert!(slip.abs() < 0.25, "slip {slip}");
+}

@@ -57,8 +57,37 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
     assert!(e.contains("unknown flow \"couette\""), "{e}");
     let e = err_of(&BASE.replace("force = 0.2\n", ""));
     assert!(e.contains("force") && e.contains("required"), "{e}");
-    let e = err_of(&BASE.replace("seed = 3", "seed = 3\nwalls = \"plane\""));
-    assert!(e.contains("walls") && e.contains("not built yet"), "{e}");
+    let e = err_of(&BASE.replace(
+        "seed = 3",
+        "seed = 3\nwalls = { kind = \"planes\", gap = 4.0 }",
+    ));
+    assert!(
+        e.contains("periodic_poiseuille needs a periodic box"),
+        "{e}"
+    );
+    let walled = BASE.replace("flow = \"periodic_poiseuille\"", "flow = \"poiseuille\"");
+    let e = err_of(&walled);
+    assert!(e.contains("poiseuille is driven between walls"), "{e}");
+    let e = err_of(&walled.replace(
+        "seed = 3",
+        "seed = 3\nwalls = { kind = \"planes\", gap = 7.0 }",
+    ));
+    assert!(e.contains("walls") && e.contains("gap + 2 rc"), "{e}");
+    let e = err_of(&walled.replace(
+        "seed = 3",
+        "seed = 3\nwalls = { kind = \"tube\", radius = 1.0 }",
+    ));
+    assert!(e.contains("unknown kind \"tube\""), "{e}");
+    let e = err_of(&walled.replace("seed = 3", "seed = 3\nwalls = { kind = \"cylinder\" }"));
+    assert!(e.contains("needs radius"), "{e}");
+    assert!(parse(
+        Path::new("s.toml"),
+        &walled.replace(
+            "seed = 3",
+            "seed = 3\nwalls = { kind = \"planes\", gap = 5.0 }"
+        )
+    )
+    .is_ok());
     let e = err_of(&BASE.replace("bins = 16", "bins = 8"));
     assert!(e.contains("bins") && e.contains("at least 12"), "{e}");
     let e = err_of(&BASE.replace("equilibrate = 20", "equilibrate = 500"));
@@ -245,4 +274,57 @@ fn the_example_scene_runs_shortened() {
         serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(sum["particles"].as_u64(), Some(6000));
     assert!(sum["viscosity"].is_object());
+}
+
+#[test]
+fn a_channel_run_reports_walls_and_resumes_bit_for_bit() {
+    let dir = tmpdir("walls");
+    let text = BASE
+        .replace("flow = \"periodic_poiseuille\"", "flow = \"poiseuille\"")
+        .replace(
+            "seed = 3",
+            "seed = 3\nwalls = { kind = \"planes\", gap = 5.0 }\nwall_warmup = 30",
+        );
+    let scene = dir.join("c.toml");
+    std::fs::write(&scene, &text).unwrap();
+    let s = scene.to_str().unwrap();
+    let whole = dir.join("whole");
+    ok(
+        &mobo(&["dpd", s, "--out", whole.to_str().unwrap(), "--quiet"]),
+        "channel run",
+    );
+    let sum: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(whole.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(sum["leaked_particles"].as_u64(), Some(0));
+    assert!(sum["bounces"].as_u64().unwrap() > 0);
+    let fluid = sum["fluid_particles"].as_u64().unwrap();
+    assert!(fluid < sum["particles"].as_u64().unwrap());
+    // 5 × 5 × 5 of fluid at density 3, within the randomness of the placement.
+    assert!((300..450).contains(&fluid), "{fluid} fluid particles");
+    assert!(sum["viscosity"]["value"].as_f64().unwrap().is_finite());
+    let walls = sum["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == "walls")
+        .unwrap();
+    assert_eq!(walls["enabled"].as_bool(), Some(true));
+    let part = dir.join("part");
+    ok(
+        &mobo(&[
+            "dpd",
+            s,
+            "--out",
+            part.to_str().unwrap(),
+            "--quiet",
+            "--max-steps",
+            "70",
+        ]),
+        "part",
+    );
+    ok(
+        &mobo(&["dpd", "--resume", part.to_str().unwrap(), "--quiet"]),
+        "resume",
+    );
+    assert_eq!(arrays(&part), arrays(&whole));
 }

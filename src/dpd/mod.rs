@@ -48,6 +48,7 @@ pub mod pair_force;
 pub mod poiseuille;
 pub mod rng;
 pub mod system;
+pub mod walls;
 
 /// Errors of the DPD module.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -167,6 +167,8 @@ pub struct Particles {
     pub vz: Vec<f64>,
     /// Permanent particle ids (the noise key and the output order).
     pub id: Vec<u32>,
+    /// 1 for particles that move, 0 for frozen (wall) particles: the kicks are scaled by it.
+    pub moves: Vec<f64>,
 }
 
 impl Particles {

@@ -91,7 +91,11 @@ pub fn fit_amplitude(u: &[f64], phi: &[f64]) -> f64 {
 pub struct ProfileSampler {
     /// Number of bins (even, so no bin straddles `L_z/2`).
     pub bins: usize,
+    /// The flow's geometry (what is binned, what is fitted).
+    pub geometry: FlowGeometry,
+    /// The binned range: `[0, L_z)` along `z`, or `[0, R]` in radius for a pipe.
     lz: f64,
+    box_len: [f64; 3],
     /// Per bin, current block: `Σ v_x`, particle count.
     sum_v: Vec<f64>,
     count: Vec<u64>,
@@ -110,11 +114,12 @@ pub struct ProfileSampler {
 /// The fitted viscosity with its standard error.
 #[derive(Clone, Debug, Serialize)]
 pub struct ViscosityFit {
-    /// `η = −n g / 2C`.
+    /// `η = −n g / 2C` (`−n g / 4C` in a pipe).
     pub value: f64,
     /// Standard error from the block spread of `C`.
     pub stderr: f64,
-    /// The fitted `A` and `C` of `u = ±(A + C ζ²)` (means over the blocks).
+    /// The fitted `A` and `C` of `u = ±(A + C ζ²)` (`ζ` the distance from the middle of a
+    /// half-channel, the channel's mid-plane, or the pipe's axis; means over the blocks).
     pub offset: f64,
     pub curvature: f64,
     /// The fraction of each half's width fitted (centred; the rest, next to the planes where
@@ -126,13 +131,44 @@ pub struct ViscosityFit {
     pub samples: usize,
 }
 
+/// The geometry of a pressure-driven flow whose profile gives the viscosity.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum FlowGeometry {
+    /// Periodic (reverse) Poiseuille: `±g` in the two halves of the box in `z`.
+    Periodic,
+    /// Plane Poiseuille between walls at `z = lo, hi`: `u = (n g/2η)(z − lo)(hi − z)` with
+    /// no slip; binned in `z`.
+    Channel { lo: f64, hi: f64 },
+    /// Pipe of radius `R` along `x` around `(y, z) = center`: `u = (n g/4η)(R² − r²)`;
+    /// binned in `r`.
+    Pipe { center: [f64; 2], radius: f64 },
+}
+
 impl ProfileSampler {
-    /// A sampler with `bins` bins (rounded up to even) and `block_samples` samples per block.
+    /// A sampler of the periodic Poiseuille profile in a box of height `lz`, with `bins` bins
+    /// (rounded up to even) and `block_samples` samples per block.
     pub fn new(lz: f64, bins: usize, block_samples: usize) -> Self {
+        Self::with_geometry(FlowGeometry::Periodic, [1.0, 1.0, lz], bins, block_samples)
+    }
+
+    /// A sampler of the profile of `geometry` in a box of side `box_len`.
+    pub fn with_geometry(
+        geometry: FlowGeometry,
+        box_len: [f64; 3],
+        bins: usize,
+        block_samples: usize,
+    ) -> Self {
         let bins = bins.max(2).div_ceil(2) * 2;
+        let lz = match geometry {
+            FlowGeometry::Pipe { radius, .. } => radius,
+            _ => box_len[2],
+        };
         ProfileSampler {
             bins,
+            geometry,
             lz,
+            box_len,
             sum_v: vec![0.0; bins],
             count: vec![0; bins],
             samples_in_block: 0,
@@ -148,9 +184,19 @@ impl ProfileSampler {
     pub fn sample(&mut self, sys: &DpdSystem) {
         let p = &sys.particles;
         let scale = self.bins as f64 / self.lz;
-        for (z, v) in p.z.iter().zip(&p.vx) {
-            let b = ((z * scale) as usize).min(self.bins - 1);
-            self.sum_v[b] += v;
+        for i in 0..p.len() {
+            if p.moves[i] == 0.0 {
+                continue;
+            }
+            let coord = match self.geometry {
+                FlowGeometry::Pipe { center, .. } => {
+                    let (dy, dz) = (p.y[i] - center[0], p.z[i] - center[1]);
+                    (dy * dy + dz * dz).sqrt()
+                }
+                _ => p.z[i],
+            };
+            let b = ((coord * scale) as usize).min(self.bins - 1);
+            self.sum_v[b] += p.vx[i];
             self.count[b] += 1;
         }
         self.samples += 1;
@@ -196,7 +242,12 @@ impl ProfileSampler {
     }
 
     /// The sampler back from [`Self::state`] (`None` if the numbers do not form a state).
-    pub fn from_state(lz: f64, v: &[f64], shape: &[usize]) -> Option<Self> {
+    pub fn from_state(
+        geometry: FlowGeometry,
+        box_len: [f64; 3],
+        v: &[f64],
+        shape: &[usize],
+    ) -> Option<Self> {
         if shape != [v.len()]
             || v.len() < 5
             || v[..5].iter().any(|x| !(*x >= 0.0 && x.fract() == 0.0))
@@ -210,9 +261,15 @@ impl ProfileSampler {
         }
         let part = |k: usize| &v[5 + k * bins..5 + (k + 1) * bins];
         let counts = |k: usize| part(k).iter().map(|&c| c as u64).collect::<Vec<u64>>();
+        let empty = Self::with_geometry(geometry, box_len, bins, block_samples);
+        if empty.bins != bins {
+            return None;
+        }
         Some(ProfileSampler {
             bins,
-            lz,
+            geometry,
+            lz: empty.lz,
+            box_len,
             sum_v: part(0).to_vec(),
             count: counts(1),
             samples_in_block: in_block,
@@ -233,10 +290,11 @@ impl ProfileSampler {
         (b as f64 * h, (b + 1) as f64 * h)
     }
 
-    /// The profile over the completed blocks: per bin `(z centre, mean v_x, number density)`.
-    pub fn profile(&self, area: f64) -> Vec<(f64, f64, f64)> {
+    /// The profile over the completed blocks: per bin `(centre, mean v_x, number density)`
+    /// (`z` bins, or radial shells for a pipe).
+    pub fn profile(&self) -> Vec<(f64, f64, f64)> {
         let nblocks = self.blocks.len().max(1) as f64;
-        let h = self.lz / self.bins as f64;
+        let l = self.box_len;
         (0..self.bins)
             .map(|b| {
                 let (z0, z1) = self.bin(b);
@@ -246,13 +304,25 @@ impl ProfileSampler {
                     0.0
                 };
                 let samples = nblocks * self.block_samples as f64;
-                let density = self.total_count[b] as f64 / (samples * area * h);
-                (0.5 * (z0 + z1), v, density)
+                let volume = match self.geometry {
+                    FlowGeometry::Pipe { .. } => l[0] * std::f64::consts::PI * (z1 * z1 - z0 * z0),
+                    _ => l[0] * l[1] * (z1 - z0),
+                };
+                (
+                    0.5 * (z0 + z1),
+                    v,
+                    self.total_count[b] as f64 / (samples * volume),
+                )
             })
             .collect()
     }
 
     /// The viscosity fitted to the blocks (`None` with fewer than two blocks).
+    ///
+    /// Between walls (channel, pipe) the parabola `u = A + C ζ²` is fitted to the middle
+    /// [`FIT_WINDOW`] of the channel (the layers next to the walls, with their density
+    /// oscillations and slip, are left out): `η = −n g / 2C`, or `−n g / 4C` in a pipe. For the
+    /// periodic flow:
     ///
     /// The upper half is folded onto the lower (`u → −u`), `ζ = z − L_z/4` is the distance
     /// from the middle of a half, and `u = A + C ζ²` is fitted by least squares to the bins
@@ -267,12 +337,46 @@ impl ProfileSampler {
             return None;
         }
         let quarter = 0.25 * self.lz;
-        let bins: Vec<(usize, f64, f64)> = (0..self.bins)
-            .filter_map(|b| {
-                let (sign, centre, z2) = self.folded(b);
-                (centre.abs() <= FIT_WINDOW * quarter).then_some((b, sign, z2))
-            })
-            .collect();
+        let (bins, factor): (Vec<(usize, f64, f64)>, f64) = match self.geometry {
+            FlowGeometry::Periodic => (
+                (0..self.bins)
+                    .filter_map(|b| {
+                        let (sign, centre, z2) = self.folded(b);
+                        (centre.abs() <= FIT_WINDOW * quarter).then_some((b, sign, z2))
+                    })
+                    .collect(),
+                2.0,
+            ),
+            FlowGeometry::Channel { lo, hi } => (
+                (0..self.bins)
+                    .filter_map(|b| {
+                        let (z0, z1) = self.bin(b);
+                        let mid = 0.5 * (lo + hi);
+                        let (a, c) = (z0 - mid, z1 - mid);
+                        let centre = 0.5 * (a + c);
+                        (centre.abs() <= FIT_WINDOW * 0.5 * (hi - lo)).then_some((
+                            b,
+                            1.0,
+                            (c * c * c - a * a * a) / (3.0 * (c - a)),
+                        ))
+                    })
+                    .collect(),
+                2.0,
+            ),
+            FlowGeometry::Pipe { radius, .. } => (
+                (0..self.bins)
+                    .filter_map(|b| {
+                        let (r0, r1) = self.bin(b);
+                        (0.5 * (r0 + r1) <= FIT_WINDOW * radius).then_some((
+                            b,
+                            1.0,
+                            (r1.powi(4) - r0.powi(4)) / (2.0 * (r1 * r1 - r0 * r0)),
+                        ))
+                    })
+                    .collect(),
+                4.0,
+            ),
+        };
         // At least two distinct bin averages of ζ² per fit (else the curvature is undefined).
         let z2 = bins.first()?.2;
         if !bins
@@ -285,7 +389,12 @@ impl ProfileSampler {
             .blocks
             .iter()
             .map(|u| {
-                let pts: Vec<(f64, f64)> = bins.iter().map(|&(b, s, z2)| (z2, s * u[b])).collect();
+                // Each bin weighted by the particles it held (radial shells of a pipe differ
+                // in volume, so their means differ in noise).
+                let pts: Vec<(f64, f64, f64)> = bins
+                    .iter()
+                    .map(|&(b, s, z2)| (z2, s * u[b], self.total_count[b] as f64))
+                    .collect();
                 fit_line(&pts)
             })
             .collect();
@@ -293,7 +402,7 @@ impl ProfileSampler {
         let mean = fits.iter().map(|f| f.1).sum::<f64>() / nb as f64;
         let var = fits.iter().map(|f| (f.1 - mean).powi(2)).sum::<f64>() / (nb - 1) as f64;
         let se_c = (var / nb as f64).sqrt();
-        let value = -density * force / (2.0 * mean);
+        let value = -density * force / (factor * mean);
         Some(ViscosityFit {
             value,
             stderr: value.abs() * se_c / mean.abs(),
@@ -307,8 +416,21 @@ impl ProfileSampler {
 
     /// The fitted profile `±(A + C ζ²)` averaged over bin `b` (for plotting).
     pub fn fitted(&self, fit: &ViscosityFit, b: usize) -> f64 {
-        let (sign, _, z2) = self.folded(b);
-        sign * (fit.offset + fit.curvature * z2)
+        let (z0, z1) = self.bin(b);
+        match self.geometry {
+            FlowGeometry::Periodic => {
+                let (sign, _, z2) = self.folded(b);
+                sign * (fit.offset + fit.curvature * z2)
+            }
+            FlowGeometry::Channel { lo, hi } => {
+                let mid = 0.5 * (lo + hi);
+                let (a, c) = (z0 - mid, z1 - mid);
+                fit.offset + fit.curvature * (c * c * c - a * a * a) / (3.0 * (c - a))
+            }
+            FlowGeometry::Pipe { .. } => {
+                fit.offset + fit.curvature * (z1.powi(4) - z0.powi(4)) / (2.0 * (z1 * z1 - z0 * z0))
+            }
+        }
     }
 
     /// Bin `b` folded onto the lower half: the sign of the flow there, the bin centre's `ζ`
@@ -333,13 +455,14 @@ impl ProfileSampler {
 /// The fraction of each half of the periodic Poiseuille profile used in the fit (centred).
 pub const FIT_WINDOW: f64 = 0.7;
 
-/// Least-squares line `y = a + c x` through the points; returns `(a, c)`.
-pub fn fit_line(pts: &[(f64, f64)]) -> (f64, f64) {
-    let n = pts.len() as f64;
-    let mx = pts.iter().map(|p| p.0).sum::<f64>() / n;
-    let my = pts.iter().map(|p| p.1).sum::<f64>() / n;
-    let sxx: f64 = pts.iter().map(|p| (p.0 - mx).powi(2)).sum();
-    let sxy: f64 = pts.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+/// Weighted least-squares line `y = a + c x` through the points `(x, y, weight)`; returns
+/// `(a, c)`.
+pub fn fit_line(pts: &[(f64, f64, f64)]) -> (f64, f64) {
+    let w: f64 = pts.iter().map(|p| p.2).sum();
+    let mx = pts.iter().map(|p| p.2 * p.0).sum::<f64>() / w;
+    let my = pts.iter().map(|p| p.2 * p.1).sum::<f64>() / w;
+    let sxx: f64 = pts.iter().map(|p| p.2 * (p.0 - mx).powi(2)).sum();
+    let sxy: f64 = pts.iter().map(|p| p.2 * (p.0 - mx) * (p.1 - my)).sum();
     let c = sxy / sxx;
     (my - c * mx, c)
 }
@@ -411,6 +534,7 @@ mod tests {
         // The windowed parabola fit of the sampler: η = n g / 2c for this profile.
         let mut sampler = ProfileSampler::new(lz, bins, 1);
         sampler.blocks = vec![u.clone(), u.iter().map(|v| v * 1.0000001).collect()];
+        sampler.total_count = vec![100; bins];
         let (n, g) = (3.0, 0.2);
         let fit = sampler.viscosity(n, g).unwrap();
         let want = n * g / (2.0 * c);

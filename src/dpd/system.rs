@@ -16,6 +16,7 @@
 use super::cell_list::{CellGrid, CellList};
 use super::pair_force::{cell_forces, PairParams, Particles};
 use super::rng::{normal, step_key, stream, unit_interval};
+use super::walls::Wall;
 use super::{require, DpdError};
 
 /// A body force on every particle.
@@ -101,10 +102,17 @@ pub struct DpdSystem {
     pub virial: f64,
     /// Time per phase.
     pub timings: DpdTimings,
+    /// The wall, if any (frozen particles have `moves = 0`).
+    pub wall: Option<Wall>,
+    /// Bounce-backs off the wall so far.
+    pub bounces: u64,
+    /// Moving particles found inside the wall after a step's bounce-back (should stay 0).
+    pub leaked: u64,
     cells: CellList,
     perm: Vec<u32>,
     scratch: [Vec<f64>; 6],
     scratch_id: Vec<u32>,
+    scratch_moves: Vec<f64>,
     virials: Vec<f64>,
 }
 
@@ -148,6 +156,7 @@ impl DpdSystem {
             vy: (0..n).map(|i| s * g(5, i)).collect(),
             vz: (0..n).map(|i| s * g(6, i)).collect(),
             id: (0..n as u32).collect(),
+            moves: vec![1.0; n],
         };
         for v in [&mut p.vx, &mut p.vy, &mut p.vz] {
             let mean = v.iter().sum::<f64>() / n as f64;
@@ -162,6 +171,16 @@ impl DpdSystem {
         body: BodyForce,
         particles: Particles,
     ) -> Result<Self, DpdError> {
+        Self::from_particles_with_wall(params, body, particles, None)
+    }
+
+    /// [`Self::from_particles`] with a wall (frozen particles have `moves = 0`).
+    pub fn from_particles_with_wall(
+        params: DpdParams,
+        body: BodyForce,
+        particles: Particles,
+        wall: Option<Wall>,
+    ) -> Result<Self, DpdError> {
         params.validate()?;
         let n = particles.len();
         for (what, len) in [
@@ -171,6 +190,7 @@ impl DpdSystem {
             ("vy", particles.vy.len()),
             ("vz", particles.vz.len()),
             ("id", particles.id.len()),
+            ("moves", particles.moves.len()),
         ] {
             if len != n {
                 return Err(DpdError::Length {
@@ -191,9 +211,13 @@ impl DpdSystem {
             step: 0,
             virial: 0.0,
             timings: DpdTimings::default(),
+            wall,
+            bounces: 0,
+            leaked: 0,
             perm: Vec::new(),
             scratch: Default::default(),
             scratch_id: Vec::new(),
+            scratch_moves: Vec::new(),
             virials: Vec::new(),
         };
         sys.wrap_and_check(0)?;
@@ -208,10 +232,11 @@ impl DpdSystem {
         params: DpdParams,
         body: BodyForce,
         particles: Particles,
+        wall: Option<Wall>,
         forces: [Vec<f64>; 3],
         step: u64,
     ) -> Result<Self, DpdError> {
-        let mut sys = Self::from_particles(params, body, particles)?;
+        let mut sys = Self::from_particles_with_wall(params, body, particles, wall)?;
         let n = sys.particles.len();
         for f in &forces {
             if f.len() != n {
@@ -249,7 +274,10 @@ impl DpdSystem {
 
     /// Number density.
     pub fn density(&self) -> f64 {
-        self.len() as f64 / self.params.volume()
+        match self.wall {
+            None => self.len() as f64 / self.params.volume(),
+            Some(w) => self.n_moving() as f64 / w.fluid_volume(self.params.box_len),
+        }
     }
 
     /// One velocity-Verlet step.
@@ -258,13 +286,15 @@ impl DpdSystem {
         let h = 0.5 * self.params.dt / self.params.mass;
         let dt = self.params.dt;
         let p = &mut self.particles;
-        axpy3(
+        kick3(
             [&mut p.vx, &mut p.vy, &mut p.vz],
             [&self.fx, &self.fy, &self.fz],
             h,
+            &p.moves,
         );
         axpy3([&mut p.x, &mut p.y, &mut p.z], [&p.vx, &p.vy, &p.vz], dt);
         self.step += 1;
+        self.bounce_back();
         self.wrap_and_check(self.step)?;
         let t1 = std::time::Instant::now();
         self.sort();
@@ -272,16 +302,79 @@ impl DpdSystem {
         self.compute_forces();
         let t3 = std::time::Instant::now();
         let p = &mut self.particles;
-        axpy3(
+        kick3(
             [&mut p.vx, &mut p.vy, &mut p.vz],
             [&self.fx, &self.fy, &self.fz],
             h,
+            &p.moves,
         );
         let t4 = std::time::Instant::now();
         self.timings.integrate_s += (t1 - t0).as_secs_f64() + (t4 - t3).as_secs_f64();
         self.timings.sort_s += (t2 - t1).as_secs_f64();
         self.timings.forces_s += (t3 - t2).as_secs_f64();
         Ok(())
+    }
+
+    /// Bounce the moving particles that drifted into the wall back (see [`super::walls`]),
+    /// and count those still inside.
+    fn bounce_back(&mut self) {
+        let Some(wall) = self.wall else { return };
+        let dt = self.params.dt;
+        let p = &mut self.particles;
+        for i in 0..p.x.len() {
+            if p.moves[i] == 0.0 {
+                continue;
+            }
+            let x = [p.x[i], p.y[i], p.z[i]];
+            if wall.sdf(x) < 0.0 {
+                continue;
+            }
+            let (x, v) = wall.bounce(x, [p.vx[i], p.vy[i], p.vz[i]], dt);
+            (p.x[i], p.y[i], p.z[i]) = (x[0], x[1], x[2]);
+            (p.vx[i], p.vy[i], p.vz[i]) = (v[0], v[1], v[2]);
+            self.bounces += 1;
+            if wall.sdf(x) >= 0.0 {
+                self.leaked += 1;
+            }
+        }
+    }
+
+    /// A fluid of density `density` bounded by `wall`: a periodic fluid filling the box is
+    /// equilibrated for `warmup` steps, then its particles in the wall layer (`0 ≤ d < r_c`)
+    /// are frozen (velocity 0), those deeper in the wall removed, and the rest form the fluid.
+    /// Ids are renumbered; the step counter starts at 0.
+    pub fn with_wall(
+        params: DpdParams,
+        density: f64,
+        body: BodyForce,
+        wall: Wall,
+        warmup: u64,
+    ) -> Result<Self, DpdError> {
+        let mut bulk = Self::random_fluid(params, density, BodyForce::None)?;
+        for _ in 0..warmup {
+            bulk.step()?;
+        }
+        let q = &bulk.particles;
+        let rc = params.pair.rc;
+        let mut p = Particles::default();
+        for i in 0..q.len() {
+            let d = wall.sdf([q.x[i], q.y[i], q.z[i]]);
+            if d >= rc {
+                continue;
+            }
+            let m = if d < 0.0 { 1.0 } else { 0.0 };
+            p.x.push(q.x[i]);
+            p.y.push(q.y[i]);
+            p.z.push(q.z[i]);
+            p.vx.push(m * q.vx[i]);
+            p.vy.push(m * q.vy[i]);
+            p.vz.push(m * q.vz[i]);
+            p.id.push(p.id.len() as u32);
+            p.moves.push(m);
+        }
+        let mut sys = Self::from_particles_with_wall(params, body, p, Some(wall))?;
+        sys.step = 0;
+        Ok(sys)
     }
 
     /// Wrap positions into `[0, L)`; an error if a particle moved more than a box length or
@@ -338,6 +431,10 @@ impl DpdSystem {
         self.scratch_id
             .extend(perm.iter().map(|&o| p.id[o as usize]));
         std::mem::swap(&mut p.id, &mut self.scratch_id);
+        self.scratch_moves.clear();
+        self.scratch_moves
+            .extend(perm.iter().map(|&o| p.moves[o as usize]));
+        std::mem::swap(&mut p.moves, &mut self.scratch_moves);
         debug_assert_eq!(p.id.len(), n);
     }
 
@@ -378,15 +475,24 @@ impl DpdSystem {
         [&p.vx, &p.vy, &p.vz].map(|v| m * v.iter().sum::<f64>())
     }
 
-    /// Kinetic temperature `m Σ |v − v̄|² / (3N − 3)` (the mean velocity's 3 degrees of
-    /// freedom removed).
+    /// Number of moving (not frozen) particles.
+    pub fn n_moving(&self) -> usize {
+        self.particles.moves.iter().filter(|&&m| m != 0.0).count()
+    }
+
+    /// Kinetic temperature `m Σ |v − v̄|² / (3N − 3)` over the moving particles (the mean
+    /// velocity's 3 degrees of freedom removed).
     pub fn kinetic_temperature(&self) -> f64 {
         let p = &self.particles;
-        let n = self.len() as f64;
+        let n = self.n_moving() as f64;
         let mut s = 0.0;
         for v in [&p.vx, &p.vy, &p.vz] {
-            let mean = v.iter().sum::<f64>() / n;
-            s += v.iter().map(|c| (c - mean) * (c - mean)).sum::<f64>();
+            let mean = v.iter().zip(&p.moves).map(|(c, m)| c * m).sum::<f64>() / n;
+            s += v
+                .iter()
+                .zip(&p.moves)
+                .map(|(c, m)| m * (c - mean) * (c - mean))
+                .sum::<f64>();
         }
         self.params.mass * s / (3.0 * n - 3.0)
     }
@@ -471,5 +577,21 @@ fn axpy3(y: [&mut Vec<f64>; 3], x: [&Vec<f64>; 3], s: f64) {
         y.par_chunks_mut(CHUNK)
             .zip(x.par_chunks(CHUNK))
             .for_each(|(y, x)| y.iter_mut().zip(x).for_each(|(y, x)| *y += s * x));
+    }
+}
+
+/// `v_c += h f_c m` per particle (`m` = [`Particles::moves`]: frozen particles stay at rest).
+fn kick3(v: [&mut Vec<f64>; 3], f: [&Vec<f64>; 3], h: f64, moves: &[f64]) {
+    use rayon::prelude::*;
+    const CHUNK: usize = 16384;
+    for (v, f) in v.into_iter().zip(f) {
+        v.par_chunks_mut(CHUNK)
+            .zip(f.par_chunks(CHUNK))
+            .zip(moves.par_chunks(CHUNK))
+            .for_each(|((v, f), m)| {
+                for ((v, f), m) in v.iter_mut().zip(f).zip(m) {
+                    *v += h * f * m;
+                }
+            });
     }
 }

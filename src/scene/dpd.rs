@@ -22,8 +22,16 @@
 //! save_every = 1000          # steps between observables rows and checkpoints (default 1000)
 //! ```
 //!
-//! Walls (`walls`) and membranes (`[[cells]]` in the DPD fluid) are named in the design but not
-//! built yet: a scene that asks for them gets an error saying so.
+//! Walls (frozen particles and bounce-back, [`crate::dpd::walls`]):
+//!
+//! ```toml
+//! walls = { kind = "planes", gap = 10.0 }    # a channel along x, y; box z ≥ gap + 2 rc
+//! walls = { kind = "cylinder", radius = 5.0 }  # a pipe along x; box y, z ≥ 2 (radius + rc)
+//! wall_warmup = 300          # steps the periodic fluid is equilibrated before freezing walls
+//! flow = "poiseuille"        # with walls: the body force `force` along x everywhere
+//! ```
+//!
+//! Membranes (cells in the DPD fluid) are not built yet.
 
 use std::path::Path;
 
@@ -32,6 +40,7 @@ use serde::Deserialize;
 use super::{parse_toml, read_scene_file, SceneError};
 use crate::dpd::pair_force::PairParams;
 use crate::dpd::system::{BodyForce, DpdParams};
+use crate::dpd::walls::Wall;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -79,7 +88,22 @@ struct DpdSection {
     bins: usize,
     #[serde(default = "thousand")]
     save_every: u64,
-    walls: Option<toml::Value>,
+    walls: Option<WallsSection>,
+    #[serde(default = "three_hundred")]
+    wall_warmup: u64,
+}
+
+/// `walls = { kind = "planes", gap = 10.0 }` or `{ kind = "cylinder", radius = 5.0 }`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct WallsSection {
+    kind: String,
+    gap: Option<f64>,
+    radius: Option<f64>,
+}
+
+fn three_hundred() -> u64 {
+    300
 }
 
 fn one() -> f64 {
@@ -119,6 +143,10 @@ pub struct DpdScene {
     pub bins: usize,
     /// Steps between observables rows and checkpoints.
     pub save_every: u64,
+    /// Walls, if any.
+    pub wall: Option<Wall>,
+    /// Steps the periodic fluid is equilibrated before the wall particles are frozen.
+    pub wall_warmup: u64,
 }
 
 impl DpdScene {
@@ -146,14 +174,6 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         e.place = place(key);
         e
     };
-    if d.walls.is_some() {
-        return Err(located(
-            "walls",
-            "walls (signed-distance planes and cylinders with bounce-back) are not built yet; \
-             the fluid is periodic in every direction"
-                .into(),
-        ));
-    }
     let box_len = match d.box_len {
         BoxLen::Cube(l) => [l; 3],
         BoxLen::Sides(s) => s,
@@ -186,6 +206,35 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
             ));
         }
     }
+    let wall = match &d.walls {
+        None => None,
+        Some(w) => {
+            let need = |v: Option<f64>, key: &str| {
+                v.ok_or_else(|| located("walls", format!("kind = \"{}\" needs {key}", w.kind)))
+            };
+            let built = match w.kind.as_str() {
+                "planes" => {
+                    if w.radius.is_some() {
+                        return Err(located("walls", "planes take gap, not radius".into()));
+                    }
+                    Wall::channel(need(w.gap, "gap")?, box_len[2], d.rc)
+                }
+                "cylinder" => {
+                    if w.gap.is_some() {
+                        return Err(located("walls", "a cylinder takes radius, not gap".into()));
+                    }
+                    Wall::pipe(need(w.radius, "radius")?, box_len[1], box_len[2], d.rc)
+                }
+                other => {
+                    return Err(located(
+                        "walls",
+                        format!("unknown kind \"{other}\" (expected \"planes\" or \"cylinder\")"),
+                    ))
+                }
+            };
+            Some(built.map_err(|e| located("walls", e.to_string()))?)
+        }
+    };
     let n = d.density * box_len.iter().product::<f64>();
     if !(2.0..4.0e9).contains(&n) {
         return Err(located(
@@ -233,7 +282,19 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
             }
             BodyForce::None
         }
-        "periodic_poiseuille" if d.bins < 12 => {
+        "periodic_poiseuille" if wall.is_some() => {
+            return Err(located(
+                "flow",
+                "periodic_poiseuille needs a periodic box; with walls use flow = \"poiseuille\"".into(),
+            ))
+        }
+        "poiseuille" if wall.is_none() => {
+            return Err(located(
+                "flow",
+                "poiseuille is driven between walls; give walls, or use \"periodic_poiseuille\"".into(),
+            ))
+        }
+        "periodic_poiseuille" | "poiseuille" if d.bins < 12 => {
             return Err(located(
                 "bins",
                 format!(
@@ -257,10 +318,17 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
                 ))
             }
         },
+        "poiseuille" => match d.force {
+            Some(g) if g.is_finite() && g != 0.0 => BodyForce::Constant([g, 0.0, 0.0]),
+            Some(g) => return Err(located("force", format!("must be a non-zero number, got {g}"))),
+            None => return Err(bad("force", "required for flow = \"poiseuille\"".into())),
+        },
         other => {
             return Err(located(
                 "flow",
-                format!("unknown flow \"{other}\" (expected \"none\" or \"periodic_poiseuille\")"),
+                format!(
+                    "unknown flow \"{other}\" (expected \"none\", \"periodic_poiseuille\" or \"poiseuille\")"
+                ),
             ))
         }
     };
@@ -297,6 +365,8 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         blocks: d.blocks,
         bins: d.bins,
         save_every: d.save_every,
+        wall,
+        wall_warmup: d.wall_warmup,
     })
 }
 

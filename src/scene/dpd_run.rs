@@ -25,8 +25,11 @@ use serde_json::json;
 pub use super::brownian_run::Effect;
 use super::dpd::DpdScene;
 use crate::dpd::pair_force::Particles;
-use crate::dpd::poiseuille::{kinetic_theory_viscosity, KineticViscosity, ProfileSampler};
+use crate::dpd::poiseuille::{
+    kinetic_theory_viscosity, FlowGeometry, KineticViscosity, ProfileSampler,
+};
 use crate::dpd::system::{BodyForce, DpdSystem, DpdTimings};
+use crate::dpd::walls::Wall;
 use crate::dpd::DpdError;
 use crate::io::checkpoint::Checkpoint;
 use crate::io::{write_atomic, IoError};
@@ -122,8 +125,13 @@ pub struct DpdSummary {
     /// `max_t |P(t) − P(0)|` per particle, in units of the thermal momentum `√(m k_BT)`
     /// (a body force changes `P` only when it does not sum to zero).
     pub momentum_drift: f64,
-    /// Solvent particles that crossed a membrane: no membranes yet, so `null`.
+    /// Particles found inside a wall after the bounce-back (`null` without walls; membranes
+    /// are not built yet).
     pub leaked_particles: Option<u64>,
+    /// Bounce-backs off the walls (`null` without walls).
+    pub bounces: Option<u64>,
+    /// Moving (fluid) particles; the rest are frozen wall particles.
+    pub fluid_particles: usize,
     /// Periodic Poiseuille flow: the viscosity fitted to the velocity profile.
     pub viscosity: Option<ViscositySummary>,
 }
@@ -162,10 +170,36 @@ pub fn effects(scene: &DpdScene) -> Vec<Effect> {
         },
         Effect {
             name: "walls",
-            enabled: false,
-            reason: "no walls: periodic in every direction".into(),
+            enabled: scene.wall.is_some(),
+            reason: match scene.wall {
+                None => "no walls: periodic in every direction".into(),
+                Some(w) => format!(
+                    "{w:?}: frozen particles (a layer of r_c, equilibrated {} steps) and bounce-back",
+                    scene.wall_warmup
+                ),
+            },
+        },
+        Effect {
+            name: "body force (plane/pipe Poiseuille)",
+            enabled: matches!(scene.body, BodyForce::Constant(_)),
+            reason: match scene.body {
+                BodyForce::Constant(g) => format!(
+                    "flow = \"poiseuille\", force = {}: viscosity fitted to the profile between the walls",
+                    g[0]
+                ),
+                _ => "no constant body force".into(),
+            },
         },
     ]
+}
+
+/// What the profile sampler bins and fits for this scene.
+fn flow_geometry(scene: &DpdScene) -> FlowGeometry {
+    match scene.wall {
+        None => FlowGeometry::Periodic,
+        Some(Wall::Planes { lo, hi }) => FlowGeometry::Channel { lo, hi },
+        Some(Wall::Cylinder { radius, center }) => FlowGeometry::Pipe { center, radius },
+    }
 }
 
 /// Observables kept between checkpoints: one row per `save_every` steps.
@@ -183,9 +217,19 @@ pub fn run(
         restore(scene, &ckpt_path)?
     } else {
         write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
-        let sys = DpdSystem::random_fluid(scene.params, scene.density, scene.body)?;
-        let sampler = ProfileSampler::new(
-            scene.params.box_len[2],
+        let sys = match scene.wall {
+            None => DpdSystem::random_fluid(scene.params, scene.density, scene.body)?,
+            Some(w) => DpdSystem::with_wall(
+                scene.params,
+                scene.density,
+                scene.body,
+                w,
+                scene.wall_warmup,
+            )?,
+        };
+        let sampler = ProfileSampler::with_geometry(
+            flow_geometry(scene),
+            scene.params.box_len,
             scene.bins,
             scene.block_samples().max(1) as usize,
         );
@@ -307,29 +351,32 @@ fn summarise(
         .map(|r| (0..3).map(|k| (r[4 + k] - p0[k]).abs()).fold(0.0, f64::max))
         .fold(0.0, f64::max)
         / (n as f64 * thermal);
-    let viscosity = match scene.body {
-        BodyForce::ReversePoiseuille { force } => {
-            sampler
-                .viscosity(sys.density(), force)
-                .map(|fit| ViscositySummary {
-                    value: fit.value,
-                    stderr: fit.stderr,
-                    blocks: fit.blocks,
-                    samples: fit.samples,
-                    sample_every: scene.sample_every,
-                    equilibration_steps: scene.equilibrate,
-                    fit_window: fit.window,
-                    averaged_steps: fit.samples as u64 * scene.sample_every,
-                    kinetic_theory: kinetic_theory_viscosity(
-                        sys.density(),
-                        prm.pair.gamma,
-                        prm.pair.kbt,
-                        prm.pair.rc,
-                        prm.pair.power,
-                        prm.mass,
-                    ),
-                })
-        }
+    let force = match scene.body {
+        BodyForce::ReversePoiseuille { force } => Some(force),
+        BodyForce::Constant(g) if scene.wall.is_some() => Some(g[0]),
+        _ => None,
+    };
+    let viscosity = match force {
+        Some(force) => sampler
+            .viscosity(sys.density(), force)
+            .map(|fit| ViscositySummary {
+                value: fit.value,
+                stderr: fit.stderr,
+                blocks: fit.blocks,
+                samples: fit.samples,
+                sample_every: scene.sample_every,
+                equilibration_steps: scene.equilibrate,
+                fit_window: fit.window,
+                averaged_steps: fit.samples as u64 * scene.sample_every,
+                kinetic_theory: kinetic_theory_viscosity(
+                    sys.density(),
+                    prm.pair.gamma,
+                    prm.pair.kbt,
+                    prm.pair.rc,
+                    prm.pair.power,
+                    prm.mass,
+                ),
+            }),
         _ => None,
     };
     let per_step = if done > 0 {
@@ -364,7 +411,9 @@ fn summarise(
         temperature: mean(2),
         pressure: mean(3),
         momentum_drift: drift,
-        leaked_particles: None,
+        leaked_particles: scene.wall.map(|_| sys.leaked),
+        bounces: scene.wall.map(|_| sys.bounces),
+        fluid_particles: sys.n_moving(),
         viscosity,
     }
 }
@@ -387,9 +436,11 @@ fn write_outputs(
     }
     write_atomic(&out.join("observables.csv"), csv.as_bytes())?;
     if !sampler.blocks.is_empty() {
-        let l = scene.params.box_len;
         let fit = match scene.body {
             BodyForce::ReversePoiseuille { force } => sampler.viscosity(sys.density(), force),
+            BodyForce::Constant(g) if scene.wall.is_some() => {
+                sampler.viscosity(sys.density(), g[0])
+            }
             _ => None,
         };
         let mut csv = String::from(if fit.is_some() {
@@ -397,7 +448,12 @@ fn write_outputs(
         } else {
             "z,vx,density\n"
         });
-        for (b, (z, v, d)) in sampler.profile(l[0] * l[1]).into_iter().enumerate() {
+        let coord = match scene.wall {
+            Some(Wall::Cylinder { .. }) => "r",
+            _ => "z",
+        };
+        csv.replace_range(..1, coord);
+        for (b, (z, v, d)) in sampler.profile().into_iter().enumerate() {
             match &fit {
                 Some(f) => {
                     let _ = writeln!(csv, "{z},{v},{d},{}", sampler.fitted(f, b));
@@ -444,6 +500,12 @@ fn checkpoint(
         c.push(name, vec![n], v.clone());
     }
     c.push("id", vec![n], p.id.iter().map(|&i| i as f64).collect());
+    c.push("moves", vec![n], p.moves.clone());
+    c.push(
+        "walls",
+        vec![2],
+        vec![sys.bounces as f64, sys.leaked as f64],
+    );
     c.push("step", vec![], vec![sys.step as f64]);
     c.push("wall_s", vec![], vec![wall]);
     c.push("momentum0", vec![3], p0.to_vec());
@@ -489,19 +551,33 @@ fn restore(scene: &DpdScene, path: &Path) -> Result<Restored, DpdRunError> {
         vy: get("vy")?,
         vz: get("vz")?,
         id: ids.iter().map(|&v| v as u32).collect(),
+        moves: get("moves")?,
     };
     let step = get("step")?.first().copied().unwrap_or(f64::NAN);
     if !(step >= 0.0 && step.fract() == 0.0) {
         return Err(bad(format!("step {step} is not a count")));
     }
     let forces = [get("fx")?, get("fy")?, get("fz")?];
-    let sys = DpdSystem::restore(scene.params, scene.body, particles, forces, step as u64)
-        .map_err(|e| bad(format!("does not fit the scene: {e}")))?;
+    let mut sys = DpdSystem::restore(
+        scene.params,
+        scene.body,
+        particles,
+        scene.wall,
+        forces,
+        step as u64,
+    )
+    .map_err(|e| bad(format!("does not fit the scene: {e}")))?;
+    let counts = get("walls")?;
+    if counts.len() != 2 {
+        return Err(bad("array 'walls' has the wrong shape".into()));
+    }
+    (sys.bounces, sys.leaked) = (counts[0] as u64, counts[1] as u64);
     let sampler_state = c
         .get("profile_sampler")
         .ok_or_else(|| bad("array 'profile_sampler' missing".into()))?;
     let sampler = ProfileSampler::from_state(
-        scene.params.box_len[2],
+        flow_geometry(scene),
+        scene.params.box_len,
         &sampler_state.data,
         &sampler_state.shape,
     )
