@@ -194,8 +194,9 @@ fn poiseuille_viscosity_agrees_with_kinetic_theory_within_its_known_deviation() 
 /// middle of the channel (or pipe) agrees with the periodic-Poiseuille value of the same fluid
 /// (0.917 ± 0.037, docs/dpd_validation.md) within 20 % — two independent flows, one with
 /// frozen-particle walls and bounce-back, one without any wall. Measured: channel 0.85 ± 0.07,
-/// pipe (R = 3.5 r_c) 0.78 ± 0.05 here and 0.80 ± 0.04 over 20 000 steps: the pipe reads
-/// about 13 % low, not understood yet (docs/dpd.md).
+/// pipe (R = 3.5 r_c) 0.78 ± 0.05; longer runs (docs/dpd.md) show the apparent viscosity
+/// falling with confinement: −1 % for a gap of 12 r_c, −7 % and −14 % for pipes of radius 6
+/// and 3.5 r_c.
 fn wall_flow(
     wall_of: impl Fn(&DpdParams) -> mobo::dpd::walls::Wall,
     box_len: [f64; 3],
