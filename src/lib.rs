@@ -10,8 +10,8 @@
 
 pub mod brownian;
 pub mod check;
-pub mod dpd;
 pub mod comm;
+pub mod dpd;
 pub mod durable;
 pub mod fmm;
 pub mod gpu;
