@@ -92,6 +92,7 @@
 mod energy;
 mod geometry;
 mod params;
+mod relax;
 mod topology;
 mod viscous;
 
@@ -100,4 +101,5 @@ mod test_support;
 
 pub use energy::{EnergyParts, Membrane, Term};
 pub use params::{sphere_spontaneous_angle, Bending, BendingModel, MembraneParams, Moduli};
+pub use relax::{mesh_quality, relax_on_surface, MeshQuality, RelaxReport};
 pub use topology::MembraneTopology;
