@@ -29,7 +29,8 @@ missing_pkgs() {
     if ! command -v ssh >/dev/null 2>&1; then
         pkgs="$pkgs openssh-client"
     fi
-    if ! ls /usr/lib/llvm-*/lib/libclang*.so* /usr/lib/*/libclang*.so* >/dev/null 2>&1; then
+    # (libclang itself: libclang-cpp, which some images carry alone, is not what bindgen loads.)
+    if ! ls /usr/lib/llvm-*/lib/libclang.so* /usr/lib/*/libclang.so* /usr/lib/*/libclang-[0-9]*.so* >/dev/null 2>&1; then
         pkgs="$pkgs libclang-dev"
     fi
     # gpu: the Vulkan loader and Mesa's drivers (lavapipe where there is no GPU).
