@@ -162,9 +162,18 @@ impl CellList {
     pub fn sort(&mut self, x: &[f64], y: &[f64], z: &[f64], perm: &mut Vec<u32>) {
         let n = x.len();
         let nc = self.grid.n_cells();
-        self.unsorted_cell.clear();
+        use rayon::prelude::*;
+        self.unsorted_cell.resize(n, 0);
+        let grid = &self.grid;
         self.unsorted_cell
-            .extend((0..n).map(|i| self.grid.cell_of([x[i], y[i], z[i]]) as u32));
+            .par_chunks_mut(16384)
+            .enumerate()
+            .for_each(|(k, out)| {
+                for (m, c) in out.iter_mut().enumerate() {
+                    let i = k * 16384 + m;
+                    *c = grid.cell_of([x[i], y[i], z[i]]) as u32;
+                }
+            });
         self.starts.clear();
         self.starts.resize(nc + 1, 0);
         for &c in &self.unsorted_cell {

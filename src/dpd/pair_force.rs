@@ -324,20 +324,34 @@ unsafe fn slab_forces(
                     // Branch-free distance pass over a block of candidates.
                     let end = b1.min(k + hits.len());
                     let mut nh = 0usize;
-                    for j in k..end {
-                        let dx = xs - x[j];
-                        let dy = ys - y[j];
-                        let dz = zs - z[j];
+                    let (bx, by, bz) = (&x[k..end], &y[k..end], &z[k..end]);
+                    for (m, ((xj, yj), zj)) in bx.iter().zip(by).zip(bz).enumerate() {
+                        let dx = xs - xj;
+                        let dy = ys - yj;
+                        let dz = zs - zj;
                         let r2 = dx * dx + dy * dy + dz * dz;
-                        hits[nh] = j as u32;
+                        // SAFETY: nh ≤ m < end − k ≤ hits.len().
+                        unsafe { *hits.get_unchecked_mut(nh) = (k + m) as u32 };
                         nh += (r2 < rc2) as usize;
                     }
                     k = end;
                     for &j in &hits[..nh] {
                         let j = j as usize;
-                        let dx = xs - x[j];
-                        let dy = ys - y[j];
-                        let dz = zs - z[j];
+                        // SAFETY: j < n: it came from a cell's particle range.
+                        let (xj, yj, zj, vxj, vyj, vzj, idj) = unsafe {
+                            (
+                                *x.get_unchecked(j),
+                                *y.get_unchecked(j),
+                                *z.get_unchecked(j),
+                                *vx.get_unchecked(j),
+                                *vy.get_unchecked(j),
+                                *vz.get_unchecked(j),
+                                *id.get_unchecked(j),
+                            )
+                        };
+                        let dx = xs - xj;
+                        let dy = ys - yj;
+                        let dz = zs - zj;
                         let r2 = dx * dx + dy * dy + dz * dz;
                         if r2 == 0.0 {
                             continue;
@@ -346,11 +360,10 @@ unsafe fn slab_forces(
                         let inv_r = 1.0 / r;
                         let w = 1.0 - r * inv_rc;
                         let wr = weight_r(power, w);
-                        let ve =
-                            ((vxi - vx[j]) * dx + (vyi - vy[j]) * dy + (vzi - vz[j]) * dz) * inv_r;
+                        let ve = ((vxi - vxj) * dx + (vyi - vyj) * dy + (vzi - vzj) * dz) * inv_r;
                         let fc = a * w;
                         let f = (fc - gamma * wr * wr * ve
-                            + sigma_dt * wr * pair_noise(key, idi, id[j]))
+                            + sigma_dt * wr * pair_noise(key, idi, idj))
                             * inv_r;
                         sx += f * dx;
                         sy += f * dy;

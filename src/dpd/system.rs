@@ -380,25 +380,36 @@ impl DpdSystem {
     /// Wrap positions into `[0, L)`; an error if a particle moved more than a box length or
     /// is not finite.
     fn wrap_and_check(&mut self, step: u64) -> Result<(), DpdError> {
+        use rayon::prelude::*;
         let l = self.params.box_len;
         let p = &mut self.particles;
         let mut bad = None;
         for (k, x) in [&mut p.x, &mut p.y, &mut p.z].into_iter().enumerate() {
             let lk = l[k];
-            for (i, c) in x.iter_mut().enumerate() {
-                if *c < 0.0 {
-                    *c += lk;
-                } else if *c >= lk {
-                    *c -= lk;
-                }
-                if !(*c >= 0.0 && *c < lk) {
-                    if *c == lk {
-                        *c = 0.0;
-                    } else {
-                        bad = Some(i);
+            // The first particle (in chunk order) that is not finite or moved more than a box.
+            let first_bad = x
+                .par_chunks_mut(16384)
+                .enumerate()
+                .filter_map(|(q, chunk)| {
+                    let mut found = None;
+                    for (m, c) in chunk.iter_mut().enumerate() {
+                        if *c < 0.0 {
+                            *c += lk;
+                        } else if *c >= lk {
+                            *c -= lk;
+                        }
+                        if !(*c >= 0.0 && *c < lk) {
+                            if *c == lk {
+                                *c = 0.0;
+                            } else if found.is_none() {
+                                found = Some(q * 16384 + m);
+                            }
+                        }
                     }
-                }
-            }
+                    found
+                })
+                .min();
+            bad = bad.or(first_bad);
         }
         match bad {
             None => Ok(()),
