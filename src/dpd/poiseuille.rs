@@ -329,8 +329,10 @@ impl ProfileSampler {
     /// whose centre lies within [`FIT_WINDOW`] of each half's width around its middle, with
     /// the bin averages of `ζ²`; `η = −n g / 2C`. The planes where the force changes sign are
     /// left out: there the profile is not a parabola (momentum diffuses across them over a
-    /// few mean free paths, rounding the cusp), and fitting through them biases `η` upwards,
-    /// by 40 % for an ideal DPD gas at `ρ = 3, γ = 4.5` (measured, docs/dpd_validation.md).
+    /// few mean free paths, rounding the cusp), and fitting through them biases `η` upwards
+    /// (measured for an ideal DPD gas at `ρ = 3, γ = 4.5`: 1.41 times the kinetic-theory
+    /// estimate fitting the whole profile, 1.35 with the window; the rest of that gap is the
+    /// estimate's, docs/dpd_validation.md).
     pub fn viscosity(&self, density: f64, force: f64) -> Option<ViscosityFit> {
         let nb = self.blocks.len();
         if nb < 2 {
