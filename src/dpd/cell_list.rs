@@ -138,8 +138,6 @@ pub struct CellList {
     pub grid: CellGrid,
     /// Start of each cell's particles in the sorted order (`n_cells + 1` values).
     pub starts: Vec<usize>,
-    /// The cell of each particle, in the sorted order.
-    pub cell: Vec<u32>,
     /// Scratch: the cell of each particle in the unsorted order.
     unsorted_cell: Vec<u32>,
 }
@@ -151,13 +149,12 @@ impl CellList {
         CellList {
             grid,
             starts: vec![0; n + 1],
-            cell: Vec::new(),
             unsorted_cell: Vec::new(),
         }
     }
 
     /// Bin the points (inside the box) and fill `perm` with the stable counting-sort order:
-    /// `perm[new] = old`. After it, [`Self::cell`] and [`Self::starts`] describe the points
+    /// `perm[new] = old`. After it, [`Self::starts`] describes the points
     /// reordered by `perm`.
     pub fn sort(&mut self, x: &[f64], y: &[f64], z: &[f64], perm: &mut Vec<u32>) {
         let n = x.len();
@@ -184,13 +181,10 @@ impl CellList {
         }
         perm.clear();
         perm.resize(n, 0);
-        self.cell.clear();
-        self.cell.resize(n, 0);
         // Running insertion points, kept in `starts` shifted by one cell, restored below.
         for (i, &c) in self.unsorted_cell.iter().enumerate() {
             let slot = &mut self.starts[c as usize];
             perm[*slot] = i as u32;
-            self.cell[*slot] = c;
             *slot += 1;
         }
         for c in (1..=nc).rev() {
@@ -229,12 +223,8 @@ mod tests {
         for c in 0..grid.n_cells() {
             let members = &perm[list.starts[c]..list.starts[c + 1]];
             assert!(members.windows(2).all(|w| w[0] < w[1]), "stable");
-            for (&old, &cell) in members
-                .iter()
-                .zip(&list.cell[list.starts[c]..list.starts[c + 1]])
-            {
+            for &old in members {
                 assert_eq!(grid.cell_of(pts[old as usize]), c);
-                assert_eq!(cell as usize, c);
                 seen[old as usize] = true;
             }
         }

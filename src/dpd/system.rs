@@ -110,9 +110,8 @@ pub struct DpdSystem {
     pub leaked: u64,
     cells: CellList,
     perm: Vec<u32>,
-    scratch: [Vec<f64>; 6],
+    scratch: [Vec<f64>; 7],
     scratch_id: Vec<u32>,
-    scratch_moves: Vec<f64>,
     virials: Vec<f64>,
 }
 
@@ -217,7 +216,6 @@ impl DpdSystem {
             perm: Vec::new(),
             scratch: Default::default(),
             scratch_id: Vec::new(),
-            scratch_moves: Vec::new(),
             virials: Vec::new(),
         };
         sys.wrap_and_check(0)?;
@@ -236,6 +234,8 @@ impl DpdSystem {
         forces: [Vec<f64>; 3],
         step: u64,
     ) -> Result<Self, DpdError> {
+        // The force evaluation here also restores the virial (positions only); its forces are
+        // replaced by the stored ones, which saw the half-step velocities.
         let mut sys = Self::from_particles_with_wall(params, body, particles, wall)?;
         let n = sys.particles.len();
         for f in &forces {
@@ -247,8 +247,8 @@ impl DpdSystem {
                 });
             }
         }
-        // from_particles sorted stably: a stored (already sorted) order is unchanged, but map
-        // the stored forces through the permutation in case it was not.
+        // The sort is stable: a stored (already sorted) order is unchanged, but map the stored
+        // forces through the permutation in case it was not.
         let [gx, gy, gz] = forces;
         sys.fx = sys.perm.iter().map(|&o| gx[o as usize]).collect();
         sys.fy = sys.perm.iter().map(|&o| gy[o as usize]).collect();
@@ -286,13 +286,18 @@ impl DpdSystem {
         let h = 0.5 * self.params.dt / self.params.mass;
         let dt = self.params.dt;
         let p = &mut self.particles;
-        kick3(
+        add_masked3(
             [&mut p.vx, &mut p.vy, &mut p.vz],
             [&self.fx, &self.fy, &self.fz],
             h,
             &p.moves,
         );
-        axpy3([&mut p.x, &mut p.y, &mut p.z], [&p.vx, &p.vy, &p.vz], dt);
+        add_masked3(
+            [&mut p.x, &mut p.y, &mut p.z],
+            [&p.vx, &p.vy, &p.vz],
+            dt,
+            &p.moves,
+        );
         self.step += 1;
         self.bounce_back();
         self.wrap_and_check(self.step)?;
@@ -302,7 +307,7 @@ impl DpdSystem {
         self.compute_forces();
         let t3 = std::time::Instant::now();
         let p = &mut self.particles;
-        kick3(
+        add_masked3(
             [&mut p.vx, &mut p.vy, &mut p.vz],
             [&self.fx, &self.fy, &self.fz],
             h,
@@ -372,9 +377,7 @@ impl DpdSystem {
             p.id.push(p.id.len() as u32);
             p.moves.push(m);
         }
-        let mut sys = Self::from_particles_with_wall(params, body, p, Some(wall))?;
-        sys.step = 0;
-        Ok(sys)
+        Self::from_particles_with_wall(params, body, p, Some(wall))
     }
 
     /// Wrap positions into `[0, L)`; an error if a particle moved more than a box length or
@@ -429,7 +432,13 @@ impl DpdSystem {
         let n = perm.len();
         use rayon::prelude::*;
         [
-            &mut p.x, &mut p.y, &mut p.z, &mut p.vx, &mut p.vy, &mut p.vz,
+            &mut p.x,
+            &mut p.y,
+            &mut p.z,
+            &mut p.vx,
+            &mut p.vy,
+            &mut p.vz,
+            &mut p.moves,
         ]
         .into_par_iter()
         .zip(self.scratch.par_iter_mut())
@@ -442,10 +451,6 @@ impl DpdSystem {
         self.scratch_id
             .extend(perm.iter().map(|&o| p.id[o as usize]));
         std::mem::swap(&mut p.id, &mut self.scratch_id);
-        self.scratch_moves.clear();
-        self.scratch_moves
-            .extend(perm.iter().map(|&o| p.moves[o as usize]));
-        std::mem::swap(&mut p.moves, &mut self.scratch_moves);
         debug_assert_eq!(p.id.len(), n);
     }
 
@@ -547,21 +552,24 @@ impl DpdSystem {
             .collect();
         let dr = r_max / bins as f64;
         let mut counts = vec![0u64; bins];
-        for i in 0..xs.len() {
-            for (nc, s) in list.grid.neighbours(list.cell[i] as usize) {
-                for (j, xj) in xs
-                    .iter()
-                    .enumerate()
-                    .take(list.starts[nc + 1])
-                    .skip(list.starts[nc])
-                {
-                    if j <= i {
-                        continue;
-                    }
-                    let d = [0, 1, 2].map(|k| xs[i][k] - xj[k] - s[k]);
-                    let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                    if r < r_max {
-                        counts[((r / dr) as usize).min(bins - 1)] += 1;
+        for c in 0..list.grid.n_cells() {
+            let nb = list.grid.neighbours(c);
+            for i in list.starts[c]..list.starts[c + 1] {
+                for &(nc, s) in &nb {
+                    for (j, xj) in xs
+                        .iter()
+                        .enumerate()
+                        .take(list.starts[nc + 1])
+                        .skip(list.starts[nc])
+                    {
+                        if j <= i {
+                            continue;
+                        }
+                        let d = [0, 1, 2].map(|k| xs[i][k] - xj[k] - s[k]);
+                        let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                        if r < r_max {
+                            counts[((r / dr) as usize).min(bins - 1)] += 1;
+                        }
                     }
                 }
             }
@@ -580,19 +588,9 @@ impl DpdSystem {
     }
 }
 
-/// `y_c += s x_c` for the three components, in parallel chunks.
-fn axpy3(y: [&mut Vec<f64>; 3], x: [&Vec<f64>; 3], s: f64) {
-    use rayon::prelude::*;
-    const CHUNK: usize = 16384;
-    for (y, x) in y.into_iter().zip(x) {
-        y.par_chunks_mut(CHUNK)
-            .zip(x.par_chunks(CHUNK))
-            .for_each(|(y, x)| y.iter_mut().zip(x).for_each(|(y, x)| *y += s * x));
-    }
-}
-
-/// `v_c += h f_c m` per particle (`m` = [`Particles::moves`]: frozen particles stay at rest).
-fn kick3(v: [&mut Vec<f64>; 3], f: [&Vec<f64>; 3], h: f64, moves: &[f64]) {
+/// `y_c += s x_c m` per particle, in parallel chunks (`m` = [`Particles::moves`]: frozen
+/// particles are neither kicked nor drifted; for the others `· 1.0` is exact).
+fn add_masked3(v: [&mut Vec<f64>; 3], f: [&Vec<f64>; 3], h: f64, moves: &[f64]) {
     use rayon::prelude::*;
     const CHUNK: usize = 16384;
     for (v, f) in v.into_iter().zip(f) {
