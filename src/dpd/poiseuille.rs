@@ -66,26 +66,6 @@ pub fn kinetic_theory_viscosity(
     }
 }
 
-/// The shape `φ(z)` of the reverse-Poiseuille profile averaged over the bin `[z0, z1]` (the
-/// bin must not straddle `L_z/2`).
-pub fn profile_shape(z0: f64, z1: f64, lz: f64) -> f64 {
-    let half = 0.5 * lz;
-    // Antiderivative of z(h − z) is h z²/2 − z³/3.
-    let prim = |z: f64| half * z * z / 2.0 - z * z * z / 3.0;
-    if z1 <= half + 1e-12 * lz {
-        (prim(z1) - prim(z0)) / (z1 - z0)
-    } else {
-        -(prim(z1 - half) - prim(z0 - half)) / (z1 - z0)
-    }
-}
-
-/// Least-squares `c` of `u ≈ c φ` over the bins.
-pub fn fit_amplitude(u: &[f64], phi: &[f64]) -> f64 {
-    let num: f64 = u.iter().zip(phi).map(|(u, p)| u * p).sum();
-    let den: f64 = phi.iter().map(|p| p * p).sum();
-    num / den
-}
-
 /// Velocity and density profiles along `z`, sampled every few steps and averaged per block.
 #[derive(Clone, Debug)]
 pub struct ProfileSampler {
@@ -339,45 +319,15 @@ impl ProfileSampler {
             return None;
         }
         let quarter = 0.25 * self.lz;
-        let (bins, factor): (Vec<(usize, f64, f64)>, f64) = match self.geometry {
-            FlowGeometry::Periodic => (
-                (0..self.bins)
-                    .filter_map(|b| {
-                        let (sign, centre, z2) = self.folded(b);
-                        (centre.abs() <= FIT_WINDOW * quarter).then_some((b, sign, z2))
-                    })
-                    .collect(),
-                2.0,
-            ),
-            FlowGeometry::Channel { lo, hi } => (
-                (0..self.bins)
-                    .filter_map(|b| {
-                        let (z0, z1) = self.bin(b);
-                        let mid = 0.5 * (lo + hi);
-                        let (a, c) = (z0 - mid, z1 - mid);
-                        let centre = 0.5 * (a + c);
-                        (centre.abs() <= FIT_WINDOW * 0.5 * (hi - lo)).then_some((
-                            b,
-                            1.0,
-                            (c * c * c - a * a * a) / (3.0 * (c - a)),
-                        ))
-                    })
-                    .collect(),
-                2.0,
-            ),
-            FlowGeometry::Pipe { radius, .. } => (
-                (0..self.bins)
-                    .filter_map(|b| {
-                        let (r0, r1) = self.bin(b);
-                        (0.5 * (r0 + r1) <= FIT_WINDOW * radius).then_some((
-                            b,
-                            1.0,
-                            (r1.powi(4) - r0.powi(4)) / (2.0 * (r1 * r1 - r0 * r0)),
-                        ))
-                    })
-                    .collect(),
-                4.0,
-            ),
+        let bins: Vec<(usize, f64, f64)> = (0..self.bins)
+            .filter_map(|b| {
+                let (sign, in_window, x) = self.abscissa(b);
+                in_window.then_some((b, sign, x))
+            })
+            .collect();
+        let factor = match self.geometry {
+            FlowGeometry::Pipe { .. } => 4.0,
+            _ => 2.0,
         };
         // At least two distinct bin averages of ζ² per fit (else the curvature is undefined).
         let z2 = bins.first()?.2;
@@ -418,39 +368,45 @@ impl ProfileSampler {
 
     /// The fitted profile `±(A + C ζ²)` averaged over bin `b` (for plotting).
     pub fn fitted(&self, fit: &ViscosityFit, b: usize) -> f64 {
+        let (sign, _, x) = self.abscissa(b);
+        sign * (fit.offset + fit.curvature * x)
+    }
+
+    /// What bin `b` contributes to the fit `u = ±(A + C x)`: the sign of the flow there (the
+    /// upper half of the periodic flow is folded onto the lower), whether the bin centre is in
+    /// the fitted window ([`FIT_WINDOW`]), and `x`, the bin average of `ζ²` (`ζ = z − L_z/4`
+    /// after folding, or `z` − the channel's mid-plane) or, in a pipe, of `r²` over the shell.
+    fn abscissa(&self, b: usize) -> (f64, bool, f64) {
         let (z0, z1) = self.bin(b);
+        // Average of ζ² over [a, c], and the window test on the centre.
+        let square = |a: f64, c: f64, half_width: f64| {
+            (
+                (0.5 * (a + c)).abs() <= FIT_WINDOW * half_width,
+                (c * c * c - a * a * a) / (3.0 * (c - a)),
+            )
+        };
         match self.geometry {
             FlowGeometry::Periodic => {
-                let (sign, _, z2) = self.folded(b);
-                sign * (fit.offset + fit.curvature * z2)
+                let (quarter, half) = (0.25 * self.lz, 0.5 * self.lz);
+                let (sign, off) = if z1 <= half + 1e-12 * self.lz {
+                    (1.0, 0.0)
+                } else {
+                    (-1.0, half)
+                };
+                let (inside, x) = square(z0 - off - quarter, z1 - off - quarter, quarter);
+                (sign, inside, x)
             }
             FlowGeometry::Channel { lo, hi } => {
                 let mid = 0.5 * (lo + hi);
-                let (a, c) = (z0 - mid, z1 - mid);
-                fit.offset + fit.curvature * (c * c * c - a * a * a) / (3.0 * (c - a))
+                let (inside, x) = square(z0 - mid, z1 - mid, 0.5 * (hi - lo));
+                (1.0, inside, x)
             }
-            FlowGeometry::Pipe { .. } => {
-                fit.offset + fit.curvature * (z1.powi(4) - z0.powi(4)) / (2.0 * (z1 * z1 - z0 * z0))
-            }
+            FlowGeometry::Pipe { radius, .. } => (
+                1.0,
+                0.5 * (z0 + z1) <= FIT_WINDOW * radius,
+                (z1.powi(4) - z0.powi(4)) / (2.0 * (z1 * z1 - z0 * z0)),
+            ),
         }
-    }
-
-    /// Bin `b` folded onto the lower half: the sign of the flow there, the bin centre's `ζ`
-    /// (`z − L_z/4` after folding) and the bin average of `ζ²`.
-    fn folded(&self, b: usize) -> (f64, f64, f64) {
-        let (quarter, half) = (0.25 * self.lz, 0.5 * self.lz);
-        let (z0, z1) = self.bin(b);
-        let (sign, off) = if z1 <= half + 1e-12 * self.lz {
-            (1.0, 0.0)
-        } else {
-            (-1.0, half)
-        };
-        let (a, c) = (z0 - off - quarter, z1 - off - quarter);
-        (
-            sign,
-            0.5 * (a + c),
-            (c * c * c - a * a * a) / (3.0 * (c - a)),
-        )
     }
 }
 
@@ -511,9 +467,6 @@ mod tests {
         let lz = 10.0;
         let bins = 20;
         let h = lz / bins as f64;
-        let phi: Vec<f64> = (0..bins)
-            .map(|b| profile_shape(b as f64 * h, (b + 1) as f64 * h, lz))
-            .collect();
         // Bin averages of the exact profile by fine quadrature.
         let c = 0.37;
         let u: Vec<f64> = (0..bins)
@@ -532,7 +485,6 @@ mod tests {
                     .sum()
             })
             .collect();
-        assert!((fit_amplitude(&u, &phi) / c - 1.0).abs() < 1e-6);
         // The windowed parabola fit of the sampler: η = n g / 2c for this profile.
         let mut sampler = ProfileSampler::new(lz, bins, 1);
         sampler.blocks = vec![u.clone(), u.iter().map(|v| v * 1.0000001).collect()];
@@ -547,6 +499,62 @@ mod tests {
         );
         for (b, ub) in u.iter().enumerate() {
             assert!((sampler.fitted(&fit, b) - ub).abs() < 1e-6 * c, "bin {b}");
+        }
+    }
+
+    /// The exact no-slip profiles between walls (bin averages by quadrature; radial shells
+    /// weighted by r) give back η: channel `u = (n g/2η)(z − lo)(hi − z)`, pipe
+    /// `u = (n g/4η)(R² − r²)`.
+    #[test]
+    fn fit_recovers_exact_channel_and_pipe_profiles() {
+        let (n, g, eta) = (3.0, 0.05, 0.9);
+        let cases = [
+            (
+                FlowGeometry::Channel { lo: 1.0, hi: 9.0 },
+                [4.0, 4.0, 10.0],
+                Box::new(|z: f64| n * g / (2.0 * eta) * ((z - 1.0) * (9.0 - z)).max(0.0))
+                    as Box<dyn Fn(f64) -> f64>,
+                false,
+            ),
+            (
+                FlowGeometry::Pipe {
+                    center: [5.0, 5.0],
+                    radius: 4.0,
+                },
+                [4.0, 10.0, 10.0],
+                Box::new(|r: f64| n * g / (4.0 * eta) * (16.0 - r * r)),
+                true,
+            ),
+        ];
+        for (geometry, box_len, exact, radial) in cases {
+            let mut sampler = ProfileSampler::with_geometry(geometry, box_len, 20, 1);
+            let u: Vec<f64> = (0..sampler.bins)
+                .map(|b| {
+                    let (z0, z1) = sampler.bin(b);
+                    let m = 2000;
+                    let (mut s, mut w) = (0.0, 0.0);
+                    for q in 0..m {
+                        let z = z0 + (q as f64 + 0.5) * (z1 - z0) / m as f64;
+                        let weight = if radial { z } else { 1.0 };
+                        s += weight * exact(z);
+                        w += weight;
+                    }
+                    s / w
+                })
+                .collect();
+            sampler.blocks = vec![u.clone(), u.iter().map(|v| v * 1.0000001).collect()];
+            sampler.total_count = vec![100; sampler.bins];
+            let fit = sampler.viscosity(n, g).unwrap();
+            assert!(
+                (fit.value / eta - 1.0).abs() < 1e-6,
+                "{geometry:?}: {}",
+                fit.value
+            );
+            let (b, _) = (0..sampler.bins)
+                .map(|b| (b, sampler.bin(b)))
+                .find(|(_, (z0, _))| *z0 >= if radial { 0.0 } else { 3.0 })
+                .unwrap();
+            assert!((sampler.fitted(&fit, b) - u[b]).abs() < 1e-6 * u[b].abs().max(1e-3));
         }
     }
 }

@@ -26,7 +26,7 @@ pub use super::brownian_run::Effect;
 use super::dpd::DpdScene;
 use crate::dpd::pair_force::Particles;
 use crate::dpd::poiseuille::{
-    kinetic_theory_viscosity, FlowGeometry, KineticViscosity, ProfileSampler,
+    kinetic_theory_viscosity, FlowGeometry, KineticViscosity, ProfileSampler, ViscosityFit,
 };
 use crate::dpd::system::{BodyForce, DpdSystem, DpdTimings};
 use crate::dpd::walls::Wall;
@@ -292,10 +292,11 @@ pub fn run(
         push_row(&mut rows, &sys);
     }
     checkpoint(&sys, &sampler, &rows, wall_before, p0).write(&ckpt_path)?;
+    let fit = driving_force(scene).and_then(|g| sampler.viscosity(sys.density(), g));
     let summary = summarise(
         scene,
         &sys,
-        &sampler,
+        fit.as_ref(),
         &rows,
         wall_before,
         p0,
@@ -303,8 +304,17 @@ pub fn run(
         done,
         this_wall,
     );
-    write_outputs(scene, out, &sys, &sampler, &rows, &summary)?;
+    write_outputs(scene, out, &sampler, fit.as_ref(), &rows, &summary)?;
     Ok(summary)
+}
+
+/// The body force per particle whose profile gives the viscosity (`None`: no such flow).
+fn driving_force(scene: &DpdScene) -> Option<f64> {
+    match scene.body {
+        BodyForce::ReversePoiseuille { force } => Some(force),
+        BodyForce::Constant(g) if scene.wall.is_some() => Some(g[0]),
+        _ => None,
+    }
 }
 
 fn push_row(rows: &mut Vec<f64>, sys: &DpdSystem) {
@@ -324,7 +334,7 @@ fn push_row(rows: &mut Vec<f64>, sys: &DpdSystem) {
 fn summarise(
     scene: &DpdScene,
     sys: &DpdSystem,
-    sampler: &ProfileSampler,
+    fit: Option<&ViscosityFit>,
     rows: &[f64],
     wall: f64,
     p0: [f64; 3],
@@ -351,34 +361,24 @@ fn summarise(
         .map(|r| (0..3).map(|k| (r[4 + k] - p0[k]).abs()).fold(0.0, f64::max))
         .fold(0.0, f64::max)
         / (n as f64 * thermal);
-    let force = match scene.body {
-        BodyForce::ReversePoiseuille { force } => Some(force),
-        BodyForce::Constant(g) if scene.wall.is_some() => Some(g[0]),
-        _ => None,
-    };
-    let viscosity = match force {
-        Some(force) => sampler
-            .viscosity(sys.density(), force)
-            .map(|fit| ViscositySummary {
-                value: fit.value,
-                stderr: fit.stderr,
-                blocks: fit.blocks,
-                samples: fit.samples,
-                sample_every: scene.sample_every,
-                equilibration_steps: scene.equilibrate,
-                fit_window: fit.window,
-                averaged_steps: fit.samples as u64 * scene.sample_every,
-                kinetic_theory: kinetic_theory_viscosity(
-                    sys.density(),
-                    prm.pair.gamma,
-                    prm.pair.kbt,
-                    prm.pair.rc,
-                    prm.pair.power,
-                    prm.mass,
-                ),
-            }),
-        _ => None,
-    };
+    let viscosity = fit.map(|fit| ViscositySummary {
+        value: fit.value,
+        stderr: fit.stderr,
+        blocks: fit.blocks,
+        samples: fit.samples,
+        sample_every: scene.sample_every,
+        equilibration_steps: scene.equilibrate,
+        fit_window: fit.window,
+        averaged_steps: fit.samples as u64 * scene.sample_every,
+        kinetic_theory: kinetic_theory_viscosity(
+            sys.density(),
+            prm.pair.gamma,
+            prm.pair.kbt,
+            prm.pair.rc,
+            prm.pair.power,
+            prm.mass,
+        ),
+    });
     let per_step = if done > 0 {
         this_wall / done as f64
     } else {
@@ -421,8 +421,8 @@ fn summarise(
 fn write_outputs(
     scene: &DpdScene,
     out: &Path,
-    sys: &DpdSystem,
     sampler: &ProfileSampler,
+    fit: Option<&ViscosityFit>,
     rows: &[f64],
     summary: &DpdSummary,
 ) -> Result<(), DpdRunError> {
@@ -436,25 +436,14 @@ fn write_outputs(
     }
     write_atomic(&out.join("observables.csv"), csv.as_bytes())?;
     if !sampler.blocks.is_empty() {
-        let fit = match scene.body {
-            BodyForce::ReversePoiseuille { force } => sampler.viscosity(sys.density(), force),
-            BodyForce::Constant(g) if scene.wall.is_some() => {
-                sampler.viscosity(sys.density(), g[0])
-            }
-            _ => None,
-        };
-        let mut csv = String::from(if fit.is_some() {
-            "z,vx,density,vx_fit\n"
-        } else {
-            "z,vx,density\n"
-        });
         let coord = match scene.wall {
             Some(Wall::Cylinder { .. }) => "r",
             _ => "z",
         };
-        csv.replace_range(..1, coord);
+        let fitted = if fit.is_some() { ",vx_fit" } else { "" };
+        let mut csv = format!("{coord},vx,density{fitted}\n");
         for (b, (z, v, d)) in sampler.profile().into_iter().enumerate() {
-            match &fit {
+            match fit {
                 Some(f) => {
                     let _ = writeln!(csv, "{z},{v},{d},{}", sampler.fitted(f, b));
                 }
