@@ -1,6 +1,8 @@
 //! Membrane viscosity: the dissipative and random edge forces of Fedosov (2010, eqs. 12–13),
-//! [`Membrane::add_viscous_forces`], with their counter-based hash RNG.
+//! [`Membrane::add_viscous_forces`], with their counter-based random numbers (the fluid's
+//! [`crate::dpd::rng`] finaliser and unit-variance map, keyed on the edge).
 
+use super::super::rng::{mix64, unit_variance};
 use super::super::{require, DpdError};
 use super::energy::{check_len, Membrane};
 use super::geometry::{add_to, dot, norm, scale, sub};
@@ -8,24 +10,21 @@ use super::geometry::{add_to, dot, norm, scale, sub};
 // ---------------------------------------------------------------------------------------------
 // Random numbers for the membrane viscosity.
 
+/// SplitMix64 (Steele, Lea & Flood 2014): the golden-ratio increment, then the finaliser
+/// shared with the fluid's pair noise ([`crate::dpd::rng::mix64`]).
 #[inline]
-fn splitmix64(mut z: u64) -> u64 {
-    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    z ^ (z >> 31)
+fn splitmix64(z: u64) -> u64 {
+    mix64(z.wrapping_add(0x9E37_79B9_7F4A_7C15))
 }
 
 /// Uniform number of zero mean and unit variance (on `[−√3, √3)`), a pure function of
 /// `(seed, step, edge, component)`.
 #[inline]
 pub(super) fn noise(seed: u64, step: u64, edge: usize, component: u64) -> f64 {
-    let h = splitmix64(
+    unit_variance(splitmix64(
         splitmix64(splitmix64(seed ^ 0x6D65_6D62_7261_6E65).wrapping_add(step))
             .wrapping_add(((edge as u64) << 4) | component),
-    );
-    let u = (h >> 11) as f64 * (1.0 / (1u64 << 53) as f64);
-    (2.0 * u - 1.0) * 3f64.sqrt()
+    ))
 }
 
 impl Membrane {
