@@ -682,15 +682,21 @@ fn dpd(
             )
         })
         .unwrap_or_default();
+    let kbt = match s.thermal_temperature {
+        Some(t) => format!(
+            "k_BT {t:.4} about the mean flow ({:.4} with it)",
+            s.temperature
+        ),
+        None => format!("k_BT {:.4}", s.temperature),
+    };
     println!(
-        "{} particles, {} steps to t = {} in {:.2} s ({:.3e} particle-steps/s, {:.2} ms/step); k_BT {:.4}, pressure {:.3}{visc}; results in {}",
+        "{} particles, {} steps to t = {} in {:.2} s ({:.3e} particle-steps/s, {:.2} ms/step); {kbt}, pressure {:.3}{visc}; results in {}",
         s.particles,
         s.steps,
         s.final_time,
         s.wall_s,
         s.particle_steps_per_second,
         s.ms_per_step,
-        s.temperature,
         s.pressure,
         out.display()
     );

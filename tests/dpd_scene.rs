@@ -274,6 +274,16 @@ fn the_example_scene_runs_shortened() {
         serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(sum["particles"].as_u64(), Some(6000));
     assert!(sum["viscosity"].is_object());
+    // The kinetic temperature includes the driven flow; about the profile it is near k_BT
+    // (this short run is still cooling from the random placement: 1.03 at step 300; the full
+    // 20 000 steps give 1.056, the rest being viscous heating and the profile's variation
+    // within a bin).
+    let thermal = sum["thermal_temperature"].as_f64().unwrap();
+    assert!(
+        (thermal - 1.0).abs() < 0.06,
+        "thermal temperature {thermal}"
+    );
+    assert!(sum["temperature"].as_f64().unwrap() > thermal);
 }
 
 #[test]

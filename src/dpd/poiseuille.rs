@@ -297,6 +297,24 @@ impl ProfileSampler {
             .collect()
     }
 
+    /// The kinetic temperature of the mean flow, `m ⟨u_x²⟩ / 3` over the sampled particles
+    /// (`u_x` the bin means): what a driven flow adds to the kinetic temperature of all
+    /// velocities. `None` before any block is complete.
+    pub fn flow_temperature(&self, mass: f64) -> Option<f64> {
+        let n: u64 = self.total_count.iter().sum();
+        if n == 0 {
+            return None;
+        }
+        let s: f64 = self
+            .total_v
+            .iter()
+            .zip(&self.total_count)
+            .filter(|(_, &c)| c > 0)
+            .map(|(v, &c)| v * v / c as f64)
+            .sum();
+        Some(mass * s / (3.0 * n as f64))
+    }
+
     /// The viscosity fitted to the blocks (`None` with fewer than two blocks).
     ///
     /// Between walls (channel, pipe) the parabola `u = A + C ζ²` is fitted to the middle

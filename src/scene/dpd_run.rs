@@ -120,6 +120,9 @@ pub struct DpdSummary {
     /// Mean kinetic temperature over the observables rows after equilibration (includes the
     /// mean flow's kinetic energy in a driven flow).
     pub temperature: f64,
+    /// The temperature of the velocities about the mean flow profile: `temperature` less the
+    /// mean flow's part `m ⟨u_x²⟩/3` from the sampled profile (`null` without a profile).
+    pub thermal_temperature: Option<f64>,
     /// Mean virial pressure over the same rows.
     pub pressure: f64,
     /// `max_t |P(t) − P(0)|` per particle, in units of the thermal momentum `√(m k_BT)`
@@ -293,10 +296,12 @@ pub fn run(
     }
     checkpoint(&sys, &sampler, &rows, wall_before, p0).write(&ckpt_path)?;
     let fit = driving_force(scene).and_then(|g| sampler.viscosity(sys.density(), g));
+    let flow_kt = sampler.flow_temperature(scene.params.mass);
     let summary = summarise(
         scene,
         &sys,
         fit.as_ref(),
+        flow_kt,
         &rows,
         wall_before,
         p0,
@@ -335,6 +340,7 @@ fn summarise(
     scene: &DpdScene,
     sys: &DpdSystem,
     fit: Option<&ViscosityFit>,
+    flow_kt: Option<f64>,
     rows: &[f64],
     wall: f64,
     p0: [f64; 3],
@@ -409,6 +415,7 @@ fn summarise(
         threads: rayon::current_num_threads(),
         timings: sys.timings,
         temperature: mean(2),
+        thermal_temperature: flow_kt.map(|t| mean(2) - t),
         pressure: mean(3),
         momentum_drift: drift,
         leaked_particles: scene.wall.map(|_| sys.leaked),
