@@ -1,6 +1,7 @@
 //! The fast FMM against direct sums (pair-by-pair reference, `direct_sum`) on sampled targets:
 //! every kernel, three clouds (uniform cube, Gaussian blobs, small spheres), at the orders the
-//! calibration table gives for 3, 6 and 9 digits; reuse of one tree for many densities;
+//! calibration table gives for 3, 6 and 9 digits, and again on a cloud with a dense core of
+//! overlapping RPY beads and on a two-scale cloud; reuse of one tree for many densities;
 //! convergence in the order; a 10⁵-point run.
 
 use mobo::fmm::clouds::Cloud;
@@ -45,6 +46,19 @@ fn sampled_error(
     m: usize,
     seed: u64,
 ) -> (f64, Fmm) {
+    let idx: Vec<usize> = (0..m).map(|i| i * n / m).collect();
+    sampled_error_at(kernel, cloud, n, order, &idx, seed)
+}
+
+/// [`sampled_error`] at the targets `idx`.
+fn sampled_error_at(
+    kernel: FmmKernel,
+    cloud: Cloud,
+    n: usize,
+    order: usize,
+    idx: &[usize],
+    seed: u64,
+) -> (f64, Fmm) {
     let pts = cloud.points(n, seed);
     let nrm = Cloud::unit_vectors(n, seed + 1);
     let k = kernel.near();
@@ -60,7 +74,6 @@ fn sampled_error(
     .unwrap();
     let mut u = vec![0.0; n * k.output_dim()];
     fmm.evaluate(&dens, &mut u).unwrap();
-    let idx: Vec<usize> = (0..m).map(|i| i * n / m).collect();
     let tg: Vec<[f64; 3]> = idx.iter().map(|&i| pts[i]).collect();
     let want = reference(k.as_ref(), &pts, &dens, &nrm, &tg);
     let od = k.output_dim();
@@ -111,6 +124,54 @@ fn six_digits_on_every_kernel_and_cloud() {
 #[test]
 fn nine_digits_on_every_kernel_and_cloud() {
     check_digits(9, 8_000);
+}
+
+/// Every kernel on a cloud with a dense core and on a two-scale cloud (`n` points each), with
+/// RPY beads of radius `a` = half the median distance of a point to its nearest neighbour (as a
+/// user sizes beads from the data: in the dense part they overlap, boxes there stop at the
+/// smallest width the RPY far field allows); errors sampled at targets in both parts.
+fn check_hard_clouds(digits: u32, sizes: [(Cloud, usize); 2]) {
+    let mut failures = Vec::new();
+    for (cloud, n) in sizes {
+        let pts = cloud.points(n, 11);
+        // Even indices are the uniform part of both clouds, odd ones the dense part.
+        let idx: Vec<usize> = (0..200).map(|i| i * (n / 200) + i % 2).collect();
+        let a = Cloud::half_median_spacing(&pts, &idx);
+        for kernel in KERNELS {
+            let kernel = match kernel {
+                FmmKernel::Rpy { .. } => FmmKernel::Rpy { radius: a },
+                k => k,
+            };
+            let order = order_for_digits(kernel, digits).unwrap();
+            let (err, fmm) = sampled_error_at(kernel, cloud, n, order, &idx, 11);
+            println!(
+                "{kernel:?} {} n={n} digits={digits} order={order} depth={}: error {err:.2e}",
+                cloud.name(),
+                fmm.tree.depth(),
+            );
+            if err.is_nan() || err >= 10f64.powi(-(digits as i32)) {
+                failures.push(format!("{kernel:?} {}: {err:.2e}", cloud.name()));
+            }
+        }
+    }
+    assert!(failures.is_empty(), "above 1e-{digits}: {failures:?}");
+}
+
+#[test]
+fn dense_core_and_two_scale_clouds_at_three_digits() {
+    check_hard_clouds(3, [(Cloud::DenseCore, 20_000), (Cloud::TwoScale, 20_000)]);
+}
+
+#[test]
+fn dense_core_and_two_scale_clouds_at_six_digits() {
+    check_hard_clouds(6, [(Cloud::DenseCore, 20_000), (Cloud::TwoScale, 20_000)]);
+}
+
+/// 30 000 points in the dense core's cloud: enough for its leaves to reach the RPY width limit
+/// at order 15 (with boxes of `2a` there RPY gave 2.4e-9 at 9 digits).
+#[test]
+fn dense_core_and_two_scale_clouds_at_nine_digits() {
+    check_hard_clouds(9, [(Cloud::DenseCore, 30_000), (Cloud::TwoScale, 10_000)]);
 }
 
 #[test]

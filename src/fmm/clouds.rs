@@ -22,16 +22,25 @@ pub enum Cloud {
     /// corner, the rest uniform in `[0, 1]³` (a tree ten levels deep in one place, shallow
     /// elsewhere; its partition over ranks cuts the deep branch).
     Clustered,
+    /// A dense core: half the points uniform in `[0, 1]³`, half in a Gaussian of standard
+    /// deviation 0.01 about the centre (neighbours 25× closer in the core than outside; RPY
+    /// beads sized by the core overlap).
+    DenseCore,
+    /// Two scales: half the points uniform in `[0, 1]³`, half uniform in a cube of side 0.01
+    /// at `(0.3, 0.3, 0.3)` (spacing 100× finer there).
+    TwoScale,
 }
 
 impl Cloud {
-    /// Parse `uniform`, `blobs`, `spheres` or `clustered`.
+    /// Parse `uniform`, `blobs`, `spheres`, `clustered`, `dense-core` or `two-scale`.
     pub fn from_name(name: &str) -> Option<Self> {
         match name {
             "uniform" => Some(Cloud::Uniform),
             "blobs" => Some(Cloud::Blobs),
             "spheres" => Some(Cloud::Spheres),
             "clustered" => Some(Cloud::Clustered),
+            "dense-core" => Some(Cloud::DenseCore),
+            "two-scale" => Some(Cloud::TwoScale),
             _ => None,
         }
     }
@@ -43,6 +52,8 @@ impl Cloud {
             Cloud::Blobs => "blobs",
             Cloud::Spheres => "spheres",
             Cloud::Clustered => "clustered",
+            Cloud::DenseCore => "dense-core",
+            Cloud::TwoScale => "two-scale",
         }
     }
 
@@ -98,7 +109,50 @@ impl Cloud {
                     }
                 })
                 .collect(),
+            Cloud::DenseCore => (0..n)
+                .map(|i| {
+                    if i % 2 == 0 {
+                        [rng.random(), rng.random(), rng.random()]
+                    } else {
+                        let mut c = || 0.5 + 0.01 * g(&mut rng);
+                        [c(), c(), c()]
+                    }
+                })
+                .collect(),
+            Cloud::TwoScale => (0..n)
+                .map(|i| {
+                    let (o, s) = if i % 2 == 0 { (0.0, 1.0) } else { (0.3, 0.01) };
+                    [
+                        o + s * rng.random::<f64>(),
+                        o + s * rng.random::<f64>(),
+                        o + s * rng.random::<f64>(),
+                    ]
+                })
+                .collect(),
         }
+    }
+
+    /// Half the median distance from a point to its nearest neighbour over the points of
+    /// `sample` (indices into `points`), by brute force: the bead radius at which those points'
+    /// neighbours overlap (RPY pairs closer than `2a`).
+    pub fn half_median_spacing(points: &[[f64; 3]], sample: &[usize]) -> f64 {
+        let mut d: Vec<f64> = sample
+            .iter()
+            .map(|&i| {
+                let x = points[i];
+                points
+                    .iter()
+                    .enumerate()
+                    .filter(|&(j, _)| j != i)
+                    .map(|(_, y)| {
+                        (x[0] - y[0]).powi(2) + (x[1] - y[1]).powi(2) + (x[2] - y[2]).powi(2)
+                    })
+                    .fold(f64::INFINITY, f64::min)
+                    .sqrt()
+            })
+            .collect();
+        d.sort_by(f64::total_cmp);
+        0.5 * d.get(d.len() / 2).copied().unwrap_or(0.0)
     }
 
     /// `n` random unit vectors (orientations for double layers), reproducible from `seed`.
