@@ -8,7 +8,7 @@
 //! with SHAPE one of `v0.85` (prolate of that reduced volume), `rbc` (biconcave, Skalak from
 //! `MOBO_SHEAR_MODULUS`, default 0), and the environment:
 //! `MOBO_FLOW` = `shear` (default) | `ext`, `MOBO_KAPPA` (default 0.05), `MOBO_TILT` (degrees
-//! about x, default 0), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`.
+//! about x, default 0), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`, `MOBO_TOL` (GMRES).
 use mobo::sph_harmonics::CoefLayout;
 use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams, VesicleStepper};
 use mobo::timestep::GmresParams;
@@ -79,7 +79,7 @@ fn main() {
         dt,
         upsampled_order: 2 * p,
         gmres: GmresParams {
-            tol: 1e-8,
+            tol: env_f64("MOBO_TOL", 1e-8),
             restart: env_f64("MOBO_RESTART", 200.0) as usize,
             max_iters: 5000,
             ..Default::default()

@@ -73,6 +73,11 @@ pub struct FmmArgs {
     /// eval_first_s the first: GPU pipelines are compiled on first use).
     #[arg(long, default_value_t = 1)]
     repeat: usize,
+    /// Compute the translation operators' fits instead of loading them from (and storing
+    /// them in) the operator cache (`MOBO_OPERATOR_CACHE`, default `~/.cache/mobo/operators`;
+    /// the JSON's `operator_cache` names the directory used).
+    #[arg(long)]
+    no_cache: bool,
     /// Output file, (M,) for Laplace kernels, (M, 3) for vector kernels.
     #[arg(long)]
     out: PathBuf,
@@ -230,6 +235,9 @@ fn read_inputs(a: &FmmArgs, kind: FmmKernel, comm: &dyn Communicator) -> Result<
 
 /// Run `mobo fmm`.
 pub fn fmm(a: FmmArgs) -> Result<(), CliError> {
+    if a.no_cache {
+        mobo::fmm::fit_cache::disable();
+    }
     let comm = world();
     let result = fmm_on(comm.as_ref(), &a);
     match result {
@@ -385,6 +393,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         "boxes": fmm.tree.boxes.len(),
         "threads": rayon::current_num_threads(),
         "setup_s": max(5),
+        "operator_cache": mobo::fmm::fit_cache::dir().map(|d| d.display().to_string()),
         "eval_s": max(2),
         "eval_first_s": eval_first,
         "repeat": a.repeat,

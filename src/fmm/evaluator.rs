@@ -30,7 +30,7 @@ use super::kernels::{
 };
 use super::m2l_fft::{offset_index, FftM2l};
 use super::near_field::{CpuNearField, NearField, NearList, NearPoints};
-use super::operators::{gemm, Translations, DOWN_EQUIV, INNER, UP_CHECK};
+use super::operators::{gemm, Reflection, Translations, DOWN_EQUIV, INNER, UP_CHECK};
 use super::surface::CubeSurface;
 use super::FmmError;
 use crate::comm::{Communicator, SerialComm};
@@ -82,7 +82,7 @@ fn operators_for(kind: FmmKernel, order: usize) -> Result<Operators, FmmError> {
     if let Some(v) = cache.lock().map_err(|_| poisoned())?.get(&key) {
         return Ok(v.clone());
     }
-    let disk = fit_cache::dir_from_env();
+    let disk = fit_cache::dir();
     let (ops, m2l) = rayon::join(
         || Translations::new(equivalent.as_ref(), order, kind.rcond(), disk.as_deref()),
         || FftM2l::new(equivalent.as_ref(), &CubeSurface::new(order)),
@@ -686,7 +686,7 @@ impl Fmm {
                 }
             }
             for (o, g) in groups.iter().enumerate() {
-                gather_gemm_scatter(&self.ops.m2m[o], g, up, &mut check);
+                gather_gemm_scatter(&self.ops.m2m, &self.ops.reflections[o], g, up, &mut check);
             }
             let mut fit = vec![0.0; sel.len() * ne];
             self.ops.up.apply_many(&check, &mut fit);
@@ -748,7 +748,13 @@ impl Fmm {
                     }
                 }
                 for (o, g) in groups.iter().enumerate() {
-                    gather_gemm_scatter(&self.ops.l2l[o], g, &down, &mut check);
+                    gather_gemm_scatter(
+                        &self.ops.l2l,
+                        &self.ops.reflections[o],
+                        g,
+                        &down,
+                        &mut check,
+                    );
                 }
             }
             let mut fit = vec![0.0; sel.len() * ne];
@@ -928,25 +934,27 @@ impl Fmm {
     }
 }
 
-/// For pairs `(dst, src)`: `out[:, dst] += m · x[:, src]` as one GEMM (columns of `x` and
-/// `out` of length `m.ncols()` and `m.nrows()`).
-fn gather_gemm_scatter(m: &faer::Mat<f64>, pairs: &[(usize, usize)], x: &[f64], out: &mut [f64]) {
+/// For pairs `(dst, src)`: `out[:, dst] += T_o · x[:, src]` as one GEMM, with `T_o` octant 0's
+/// translation `m` reflected onto octant `o` (the reflection applied to the gathered inputs
+/// and the scattered outputs; columns of `x` and `out` of length `m.ncols()` and `m.nrows()`).
+fn gather_gemm_scatter(
+    m: &faer::Mat<f64>,
+    reflection: &Reflection,
+    pairs: &[(usize, usize)],
+    x: &[f64],
+    out: &mut [f64],
+) {
     if pairs.is_empty() {
         return;
     }
     let (nr, nc) = (m.nrows(), m.ncols());
     let mut xs = vec![0.0; pairs.len() * nc];
     for (k, &(_, s)) in pairs.iter().enumerate() {
-        xs[k * nc..(k + 1) * nc].copy_from_slice(&x[s * nc..(s + 1) * nc]);
+        reflection.gather(&x[s * nc..(s + 1) * nc], &mut xs[k * nc..(k + 1) * nc]);
     }
     let mut y = vec![0.0; pairs.len() * nr];
     gemm(m, &xs, &mut y, pairs.len());
     for (k, &(d, _)) in pairs.iter().enumerate() {
-        for (o, v) in out[d * nr..(d + 1) * nr]
-            .iter_mut()
-            .zip(&y[k * nr..(k + 1) * nr])
-        {
-            *o += v;
-        }
+        reflection.scatter_add(&y[k * nr..(k + 1) * nr], &mut out[d * nr..(d + 1) * nr]);
     }
 }

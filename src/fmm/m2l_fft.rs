@@ -18,7 +18,7 @@ use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 
 use super::kernels::Kernel;
-use super::operators::INNER;
+use super::operators::{reflection_signs, INNER};
 use super::surface::CubeSurface;
 use rayon::prelude::*;
 
@@ -28,6 +28,12 @@ pub const CHUNK: usize = 32;
 /// Index of the offset `Δ ∈ [−3, 3]³` among the 343 slots.
 pub fn offset_index(d: [i32; 3]) -> usize {
     ((d[0] + 3) * 49 + (d[1] + 3) * 7 + (d[2] + 3)) as usize
+}
+
+/// The reflection of compact sign pattern `o` (bit 2: x negated, bit 1: y, bit 0: z).
+fn reflection_of(o: usize) -> [f64; 3] {
+    let s = |bit: usize| if (o >> bit) & 1 == 1 { -1.0 } else { 1.0 };
+    [s(2), s(1), s(0)]
 }
 
 /// Scratch buffers of one thread.
@@ -45,9 +51,7 @@ pub struct FftM2l {
     pub nf: usize,
     dt: usize,
     de: usize,
-    /// Per offset slot: `dt × de` blocks of `[re; nf] [im; nf]` (empty for unused slots).
-    kernel_hat: Vec<Vec<f64>>,
-    /// The same spectra by frequency chunk: `[chunk][compact offset][a][b][re; CHUNK][im; CHUNK]`.
+    /// The spectra of the 316 offsets (`dt × de` blocks each) by frequency chunk: `[chunk][compact offset][a][b][re; CHUNK][im; CHUNK]`.
     kernel_chunks: Vec<f64>,
     /// Compact index (0..316) of each of the 343 offset slots.
     compact: Vec<u16>,
@@ -59,8 +63,14 @@ pub struct FftM2l {
 }
 
 impl FftM2l {
-    /// Spectra of `ke` for every well-separated offset at unit half-width.
+    /// Spectra of `ke` for every well-separated offset at unit half-width (56 computed, the
+    /// others by reflection where the kernel allows it).
     pub fn new(ke: &dyn Kernel, surf: &CubeSurface) -> Self {
+        Self::build(ke, surf, true)
+    }
+
+    /// [`FftM2l::new`], with (`reflect`) or without the reflections.
+    fn build(ke: &dyn Kernel, surf: &CubeSurface, reflect: bool) -> Self {
         let p = surf.p;
         let n = 2 * p;
         let nh = p + 1;
@@ -75,7 +85,6 @@ impl FftM2l {
             nf,
             dt,
             de,
-            kernel_hat: vec![Vec::new(); 343],
             kernel_chunks: Vec::new(),
             compact: vec![u16::MAX; 343],
             n_chunks: nf.div_ceil(CHUNK),
@@ -83,81 +92,155 @@ impl FftM2l {
             fwd,
             inv,
         };
+        let offsets: Vec<[i32; 3]> = (-3i32..=3)
+            .flat_map(|dx| (-3i32..=3).flat_map(move |dy| (-3i32..=3).map(move |dz| [dx, dy, dz])))
+            .filter(|d| d[0].abs().max(d[1].abs()).max(d[2].abs()) >= 2)
+            .collect();
+        // The offsets with no negative component (56 of 316) directly; the others are their
+        // reflections: with R = sign(d), K(Rx) = S_out K(x) S_in gives the grid samples
+        // g_d(m) = S_out g_|d|(Rm) S_in and the spectra ĝ_d(k) = S_out ĝ_|d|(Rk) S_in.
+        let signs: Vec<Option<(Vec<f64>, Vec<f64>)>> = (0..8)
+            .map(|o| reflection_signs(ke, reflection_of(o)))
+            .collect();
+        let reflect = reflect && signs.iter().all(Option::is_some);
+        let computed: Vec<[i32; 3]> = offsets
+            .iter()
+            .copied()
+            .filter(|d| !reflect || d.iter().all(|&c| c >= 0))
+            .collect();
+        let hats = m2l.spectra(ke, &computed);
+        let mut base: Vec<Option<&Vec<f64>>> = vec![None; 343];
+        for (d, h) in computed.iter().zip(&hats) {
+            base[offset_index(*d)] = Some(h);
+        }
+        // Per reflection pattern: the source frequency of each frequency, and the sign of the
+        // imaginary part (see `reflected_frequency`).
+        let maps: Vec<(Vec<u32>, f64)> = (0..8)
+            .map(|o| m2l.reflected_frequencies(reflection_of(o)))
+            .collect();
+        let nblk = dt * de;
+        // (spectrum, reflection pattern, per-block sign) of each offset, in slot order.
+        let plan: Vec<(&Vec<f64>, usize, Vec<f64>)> = offsets
+            .iter()
+            .map(|d| {
+                let o = if reflect {
+                    (usize::from(d[0] < 0) << 2)
+                        | (usize::from(d[1] < 0) << 1)
+                        | usize::from(d[2] < 0)
+                } else {
+                    0
+                };
+                let src = base[offset_index(d.map(|c| if reflect { c.abs() } else { c }))]
+                    .expect("every source offset computed");
+                let sb = match &signs[o] {
+                    Some((so, si)) if reflect => {
+                        (0..nblk).map(|blk| so[blk / de] * si[blk % de]).collect()
+                    }
+                    _ => vec![1.0; nblk],
+                };
+                (src, o, sb)
+            })
+            .collect();
+        for (k, d) in offsets.iter().enumerate() {
+            m2l.compact[offset_index(*d)] = k as u16;
+        }
+        // The chunked layout (chunk × offset × block × [re; CHUNK][im; CHUNK]), chunks in
+        // parallel.
+        let per_chunk = offsets.len() * nblk * 2 * CHUNK;
+        let mut kc = vec![0.0; m2l.n_chunks * per_chunk];
+        kc.par_chunks_mut(per_chunk)
+            .enumerate()
+            .for_each(|(c, region)| {
+                let fs = c * CHUNK..((c + 1) * CHUNK).min(nf);
+                for (k, (src, o, sb)) in plan.iter().enumerate() {
+                    let (map, conj) = (&maps[*o].0, maps[*o].1);
+                    for (blk, s) in sb.iter().enumerate() {
+                        let h = &src[blk * 2 * nf..(blk + 1) * 2 * nf];
+                        let out = &mut region[(k * nblk + blk) * 2 * CHUNK..][..2 * CHUNK];
+                        for (i, f) in fs.clone().enumerate() {
+                            let g = map[f] as usize;
+                            out[i] = s * h[g];
+                            out[CHUNK + i] = conj * s * h[nf + g];
+                        }
+                    }
+                }
+            });
+        m2l.kernel_chunks = kc;
+        m2l
+    }
+
+    /// Spectra (`dt·de` blocks of `[re; nf][im; nf]`) of the kernel sampled on the doubled
+    /// grid for each offset in `offsets`, in parallel: the direct computation.
+    fn spectra(&self, ke: &dyn Kernel, offsets: &[[i32; 3]]) -> Vec<Vec<f64>> {
+        let (p, n, nf, dt, de) = (self.p, self.n, self.nf, self.dt, self.de);
         let delta = 2.0 * INNER / (p - 1) as f64;
         let scale = 1.0 / (n * n * n) as f64;
-        let mut scratch = m2l.scratch();
-        let real = vec![0.0; n * n * n];
-        let mut unit = vec![0.0; de];
-        let mut val = vec![0.0; dt];
         let wrap = |m: i64| -> usize { m.rem_euclid(n as i64) as usize };
         let lim = p as i64 - 1;
-        for dx in -3i32..=3 {
-            for dy in -3i32..=3 {
-                for dz in -3i32..=3 {
-                    if dx.abs().max(dy.abs()).max(dz.abs()) < 2 {
-                        continue;
-                    }
-                    let mut hat = vec![0.0; dt * de * 2 * nf];
-                    for b in 0..de {
-                        unit.fill(0.0);
-                        unit[b] = 1.0;
-                        // One real grid per output component a.
-                        let mut grids = vec![real.clone(); dt];
-                        for mx in -lim..=lim {
-                            for my in -lim..=lim {
-                                for mz in -lim..=lim {
-                                    let r = [
-                                        2.0 * dx as f64 + delta * mx as f64,
-                                        2.0 * dy as f64 + delta * my as f64,
-                                        2.0 * dz as f64 + delta * mz as f64,
-                                    ];
-                                    val.fill(0.0);
-                                    ke.accumulate(r, &unit, [0.0; 3], &mut val);
-                                    let idx = (wrap(mx) * n + wrap(my)) * n + wrap(mz);
-                                    for a in 0..dt {
-                                        grids[a][idx] = val[a] * scale;
-                                    }
+        offsets
+            .par_iter()
+            .map(|&[dx, dy, dz]| {
+                let mut scratch = self.scratch();
+                let mut unit = vec![0.0; de];
+                let mut val = vec![0.0; dt];
+                let mut hat = vec![0.0; dt * de * 2 * nf];
+                // One real grid per output component a.
+                let mut grids = vec![vec![0.0; n * n * n]; dt];
+                for b in 0..de {
+                    unit.fill(0.0);
+                    unit[b] = 1.0;
+                    for mx in -lim..=lim {
+                        for my in -lim..=lim {
+                            for mz in -lim..=lim {
+                                let r = [
+                                    2.0 * dx as f64 + delta * mx as f64,
+                                    2.0 * dy as f64 + delta * my as f64,
+                                    2.0 * dz as f64 + delta * mz as f64,
+                                ];
+                                val.fill(0.0);
+                                ke.accumulate(r, &unit, [0.0; 3], &mut val);
+                                let idx = (wrap(mx) * n + wrap(my)) * n + wrap(mz);
+                                for a in 0..dt {
+                                    grids[a][idx] = val[a] * scale;
                                 }
                             }
                         }
-                        for (a, g) in grids.iter().enumerate() {
-                            let blk = &mut hat[(a * de + b) * 2 * nf..(a * de + b + 1) * 2 * nf];
-                            m2l.forward_full(g, blk, &mut scratch);
-                        }
                     }
-                    m2l.kernel_hat[offset_index([dx, dy, dz])] = hat;
+                    for (a, g) in grids.iter().enumerate() {
+                        let blk = &mut hat[(a * de + b) * 2 * nf..(a * de + b + 1) * 2 * nf];
+                        self.forward_full(g, blk, &mut scratch);
+                    }
+                }
+                hat
+            })
+            .collect()
+    }
+
+    /// For the reflection `R`: the stored frequency `g(f)` whose value gives frequency `f`
+    /// of the reflected spectrum, `ĝ_R(k) = ĝ(Rk)` (then times the component signs), and the
+    /// sign of the imaginary part: the half spectrum (frequency `(i, j, k)` at
+    /// `(i n + j)(p+1) + k`, `k ≤ p`) has no `−k_z`, so where `R` negates z it reads
+    /// `ĝ(k_x, k_y, −k_z) = conj ĝ(−k_x, −k_y, k_z)` (real samples).
+    fn reflected_frequencies(&self, r: [f64; 3]) -> (Vec<u32>, f64) {
+        let (n, nh) = (self.n, self.p + 1);
+        let neg = |k: usize| (n - k) % n;
+        let flip_z = r[2] < 0.0;
+        let (fx, fy) = if flip_z {
+            (r[0] > 0.0, r[1] > 0.0)
+        } else {
+            (r[0] < 0.0, r[1] < 0.0)
+        };
+        let mut map = Vec::with_capacity(self.nf);
+        for i in 0..n {
+            let si = if fx { neg(i) } else { i };
+            for j in 0..n {
+                let sj = if fy { neg(j) } else { j };
+                for k in 0..nh {
+                    map.push(((si * n + sj) * nh + k) as u32);
                 }
             }
         }
-        // Chunked copy of the spectra.
-        let mut next = 0u16;
-        for (slot, h) in m2l.kernel_hat.iter().enumerate() {
-            if !h.is_empty() {
-                m2l.compact[slot] = next;
-                next += 1;
-            }
-        }
-        let nblk = dt * de;
-        let per_chunk = next as usize * nblk * 2 * CHUNK;
-        let mut kc = vec![0.0; m2l.n_chunks * per_chunk];
-        for (slot, h) in m2l.kernel_hat.iter().enumerate() {
-            if h.is_empty() {
-                continue;
-            }
-            let o = m2l.compact[slot] as usize;
-            for blk in 0..nblk {
-                let src = &h[blk * 2 * nf..(blk + 1) * 2 * nf];
-                for f in 0..nf {
-                    let (c, i) = (f / CHUNK, f % CHUNK);
-                    let base = c * per_chunk + (o * nblk + blk) * 2 * CHUNK;
-                    kc[base + i] = src[f];
-                    kc[base + CHUNK + i] = src[nf + f];
-                }
-            }
-        }
-        m2l.kernel_chunks = kc;
-        m2l.kernel_hat = Vec::new();
-        m2l
+        (map, if flip_z { -1.0 } else { 1.0 })
     }
 
     /// Compact offset index (0..316) of a well-separated offset slot.
@@ -436,6 +519,34 @@ fn hadamard(g: &[f64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize) {
                     }
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fmm::kernels::{Laplace, Stokeslet, StokesletSource};
+
+    /// The spectra obtained by reflecting the 56 offsets with no negative component equal
+    /// the ones computed directly for all 316 offsets.
+    #[test]
+    fn reflected_spectra_equal_the_direct_ones() {
+        let kernels: [&dyn Kernel; 3] = [&Laplace, &Stokeslet, &StokesletSource];
+        for ke in kernels {
+            let surf = CubeSurface::new(4);
+            let (a, b) = (
+                FftM2l::build(ke, &surf, true),
+                FftM2l::build(ke, &surf, false),
+            );
+            let scale = b.kernel_chunks.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let err = a
+                .kernel_chunks
+                .iter()
+                .zip(&b.kernel_chunks)
+                .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+            assert_eq!(a.kernel_chunks.len(), b.kernel_chunks.len());
+            assert!(err <= 1e-13 * scale, "{}: {err:e} of {scale:e}", ke.name());
         }
     }
 }
