@@ -32,6 +32,38 @@ fn p2p(c: &mut Criterion) {
     g.finish();
 }
 
+/// The Laplace and Stokeslet P2P loops on each instruction set this CPU has (one core,
+/// 1024 × 1024 pairs): `cargo bench --bench fmm -- p2p_simd`.
+fn p2p_simd(c: &mut Criterion) {
+    use mobo::fmm::p2p::{self, Simd};
+    let n = 1024;
+    let pts = Cloud::Uniform.points(n, 1);
+    let order: Vec<usize> = (0..n).collect();
+    let mut g = c.benchmark_group("p2p_simd");
+    g.throughput(Throughput::Elements((n * n) as u64));
+    for simd in [Simd::Portable, Simd::Avx2, Simd::Avx512] {
+        if !simd.available() {
+            continue;
+        }
+        for dd in [1, 3] {
+            let mut src = SourceBlock::new(&pts, None, &order);
+            src.set_density(&Cloud::densities(n * dd, 3), dd, &order);
+            let mut out = vec![0.0; n * dd];
+            let name = if dd == 1 { "Laplace" } else { "Stokeslet" };
+            g.bench_function(format!("{name}/{simd:?}"), |b| {
+                b.iter(|| {
+                    if dd == 1 {
+                        p2p::laplace_on(simd, &pts, &src.all(), &mut out)
+                    } else {
+                        p2p::stokeslet_on(simd, &pts, &src.all(), &mut out)
+                    }
+                })
+            });
+        }
+    }
+    g.finish();
+}
+
 fn evaluate(c: &mut Criterion) {
     let mut g = c.benchmark_group("fmm_evaluate");
     g.sample_size(10);
@@ -158,5 +190,5 @@ fn gpu(_c: &mut Criterion) {
     eprintln!("built without the gpu feature: the gpu benchmarks are skipped");
 }
 
-criterion_group!(benches, p2p, evaluate, gpu);
+criterion_group!(benches, p2p, p2p_simd, evaluate, gpu);
 criterion_main!(benches);

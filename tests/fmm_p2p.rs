@@ -7,6 +7,7 @@ use mobo::check::assert_close;
 use mobo::fmm::blocks::SourceBlock;
 use mobo::fmm::clouds::Cloud;
 use mobo::fmm::kernels::{RpyFar, StokesletSource};
+use mobo::fmm::p2p::Simd;
 use mobo::fmm::{p2p, Kernel, Laplace, LaplaceDoubleLayer, Rpy, Stokeslet, Stresslet};
 
 /// Pair-by-pair sum with `Kernel::accumulate` / `coincident` (the reference).
@@ -86,5 +87,50 @@ fn block_loops_match_pairwise_kernels() {
         p2p::stokeslet(&t, &b3.all(), &mut x);
         p2p::stokeslet_portable(&t, &b3.all(), &mut y);
         assert_close(&format!("stokeslet avx2/portable {scale:e}"), &x, &y, 1e-13);
+    }
+}
+
+/// Every instruction set this CPU has (portable, AVX2, AVX-512) against the pair-by-pair sum,
+/// for every source count from 0 to 19 (all remainders of four- and eight-wide steps) and at
+/// scales outside single precision's range; the ones the CPU lacks say so.
+#[test]
+fn every_instruction_set_matches_the_pairwise_sum() {
+    let sets = [Simd::Portable, Simd::Avx2, Simd::Avx512];
+    let available: Vec<Simd> = sets.into_iter().filter(|s| s.available()).collect();
+    println!(
+        "instruction sets here: {available:?} (best {:?})",
+        Simd::best()
+    );
+    for scale in [1.0, 1e-17, 1e17] {
+        let (s_all, t, n_all) = cases(scale);
+        for ns in 0..20 {
+            let s = &s_all[..ns];
+            let n = &n_all[..ns];
+            let order: Vec<usize> = (0..ns).collect();
+            for (k, dd) in [(&Laplace as &dyn Kernel, 1), (&Stokeslet as &dyn Kernel, 3)] {
+                let q = Cloud::densities(ns * dd, 7);
+                let mut blk = SourceBlock::new(s, None, &order);
+                blk.set_density(&q, dd, &order);
+                let want = pairwise(k, &t, s, n, &q);
+                for simd in sets {
+                    let mut got = vec![0.0; want.len()];
+                    let ran = if dd == 1 {
+                        p2p::laplace_on(simd, &t, &blk.all(), &mut got)
+                    } else {
+                        p2p::stokeslet_on(simd, &t, &blk.all(), &mut got)
+                    };
+                    assert_eq!(ran, simd.available(), "{simd:?}");
+                    if ran {
+                        let what = format!("{} {simd:?} {ns} sources, scale {scale:e}", k.name());
+                        assert_close(&what, &got, &want, 1e-13);
+                    } else {
+                        assert!(
+                            got.iter().all(|v| *v == 0.0),
+                            "{simd:?} wrote without running"
+                        );
+                    }
+                }
+            }
+        }
     }
 }
