@@ -125,7 +125,7 @@ fn main() {
     let sht = mobo::sph_harmonics::ShTransform::new(p).unwrap();
     let mut ws = sht.workspace();
     let mut sig_c = vec![0.0; lay.len()];
-    println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s");
+    println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s  |u_n|_rms |u_t|_rms  |dX/dt|_rms");
     let (mut sum, mut max) = (0usize, 0usize);
     let start = std::time::Instant::now();
     // Summary: iterations per window of 100 steps against the first window, drifts, grid.
@@ -144,6 +144,7 @@ fn main() {
     let mut j_max = j_start;
     let case = std::env::var("MOBO_CASE").unwrap_or_else(|_| shape.clone());
     for k in 1..=steps {
+        let coefs_old = coefs.clone();
         let r = match stepper.step(&mut coefs, &flow) {
             Ok(r) => r,
             Err(e) => {
@@ -189,8 +190,34 @@ fn main() {
             }
             sht.forward(&stepper.sigma, &mut sig_c, &mut ws).unwrap();
             let smax = stepper.sigma.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            // The membrane velocity of the last solve, split into normal and tangential parts
+            // (root mean square over the grid points).
+            // The displacement the step actually made (after the reparametrisation and the
+            // drift correction), as a velocity: rms over the grid.
+            let disp = {
+                let diff: Vec<f64> = coefs
+                    .iter()
+                    .zip(&coefs_old)
+                    .map(|(a, b)| (a - b) / dt)
+                    .collect();
+                let mut grid = vec![0.0; 3 * g.normal.len()];
+                sht.inverse(&diff, &mut grid, &mut ws).unwrap();
+                (grid.iter().map(|v| v * v).sum::<f64>() / g.normal.len() as f64).sqrt()
+            };
+            let (mut un2, mut ut2) = (0.0, 0.0);
+            if let Some(u) = stepper.velocity() {
+                let n = g.normal.len();
+                for (j, nv) in g.normal.iter().enumerate() {
+                    let uj = [u[j], u[n + j], u[2 * n + j]];
+                    let un = uj[0] * nv[0] + uj[1] * nv[1] + uj[2] * nv[2];
+                    un2 += un * un;
+                    ut2 += uj.iter().map(|c| c * c).sum::<f64>() - un * un;
+                }
+                un2 /= n as f64;
+                ut2 /= n as f64;
+            }
             println!(
-                "{:8.3} {:7.1} {:5} {:10.2e} {:10.2e} {:8.3} {:6.3} {:9.2e} {:9.2e} {:9.3e} {:7.1}",
+                "{:8.3} {:7.1} {:5} {:10.2e} {:10.2e} {:8.3} {:6.3} {:9.2e} {:9.2e} {:9.3e} {:7.1} {:9.2e} {:9.2e} {:9.2e}",
                 k as f64 * dt,
                 sum as f64 / every as f64,
                 max,
@@ -201,7 +228,10 @@ fn main() {
                 high_share(&lay, &coefs),
                 high_share(&lay, &sig_c),
                 smax,
-                start.elapsed().as_secs_f64()
+                start.elapsed().as_secs_f64(),
+                un2.sqrt(),
+                ut2.max(0.0).sqrt(),
+                disp
             );
             sum = 0;
             max = 0;
