@@ -8,16 +8,18 @@
 //! later runs, other ranks):
 //!
 //! * `MOBO_OPERATOR_CACHE=DIR` names the directory; `MOBO_OPERATOR_CACHE=off` (or empty, `0`,
-//!   `none`, `false`) turns the cache off;
+//!   `none`, `false`, `no`, in any case) turns the cache off;
 //! * otherwise the per-user cache directory: `$XDG_CACHE_HOME/mobo/operators`, else
 //!   `$HOME/.cache/mobo/operators`;
 //! * [`disable`] turns it off for the process (`mobo fmm --no-cache`).
 //!
-//! A file holds one [`Pinv`] and is named by a hash of everything the fit depends on (kernel,
-//! order, truncation, surface radii) and by the file format ([`FORMAT`]): a file that does not
+//! A file holds one [`Pinv`] and is named by a hash of everything the fit depends on (kernel
+//! name and its values at two fixed points, order, truncation, surface radii) and by the file
+//! format ([`FORMAT`]): a file that does not
 //! match its key, is truncated, or fails its checksum is ignored and rewritten. Files are
 //! written atomically (a temporary name unique to the process and the call, then a rename), so
-//! processes, ranks and threads that compute the same fit at once leave one whole file.
+//! processes, ranks and threads that compute the same fit at once leave one whole file. A
+//! directory that cannot be written is reported once ([`warn_once`]) and the run goes on.
 //!
 //! ```
 //! use mobo::fmm::fit_cache::{load, store};
@@ -61,6 +63,15 @@ pub enum FitCacheError {
     Write { path: PathBuf, reason: String },
 }
 
+/// Print a store failure once per process (on standard error): the fits are then computed in
+/// every run, which is slow but correct.
+pub fn warn_once(e: &FitCacheError) {
+    static WARNED: std::sync::Once = std::sync::Once::new();
+    WARNED.call_once(|| {
+        eprintln!("mobo: warning: {e}; the FMM fits will be recomputed in every run (set {ENV}=off to silence, or {ENV}=DIR for a writable directory)");
+    });
+}
+
 /// Turn the disk cache off for the rest of this process (`mobo fmm --no-cache`): fits are
 /// computed, neither loaded nor stored.
 pub fn disable() {
@@ -87,7 +98,8 @@ fn resolve(
     home: Option<OsString>,
 ) -> Option<PathBuf> {
     if let Some(v) = env {
-        let off = ["", "off", "0", "none", "false"].contains(&v.to_string_lossy().as_ref());
+        let s = v.to_string_lossy().to_ascii_lowercase();
+        let off = ["", "off", "0", "none", "false", "no"].contains(&s.as_str());
         return (!off).then(|| PathBuf::from(v));
     }
     let nonempty = |v: Option<OsString>| v.filter(|v| !v.is_empty()).map(PathBuf::from);
@@ -276,7 +288,7 @@ mod tests {
             resolve(os("/c"), os("/x"), os("/h")),
             Some(PathBuf::from("/c"))
         );
-        for off in ["off", "", "0", "none"] {
+        for off in ["off", "", "0", "none", "false", "OFF", "No"] {
             assert_eq!(resolve(os(off), os("/x"), os("/h")), None, "{off:?}");
         }
         let xdg = Some(PathBuf::from("/x/mobo/operators"));

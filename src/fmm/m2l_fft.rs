@@ -114,7 +114,7 @@ impl FftM2l {
             base[offset_index(*d)] = Some(h);
         }
         // Per reflection pattern: the source frequency of each frequency, and the sign of the
-        // imaginary part (see `reflected_frequency`).
+        // imaginary part (see `reflected_frequencies`).
         let maps: Vec<(Vec<u32>, f64)> = (0..8)
             .map(|o| m2l.reflected_frequencies(reflection_of(o)))
             .collect();

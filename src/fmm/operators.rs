@@ -119,6 +119,9 @@ impl Pinv {
 pub fn kernel_matrix(k: &dyn Kernel, xs: &[[f64; 3]], ys: &[[f64; 3]]) -> Mat<f64> {
     let (dt, de) = (k.output_dim(), k.density_dim());
     let rows = xs.len() * dt;
+    if rows == 0 || ys.is_empty() {
+        return Mat::zeros(rows, ys.len() * de);
+    }
     // Column-major, the `de` columns of one source at a time, sources in parallel.
     let mut data = vec![0.0; rows * ys.len() * de];
     data.par_chunks_mut(rows * de)
@@ -331,10 +334,21 @@ impl Translations {
                 .collect()
         };
         let zero = [0.0; 3];
-        // Everything a fit depends on, for the cache.
+        // Everything a fit depends on, for the cache: also the kernel's values at two fixed
+        // points (to the bit), so that a changed kernel or normalisation never loads old fits.
+        let fingerprint: Vec<String> = [[0.3, -0.5, 0.7], [1.1, 0.2, -0.4]]
+            .iter()
+            .flat_map(|&r| {
+                let mut o = vec![0.0; ke.output_dim()];
+                let unit: Vec<f64> = (0..ke.density_dim()).map(|b| 1.0 + b as f64).collect();
+                ke.accumulate(r, &unit, [0.0; 3], &mut o);
+                o.into_iter().map(|v| format!("{:016x}", v.to_bits()))
+            })
+            .collect();
+        let fingerprint = fingerprint.join("");
         let key = |what: &str, check: f64, equiv: f64| {
             format!(
-                "{what} fit of {} p={p} rcond={rcond:e} check={check:e} equiv={equiv:e}",
+                "{what} fit of {} p={p} rcond={rcond:e} check={check:e} equiv={equiv:e} kernel={fingerprint}",
                 ke.name()
             )
         };
@@ -348,7 +362,11 @@ impl Translations {
                 rcond,
             )?;
             if let Some(dir) = cache {
-                fit_cache::store(dir, &key, &f)?;
+                // A cache that cannot be written (read-only home, full disk) costs time, not
+                // the result: say so once and go on.
+                if let Err(e) = fit_cache::store(dir, &key, &f) {
+                    fit_cache::warn_once(&e);
+                }
             }
             Ok(f)
         };
@@ -416,6 +434,29 @@ pub fn gemm(m: &Mat<f64>, x: &[f64], out: &mut [f64], cols: usize) {
 mod tests {
     use super::*;
     use crate::fmm::kernels::{Laplace, Stokeslet, StokesletSource};
+
+    /// A cache directory that cannot be created (a path below a regular file: refused even to
+    /// root) costs the fits' time, not the setup; a writable one is filled and then used.
+    #[test]
+    fn an_unwritable_cache_does_not_fail_the_setup() {
+        let file = std::env::temp_dir().join(format!("mobo-not-a-dir-{}", std::process::id()));
+        std::fs::write(&file, b"x").unwrap();
+        let bad = file.join("cache");
+        let t = Translations::new(&Laplace, 4, 1e-12, Some(&bad)).unwrap();
+        let direct = Translations::new(&Laplace, 4, 1e-12, None).unwrap();
+        assert_eq!(t.up.vs, direct.up.vs);
+        std::fs::remove_file(&file).unwrap();
+        let good = std::env::temp_dir().join(format!("mobo-fit-dir-{}", std::process::id()));
+        let first = Translations::new(&Laplace, 4, 1e-12, Some(&good)).unwrap();
+        assert_eq!(
+            std::fs::read_dir(&good).unwrap().count(),
+            2,
+            "two fits stored"
+        );
+        let second = Translations::new(&Laplace, 4, 1e-12, Some(&good)).unwrap();
+        assert_eq!((first.down.ut, first.up.vs), (second.down.ut, second.up.vs));
+        std::fs::remove_dir_all(&good).unwrap();
+    }
 
     /// Every octant's M2M and L2L from octant 0's by reflection equal the kernel matrices
     /// formed directly, for each equivalent kernel.

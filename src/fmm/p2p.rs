@@ -202,7 +202,7 @@ dispatched!(
     stokeslet_portable, stokeslet_body, ()
 );
 
-/// Stokeslet `Σ (1/8π)(I/|r| + r rᵀ/|r|³) f`: AVX2 intrinsics where available.
+/// Stokeslet `Σ (1/8π)(I/|r| + r rᵀ/|r|³) f`: AVX-512 or AVX2 intrinsics where available.
 pub fn stokeslet(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
     stokeslet_on(Simd::best(), t, s, out);
 }
