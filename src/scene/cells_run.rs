@@ -888,13 +888,13 @@ pub fn run_on(
         let last = ends_run(k, prog.time);
         stopped = !last && (interrupted || limited);
         let t0 = Instant::now();
-        if last || k as u64 % scene.output_every == 0 {
+        if last || (k as u64).is_multiple_of(scene.output_every) {
             gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, prog.time)?;
             if let Some(f) = &frames {
                 prog.frame_times = f.times().to_vec();
             }
         }
-        if stopped || last || k as u64 % scene.output.checkpoint_every == 0 {
+        if stopped || last || (k as u64).is_multiple_of(scene.output.checkpoint_every) {
             prog.wall_s = wall0 + start.elapsed().as_secs_f64();
             let states = gather_states(comm, &susp, ncoef, n)?;
             let saved = match states {

@@ -273,7 +273,7 @@ pub fn run(
         let s = sys.step;
         if s > scene.equilibrate
             && s <= sample_end
-            && (s - scene.equilibrate) % scene.sample_every == 0
+            && (s - scene.equilibrate).is_multiple_of(scene.sample_every)
         {
             sampler.sample(&sys);
         }

@@ -246,7 +246,7 @@ impl ShTransform {
     fn check_batch(&self, grid_len: usize, coef_len: usize) -> Result<usize, SphError> {
         let np = self.n_points();
         let nc = self.n_coefs();
-        if grid_len % np != 0 {
+        if !grid_len.is_multiple_of(np) {
             return Err(SphError::GridLength {
                 len: grid_len,
                 per_function: np,
@@ -392,7 +392,7 @@ impl ShTransform {
             });
         }
         let nc = self.n_coefs();
-        if coefs.len() % nc != 0 {
+        if !coefs.len().is_multiple_of(nc) {
             return Err(SphError::CoefLength {
                 len: coefs.len(),
                 expected: (coefs.len() / nc) * nc,
