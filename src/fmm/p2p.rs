@@ -153,20 +153,44 @@ pub fn laplace(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
 /// [`laplace`] on the instruction set `simd`; `false` (and nothing added) where the CPU does
 /// not have it.
 pub fn laplace_on(simd: Simd, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) -> bool {
-    if !simd.available() {
-        return false;
-    }
-    match simd {
-        Simd::Portable => laplace_portable(t, s, out),
-        // SAFETY: the CPU supports the instruction set (checked just above).
+    Variants {
+        portable: laplace_portable,
         #[cfg(target_arch = "x86_64")]
-        Simd::Avx2 => unsafe { avx2::laplace(t, s, out) },
+        avx2: avx2::laplace,
         #[cfg(target_arch = "x86_64")]
-        Simd::Avx512 => unsafe { avx512::laplace(t, s, out) },
-        #[cfg(not(target_arch = "x86_64"))]
-        _ => return false,
+        avx512: avx512::laplace,
     }
-    true
+    .run(simd, t, s, out)
+}
+
+/// One loop on each instruction set.
+struct Variants {
+    portable: fn(&[[f64; 3]], &SourceView, &mut [f64]),
+    #[cfg(target_arch = "x86_64")]
+    avx2: unsafe fn(&[[f64; 3]], &SourceView, &mut [f64]),
+    #[cfg(target_arch = "x86_64")]
+    avx512: unsafe fn(&[[f64; 3]], &SourceView, &mut [f64]),
+}
+
+impl Variants {
+    /// Run the `simd` one; `false` (and nothing added) where the CPU does not have it.
+    fn run(&self, simd: Simd, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) -> bool {
+        if !simd.available() {
+            return false;
+        }
+        match simd {
+            Simd::Portable => (self.portable)(t, s, out),
+            // SAFETY: the CPU supports the instruction set (checked just above).
+            #[cfg(target_arch = "x86_64")]
+            Simd::Avx2 => unsafe { (self.avx2)(t, s, out) },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            Simd::Avx512 => unsafe { (self.avx512)(t, s, out) },
+            #[cfg(not(target_arch = "x86_64"))]
+            _ => return false,
+        }
+        true
+    }
 }
 
 #[inline(always)]
@@ -210,20 +234,14 @@ pub fn stokeslet(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
 /// [`stokeslet`] on the instruction set `simd`; `false` (and nothing added) where the CPU
 /// does not have it.
 pub fn stokeslet_on(simd: Simd, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) -> bool {
-    if !simd.available() {
-        return false;
-    }
-    match simd {
-        Simd::Portable => stokeslet_portable(t, s, out),
-        // SAFETY: the CPU supports the instruction set (checked just above).
+    Variants {
+        portable: stokeslet_portable,
         #[cfg(target_arch = "x86_64")]
-        Simd::Avx2 => unsafe { avx2::stokeslet(t, s, out) },
+        avx2: avx2::stokeslet,
         #[cfg(target_arch = "x86_64")]
-        Simd::Avx512 => unsafe { avx512::stokeslet(t, s, out) },
-        #[cfg(not(target_arch = "x86_64"))]
-        _ => return false,
+        avx512: avx512::stokeslet,
     }
-    true
+    .run(simd, t, s, out)
 }
 
 #[inline(always)]
