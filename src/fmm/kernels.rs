@@ -42,6 +42,21 @@ pub trait Kernel: Sync {
     fn accumulate(&self, r: [f64; 3], density: &[f64], normal: [f64; 3], out: &mut [f64]);
     /// Add the contribution of a source coincident with the target (`r = 0`).
     fn coincident(&self, _density: &[f64], _out: &mut [f64]) {}
+    /// The kernel as a matrix at `r ≠ 0` (no normal): `out[a·de + b]` is output component `a`
+    /// of a unit density in component `b` (`output_dim × density_dim`, both at most 4).
+    fn tensor(&self, r: [f64; 3], out: &mut [f64]) {
+        let (dt, de) = (self.output_dim(), self.density_dim());
+        let (mut unit, mut o) = ([0.0; 4], [0.0; 4]);
+        for b in 0..de {
+            unit[..de].fill(0.0);
+            unit[b] = 1.0;
+            o[..dt].fill(0.0);
+            self.accumulate(r, &unit[..de], [0.0; 3], &mut o[..dt]);
+            for a in 0..dt {
+                out[a * de + b] = o[a];
+            }
+        }
+    }
     /// Add the field of a block of sources at every target (`output_dim` values per target in
     /// `out`). The default loops over pairs with [`Kernel::accumulate`]; the kernels of this
     /// module override it with the vectorised loops of [`super::p2p`].

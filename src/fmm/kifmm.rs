@@ -29,6 +29,7 @@ use rayon::prelude::*;
 
 use super::kernels::Kernel;
 use super::octree::{Lists, Octree};
+use super::operators::kernel_matrix;
 use super::FmmError;
 
 pub use super::operators::{DOWN_EQUIV, INNER, UP_CHECK};
@@ -117,36 +118,16 @@ impl<'k, KS: Kernel, KE: Kernel> Kifmm<'k, KS, KE> {
         let tree = Octree::new(sources, targets, leaf_size);
         let lists = tree.lists();
         let surf = cube_surface(order);
-        let (dt, de) = (ke.output_dim(), ke.density_dim());
-        let n = surf.len();
         let mut up = Vec::new();
         let mut down = Vec::new();
         for level in 0..tree.depth() {
             let h = tree.nodes[0].half / f64::powi(2.0, level as i32);
             // Equivalent → check kernel matrices for a box centred at the origin.
             let matrix = |eq_r: f64, ck_r: f64| {
-                let mut m = Mat::<f64>::zeros(n * dt, n * de);
-                let mut unit = vec![0.0; de];
-                let mut o = vec![0.0; dt];
-                for (i, c) in surf.iter().enumerate() {
-                    for (j, e) in surf.iter().enumerate() {
-                        let r = [
-                            (c[0] * ck_r - e[0] * eq_r) * h,
-                            (c[1] * ck_r - e[1] * eq_r) * h,
-                            (c[2] * ck_r - e[2] * eq_r) * h,
-                        ];
-                        for b in 0..de {
-                            unit.fill(0.0);
-                            unit[b] = 1.0;
-                            o.fill(0.0);
-                            ke.accumulate(r, &unit, [0.0; 3], &mut o);
-                            for a in 0..dt {
-                                m[(i * dt + a, j * de + b)] = o[a];
-                            }
-                        }
-                    }
-                }
-                m
+                let at = |rho: f64| -> Vec<[f64; 3]> {
+                    surf.iter().map(|c| c.map(|v| v * rho * h)).collect()
+                };
+                kernel_matrix(ke, &at(ck_r), &at(eq_r))
             };
             up.push(pinv(&matrix(INNER, UP_CHECK), RCOND)?);
             down.push(pinv(&matrix(DOWN_EQUIV, INNER), RCOND)?);

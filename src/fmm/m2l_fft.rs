@@ -18,7 +18,7 @@ use rustfft::num_complex::Complex64;
 use rustfft::{Fft, FftPlanner};
 
 use super::kernels::Kernel;
-use super::operators::{reflection_signs, INNER};
+use super::operators::{reflection_of, reflection_signs, INNER};
 use super::surface::CubeSurface;
 use rayon::prelude::*;
 
@@ -28,12 +28,6 @@ pub const CHUNK: usize = 32;
 /// Index of the offset `Δ ∈ [−3, 3]³` among the 343 slots.
 pub fn offset_index(d: [i32; 3]) -> usize {
     ((d[0] + 3) * 49 + (d[1] + 3) * 7 + (d[2] + 3)) as usize
-}
-
-/// The reflection of compact sign pattern `o` (bit 2: x negated, bit 1: y, bit 0: z).
-fn reflection_of(o: usize) -> [f64; 3] {
-    let s = |bit: usize| if (o >> bit) & 1 == 1 { -1.0 } else { 1.0 };
-    [s(2), s(1), s(0)]
 }
 
 /// Scratch buffers of one thread.

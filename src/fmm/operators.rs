@@ -127,17 +127,13 @@ pub fn kernel_matrix(k: &dyn Kernel, xs: &[[f64; 3]], ys: &[[f64; 3]]) -> Mat<f6
     data.par_chunks_mut(rows * de)
         .zip(ys.par_iter())
         .for_each(|(cols, y)| {
-            let mut unit = vec![0.0; de];
-            let mut o = vec![0.0; dt];
-            for b in 0..de {
-                unit.fill(0.0);
-                unit[b] = 1.0;
-                let col = &mut cols[b * rows..(b + 1) * rows];
-                for (i, x) in xs.iter().enumerate() {
-                    let r = [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
-                    o.fill(0.0);
-                    k.accumulate(r, &unit, [0.0; 3], &mut o);
-                    col[i * dt..(i + 1) * dt].copy_from_slice(&o);
+            let mut t = [0.0; 16];
+            for (i, x) in xs.iter().enumerate() {
+                k.tensor([x[0] - y[0], x[1] - y[1], x[2] - y[2]], &mut t);
+                for a in 0..dt {
+                    for b in 0..de {
+                        cols[b * rows + i * dt + a] = t[a * de + b];
+                    }
                 }
             }
         });
@@ -176,6 +172,13 @@ pub struct Translations {
     pub reflections: Vec<Reflection>,
 }
 
+/// The reflection with bit 2 of `o` negating x, bit 1 y, bit 0 z: it maps octant 0 onto octant
+/// `o`, and an offset `|d|` onto `d` when the bits are the signs of `d`.
+pub(crate) fn reflection_of(o: usize) -> [f64; 3] {
+    let s = |bit: usize| if (o >> bit) & 1 == 1 { -1.0 } else { 1.0 };
+    [s(2), s(1), s(0)]
+}
+
 /// The component signs of kernel `ke` under the reflection `r` (a diagonal of ±1):
 /// `(s_out, s_in)` with `K(Rx) = diag(s_out) K(x) diag(s_in)`, found at a generic point and
 /// checked on every entry there; `None` if the kernel is not equivariant under `r`.
@@ -185,17 +188,7 @@ pub(crate) fn reflection_signs(ke: &dyn Kernel, r: [f64; 3]) -> Option<(Vec<f64>
     let rx = [r[0] * x[0], r[1] * x[1], r[2] * x[2]];
     let tensor = |y: [f64; 3]| -> Vec<f64> {
         let mut k = vec![0.0; dt * de];
-        let mut unit = vec![0.0; de];
-        let mut o = vec![0.0; dt];
-        for b in 0..de {
-            unit.fill(0.0);
-            unit[b] = 1.0;
-            o.fill(0.0);
-            ke.accumulate(y, &unit, [0.0; 3], &mut o);
-            for a in 0..dt {
-                k[a * de + b] = o[a];
-            }
-        }
+        ke.tensor(y, &mut k);
         k
     };
     let (k, kr) = (tensor(x), tensor(rx));
@@ -238,8 +231,8 @@ impl Reflection {
     /// The reflection mapping octant 0 onto octant `o`, for kernel `ke` on `surf`; an error
     /// if the kernel is not equivariant under it (checked at a generic point).
     pub fn new(ke: &dyn Kernel, surf: &CubeSurface, o: usize) -> Result<Self, FmmError> {
-        let (s0, so) = (octant_sign(0), octant_sign(o));
-        let r = [s0[0] * so[0], s0[1] * so[1], s0[2] * so[2]];
+        // Octant 0 is (−, −, −): octant o's signs are its own where its bits are 0.
+        let r = reflection_of(o);
         let p = surf.p;
         let index: std::collections::HashMap<[usize; 3], usize> = surf
             .lattice
@@ -339,10 +332,9 @@ impl Translations {
         let fingerprint: Vec<String> = [[0.3, -0.5, 0.7], [1.1, 0.2, -0.4]]
             .iter()
             .flat_map(|&r| {
-                let mut o = vec![0.0; ke.output_dim()];
-                let unit: Vec<f64> = (0..ke.density_dim()).map(|b| 1.0 + b as f64).collect();
-                ke.accumulate(r, &unit, [0.0; 3], &mut o);
-                o.into_iter().map(|v| format!("{:016x}", v.to_bits()))
+                let mut t = vec![0.0; ke.output_dim() * ke.density_dim()];
+                ke.tensor(r, &mut t);
+                t.into_iter().map(|v| format!("{:016x}", v.to_bits()))
             })
             .collect();
         let fingerprint = fingerprint.join("");
