@@ -259,3 +259,51 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
     let e = parse(file(), "[[cells]]\nshape = \"sphere\"\nradius = -1.0\n").unwrap_err();
     assert_eq!(e.place.map(|p| p.0), Some(3));
 }
+
+/// Two `[[cells]]` groups placed at random in the same region: the second keeps clear of the
+/// first (a user's mixed suspension), and a region asked to hold too much says how much.
+#[test]
+fn random_groups_in_one_region_do_not_overlap() {
+    let text = r#"
+[[cells]]
+shape = "rbc"
+count = 12
+placement = "random"
+region = [[0, 0, 0], [9, 9, 9]]
+seed = 3
+
+[[cells]]
+shape = "sphere"
+radius = 0.8
+count = 12
+placement = "random"
+region = [[0, 0, 0], [9, 9, 9]]
+seed = 3
+"#;
+    let scene = parse(file(), text).expect("two random groups fit in a 9³ region");
+    assert_eq!(scene.cells.len(), 24);
+    // Independent check of every pair's bounding spheres (the parser's own check aside).
+    for (i, a) in scene.cells.iter().enumerate() {
+        for b in &scene.cells[..i] {
+            let d = (0..3)
+                .map(|k| (a.center[k] - b.center[k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            assert!(
+                d >= a.bounding_radius + b.bounding_radius,
+                "cells overlap: {d}"
+            );
+        }
+    }
+    // A third group asking for more than the region has left.
+    let crowded = format!(
+        "{text}\n[[cells]]\nshape = \"sphere\"\ncount = 80\nplacement = \"random\"\nregion = [[0, 0, 0], [9, 9, 9]]\n"
+    );
+    let e = parse(file(), &crowded)
+        .expect_err("the region is too full")
+        .to_string();
+    assert!(e.contains("could only place"), "{e}");
+    assert!(e.contains("of 80 cells"), "{e}");
+    assert!(e.contains("volume fraction of"), "{e}");
+    assert!(e.contains("earlier [[cells]] entries already take"), "{e}");
+}

@@ -24,6 +24,9 @@
 //! viscosity_ratio = 1.0           # λ = μ_in / μ_out
 //! force = [0.0, 0.0, 0.0]         # body force per cell
 //! # count = 27, placement = "lattice" | "random", spacing = 3.0, region = [[..], [..]], seed = 1
+//! # random placement keeps every cell's bounding sphere 5 % clear of the others', those of
+//! # earlier [[cells]] entries included (groups may share a region); a region that cannot hold
+//! # the count is an error giving how many were placed and the volume fraction asked.
 //!
 //! [numerics]
 //! order = 12                      # SH order p
@@ -652,7 +655,8 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
     }
     let mut cells = Vec::new();
     for (k, c) in sections.iter().enumerate() {
-        cells.extend(cell_specs(c, k, &at, &positive, &finite, text)?);
+        let group = cell_specs(c, k, &cells, &at, &positive, &finite, text)?;
+        cells.extend(group);
     }
     check_overlaps(&cells, file)?;
     let mut effects = effects(&cells, &flow);
@@ -683,9 +687,11 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
 type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
 type Check<'a> = dyn Fn(&Spanned<f64>, &str) -> Result<f64, SceneError> + 'a;
 
+/// The cells of `[[cells]]` entry `k`; random placement keeps clear of the `earlier` entries' cells.
 fn cell_specs(
     c: &CellSection,
     k: usize,
+    earlier: &[CellSpec],
     at: &At,
     positive: &Check,
     finite: &Check,
@@ -853,23 +859,50 @@ fn cell_specs(
             }
             let mut rng = StdRng::seed_from_u64(c.seed.unwrap_or(1));
             let mut out: Vec<[f64; 3]> = Vec::with_capacity(count);
+            // Bounding spheres 5 % apart, from this entry's cells and from earlier entries'.
             let gap = 2.0 * bounding * 1.05;
+            let clear_of_earlier = |x: [f64; 3]| {
+                earlier
+                    .iter()
+                    .all(|e| dist(x, e.center) >= 1.05 * (bounding + e.bounding_radius))
+            };
             let mut tries = 0usize;
             while out.len() < count {
                 tries += 1;
                 if tries > 1000 * count {
+                    let volume: f64 = (0..3).map(|d| hi[d] - lo[d]).product();
+                    let cell = 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3);
+                    let inside = |e: &&CellSpec| {
+                        (0..3).all(|d| e.center[d] >= lo[d] && e.center[d] <= hi[d])
+                    };
+                    let taken: f64 = earlier
+                        .iter()
+                        .filter(inside)
+                        .map(|e| 4.0 / 3.0 * std::f64::consts::PI * e.radius.powi(3))
+                        .sum();
                     return Err(at(
                         r.span(),
                         format!(
-                            "{}: could only place {} of {count} cells without overlap",
+                            "{}: could only place {} of {count} cells without overlap: they ask for a \
+                             volume fraction of {:.1} % of the region{}; enlarge the region or lower \
+                             the count",
                             key("region"),
-                            out.len()
+                            out.len(),
+                            100.0 * count as f64 * cell / volume,
+                            if taken > 0.0 {
+                                format!(
+                                    ", where earlier [[cells]] entries already take {:.1} %",
+                                    100.0 * taken / volume
+                                )
+                            } else {
+                                String::new()
+                            }
                         ),
                     ));
                 }
                 let x: [f64; 3] =
                     std::array::from_fn(|d| rng.random_range(lo[d] + bounding..hi[d] - bounding));
-                if out.iter().all(|y| dist(x, *y) >= gap) {
+                if out.iter().all(|y| dist(x, *y) >= gap) && clear_of_earlier(x) {
                     out.push(x);
                 }
             }
