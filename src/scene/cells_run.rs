@@ -38,6 +38,7 @@ use serde::Serialize;
 use super::cells::{CellScene, Effect, Flow, Scheme};
 use super::cells_checkpoint::{self, Progress, Split};
 use super::cells_partition::{self, Reason};
+use super::cells_step::{accepted_step, step_error};
 use crate::comm::{spread, CommError, Communicator, SerialComm};
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
@@ -336,16 +337,6 @@ pub fn build_part(
             .map_err(|e| step_error(0, 0.0, e))?;
     }
     Ok(susp)
-}
-
-/// A failed step `step` (that was to reach `time`) as a run error, the cell numbered from 1.
-fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
-    CellRunError::Step {
-        step,
-        time,
-        cell: e.cell.map(|c| c + 1),
-        source: Box::new(e.source),
-    }
 }
 
 /// [`crate::comm::agreed`] with communication failures as [`CellRunError::Comm`].
@@ -765,7 +756,7 @@ pub fn run_on(
         )?;
         dl_assemblies += held - dl_count(&susp).min(held);
         k += 1;
-        let mut dt_try = match &adaptive {
+        let dt_try = match &adaptive {
             None => dt,
             Some(_) => prog.dt.min(scene.numerics.t_end - prog.time),
         };
@@ -776,56 +767,24 @@ pub fn run_on(
             }
         }
         let t = Instant::now();
-        let snapshot = adaptive.as_ref().map(|_| susp.snapshot());
-        let report = loop {
-            if adaptive.is_some() {
-                susp.set_dt(dt_try)
-                    .map_err(|e| step_error(k, prog.time + dt_try, e))?;
-            }
-            let report = match susp.step_on(comm, &|x| flow.velocity(x)) {
-                Ok(r) => r,
-                Err(e) => {
-                    // A solve that failed (stagnated, out of iterations) is retried smaller
-                    // with adaptive dt, from the snapshot, down to dt_min.
-                    let retry = match (&adaptive, &snapshot) {
-                        (Some(ctl), Some(snap)) if e.source.is_solver_failure() => {
-                            ctl.after_failure(dt_try).map(|d| (d, snap))
-                        }
-                        _ => None,
-                    };
-                    let Some((smaller, snap)) = retry else {
-                        return Err(step_error(k, prog.time + dt_try, e));
-                    };
-                    prog.rejected += 1;
-                    susp.restore(snap)
-                        .map_err(|e| step_error(k, prog.time + dt_try, e))?;
-                    dt_try = smaller.min(scene.numerics.t_end - prog.time);
-                    continue;
-                }
-            };
-            // The largest error over all ranks (a NaN counts as infinite).
-            let (local, _) = report.area_volume_error();
-            let mut error = [if local.is_nan() { f64::INFINITY } else { local }];
-            comm.all_max(&mut error).map_err(CellRunError::Comm)?;
-            let error = error[0];
-            let (Some(ctl), Some(snap)) = (&adaptive, &snapshot) else {
-                prog.error_sum += error;
-                break report;
-            };
-            let d = ctl.decide(dt_try, error);
-            if d.accept {
-                prog.error_sum += error;
-                if error > ctl.allowed(dt_try) {
-                    prog.above_tolerance += 1;
-                }
-                prog.dt = d.dt;
-                break report;
-            }
-            prog.rejected += 1;
-            susp.restore(snap)
-                .map_err(|e| step_error(k, prog.time + dt_try, e))?;
-            dt_try = d.dt.min(scene.numerics.t_end - prog.time);
-        };
+        let acc = accepted_step(
+            comm,
+            &mut susp,
+            &|x| flow.velocity(x),
+            &[],
+            (k, prog.time, scene.numerics.t_end),
+            dt_try,
+            adaptive.as_ref(),
+        )?;
+        prog.rejected += acc.rejected;
+        prog.error_sum += acc.error;
+        if acc.above_tolerance {
+            prog.above_tolerance += 1;
+        }
+        if let Some(next) = acc.next_dt {
+            prog.dt = next;
+        }
+        let (report, dt_try) = (acc.report, acc.dt);
         prog.step_s += t.elapsed().as_secs_f64();
         prog.time = match &adaptive {
             None => k as f64 * dt,

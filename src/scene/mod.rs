@@ -9,8 +9,10 @@ pub mod cells;
 mod cells_checkpoint;
 pub mod cells_partition;
 pub mod cells_run;
+mod cells_step;
 pub mod dpd;
 pub mod dpd_run;
+pub mod simulation;
 
 use std::path::{Path, PathBuf};
 

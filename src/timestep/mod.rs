@@ -87,6 +87,7 @@
 //! ```
 
 pub mod adaptive;
+pub mod cell_force;
 pub mod cell_state;
 pub mod coupling;
 mod gmres;

@@ -577,6 +577,18 @@ impl VesicleStepper {
         Ok(())
     }
 
+    /// `f` applied to the geometry of the surface `coefs` on the order-`p` grid (with the
+    /// transforms of the stepper's engine).
+    pub fn with_geometry<R>(
+        &mut self,
+        coefs: &[f64],
+        f: impl FnOnce(&crate::vesicle::geometry::Geometry) -> R,
+    ) -> Result<R, TimestepError> {
+        let mut engine = self.lease()?;
+        let g = engine.calc.geometry(coefs)?;
+        Ok(f(&g))
+    }
+
     /// SH order.
     pub fn order(&self) -> usize {
         self.p

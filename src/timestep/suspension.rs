@@ -33,6 +33,7 @@
 
 use rayon::prelude::*;
 
+use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
 use super::semi_implicit::{
@@ -460,20 +461,83 @@ impl Suspension {
         comm: &dyn Communicator,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
     ) -> Result<SuspensionReport, CellStepError> {
+        self.step_with_forces(comm, u_inf, 0.0, &[])
+    }
+
+    /// The tractions of the caller's `forces` on every cell held here at the start of a step
+    /// at `time` (order-`p` grid, `3n` each; empty vectors when there are no forces).
+    fn user_tractions(
+        &mut self,
+        time: f64,
+        forces: &[&dyn CellForce],
+    ) -> Result<Vec<Vec<f64>>, CellStepError> {
+        if forces.is_empty() {
+            return Ok(vec![Vec::new(); self.steppers.len()]);
+        }
         let ids = &self.ids;
+        self.steppers
+            .par_iter_mut()
+            .zip(self.coefs.par_iter())
+            .enumerate()
+            .map(|(i, (st, c))| {
+                let mut t = vec![0.0; 3 * st.n_points()];
+                st.with_geometry(c, |g| {
+                    let view = CellView {
+                        id: ids[i],
+                        time,
+                        coefs: c,
+                        geometry: g,
+                    };
+                    for f in forces {
+                        f.add_traction(&view, &mut t);
+                    }
+                })
+                .map_err(|source| CellStepError {
+                    cell: Some(ids[i]),
+                    source,
+                })?;
+                if t.iter().any(|v| !v.is_finite()) {
+                    return Err(CellStepError {
+                        cell: Some(ids[i]),
+                        source: TimestepError::NonFinite {
+                            what: "traction of a user force",
+                        },
+                    });
+                }
+                Ok(t)
+            })
+            .collect()
+    }
+
+    /// [`Suspension::step_on`] with the caller's `forces` ([`CellForce`]) evaluated at `time`
+    /// (the start of the step) on every cell: each force's traction acts through the cell's own
+    /// single layer in its step and, through the coupling, on the other cells.
+    pub fn step_with_forces(
+        &mut self,
+        comm: &dyn Communicator,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        time: f64,
+        forces: &[&dyn CellForce],
+    ) -> Result<SuspensionReport, CellStepError> {
         let t0 = std::time::Instant::now();
+        let user = agree_cells(comm, self.user_tractions(time, forces))?;
+        let ids = &self.ids;
         if let Some(coupling) = &mut self.coupling {
             let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
                 .steppers
                 .par_iter_mut()
                 .zip(self.coefs.par_iter())
+                .zip(user.par_iter())
                 .enumerate()
-                .map(|(i, (st, c))| {
+                .map(|(i, ((st, c), u))| {
                     let mut f = vec![0.0; 3 * st.n_points()];
                     st.traction(c, &mut f).map_err(|source| CellStepError {
                         cell: Some(ids[i]),
                         source,
                     })?;
+                    for (f, u) in f.iter_mut().zip(u) {
+                        *f += u;
+                    }
                     Ok(f)
                 })
                 .collect();
@@ -522,6 +586,18 @@ impl Suspension {
             })
             .collect();
         let repulsion = self.coupling.as_ref().and_then(|c| c.repulsion());
+        // With the caller's forces, the explicit traction of a cell is the contact repulsion
+        // plus their tractions (without, the repulsion alone, not copied).
+        let combined: Vec<Option<Vec<f64>>> = user
+            .iter()
+            .enumerate()
+            .map(|(i, u)| {
+                (!u.is_empty()).then(|| match repulsion {
+                    Some(r) if !r[i].is_empty() => r[i].iter().zip(u).map(|(a, b)| a + b).collect(),
+                    _ => u.clone(),
+                })
+            })
+            .collect();
         let t1 = std::time::Instant::now();
         let reports: Result<Vec<StepReport>, CellStepError> = self
             .steppers
@@ -531,7 +607,9 @@ impl Suspension {
             .map(|(i, (st, c))| {
                 let extra = ExplicitTerms {
                     velocity: explicit[i].as_deref(),
-                    traction: repulsion.map(|r| r[i].as_slice()),
+                    traction: combined[i]
+                        .as_deref()
+                        .or_else(|| repulsion.map(|r| r[i].as_slice())),
                 };
                 st.step_with(c, u_inf, extra)
                     .map_err(|source| CellStepError {

@@ -1,0 +1,110 @@
+//! One accepted step of a suspension, shared by `mobo run` ([`super::cells_run`]) and the
+//! library's [`super::simulation::Simulation`]: with a fixed `dt` the step is taken once; with
+//! an adaptive `dt` ([`AdaptiveDt`]) a step whose area/volume error is too large, or whose solve
+//! failed (stagnated, out of iterations), is repeated smaller from a snapshot of the cells,
+//! down to `dt_min`, before the error is returned.
+
+use super::cells_run::CellRunError;
+use crate::comm::Communicator;
+use crate::timestep::adaptive::AdaptiveDt;
+use crate::timestep::cell_force::CellForce;
+use crate::timestep::suspension::{CellStepError, Suspension, SuspensionReport};
+
+/// What [`accepted_step`] did.
+#[derive(Debug)]
+pub(crate) struct Accepted {
+    /// The accepted step's report.
+    pub report: SuspensionReport,
+    /// The `dt` of the accepted step.
+    pub dt: f64,
+    /// Its area/volume error estimate, the largest over all ranks (NaN counts as infinite).
+    pub error: f64,
+    /// Tries rejected before it.
+    pub rejected: usize,
+    /// Adaptive: the `dt` proposed for the next step.
+    pub next_dt: Option<f64>,
+    /// Adaptive: whether the accepted error was above the per-step allowance (accepted at
+    /// `dt_min`).
+    pub above_tolerance: bool,
+}
+
+/// A failed step `step` (that was to reach `time`) as a run error, the cell numbered from 1.
+pub(crate) fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
+    CellRunError::Step {
+        step,
+        time,
+        cell: e.cell.map(|c| c + 1),
+        source: Box::new(e.source),
+    }
+}
+
+/// Step `step` of `susp` from `time`, first tried at `dt_try`, with the caller's `forces`;
+/// adaptive steps never pass `t_end` (collective over `comm`).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn accepted_step(
+    comm: &dyn Communicator,
+    susp: &mut Suspension,
+    u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    forces: &[&dyn CellForce],
+    (step, time, t_end): (usize, f64, f64),
+    mut dt_try: f64,
+    adaptive: Option<&AdaptiveDt>,
+) -> Result<Accepted, CellRunError> {
+    let snapshot = adaptive.map(|_| susp.snapshot());
+    let mut rejected = 0;
+    loop {
+        if adaptive.is_some() {
+            susp.set_dt(dt_try)
+                .map_err(|e| step_error(step, time + dt_try, e))?;
+        }
+        let report = match susp.step_with_forces(comm, u_inf, time, forces) {
+            Ok(r) => r,
+            Err(e) => {
+                let retry = match (adaptive, &snapshot) {
+                    (Some(ctl), Some(snap)) if e.source.is_solver_failure() => {
+                        ctl.after_failure(dt_try).map(|d| (d, snap))
+                    }
+                    _ => None,
+                };
+                let Some((smaller, snap)) = retry else {
+                    return Err(step_error(step, time + dt_try, e));
+                };
+                rejected += 1;
+                susp.restore(snap)
+                    .map_err(|e| step_error(step, time + dt_try, e))?;
+                dt_try = smaller.min(t_end - time);
+                continue;
+            }
+        };
+        // The largest error over all ranks (a NaN counts as infinite).
+        let (local, _) = report.area_volume_error();
+        let mut error = [if local.is_nan() { f64::INFINITY } else { local }];
+        comm.all_max(&mut error).map_err(CellRunError::Comm)?;
+        let error = error[0];
+        let (Some(ctl), Some(snap)) = (adaptive, &snapshot) else {
+            return Ok(Accepted {
+                report,
+                dt: dt_try,
+                error,
+                rejected,
+                next_dt: None,
+                above_tolerance: false,
+            });
+        };
+        let d = ctl.decide(dt_try, error);
+        if d.accept {
+            return Ok(Accepted {
+                report,
+                dt: dt_try,
+                error,
+                rejected,
+                next_dt: Some(d.dt),
+                above_tolerance: error > ctl.allowed(dt_try),
+            });
+        }
+        rejected += 1;
+        susp.restore(snap)
+            .map_err(|e| step_error(step, time + dt_try, e))?;
+        dt_try = d.dt.min(t_end - time);
+    }
+}

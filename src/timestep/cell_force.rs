@@ -1,0 +1,158 @@
+//! Forces a caller adds to cells, per cell and per step: optical tweezers, confining
+//! potentials, walls or adhesion of a study's own.
+//!
+//! A [`CellForce`] sees each cell at the start of a step, `Xⁿ` ([`CellView`]: its global index,
+//! the time, its coefficients and its [`Geometry`] on the order-`p` grid: points, normals,
+//! curvatures, quadrature weights `dA`), and adds a traction `t` (force per unit area of
+//! membrane, the force the membrane exerts on the fluid, the sign convention of the body force)
+//! at the grid points. The step applies it explicitly, like the contact repulsion: through the
+//! cell's own single layer `S[t]` in its step and through the coupling, so that the other cells
+//! feel the flow it drives. A point force `F` on a patch `P` is the traction `F / |P|` on the
+//! patch (`∫_P t dA = F` with the grid's weights); a potential `U(x)` per unit area gives
+//! `t = −∇U(X)`.
+//!
+//! [`ForceFn`] wraps a closure; [`PatchPair`] is the optical-tweezers load of cell-stretching
+//! experiments (Mills et al., Mech. Chem. Biosyst. 1, 2004; Fedosov et al., Biophys. J. 98,
+//! 2010): `±F` along an axis on the two end patches of a cell, each the points whose position
+//! along the axis lies in the outer `fraction` of the cell's extent.
+
+use crate::vesicle::geometry::Geometry;
+
+/// One cell as a [`CellForce`] sees it, at the start of a step.
+#[derive(Clone, Copy, Debug)]
+pub struct CellView<'a> {
+    /// Global index of the cell (the order of the scene's cells).
+    pub id: usize,
+    /// Time at the start of the step.
+    pub time: f64,
+    /// Order-`p` SH coefficients `Xⁿ` (x, y, z).
+    pub coefs: &'a [f64],
+    /// Geometry of `Xⁿ` on the order-`p` grid (`geometry.x`, `geometry.normal`, `geometry.da`).
+    pub geometry: &'a Geometry,
+}
+
+/// A force a caller adds to cells, evaluated once per cell and step.
+pub trait CellForce: Send + Sync {
+    /// A name for logs and the effects list.
+    fn name(&self) -> &str;
+
+    /// Add the traction (force per unit area) at the cell's grid points to `out` (`3n`,
+    /// component-major: all x, then all y, then all z; `n = geometry.n_points()`).
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]);
+}
+
+/// A [`CellForce`] from a closure `f(cell, out)` with a name.
+pub struct ForceFn<F> {
+    name: String,
+    f: F,
+}
+
+impl<F> ForceFn<F>
+where
+    F: Fn(&CellView<'_>, &mut [f64]) + Send + Sync,
+{
+    /// The closure `f` under `name`.
+    pub fn new(name: &str, f: F) -> Self {
+        ForceFn {
+            name: name.to_string(),
+            f,
+        }
+    }
+}
+
+impl<F> CellForce for ForceFn<F>
+where
+    F: Fn(&CellView<'_>, &mut [f64]) + Send + Sync,
+{
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]) {
+        (self.f)(cell, out)
+    }
+}
+
+/// Opposite forces `+F a` and `−F a` (unit axis `a`) on the two end patches of one cell, as
+/// optical tweezers apply them: the `+` patch holds the grid points with `x·a ≥ s_max −
+/// fraction (s_max − s_min)`, the `−` patch those with `x·a ≤ s_min + fraction (s_max −
+/// s_min)`, `s_min`, `s_max` the extremes of `x·a` over the cell's grid points. Each patch
+/// carries the uniform traction `±F a / |P|`, so that `∫_P t dA = ±F a` exactly on the grid and
+/// the net force is zero.
+#[derive(Clone, Debug)]
+pub struct PatchPair {
+    /// Global index of the pulled cell.
+    pub cell: usize,
+    /// Direction of the pull (normalised when used).
+    pub axis: [f64; 3],
+    /// Share of the cell's extent along `axis` covered by each patch (in `(0, 0.5)`).
+    pub fraction: f64,
+    /// Magnitude `F` of the force on each patch.
+    pub force: f64,
+}
+
+impl PatchPair {
+    /// Per grid point: `+1` on the `+` patch, `−1` on the `−` patch, `0` elsewhere.
+    pub fn patches(&self, g: &Geometry) -> Vec<i8> {
+        let a = unit(self.axis);
+        let s: Vec<f64> = g.x.iter().map(|x| dot(*x, a)).collect();
+        let (lo, hi) = s
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+                (l.min(v), h.max(v))
+            });
+        let cut = self.fraction * (hi - lo);
+        s.iter()
+            .map(|&v| {
+                if v >= hi - cut {
+                    1
+                } else if v <= lo + cut {
+                    -1
+                } else {
+                    0
+                }
+            })
+            .collect()
+    }
+}
+
+impl CellForce for PatchPair {
+    fn name(&self) -> &str {
+        "patch pair (optical tweezers)"
+    }
+
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]) {
+        if cell.id != self.cell {
+            return;
+        }
+        let g = cell.geometry;
+        let n = g.n_points();
+        let a = unit(self.axis);
+        let side = self.patches(g);
+        for sign in [1i8, -1] {
+            let area: f64 = (0..n).filter(|&j| side[j] == sign).map(|j| g.da[j]).sum();
+            if area <= 0.0 {
+                continue;
+            }
+            let t = f64::from(sign) * self.force / area;
+            for j in (0..n).filter(|&j| side[j] == sign) {
+                for c in 0..3 {
+                    out[c * n + j] += t * a[c];
+                }
+            }
+        }
+    }
+}
+
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+fn unit(a: [f64; 3]) -> [f64; 3] {
+    let r = dot(a, a).sqrt();
+    if r > 0.0 {
+        [a[0] / r, a[1] / r, a[2] / r]
+    } else {
+        [1.0, 0.0, 0.0]
+    }
+}
