@@ -5,6 +5,8 @@
 //! `true` any adapter (an error without one), `false` the CPU. The GPU pass computes the same
 //! ten row sums as [`super::tea_hi::fused_rows`] (the reference), in `f64` where the adapter
 //! offers it.
+// Without the feature `crate::gpu::tea_hi` does not exist: the link above cannot resolve.
+#![cfg_attr(not(feature = "gpu"), allow(rustdoc::broken_intra_doc_links))]
 
 use super::tea_hi::Soa;
 use super::BrownianError;

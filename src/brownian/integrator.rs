@@ -25,7 +25,12 @@ pub enum NoiseModel {
     /// RPY drift, exact noise by Cholesky factorisation.
     Cholesky,
     /// RPY drift, Krylov (Lanczos) square root to the given tolerance.
-    Lanczos { tol: f64, max_iter: usize },
+    Lanczos {
+        /// Relative change `‖y_m − y_{m−1}‖/‖y_m‖` of successive iterates at which to stop.
+        tol: f64,
+        /// Most Lanczos steps (capped at `3N`).
+        max_iter: usize,
+    },
 }
 
 /// Physical and numerical parameters.

@@ -47,10 +47,20 @@ pub enum BrownianError {
     NotPositiveDefinite,
     /// TEA-HI's expansion does not exist for this coupling strength.
     #[error("TEA-HI breaks down at step {step}: mean coupling ε = {epsilon:.4} is too strong (A > 1); use exact or Lanczos noise")]
-    TeaHiBreakdown { step: u64, epsilon: f64 },
+    TeaHiBreakdown {
+        /// Step number at which it happened.
+        step: u64,
+        /// Mean off-diagonal coupling `ε` of the diffusion tensor.
+        epsilon: f64,
+    },
     /// A position became NaN or infinite.
     #[error("particle {particle} left the finite numbers at step {step} (time step too large?)")]
-    NonFinite { step: u64, particle: usize },
+    NonFinite {
+        /// Step number at which it happened.
+        step: u64,
+        /// Index of the first non-finite bead.
+        particle: usize,
+    },
     /// Exchanging rows between MPI ranks failed.
     #[error("{0}")]
     Comm(#[from] crate::comm::CommError),

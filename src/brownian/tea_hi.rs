@@ -70,8 +70,11 @@ impl TeaHiCoefficients {
 /// Coordinates in structure-of-arrays form.
 #[derive(Clone, Debug, Default)]
 pub struct Soa {
+    /// `x` coordinates.
     pub x: Vec<f64>,
+    /// `y` coordinates.
     pub y: Vec<f64>,
+    /// `z` coordinates.
     pub z: Vec<f64>,
 }
 

@@ -21,6 +21,8 @@
 //! assert_eq!((comm.rank(), comm.size(), v), (0, 1, [3.0, -1.0]));
 //! assert_eq!(comm.all_gather_u64(&[7, 8]).unwrap(), vec![vec![7, 8]]);
 //! ```
+// Without the feature `MpiComm` does not exist: the link above cannot resolve.
+#![cfg_attr(not(feature = "mpi"), allow(rustdoc::broken_intra_doc_links))]
 
 #[cfg(feature = "mpi")]
 mod mpi_comm;
@@ -33,19 +35,32 @@ pub enum CommError {
     /// A buffer whose length does not fit the number of ranks.
     #[error("communicator: {what} has {got} entries for {ranks} ranks")]
     Ranks {
+        /// The buffer, in words.
         what: &'static str,
+        /// Its length (entries, or per-rank buffers).
         got: usize,
+        /// Number of ranks.
         ranks: usize,
     },
     /// A rank named that does not exist.
     #[error("communicator: rank {rank} does not exist ({ranks} ranks)")]
-    NoSuchRank { rank: usize, ranks: usize },
+    NoSuchRank {
+        /// The rank named.
+        rank: usize,
+        /// Number of ranks.
+        ranks: usize,
+    },
     /// A message too long for MPI's 32-bit counts.
     #[error("communicator: a message of {0} values exceeds MPI's count limit")]
     TooLong(usize),
     /// Another rank failed; its message, agreed by every rank.
     #[error("rank {rank}: {message}")]
-    Remote { rank: usize, message: String },
+    Remote {
+        /// The lowest failing rank.
+        rank: usize,
+        /// Its error message.
+        message: String,
+    },
 }
 
 /// The collective and point-to-point operations of the distributed algorithms. All ranks
@@ -135,8 +150,11 @@ pub fn agreed<T, E: std::fmt::Display>(
 /// One value over the ranks: its smallest, mean and largest.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Spread {
+    /// Smallest value over the ranks.
     pub min: f64,
+    /// Mean over the ranks.
     pub mean: f64,
+    /// Largest value over the ranks.
     pub max: f64,
 }
 

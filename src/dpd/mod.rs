@@ -56,15 +56,21 @@ pub enum DpdError {
     /// A parameter outside its domain.
     #[error("invalid {name} = {value}: {reason}")]
     Parameter {
+        /// The parameter's name.
         name: &'static str,
+        /// The value given.
         value: f64,
+        /// The condition it breaks.
         reason: &'static str,
     },
     /// Buffers that disagree in length.
     #[error("{what} has {len} values, expected {expected}")]
     Length {
+        /// The buffer, in words.
         what: &'static str,
+        /// Its length.
         len: usize,
+        /// The length expected.
         expected: usize,
     },
     /// A mesh that is not a closed, consistently oriented triangulation.
@@ -74,8 +80,11 @@ pub enum DpdError {
     /// the time step is too large for the forces.
     #[error("unstable at step {step}: particle {particle} at {position:?} (time step too large?)")]
     Unstable {
+        /// Step number at which it happened.
         step: u64,
+        /// Index of the particle.
         particle: usize,
+        /// Its position.
         position: [f64; 3],
     },
 }

@@ -159,11 +159,17 @@ pub fn all_pairs_forces(
 /// Particle state as structure of arrays, sorted by cell.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Particles {
+    /// Positions, `x` component.
     pub x: Vec<f64>,
+    /// Positions, `y` component.
     pub y: Vec<f64>,
+    /// Positions, `z` component.
     pub z: Vec<f64>,
+    /// Velocities, `x` component.
     pub vx: Vec<f64>,
+    /// Velocities, `y` component.
     pub vy: Vec<f64>,
+    /// Velocities, `z` component.
     pub vz: Vec<f64>,
     /// Permanent particle ids (the noise key and the output order).
     pub id: Vec<u32>,

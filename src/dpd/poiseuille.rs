@@ -98,9 +98,10 @@ pub struct ViscosityFit {
     pub value: f64,
     /// Standard error from the block spread of `C`.
     pub stderr: f64,
-    /// The fitted `A` and `C` of `u = ±(A + C ζ²)` (`ζ` the distance from the middle of a
-    /// half-channel, the channel's mid-plane, or the pipe's axis; means over the blocks).
+    /// The fitted `A` of `u = ±(A + C ζ²)` (`ζ` the distance from the middle of a
+    /// half-channel, the channel's mid-plane, or the pipe's axis; mean over the blocks).
     pub offset: f64,
+    /// The fitted `C` of `u = ±(A + C ζ²)` (mean over the blocks).
     pub curvature: f64,
     /// The fraction of each half's width fitted (centred; the rest, next to the planes where
     /// the force changes sign, is left out).
@@ -119,10 +120,20 @@ pub enum FlowGeometry {
     Periodic,
     /// Plane Poiseuille between walls at `z = lo, hi`: `u = (n g/2η)(z − lo)(hi − z)` with
     /// no slip; binned in `z`.
-    Channel { lo: f64, hi: f64 },
+    Channel {
+        /// The lower wall's `z`.
+        lo: f64,
+        /// The upper wall's `z`.
+        hi: f64,
+    },
     /// Pipe of radius `R` along `x` around `(y, z) = center`: `u = (n g/4η)(R² − r²)`;
     /// binned in `r`.
-    Pipe { center: [f64; 2], radius: f64 },
+    Pipe {
+        /// The axis's `(y, z)`.
+        center: [f64; 2],
+        /// The radius `R`.
+        radius: f64,
+    },
 }
 
 impl ProfileSampler {

@@ -29,7 +29,10 @@ pub enum BodyForce {
     /// The periodic (reverse) Poiseuille force of Backer et al. (2005): `+g x̂` on particles
     /// with `z < L_z/2`, `−g x̂` on the others. Two counter-flowing Poiseuille profiles form,
     /// `u_x(z) = (n g / 2η) z (L_z/2 − z)` in the lower half (`n` the number density).
-    ReversePoiseuille { force: f64 },
+    ReversePoiseuille {
+        /// The magnitude `g` of the force per particle.
+        force: f64,
+    },
 }
 
 /// Fluid parameters.
@@ -92,9 +95,11 @@ pub struct DpdSystem {
     pub body: BodyForce,
     /// Particles, sorted by cell.
     pub particles: Particles,
-    /// Forces on the particles at the current positions (pair + body).
+    /// Forces on the particles at the current positions (pair + body), `x` component.
     pub fx: Vec<f64>,
+    /// Forces, `y` component.
     pub fy: Vec<f64>,
+    /// Forces, `z` component.
     pub fz: Vec<f64>,
     /// Steps done.
     pub step: u64,

@@ -22,9 +22,19 @@ use super::{require, DpdError};
 #[serde(tag = "kind", rename_all = "snake_case")]
 pub enum Wall {
     /// Planes `z = lo` and `z = hi`, fluid in between.
-    Planes { lo: f64, hi: f64 },
+    Planes {
+        /// The lower plane's `z`.
+        lo: f64,
+        /// The upper plane's `z`.
+        hi: f64,
+    },
     /// A cylinder along `x` of radius `radius` around the line `(y, z) = center`.
-    Cylinder { radius: f64, center: [f64; 2] },
+    Cylinder {
+        /// The radius.
+        radius: f64,
+        /// The axis's `(y, z)`.
+        center: [f64; 2],
+    },
 }
 
 impl Wall {

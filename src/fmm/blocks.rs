@@ -5,9 +5,11 @@
 /// orientations, all of the same length.
 #[derive(Clone, Copy, Debug)]
 pub struct SourceView<'a> {
-    /// Coordinates.
+    /// Coordinates, `x`.
     pub x: &'a [f64],
+    /// Coordinates, `y`.
     pub y: &'a [f64],
+    /// Coordinates, `z`.
     pub z: &'a [f64],
     /// Density components (`density_dim` of them are used).
     pub q: [&'a [f64]; 4],
@@ -29,10 +31,15 @@ impl SourceView<'_> {
 /// An owned structure-of-arrays copy of sources with densities and orientations.
 #[derive(Clone, Debug, Default)]
 pub struct SourceBlock {
+    /// Coordinates, `x`.
     pub x: Vec<f64>,
+    /// Coordinates, `y`.
     pub y: Vec<f64>,
+    /// Coordinates, `z`.
     pub z: Vec<f64>,
+    /// Density components (`density_dim` of them are filled, the rest empty).
     pub q: [Vec<f64>; 4],
+    /// Orientation components (empty when the kernel has none).
     pub n: [Vec<f64>; 3],
 }
 

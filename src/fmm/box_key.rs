@@ -137,7 +137,9 @@ impl BoxKey {
 /// The root cube agreed by all ranks: lowest corner and edge.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Domain {
+    /// Lowest corner.
     pub lo: [f64; 3],
+    /// Edge length.
     pub side: f64,
 }
 

@@ -10,9 +10,13 @@ use super::FmmError;
 /// source; `normals`: one per source when the kernel needs them.
 #[derive(Clone, Copy, Debug)]
 pub struct SumInput<'a> {
+    /// Source points.
     pub sources: &'a [[f64; 3]],
+    /// Densities, `density_dim` values per source, source-major.
     pub density: &'a [f64],
+    /// Source orientations (double-layer kernels), one per source.
     pub normals: Option<&'a [[f64; 3]]>,
+    /// Target points.
     pub targets: &'a [[f64; 3]],
 }
 

@@ -54,20 +54,27 @@ pub enum Role {
 /// One box of the rank's tree.
 #[derive(Clone, Debug)]
 pub struct TreeBox {
+    /// Level and Morton key.
     pub key: BoxKey,
+    /// Centre of the cube.
     pub center: [f64; 3],
+    /// Half its edge length.
     pub half: f64,
     /// Whether the box is a leaf of the global tree.
     pub leaf: bool,
-    /// Sources and targets in the box, over all ranks.
+    /// Sources in the box, over all ranks.
     pub n_sources: usize,
+    /// Targets in the box, over all ranks.
     pub n_targets: usize,
     /// The box's sources in this rank's source arrays (owned boxes and received leaves).
     pub sources: Range<usize>,
     /// The box's targets in this rank's target arrays (owned boxes).
     pub targets: Range<usize>,
+    /// Index of the parent in [`DistTree::boxes`] (`None` for the root).
     pub parent: Option<usize>,
+    /// Indices of the children present in this rank's tree.
     pub children: Vec<usize>,
+    /// What this rank holds of the box.
     pub role: Role,
 }
 
@@ -149,6 +156,7 @@ impl Route {
 /// The boxes one rank sends to, or receives from, one other rank at each evaluation.
 #[derive(Clone, Debug, Default)]
 pub struct GhostLink {
+    /// The other rank.
     pub rank: usize,
     /// Boxes whose upward expansions travel (indices into [`DistTree::boxes`]).
     pub boxes: Vec<usize>,
@@ -174,29 +182,40 @@ struct Sorted {
 /// One rank's tree: owned, top and ghost boxes in key order.
 #[derive(Clone, Debug)]
 pub struct DistTree {
+    /// The root cube, the same on every rank.
     pub domain: Domain,
     /// Boxes sorted by `(level, morton)`.
     pub boxes: Vec<TreeBox>,
+    /// Position of each box's key in `boxes`.
     pub index: HashMap<BoxKey, usize>,
     /// `boxes[level_start[l]..level_start[l + 1]]` are the boxes of level `l`.
     pub level_start: Vec<usize>,
     /// Rank `r` owns the keys `splitters[r]..splitters[r + 1]`.
     pub splitters: Vec<u64>,
+    /// This rank.
     pub rank: usize,
     /// This rank's sources (owned, in key order), then the received ghost sources.
     pub sources: Vec<[f64; 3]>,
+    /// Orientations of `sources`, entry by entry (double-layer kernels).
     pub normals: Option<Vec<[f64; 3]>>,
     /// Number of owned sources (the first entries of `sources`).
     pub n_owned_sources: usize,
     /// This rank's targets in key order.
     pub targets: Vec<[f64; 3]>,
+    /// Most points (sources and targets together) in a leaf, unless the leaf is at the
+    /// smallest width allowed.
     pub leaf_size: usize,
+    /// How source densities reach `sources` from the caller's order.
     pub source_route: Route,
+    /// How results at `targets` go back to the caller's order.
     pub target_route: Route,
     /// Local roots of every rank, by rank (indices into `boxes`).
     pub roots: Vec<Vec<usize>>,
+    /// What this rank sends at each evaluation, one link per receiving rank.
     pub ghosts_out: Vec<GhostLink>,
+    /// What this rank receives at each evaluation, one link per sending rank.
     pub ghosts_in: Vec<GhostLink>,
+    /// Interaction lists of the boxes this rank computes.
     pub lists: Lists,
 }
 
@@ -403,9 +422,13 @@ fn refine(
 
 /// Inputs of [`DistTree::build`].
 pub struct TreeInput<'a> {
+    /// This rank's source points (caller order).
     pub sources: &'a [[f64; 3]],
+    /// Their orientations (double-layer kernels).
     pub normals: Option<&'a [[f64; 3]]>,
+    /// This rank's target points (caller order).
     pub targets: &'a [[f64; 3]],
+    /// Most points (sources and targets together) in a leaf.
     pub leaf_size: usize,
     /// Boxes are not split below this edge length (RPY: the bead diameter).
     pub min_width: f64,

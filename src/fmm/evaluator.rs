@@ -109,7 +109,10 @@ pub enum FmmKernel {
     /// `Σ (3/4π)(r·f)(r·n) r/|r|⁵`.
     Stresslet,
     /// Rotne–Prager–Yamakawa with bead radius `radius`.
-    Rpy { radius: f64 },
+    Rpy {
+        /// Bead radius `a`.
+        radius: f64,
+    },
 }
 
 impl FmmKernel {
@@ -191,13 +194,21 @@ impl FmmKernel {
 /// parallel loop are split by summed thread time).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
 pub struct FmmTimings {
+    /// P2M: leaf sources at their upward check surfaces (thread time).
     pub p2m: f64,
+    /// M2M and the upward fits of the non-leaf boxes (thread time).
     pub m2m: f64,
+    /// M2L: forward FFTs of the upward densities and inverse FFTs into the check potentials.
     pub m2l_fft: f64,
+    /// M2L: the Hadamard products summed over the V lists.
     pub m2l_hadamard: f64,
+    /// P2L: X-list sources at the downward check surfaces.
     pub p2l: f64,
+    /// L2L and the downward fits.
     pub l2l: f64,
+    /// L2P: downward equivalent densities at the leaves' targets (thread time).
     pub l2p: f64,
+    /// M2P: W-list upward equivalent densities at the leaves' targets (thread time).
     pub m2p: f64,
     /// The near-field pass ([`super::near_field`]): wall seconds of its backend (on the GPU:
     /// uploads, kernel and read-back included).
@@ -208,6 +219,7 @@ pub struct FmmTimings {
     /// M2L, downward pass, L2P, M2P): with a concurrent near field, `total` is about
     /// `max(p2p, far_wall)` plus the rest, rather than their sum.
     pub far_wall: f64,
+    /// Wall seconds of the whole evaluation, communication included.
     pub total: f64,
 }
 
@@ -228,6 +240,36 @@ pub struct FmmComm {
 }
 
 /// The FMM for one kernel over fixed sources and targets.
+///
+/// [`Fmm::new`] builds the tree, its lists and the translation operators once (`order`
+/// surface points per box edge, from [`super::order_for_digits`]; at most `leaf_size` sources
+/// plus targets per leaf); [`Fmm::evaluate`] then sums any number of densities over the same
+/// points. Densities are `density_dim` values per source and results `output_dim` values per
+/// target, point-major, in the caller's order. A Laplace sum `u_i = Σ_j q_j / (4π|x_i − y_j|)`
+/// over 300 sources and 200 targets, checked against the direct sum ([`super::direct_sum`])
+/// and, for one target, against the formula:
+///
+/// ```
+/// use mobo::fmm::{clouds::Cloud, direct_sum, order_for_digits, Fmm, FmmKernel, Laplace, SumInput};
+/// let sources = Cloud::Uniform.points(300, 1);
+/// let targets = Cloud::Uniform.points(200, 2);
+/// let q = Cloud::densities(sources.len(), 3);
+/// let order = order_for_digits(FmmKernel::Laplace, 4).unwrap();
+/// let mut fmm = Fmm::new(FmmKernel::Laplace, &sources, None, &targets, order, 20).unwrap();
+/// let mut u = vec![0.0; targets.len()];
+/// fmm.evaluate(&q, &mut u).unwrap();
+///
+/// let input = SumInput { sources: &sources, density: &q, normals: None, targets: &targets };
+/// let mut exact = vec![0.0; targets.len()];
+/// direct_sum(&Laplace, &input, &mut exact).unwrap();
+/// let l2 = |v: &[f64]| v.iter().map(|x| x * x).sum::<f64>().sqrt();
+/// let diff: Vec<f64> = u.iter().zip(&exact).map(|(a, b)| a - b).collect();
+/// assert!(l2(&diff) < 1e-4 * l2(&exact)); // 4 digits asked
+///
+/// let r = |y: &[f64; 3]| (0..3).map(|k| (targets[0][k] - y[k]).powi(2)).sum::<f64>().sqrt();
+/// let u0: f64 = sources.iter().zip(&q).map(|(y, qj)| qj / (4.0 * std::f64::consts::PI * r(y))).sum();
+/// assert!((u0 - exact[0]).abs() < 1e-12 * u0.abs().max(1.0));
+/// ```
 pub struct Fmm {
     kind: FmmKernel,
     near: Box<dyn Kernel>,

@@ -60,7 +60,12 @@ static DISABLED: AtomicBool = AtomicBool::new(false);
 pub enum FitCacheError {
     /// The directory or file could not be written.
     #[error("cannot write the operator cache file {path}: {reason}")]
-    Write { path: PathBuf, reason: String },
+    Write {
+        /// The cache file.
+        path: PathBuf,
+        /// The operating system's message.
+        reason: String,
+    },
 }
 
 /// Print a store failure once per process (on standard error): the fits are then computed in

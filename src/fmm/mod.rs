@@ -61,7 +61,14 @@ pub enum FmmError {
     Comm(#[from] crate::comm::CommError),
     /// An accuracy outside the calibrated range.
     #[error("digits must be between {min} and {max}, got {got}")]
-    Digits { got: u32, min: u32, max: u32 },
+    Digits {
+        /// Digits asked for.
+        got: u32,
+        /// Fewest digits calibrated.
+        min: u32,
+        /// Most digits calibrated.
+        max: u32,
+    },
     /// A singular value decomposition did not converge.
     #[error("the SVD of the {0} did not converge")]
     Svd(&'static str),

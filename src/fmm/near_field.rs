@@ -109,9 +109,11 @@ impl NearList {
 /// A rank's sorted points as the near field sees them.
 #[derive(Clone, Copy, Debug)]
 pub struct NearPoints<'a> {
+    /// Source positions (owned, then ghost sources), in key order.
     pub sources: &'a [[f64; 3]],
     /// Source orientations (double-layer kernels).
     pub normals: Option<&'a [[f64; 3]]>,
+    /// Target positions, in key order.
     pub targets: &'a [[f64; 3]],
 }
 

@@ -46,9 +46,13 @@ impl Node {
 /// Interaction lists of every box (indices into [`Octree::nodes`]).
 #[derive(Clone, Debug, Default)]
 pub struct Lists {
+    /// `U(B)`: adjacent leaves, `B` included (P2P).
     pub u: Vec<Vec<usize>>,
+    /// `V(B)`: well-separated children of the parent's colleagues (M2L).
     pub v: Vec<Vec<usize>>,
+    /// `W(B)`: non-adjacent descendants of the colleagues whose parent is adjacent (M2P).
     pub w: Vec<Vec<usize>>,
+    /// `X(B)`: the leaves `A` with `B ∈ W(A)` (P2L).
     pub x: Vec<Vec<usize>>,
 }
 

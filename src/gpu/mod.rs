@@ -22,6 +22,8 @@
 //! accumulator, so the error does not grow with the number of tiles. What that leaves is the
 //! `f32` rounding of each pair's value: about `1e-7` relative per pair, which
 //! [`GpuPrecision::max_digits`] turns into the digit requests the `f32` path may serve.
+// Without the feature the GPU types do not exist: the links above to them cannot resolve.
+#![cfg_attr(not(feature = "gpu"), allow(rustdoc::broken_intra_doc_links))]
 
 #[cfg(feature = "gpu")]
 mod context;
@@ -54,7 +56,12 @@ pub enum GpuError {
     NoAdapter(String),
     /// The adapter refused a device.
     #[error("the GPU adapter {adapter} refused a device: {reason}")]
-    Device { adapter: String, reason: String },
+    Device {
+        /// The adapter's name.
+        adapter: String,
+        /// wgpu's message.
+        reason: String,
+    },
     /// `f64` was asked for and the adapter has no `SHADER_F64`.
     #[error("the GPU adapter {0} has no f64 shaders (SHADER_F64)")]
     NoF64(String),
@@ -63,8 +70,11 @@ pub enum GpuError {
         "{what} needs {bytes} bytes, more than the GPU's largest storage binding ({limit} bytes)"
     )]
     TooLarge {
+        /// The buffer, in words.
         what: String,
+        /// Bytes it needs.
         bytes: u64,
+        /// The device's largest storage binding, in bytes.
         limit: u64,
     },
     /// The shader or pipeline failed to build (a bug: the message says where).
@@ -82,7 +92,9 @@ pub enum GpuError {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum GpuPrecision {
+    /// 32-bit arithmetic with compensated (`hi`, `lo`) coordinates and sums.
     F32,
+    /// 64-bit arithmetic (needs `SHADER_F64`).
     F64,
 }
 
@@ -120,7 +132,10 @@ pub enum GpuKernel {
     Stresslet,
     /// Rotne–Prager–Yamakawa mobility with bead radius `radius`, both branches, self mobility
     /// `f/(6πa)` at `r = 0`.
-    Rpy { radius: f64 },
+    Rpy {
+        /// Bead radius `a`.
+        radius: f64,
+    },
 }
 
 impl GpuKernel {
@@ -210,9 +225,12 @@ impl GpuDecision {
 /// gain), always (an error without an adapter), or never.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum GpuChoice {
+    /// Where an adapter exists and the problem is large enough to gain.
     #[default]
     Auto,
+    /// Always (an error without an adapter).
     On,
+    /// Never.
     Off,
 }
 

@@ -11,16 +11,23 @@ use super::{shader, Gpu, GpuError, GpuKernel, GpuPrecision, TARGETS_PER_THREAD, 
 /// sums the sources in `ranges[offsets[r]..offsets[r + 1]]` into its targets `rows[r]`.
 #[derive(Clone, Copy, Debug)]
 pub struct RowList<'a> {
+    /// Target range of each row.
     pub rows: &'a [Range<usize>],
+    /// Row `r`'s source ranges are `ranges[offsets[r]..offsets[r + 1]]` (`rows.len() + 1`
+    /// entries).
     pub offsets: &'a [usize],
+    /// Source ranges of all rows, concatenated.
     pub ranges: &'a [Range<usize>],
 }
 
 /// Points of a pair sum: source positions (and orientations) and target positions.
 #[derive(Clone, Copy, Debug)]
 pub struct PairPoints<'a> {
+    /// Source positions.
     pub sources: &'a [[f64; 3]],
+    /// Source orientations (double-layer kernels), one per source.
     pub normals: Option<&'a [[f64; 3]]>,
+    /// Target positions.
     pub targets: &'a [[f64; 3]],
 }
 

@@ -51,28 +51,50 @@ pub enum CheckpointFault {
     #[error(
         "unsupported checkpoint format version {found} (this build reads version {supported})"
     )]
-    UnsupportedVersion { found: u32, supported: u32 },
+    UnsupportedVersion {
+        /// The version in the file.
+        found: u32,
+        /// The version this build reads ([`VERSION`]).
+        supported: u32,
+    },
     /// The file ends before the data it announces.
     #[error("truncated at byte {at}: {needed} more bytes needed for {what}")]
     Truncated {
+        /// Where the data ends: the file's length in bytes.
         at: u64,
+        /// Bytes missing.
         needed: u64,
+        /// What was being read.
         what: &'static str,
     },
     /// Bytes after the end announced by the file.
     #[error("{extra} unexpected bytes after the end of the checkpoint (byte {at})")]
-    TrailingBytes { at: u64, extra: u64 },
+    TrailingBytes {
+        /// The announced length, where the extra bytes start.
+        at: u64,
+        /// Number of extra bytes.
+        extra: u64,
+    },
     /// The stored checksum does not match the content.
     #[error(
         "checksum mismatch (stored {stored:#018x}, computed {computed:#018x}): the file is corrupt"
     )]
-    Checksum { stored: u64, computed: u64 },
+    Checksum {
+        /// The checksum in the file.
+        stored: u64,
+        /// The checksum of the bytes read.
+        computed: u64,
+    },
     /// An array whose data length does not match its shape.
     #[error("array '{name}': shape {shape:?} holds {expected} values but {found} were given")]
     ShapeMismatch {
+        /// The array's name.
         name: String,
+        /// Its shape.
         shape: Vec<usize>,
+        /// `∏ shape`.
         expected: usize,
+        /// Number of values given.
         found: usize,
     },
     /// The JSON header does not parse.

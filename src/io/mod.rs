@@ -26,33 +26,60 @@ pub enum IoError {
     /// A file could not be written or renamed.
     #[error("{path}: {source}")]
     File {
+        /// The file.
         path: PathBuf,
+        /// The operating system's error.
         source: std::io::Error,
     },
     /// A malformed `.npy` file.
     #[error("{path}: {message}")]
-    Npy { path: PathBuf, message: String },
+    Npy {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     /// A checkpoint that cannot be written or read back.
     #[error("checkpoint {path}: {fault}")]
     Checkpoint {
+        /// The checkpoint file.
         path: PathBuf,
+        /// What is wrong with it.
         fault: CheckpointFault,
     },
     /// A mesh or collection that cannot be written as VTK.
     #[error("{path}: {message}")]
-    Vtk { path: PathBuf, message: String },
+    Vtk {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     /// Frame data that does not fit the frame layout (wrong lengths, mixed orders, ...).
     #[error("frames in {dir}: {message}")]
-    Frame { dir: PathBuf, message: String },
+    Frame {
+        /// The output directory.
+        dir: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     /// An error of the HDF5 library.
     #[error("{path}: HDF5: {message}")]
-    Hdf5 { path: PathBuf, message: String },
+    Hdf5 {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
     /// HDF5 output was asked for but this build has no HDF5 support.
     #[error(
         "{path}: mobo was built without the hdf5 feature (rebuild with `cargo build --features hdf5`; \
          needs apt `libhdf5-dev pkg-config`)"
     )]
-    Hdf5Unavailable { path: PathBuf },
+    Hdf5Unavailable {
+        /// The HDF5 file asked for.
+        path: PathBuf,
+    },
 }
 
 /// Write `bytes` to `path` atomically (temporary file in the same directory, then rename;

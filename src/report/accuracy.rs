@@ -56,9 +56,13 @@ use crate::vesicle::{NearParams, OffSurface};
 /// A numerical knob of the study.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Knob {
+    /// SH order `p`.
     Order,
+    /// Quadrature upsampling factor (`q = upsample · p`).
     Upsample,
+    /// FMM digits of the inter-cell velocity.
     FmmDigits,
+    /// GMRES relative residual tolerance.
     GmresTol,
     /// Time step with the first-order scheme.
     DtEuler,
@@ -83,11 +87,17 @@ impl Knob {
 /// The numerical settings of one run.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Settings {
+    /// SH order `p`.
     pub order: usize,
+    /// Quadrature upsampling factor.
     pub upsample: usize,
+    /// FMM digits.
     pub fmm_digits: u32,
+    /// GMRES relative residual tolerance.
     pub gmres_tol: f64,
+    /// Time step.
     pub dt: f64,
+    /// Time-stepping scheme.
     pub scheme: Scheme,
 }
 
@@ -177,16 +187,25 @@ pub struct RunRow {
     pub knob: Option<Knob>,
     /// The knob's value (as a number, for the CSV and plot).
     pub value: f64,
+    /// All numerical settings of the run.
     pub settings: Settings,
+    /// Steps taken to `T` (0 for a failed run).
     pub steps: usize,
     /// Mean wall time of a step (s).
     pub step_s: f64,
+    /// Mean GMRES iterations per step and cell.
     pub gmres_mean: f64,
+    /// Largest distance between corresponding grid points of the final surfaces over the
+    /// cell's equivalent radius.
     pub shape_error: f64,
     /// Hausdorff distance between the final surfaces over the cell radius (parametrisation-free).
     pub surface_error: f64,
+    /// Centroid velocity over the last step, `|v − v_ref| / |v_ref|`, largest over the cells.
     pub velocity_error: f64,
+    /// `max |σ − σ_ref| / max |σ_ref|` of the final tension.
     pub tension_error: f64,
+    /// `max |u − u_ref| / max |u_ref|` of the inter-cell velocity in the first step (only
+    /// with the reference's `p` and more than one cell).
     pub coupling_error: Option<f64>,
     /// Whether the run is on the Pareto front of (time per step, shape error).
     pub pareto: bool,
@@ -199,16 +218,23 @@ pub struct RunRow {
 pub struct Study {
     /// Which scene was used (a name or a path).
     pub scene_name: String,
+    /// Number of cells in the scene.
     pub cells: usize,
+    /// Final time `T` at which the runs are compared.
     pub t_end: f64,
+    /// The reference run (its errors are 0).
     pub reference: RunRow,
+    /// The knob runs, ordered by knob, then by time per step.
     pub rows: Vec<RunRow>,
     /// Knob values left out, with the reason.
     pub skipped: Vec<(Knob, f64, String)>,
     /// Remarks (reference level chosen, scheme availability, ...).
     pub notes: Vec<String>,
+    /// Wall-time budget (s).
     pub budget_s: f64,
+    /// Wall time of the whole study (s).
     pub wall_s: f64,
+    /// Rayon threads the runs used.
     pub threads: usize,
 }
 

@@ -24,15 +24,21 @@ pub enum ReportError {
     /// A study run failed to build or to step; names the run (knob and value).
     #[error("study run {run}: {source}")]
     Run {
+        /// The run's label.
         run: String,
+        /// Its error.
         source: Box<CellRunError>,
     },
     /// A study run produced non-finite values.
     #[error("study run {run}: step {step}, cell {cell}: non-finite {quantity}")]
     NonFinite {
+        /// The run's label.
         run: String,
+        /// Step at which it happened.
         step: usize,
+        /// Index of the cell.
         cell: usize,
+        /// Which quantity.
         quantity: &'static str,
     },
     /// A scene the study cannot use (e.g. no cells), or a bad option.
@@ -46,10 +52,18 @@ pub enum ReportError {
         "no TrueType font for the plot text: tried {tried}; install one (e.g. `apt-get install \
          fonts-dejavu-core`) or set MOBO_FONT to a .ttf file"
     )]
-    Font { tried: String },
+    Font {
+        /// The font files tried.
+        tried: String,
+    },
     /// The plot could not be drawn.
     #[error("plot {path}: {message}")]
-    Plot { path: PathBuf, message: String },
+    Plot {
+        /// The PNG file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
 }
 
 /// The default scene of the accuracy study: two red blood cells in simple shear, a little

@@ -10,7 +10,7 @@
 //! * [`rotation`]: rotations that carry a grid point to the north pole, direct and via
 //!   spherical harmonics;
 //! * [`GrahamSloan`]: weights for on-surface `1/r`-singular integrals;
-//! * [`reference`]: naive implementations used as test oracles.
+//! * [`mod@reference`]: naive implementations used as test oracles.
 //!
 //! ```
 //! use mobo::sph_harmonics::ShTransform;
@@ -54,20 +54,45 @@ pub enum SphError {
     InvalidOrder(usize),
     /// Grid data is not a whole number of functions.
     #[error("grid data has {len} values, not a multiple of {per_function} per function")]
-    GridLength { len: usize, per_function: usize },
+    GridLength {
+        /// Values given.
+        len: usize,
+        /// Grid points per function.
+        per_function: usize,
+    },
     /// Coefficient data does not match the batch.
     #[error("coefficient data has {len} values, expected {expected}")]
-    CoefLength { len: usize, expected: usize },
+    CoefLength {
+        /// Values given.
+        len: usize,
+        /// Values expected.
+        expected: usize,
+    },
     /// Different numbers of requested derivatives and output buffers.
     #[error("{derivs} derivatives requested but {outputs} output buffers given")]
-    OutputCount { derivs: usize, outputs: usize },
+    OutputCount {
+        /// Derivatives requested.
+        derivs: usize,
+        /// Output buffers given.
+        outputs: usize,
+    },
     /// A workspace made for another plan or block size.
     #[error("workspace was made for a different transform plan")]
     Workspace,
     /// The output order of a rotation must not be below the input order.
     #[error("rotation output order q = {q} is below the input order p = {p}")]
-    UpsampleOrder { p: usize, q: usize },
+    UpsampleOrder {
+        /// Input order.
+        p: usize,
+        /// Output order.
+        q: usize,
+    },
     /// A latitude outside the grid or whose rotation was not built.
     #[error("latitude {lat} is outside the grid of order {p} or was not built")]
-    Latitude { lat: usize, p: usize },
+    Latitude {
+        /// The latitude index asked for.
+        lat: usize,
+        /// The grid's order.
+        p: usize,
+    },
 }

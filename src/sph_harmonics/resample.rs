@@ -96,9 +96,17 @@ impl Resampler {
 #[derive(Clone, Debug)]
 pub enum Filter {
     /// Keep degrees `n ≤ n_max`, zero the rest.
-    Sharp { n_max: usize },
+    Sharp {
+        /// Highest degree kept.
+        n_max: usize,
+    },
     /// `σ_n = exp(−alpha (n/p)^{2·order})`.
-    Exponential { alpha: f64, order: u32 },
+    Exponential {
+        /// Strength `alpha` (the factor at `n = p` is `exp(−alpha)`).
+        alpha: f64,
+        /// Filter order: the exponent is `2·order`.
+        order: u32,
+    },
 }
 
 impl Filter {

@@ -12,18 +12,34 @@ pub enum Bending {
     /// No bending energy.
     None,
     /// Kantor–Nelson: `E = Σ_edges kb (1 − cos(θ − θ0))`, `θ0` in radians.
-    KantorNelson { kb: f64, theta0: f64 },
+    KantorNelson {
+        /// Bending constant `kb` (energy).
+        kb: f64,
+        /// Spontaneous signed dihedral angle `θ0` of an edge (radians, positive where convex).
+        theta0: f64,
+    },
     /// Jülicher: `E = 2κ Σ_v (M_v − C0 A_v/2)² / A_v`.
-    Juelicher { kappa: f64, c0: f64 },
+    Juelicher {
+        /// Bending modulus `κ` (energy).
+        kappa: f64,
+        /// Spontaneous curvature `C0` (inverse length).
+        c0: f64,
+    },
 }
 
 /// Which bending model [`MembraneParams::from_moduli`] builds, with its spontaneous shape.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum BendingModel {
     /// Kantor–Nelson with spontaneous angle `theta0` (radians), `kb = 2κ/√3`.
-    KantorNelson { theta0: f64 },
+    KantorNelson {
+        /// Spontaneous angle `θ0` (radians).
+        theta0: f64,
+    },
     /// Jülicher with spontaneous curvature `c0` (`C0 = 2/R` for a sphere of radius `R`).
-    Juelicher { c0: f64 },
+    Juelicher {
+        /// Spontaneous curvature `C0` (inverse length).
+        c0: f64,
+    },
 }
 
 /// Membrane parameters, all in simulation units.
