@@ -43,8 +43,9 @@ pub struct AdaptiveDt {
     pub order: usize,
     /// The ladder's base `Δt₀` (the first step).
     pub dt0: f64,
-    /// Bounds of `Δt`.
+    /// Lower bound of `Δt` (below it a step is accepted, and counted as above tolerance).
     pub dt_min: f64,
+    /// Upper bound of `Δt`.
     pub dt_max: f64,
 }
 

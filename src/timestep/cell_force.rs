@@ -74,18 +74,18 @@ where
 }
 
 /// Opposite forces `+F a` and `−F a` (unit axis `a`) on the two end patches of one cell, as
-/// optical tweezers apply them: the `+` patch holds the grid points with `x·a ≥ s_max −
-/// fraction (s_max − s_min)`, the `−` patch those with `x·a ≤ s_min + fraction (s_max −
-/// s_min)`, `s_min`, `s_max` the extremes of `x·a` over the cell's grid points. Each patch
-/// carries the uniform traction `±F a / |P|`, so that `∫_P t dA = ±F a` exactly on the grid and
-/// the net force is zero.
+/// optical tweezers apply them through two beads: the `+` patch holds the grid points of
+/// largest `x·a` that together carry a share `fraction` of the cell's area (`Σ dA`), the `−`
+/// patch likewise those of smallest `x·a` (Mills et al. 2004: a bead contact of ~2 µm diameter
+/// on a cell of 135 µm², a share of about 2–3 %). Each patch carries the uniform traction
+/// `±F a / |P|`, so that `∫_P t dA = ±F a` exactly on the grid and the net force is zero.
 #[derive(Clone, Debug)]
 pub struct PatchPair {
     /// Global index of the pulled cell.
     pub cell: usize,
     /// Direction of the pull (normalised when used).
     pub axis: [f64; 3],
-    /// Share of the cell's extent along `axis` covered by each patch (in `(0, 0.5)`).
+    /// Share of the cell's area in each patch (in `(0, 0.5)`).
     pub fraction: f64,
     /// Magnitude `F` of the force on each patch.
     pub force: f64,
@@ -96,23 +96,24 @@ impl PatchPair {
     pub fn patches(&self, g: &Geometry) -> Vec<i8> {
         let a = unit(self.axis);
         let s: Vec<f64> = g.x.iter().map(|x| dot(*x, a)).collect();
-        let (lo, hi) = s
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
-                (l.min(v), h.max(v))
-            });
-        let cut = self.fraction * (hi - lo);
-        s.iter()
-            .map(|&v| {
-                if v >= hi - cut {
-                    1
-                } else if v <= lo + cut {
-                    -1
-                } else {
-                    0
+        let mut order: Vec<usize> = (0..s.len()).collect();
+        order.sort_by(|&i, &j| s[i].total_cmp(&s[j]));
+        let share = self.fraction.clamp(0.0, 0.5) * g.area();
+        let mut side = vec![0i8; s.len()];
+        for (sign, ends) in [
+            (-1i8, &mut order.iter() as &mut dyn Iterator<Item = &usize>),
+            (1, &mut order.iter().rev()),
+        ] {
+            let mut taken = 0.0;
+            for &j in ends {
+                if taken >= share || side[j] != 0 {
+                    break;
                 }
-            })
-            .collect()
+                side[j] = sign;
+                taken += g.da[j];
+            }
+        }
+        side
     }
 }
 

@@ -15,7 +15,7 @@
 //! 3. **Near-singular corrections**: a point closer than `δ_j = c_near R_j / √p` to another cell
 //!    `j` (`R_j` its equivalent radius) gets, instead of cell `j`'s smooth quadrature, the
 //!    near-singular value of [`OffSurface`] (check points along the normal, smooth quadrature at
-//!    order `6p`, interpolation to the point). The default `c_near = 2` (design.md 3.3) keeps
+//!    order `6p`, interpolation to the point). The default `c_near = 2` keeps
 //!    the order-`q` quadrature accurate beyond `δ` (`δ/h_q = 4√p/π` grid spacings).
 //!
 //! **Viscosity contrast** ([`Coupling::velocities_with`]): a cell `j` with `λ_j ≠ 1` adds its
@@ -128,10 +128,13 @@ pub struct CouplingStats {
     pub min_gap: f64,
     /// Point–cell pairs that felt the contact repulsion (cumulative).
     pub repulsion_points: usize,
-    /// Seconds: quadrature setup, FMM (build + evaluation), self subtraction, near corrections.
+    /// Seconds in the quadrature setup (upsampled points, weights, near-zone lists).
     pub setup_s: f64,
+    /// Seconds in the FMM (tree build and evaluation).
     pub fmm_s: f64,
+    /// Seconds subtracting each cell's own smooth quadrature from the FMM result.
     pub self_s: f64,
+    /// Seconds in the near-singular corrections and the contact repulsion.
     pub near_s: f64,
     /// Seconds exchanging ghost cells with other ranks (0 on one rank).
     pub exchange_s: f64,

@@ -191,7 +191,9 @@ pub enum TimestepError {
     /// not one of the run's cells).
     #[error("a cell moving to rank {rank}: {source}")]
     Moved {
+        /// The rank taking the cell in.
         rank: usize,
+        /// Why its state was refused.
         source: cell_state::CellStateError,
     },
     /// A cell's step failed on another rank (its message, agreed by every rank);
@@ -199,8 +201,11 @@ pub enum TimestepError {
     /// there), which an adaptive step may retry smaller.
     #[error("(on rank {rank}) {message}")]
     Remote {
+        /// The rank whose cell failed.
         rank: usize,
+        /// Its error message.
         message: String,
+        /// Whether it was a failed linear solve.
         solver_failure: bool,
     },
 }

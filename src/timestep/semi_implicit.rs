@@ -185,8 +185,8 @@ pub enum OperatorStorage {
     Grid,
     /// Not stored: every GMRES iteration applies `A` matrix-free, batched per latitude
     /// ([`SelfInteraction::apply`]): memory linear in the points per cell, each product
-    /// costing about half an assembly (design.md 5: the mode for scenes whose dense operators
-    /// do not fit in memory).
+    /// costing about half an assembly (the mode for scenes whose dense operators do not fit in
+    /// memory, such as 10⁴ cells at `p = 12` in 24 GiB).
     MatrixFree,
 }
 
@@ -206,7 +206,7 @@ impl OperatorStorage {
     }
 
     /// The fastest storage whose operators for `cells` cells fit in `budget` bytes (`operators`
-    /// per cell): the grid, else coefficient space, else matrix-free (design.md 5).
+    /// per cell): the grid, else coefficient space, else matrix-free.
     pub fn for_budget(cells: usize, p: usize, operators: usize, budget: u64) -> Self {
         [OperatorStorage::Grid, OperatorStorage::Coefficients]
             .into_iter()
@@ -219,7 +219,7 @@ impl OperatorStorage {
 ///
 /// The stepper holds the cell's own state; transforms, the membrane-force engine, the layer
 /// potentials and scratch are lent per call by a pool shared by every stepper of the same
-/// `(p, q, restart)` in the process ([`super::step_engine`]), so that a suspension holds one
+/// `(p, q, restart)` in the process (the crate's private `step_engine`), so that a suspension holds one
 /// such engine per thread, not per cell.
 pub struct VesicleStepper {
     p: usize,

@@ -8,7 +8,7 @@
 //! A suspension therefore holds as many engines as cells step at once (the threads), not one
 //! per cell: at `p = 12` an engine is several MB (plans and workspaces at `q = 24`, the `3n × 3n`
 //! grid operator that is compressed to coefficient space), which per cell would rule out 10⁴
-//! cells in 24 GiB (design.md 5).
+//! cells in 24 GiB.
 //!
 //! Results do not depend on which engine a cell gets: every call sets the geometry it uses
 //! (and the cell's far-side settings and Skalak reference) before reading anything.

@@ -64,7 +64,7 @@
 //!
 //! ```
 //! use mobo::vesicle::{shapes, SurfaceCalculus};
-//! // The biconcave red blood cell of design.md 3.2 (unit equivalent radius).
+//! // The biconcave red blood cell (Evans–Fung profile, unit equivalent radius).
 //! let rbc = shapes::rbc(16).unwrap();
 //! let mut calc = SurfaceCalculus::new(16).unwrap();
 //! let g = calc.geometry(rbc.coefs()).unwrap();
@@ -107,20 +107,31 @@ pub enum VesicleError {
     /// A buffer of the wrong length.
     #[error("{what} has {len} values, expected {expected}")]
     Length {
+        /// The buffer.
         what: &'static str,
+        /// Its length.
         len: usize,
+        /// The length needed.
         expected: usize,
     },
     /// A parameter outside its domain.
     #[error("invalid {name} = {value}: {reason}")]
     Parameter {
+        /// The parameter.
         name: &'static str,
+        /// Its value.
         value: f64,
+        /// The domain it is outside of.
         reason: &'static str,
     },
     /// The quadrature (upsampled) order is below the surface order.
     #[error("upsampled order q = {q} is below the surface order p = {p}")]
-    Order { p: usize, q: usize },
+    Order {
+        /// Surface order.
+        p: usize,
+        /// Quadrature order.
+        q: usize,
+    },
     /// A surface whose parametrisation degenerates or is inward-oriented.
     #[error("degenerate surface: {0}")]
     Degenerate(String),

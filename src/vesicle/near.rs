@@ -21,7 +21,7 @@
 //! * Classification: far targets are inside when the solid-angle (Gauss) integral
 //!   `(1/4π) ∫ (y − x)·n / |y − x|³ dA` exceeds ½; near targets by the side of the normal at `X*`.
 //!
-//! Defaults: `δ = R_eq / √p` (design.md suggests `~2R/√p`, which at `p = 16` would put inner
+//! Defaults: `δ = R_eq / √p` (a wider `~2R/√p`, which at `p = 16` would put inner
 //! check points of a sphere beyond its centre), 12 check points spaced `δ/10` (the nodes span
 //! `[0, 2.1δ]`), smooth quadrature at `q_far = 6p`. Measured at `p = 16`: on the unit sphere
 //! (translating-sphere field, singular at the centre) errors ≤ 5e-8 at distances `0.2, 0.1, 0.01`

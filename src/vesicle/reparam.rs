@@ -147,7 +147,7 @@ impl Reparametrizer {
         self.run_with(surface, params, &mut [])
     }
 
-    /// [`Self::run`], relabelling every passenger the same way (see [`Self::relabel`]): the
+    /// [`Self::run`], relabelling every passenger the same way (see `relabel`): the
     /// stress-free reference of an elastic membrane, the surface of the previous step, fields
     /// on the surface given by their coefficients. Each passenger holds `3 (p+1)²` coefficients
     /// (three functions; pad a scalar field with zeros).

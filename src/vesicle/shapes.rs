@@ -26,7 +26,7 @@ use super::geometry::SurfaceCalculus;
 use super::{check_len, VesicleError};
 use crate::sph_harmonics::{resample_coefs, CoefLayout, ShTransform};
 
-/// The RBC scale `α` of design.md 3.2 (unit equivalent radius).
+/// The RBC scale `α` of [`rbc`]: its radius when the equivalent radius is 1.
 pub const RBC_ALPHA: f64 = 1.385_818_9;
 
 /// A closed surface given by the spherical-harmonic coefficients of its three coordinates.
@@ -226,7 +226,9 @@ pub fn ellipsoid(p: usize, axes: [f64; 3]) -> Result<Surface, VesicleError> {
     })
 }
 
-/// The biconcave RBC of design.md 3.2 with unit equivalent radius (axis of symmetry `z`).
+/// The biconcave RBC with unit equivalent radius (axis of symmetry `z`): the Evans–Fung
+/// profile `X = (α sin θ cos φ, α sin θ sin φ, (α/2)(0.207 + 2.003 sin²θ − 1.123 sin⁴θ) cos θ)`
+/// (Evans & Fung, Microvasc. Res. 4, 1972), `α` = [`RBC_ALPHA`].
 /// Exact for `p ≥ 5`; lower orders give its truncation.
 pub fn rbc(p: usize) -> Result<Surface, VesicleError> {
     let a = RBC_ALPHA;

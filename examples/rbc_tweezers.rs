@@ -1,0 +1,112 @@
+//! Optical-tweezers stretching of a red blood cell with the boundary-integral solver, against
+//! Mills et al. (Mech. Chem. Biosyst. 1, 2004): a study written with the library's stepping API
+//! ([`Simulation`] and a [`PatchPair`] force) rather than a scene file.
+//!
+//! ```text
+//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION]
+//! ```
+//!
+//! Defaults: `12 0,88,193 40 0.01 0.025`. The cell: the biconcave RBC scaled to a diameter of
+//! 7.82 µm (equivalent radius `R = 7.82/(2α)` µm, `α` = [`RBC_ALPHA`]), Skalak shear modulus
+//! `G_s = 6.3 µN/m` and bending rigidity `κ = 2.4·10⁻¹⁹ J` (the moduli of Fedosov et al.,
+//! Biophys. J. 98, 2010, fitted to Mills' data), a locally inextensible membrane, viscosity
+//! ratio 1. In the simulation's units `R = 1`, `G_s = 1`, `μ = 1`: a force `F` is
+//! `F/(G_s R)` and `κ` is `κ/(G_s R²)`; the equilibrium does not depend on the viscosity,
+//! which only sets how fast it is reached (time unit `μR/G_s`). Each force is spread evenly
+//! over the two end patches (each a share `fraction` of the cell's area: the bead contact) and the cell is stepped until its axial diameter changes by less than 1e-4 µm per
+//! time unit (or `T_MAX`). Printed: axial diameter `D_A` (extent along x) and transverse
+//! diameter `D_T` (extent along y, the in-plane diameter seen in the microscope), in µm, with
+//! Mills' values and the relative errors, as a Markdown table.
+
+use std::path::Path;
+
+use mobo::scene::cells::parse;
+use mobo::scene::simulation::Simulation;
+use mobo::timestep::cell_force::PatchPair;
+use mobo::vesicle::geometry::Geometry;
+use mobo::vesicle::shapes::RBC_ALPHA;
+
+/// Mills et al. (2004): force (pN), axial and transverse diameters (µm).
+const MILLS: [(f64, f64, f64); 3] = [(0.0, 7.78, 7.78), (88.0, 13.07, 4.78), (193.0, 15.29, 4.27)];
+/// Cell diameter (µm), shear modulus (N/m), bending rigidity (J).
+const DIAMETER_UM: f64 = 7.82;
+const SHEAR_N_PER_M: f64 = 6.3e-6;
+const BENDING_J: f64 = 2.4e-19;
+
+fn extent(g: &Geometry, d: usize) -> f64 {
+    let (lo, hi) = g
+        .x
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x[d]), h.max(x[d])));
+    hi - lo
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let a: Vec<String> = std::env::args().skip(1).collect();
+    let p: usize = a.first().map_or(Ok(12), |s| s.parse())?;
+    let forces: Vec<f64> = a
+        .get(1)
+        .map_or("0,88,193", |s| s.as_str())
+        .split(',')
+        .map(|s| s.parse())
+        .collect::<Result<_, _>>()?;
+    let t_max: f64 = a.get(2).map_or(Ok(40.0), |s| s.parse())?;
+    let dt: f64 = a.get(3).map_or(Ok(0.01), |s| s.parse())?;
+    let fraction: f64 = a.get(4).map_or(Ok(0.025), |s| s.parse())?;
+    let r_um = DIAMETER_UM / (2.0 * RBC_ALPHA);
+    let r_m = r_um * 1e-6;
+    let kappa = BENDING_J / (SHEAR_N_PER_M * r_m * r_m);
+    println!(
+        "RBC of diameter {DIAMETER_UM} µm (R = {r_um:.4} µm), G_s = 6.3 µN/m, κ = 2.4e-19 J: \
+         κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each",
+        100.0 * fraction
+    );
+    println!();
+    println!("| F (pN) | F/(G_s R) | D_A (µm) | Mills D_A | error | D_T (µm) | Mills D_T | error | t | steps | area drift |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    for &f_pn in &forces {
+        let f = f_pn * 1e-12 / (SHEAR_N_PER_M * r_m);
+        let text = format!(
+            "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
+             bending_modulus = {kappa}\n\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n"
+        );
+        let scene = parse(Path::new("rbc_tweezers (in code)"), &text)?;
+        let mut sim = Simulation::new(scene)?;
+        sim.add_force(PatchPair {
+            cell: 0,
+            axis: [1.0, 0.0, 0.0],
+            fraction,
+            force: f,
+        });
+        let a0 = sim.cell(0)?.geometry.area();
+        let mut last = extent(&sim.cell(0)?.geometry, 0);
+        let check = 0.5;
+        while f_pn > 0.0 && sim.time() < t_max {
+            let t = sim.time() + check;
+            sim.advance_to(t, |_, _| {})?;
+            let d = extent(&sim.cell(0)?.geometry, 0);
+            let rate = (d - last).abs() * r_um / check;
+            eprintln!("F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  rate {rate:.2e} µm/time", sim.time(), d * r_um);
+            last = d;
+            if rate < 1e-4 {
+                break;
+            }
+        }
+        let g = sim.cell(0)?.geometry;
+        let (da, dt_) = (extent(&g, 0) * r_um, extent(&g, 1) * r_um);
+        let mills = MILLS.iter().find(|m| m.0 == f_pn);
+        let cmp = |v: f64, m: Option<f64>| match m {
+            Some(m) => (format!("{m:.2}"), format!("{:+.1} %", 100.0 * (v - m) / m)),
+            None => ("–".into(), "–".into()),
+        };
+        let (ma, ea) = cmp(da, mills.map(|m| m.1));
+        let (mt, et) = cmp(dt_, mills.map(|m| m.2));
+        println!(
+            "| {f_pn} | {f:.3} | {da:.2} | {ma} | {ea} | {dt_:.2} | {mt} | {et} | {:.1} | {} | {:.1e} |",
+            sim.time(),
+            sim.steps(),
+            (g.area() - a0) / a0
+        );
+    }
+    Ok(())
+}
