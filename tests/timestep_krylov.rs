@@ -966,3 +966,82 @@ fn block_preconditioner_is_deterministic_across_thread_counts_and_matches_closur
     assert_eq!(rb.iterations, rf.iterations);
     assert!(rel_diff(&xb, &xf) < 1e-12);
 }
+
+/// An operator whose products carry errors of relative size ~1e-9 (as an FMM-coupled or
+/// loosely assembled operator does) cannot be solved to 1e-12: the recurrence's residual
+/// estimate meets the tolerance while the true residual stays near 1e-9, and every cycle ends
+/// early. Such short cycles without progress are stagnation: the solve stops after a few,
+/// with the residual history, instead of grinding to `max_iters`.
+#[test]
+fn short_cycles_at_the_attainable_accuracy_floor_are_stagnation() {
+    struct Noisy {
+        a: Vec<f64>,
+        n: usize,
+        calls: std::sync::atomic::AtomicU64,
+    }
+    impl LinearOperator for Noisy {
+        fn nrows(&self) -> usize {
+            self.n
+        }
+        fn ncols(&self) -> usize {
+            self.n
+        }
+        fn apply(&self, x: &[f64], y: &mut [f64]) {
+            let c = self
+                .calls
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let scale = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+            for i in 0..self.n {
+                let exact: f64 = (0..self.n).map(|j| self.a[i * self.n + j] * x[j]).sum();
+                // A deterministic perturbation, different at every call, of relative size 1e-9.
+                let h = ((c * 7919 + i as u64 * 104_729) % 1000) as f64 / 1000.0 - 0.5;
+                y[i] = exact + 2e-9 * h * scale;
+            }
+        }
+    }
+    let n = 60;
+    let mut r = rng(21);
+    // Well conditioned: identity plus a small random part.
+    let mut a = vec![0.0; n * n];
+    for i in 0..n {
+        for j in 0..n {
+            a[i * n + j] = 0.3 * (r.random::<f64>() - 0.5) / (n as f64).sqrt();
+        }
+        a[i * n + i] += 1.0;
+    }
+    let op = Noisy {
+        a,
+        n,
+        calls: std::sync::atomic::AtomicU64::new(0),
+    };
+    let b = random_vec(&mut r, n);
+    let params = GmresParams {
+        tol: 1e-13,
+        restart: 30,
+        max_iters: 5000,
+        ..Default::default()
+    };
+    let (_, res) = solve(&op, &Identity::new(n), &b, &params);
+    let err = res.unwrap_err();
+    println!("noisy operator to 1e-13: {err}");
+    let TimestepError::Stagnated(rep) = &err else {
+        panic!("expected Stagnated, got {err:?}");
+    };
+    assert!(
+        rep.iterations < 300,
+        "ground on for {} iterations",
+        rep.iterations
+    );
+    assert!(
+        rep.relative_residual > 1e-13 && rep.relative_residual < 1e-7,
+        "{}",
+        rep.relative_residual
+    );
+    // The same operator to a tolerance above its floor converges.
+    let params = GmresParams {
+        tol: 1e-7,
+        ..params
+    };
+    let (_, res) = solve(&op, &Identity::new(n), &b, &params);
+    assert!(res.is_ok(), "{res:?}");
+}

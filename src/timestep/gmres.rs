@@ -188,6 +188,10 @@ fn givens(a: f64, b: f64) -> (f64, f64, f64) {
 /// is taken as invariant (breakdown).
 const BREAKDOWN: f64 = 8.0 * f64::EPSILON;
 
+/// Short cycles in a row (ended by the residual estimate, not by the restart length) that do
+/// not lower the best true residual before the solve is declared stagnated.
+const SHORT_CYCLES_WITHOUT_PROGRESS: usize = 3;
+
 /// Relative size of a pivot of `R` (against its column's scale) under which the column is taken as
 /// linearly dependent on the previous ones.
 const SINGULAR: f64 = 64.0 * f64::EPSILON;
@@ -209,8 +213,11 @@ const SINGULAR: f64 = 64.0 * f64::EPSILON;
 /// * [`TimestepError::Breakdown`]: the Krylov space became invariant above the tolerance
 ///   (singular `A M⁻¹`); carries the report, `x` holds the last iterate.
 /// * [`TimestepError::Stagnated`]: a full restart cycle lowered the true residual by less than
-///   [`GmresParams::min_cycle_reduction`]; carries the report (with the residual after every
-///   cycle), `x` holds the last iterate.
+///   [`GmresParams::min_cycle_reduction`], or three short cycles in a row (ended because the
+///   recurrence's residual estimate met the tolerance while the true residual did not: the
+///   products' own errors are above `tol`) did not lower the best true residual by that
+///   fraction; carries the report (with the residual after every cycle), `x` holds the last
+///   iterate.
 pub fn gmres<A, P>(
     a: &A,
     precond: &P,
@@ -321,6 +328,9 @@ where
     let mut rel = beta / norm_b;
     report.initial_relative_residual = rel;
     let mut cycles = 0usize;
+    // The smallest true residual so far, and how many short cycles in a row did not lower it.
+    let mut best = rel;
+    let mut idle_short = 0usize;
 
     loop {
         report.relative_residual = rel;
@@ -451,9 +461,22 @@ where
             report.converged = false;
             return Err(TimestepError::Breakdown(report));
         }
+        // A cycle that ended early because the recurrence's residual estimate met the tolerance
+        // while the true residual did not: the attainable-accuracy floor (the products carry
+        // errors above `tol`). Short cycles then follow one another without progress; three in
+        // a row that do not lower the best true residual by `min_cycle_reduction` stop the solve.
+        let short = k < m && report.iterations < params.max_iters;
+        let improved = rel <= (1.0 - params.min_cycle_reduction) * best;
+        best = best.min(rel);
+        idle_short = if short && !improved {
+            idle_short + 1
+        } else {
+            0
+        };
         // A full cycle that did not make progress: more cycles from the same place would not
         // either (a cycle cut short by max_iters is left to the NotConverged test).
-        if k == m && rel > tol && rel > (1.0 - params.min_cycle_reduction) * previous {
+        let full_idle = k == m && rel > (1.0 - params.min_cycle_reduction) * previous;
+        if rel > tol && (full_idle || idle_short >= SHORT_CYCLES_WITHOUT_PROGRESS) {
             report.relative_residual = rel;
             report.restarts = cycles - 1;
             report.converged = false;
