@@ -51,26 +51,43 @@ pub struct Effect {
 /// What `summary.json` holds.
 #[derive(Clone, Debug, Serialize)]
 pub struct BrownianSummary {
+    /// `[brownian.system] kind` as written (`"dimer"`, `"chain"`, `"positions"`, `"random"`).
     pub kind: String,
+    /// Number of beads `N`.
     pub beads: usize,
+    /// Steps taken (`[brownian] steps`).
     pub steps: u64,
+    /// Time step.
     pub dt: f64,
+    /// Time reached, `steps · dt`.
     pub final_time: f64,
+    /// Single-bead diffusion coefficient `D0 = kT / (6πηa)`.
     pub d0: f64,
+    /// The noise model, as Rust writes it (`"TeaHi"`, `"Cholesky"`, `"Lanczos { tol: …,
+    /// max_iter: … }"`, `"FreeDraining"`).
     pub noise: String,
+    /// Seed of the random numbers (`[brownian] seed`; default 0).
     pub seed: u64,
+    /// The effects built and why ([`effects`]).
     pub effects: Vec<Effect>,
+    /// Wall-clock seconds of the time loop (output excluded).
     pub wall_s: f64,
+    /// Steps per wall-clock second of the time loop.
     pub steps_per_second: f64,
+    /// Frames saved, the initial state included (`1 + steps / save_every`).
     pub frames: usize,
     /// Mean squared COM displacement between consecutive frames over `6 Δt_frame`: the COM
     /// diffusion coefficient when no external force acts.
     pub com_diffusion_estimate: f64,
+    /// Squared radius of gyration `R_g²` averaged over the frames (the initial one included).
     pub mean_rg2: f64,
+    /// Squared end-to-end distance `|x_{N−1} − x_0|²` averaged over the frames.
     pub mean_end_to_end_sq: f64,
     /// `⟨u(t)·u(0)⟩` at lags of 1, 10 and 100 frames (NaN when the run is shorter).
     pub orientation_correlation: [f64; 3],
+    /// TEA-HI mean off-diagonal coupling `ε` of the last step (`null`: other noise).
     pub tea_hi_epsilon: Option<f64>,
+    /// TEA-HI `β'` of the last step (`null`: other noise).
     pub tea_hi_beta: Option<f64>,
     /// How the rows were split over MPI ranks (`None` on one rank).
     pub split: Option<BrownianSplit>,
@@ -82,6 +99,7 @@ pub struct BrownianSummary {
 /// and of the fused TEA-HI pass ([`BrownianSimulation::step_on`]).
 #[derive(Clone, Debug, Serialize)]
 pub struct BrownianSplit {
+    /// Number of MPI ranks `K`.
     pub ranks: usize,
     /// Rows per rank, min and max.
     pub rows_per_rank: [usize; 2],

@@ -1,4 +1,4 @@
-//! Cell scenes (the `mobo run` contract, design.md 4.2): schema, validation with errors that
+//! Cell scenes (the input of `mobo run`): schema, validation with errors that
 //! name the file, the line and the key, placement of many cells, and the assembly decisions
 //! that say which physics a scene needs (and why).
 //!
@@ -176,11 +176,23 @@ pub enum Flow {
     /// Quiescent fluid.
     None,
     /// `u = (γ̇ y, 0, 0)`.
-    Shear { rate: f64 },
+    Shear {
+        /// Shear rate `γ̇` (`[flow] rate`; its sign sets the direction).
+        rate: f64,
+    },
     /// `u = ε̇ (x, −y, 0)`.
-    Extensional { rate: f64 },
+    Extensional {
+        /// Strain rate `ε̇` (`[flow] rate`).
+        rate: f64,
+    },
     /// `u = (U (1 − (y² + z²)/R²), 0, 0)`.
-    Poiseuille { speed: f64, radius: f64 },
+    Poiseuille {
+        /// Centreline speed `U` (`[flow] speed`).
+        speed: f64,
+        /// Radius `R` of the profile (`[flow] radius`, positive); the flow is unbounded (no
+        /// wall at `R`), so `u` turns negative beyond it.
+        radius: f64,
+    },
 }
 
 impl Flow {
@@ -202,15 +214,32 @@ impl Flow {
 /// Cell shape before scaling and placement.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Shape {
+    /// `shape = "sphere"`.
     Sphere,
-    Ellipsoid { axes: [f64; 3] },
+    /// `shape = "ellipsoid"`.
+    Ellipsoid {
+        /// Semi-axes along x, y, z (`axes`, positive); only their ratios matter, the size is
+        /// set by the equivalent radius.
+        axes: [f64; 3],
+    },
+    /// `shape = "rbc"`: the biconcave red blood cell disc of [`crate::vesicle::shapes::rbc`]
+    /// (axis of symmetry along z).
     Rbc,
-    Spheroid { kind: Spheroid, reduced_volume: f64 },
+    /// `shape = "prolate"` or `"oblate"`: the spheroid (axis of symmetry along z) of a given
+    /// reduced volume.
+    Spheroid {
+        /// Prolate or oblate.
+        kind: Spheroid,
+        /// Reduced volume `v = 6√π V / A^{3/2}` (volume over that of the sphere of equal
+        /// area) in `(0, 1)` (`reduced_volume`; 1 would be a sphere).
+        reduced_volume: f64,
+    },
 }
 
 /// One cell of a scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CellSpec {
+    /// Shape before scaling, rotation and placement.
     pub shape: Shape,
     /// Equivalent radius (sphere of equal volume).
     pub radius: f64,
@@ -218,11 +247,17 @@ pub struct CellSpec {
     pub center: [f64; 3],
     /// Rotation matrix applied about the centroid.
     pub rotation: [[f64; 3]; 3],
+    /// Bending modulus `κ_b` (default 0.05).
     pub bending_modulus: f64,
+    /// Skalak shear modulus `G_s` (default 0: no shear elasticity); the membrane is
+    /// stress-free at its initial shape.
     pub shear_modulus: f64,
+    /// Skalak area-dilation parameter `C` (large `C`: nearly area-preserving; default 10).
     pub skalak_c: f64,
+    /// Viscosity ratio `λ = μ_in / μ_out` (default 1: no double layer).
     pub viscosity_ratio: f64,
-    /// Body force on the cell.
+    /// Body force on the cell, the total `F` (spread as a uniform traction `F / A`; default
+    /// zero).
     pub force: [f64; 3],
     /// Radius of a sphere about the centroid that contains the cell.
     pub bounding_radius: f64,
@@ -254,13 +289,22 @@ pub enum Scheme {
 /// `[numerics]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Numerics {
+    /// Spherical-harmonic order `p` of the cell surfaces (2 to 64; default 12).
     pub order: usize,
+    /// Upsampling factor: the quadrature order is `q = upsample · p` (1 to 4; default 2).
     pub upsample: usize,
+    /// Digits of accuracy asked of the FMM between cells (3 to 10; default 6).
     pub fmm_digits: u32,
+    /// Relative residual at which GMRES stops (in `(0, 1)`; default `1e-8`).
     pub gmres_tol: f64,
+    /// Time step (default 0.01); with `adaptive_dt`, the first step.
     pub dt: f64,
+    /// End time of the run (default 1); a fixed `dt` takes `round(t_end / dt)` steps.
     pub t_end: f64,
+    /// Time-integration scheme (default [`Scheme::Euler`]).
     pub scheme: Scheme,
+    /// Choose `dt` from the area/volume error estimate ([`crate::timestep::adaptive`];
+    /// default off).
     pub adaptive_dt: bool,
     /// Split a cell's own far side off its singular integrals where it comes close
     /// ([`crate::vesicle::far_side`]; default on).
@@ -271,8 +315,9 @@ pub struct Numerics {
     pub operator_storage: Option<OperatorStorage>,
     /// Adaptive `dt`: relative area/volume error allowed over the run (default `1e-3`).
     pub dt_tolerance: f64,
-    /// Adaptive `dt`: bounds of the step (defaults `dt/1000` and `t_end/10`, at least `dt`).
+    /// Adaptive `dt`: smallest step (default `dt/1000`).
     pub dt_min: f64,
+    /// Adaptive `dt`: largest step (default `max(dt, t_end/10)`).
     pub dt_max: f64,
     /// Contact repulsion range as a fraction of the equivalent radius (0: off).
     pub repulsion_range: f64,
@@ -292,19 +337,27 @@ pub struct Numerics {
 /// One assembly decision: whether a piece of physics is built, and why.
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Effect {
+    /// What is built: `"fmm"`, `"double_layer"`, `"inter_cell_double_layer"`, `"skalak"`,
+    /// `"background_flow"`, `"body_force"` or `"adaptive_dt"`.
     pub name: &'static str,
+    /// Whether it is built.
     pub enabled: bool,
+    /// Why, in words (e.g. `"viscosity_ratio ≠ 1 for cells 1, 3"`).
     pub reason: String,
 }
 
 /// A validated cell scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CellScene {
+    /// Viscosity `μ` of the suspending fluid (`[fluid] viscosity`; default 1).
     pub viscosity: f64,
+    /// Background flow (`[flow]`; default none).
     pub flow: Flow,
+    /// Every cell, groups expanded, in the order of the file.
     pub cells: Vec<CellSpec>,
+    /// Discretisation, time stepping and parallel settings.
     pub numerics: Numerics,
-    /// Steps between saved frames.
+    /// Steps between saved frames (`[output] every`; default 10).
     pub output_every: u64,
     /// Formats and checkpoints.
     pub output: OutputSettings,

@@ -50,7 +50,12 @@ pub enum DpdRunError {
     Io(#[from] IoError),
     /// A checkpoint that does not belong to this scene.
     #[error("{file}: {why}")]
-    Checkpoint { file: String, why: String },
+    Checkpoint {
+        /// The checkpoint file.
+        file: String,
+        /// What does not fit (wrong kind, a missing or malformed array, another scene).
+        why: String,
+    },
 }
 
 /// How to run.
@@ -73,8 +78,9 @@ pub struct ViscositySummary {
     pub value: f64,
     /// Standard error over the blocks.
     pub stderr: f64,
-    /// Blocks and samples averaged.
+    /// Blocks averaged (`[dpd] blocks`).
     pub blocks: usize,
+    /// Profile samples averaged, all blocks together.
     pub samples: usize,
     /// Steps between samples.
     pub sample_every: u64,
@@ -91,29 +97,52 @@ pub struct ViscositySummary {
 /// What `summary.json` holds.
 #[derive(Clone, Debug, Serialize)]
 pub struct DpdSummary {
+    /// Always `"dpd"`.
     pub kind: &'static str,
+    /// Whether the run reached `steps` (false: stopped early with a checkpoint, to be resumed).
     pub completed: bool,
+    /// Particles, frozen wall particles included.
     pub particles: usize,
+    /// Steps taken so far (all invocations of a resumed run).
     pub steps: u64,
+    /// Steps the scene asks for (`[dpd] steps`, or `t_end / dt`).
     pub steps_requested: u64,
+    /// Time step.
     pub dt: f64,
+    /// Time reached, `steps · dt`.
     pub final_time: f64,
+    /// Box side lengths (JSON key `box`).
     #[serde(rename = "box")]
     pub box_len: [f64; 3],
+    /// Number density of the fluid: moving particles over the fluid's volume (with walls),
+    /// or all particles over the box volume.
     pub density: f64,
+    /// Conservative (repulsion) amplitude `a`.
     pub a: f64,
+    /// Dissipative coefficient `γ`.
     pub gamma: f64,
+    /// Thermal energy `k_BT` of the thermostat.
     pub kbt: f64,
+    /// Cut-off radius `r_c`.
     pub rc: f64,
+    /// Kernel exponent `k` (`w_R = w^k`, `w_D = w^{2k}`).
     pub power: f64,
+    /// Particle mass.
     pub mass: f64,
+    /// Seed of the noise and of the initial state.
     pub seed: u64,
+    /// The body force (JSON `"None"`, `{"Constant": [gx, gy, gz]}` or
+    /// `{"ReversePoiseuille": {"force": g}}`).
     pub flow: BodyForce,
+    /// The effects built and why ([`effects`]).
     pub effects: Vec<Effect>,
     /// Wall seconds of the steps (all invocations of a resumed run).
     pub wall_s: f64,
+    /// Wall milliseconds per step in this invocation (NaN when it took no step).
     pub ms_per_step: f64,
+    /// Particles (all of them) times steps per wall second in this invocation.
     pub particle_steps_per_second: f64,
+    /// Threads of the rayon pool.
     pub threads: usize,
     /// Seconds per phase (this invocation).
     pub timings: DpdTimings,
