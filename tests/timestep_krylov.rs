@@ -991,11 +991,12 @@ fn short_cycles_at_the_attainable_accuracy_floor_are_stagnation() {
                 .calls
                 .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             let scale = x.iter().map(|v| v * v).sum::<f64>().sqrt();
-            for i in 0..self.n {
-                let exact: f64 = (0..self.n).map(|j| self.a[i * self.n + j] * x[j]).sum();
+            for (i, yi) in y.iter_mut().enumerate() {
+                let row = &self.a[i * self.n..(i + 1) * self.n];
+                let exact: f64 = row.iter().zip(x).map(|(a, x)| a * x).sum();
                 // A deterministic perturbation, different at every call, of relative size 1e-9.
                 let h = ((c * 7919 + i as u64 * 104_729) % 1000) as f64 / 1000.0 - 0.5;
-                y[i] = exact + 2e-9 * h * scale;
+                *yi = exact + 2e-9 * h * scale;
             }
         }
     }

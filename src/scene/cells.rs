@@ -10,6 +10,8 @@
 //! kind = "shear"                  # "none" | "shear" | "extensional" | "poiseuille"
 //! rate = 1.0                      # shear: u = (γ̇ y, 0, 0); extensional: u = ε̇ (x, −y, 0)
 //! # speed = 1.0, radius = 5.0     # poiseuille along x: u = U (1 − (y² + z²)/R²), free space
+//! # frame = "cells"               # extensional: stagnation point at the cells' centre ("cells",
+//! #                               # the default: a uniform translation) or at 0 ("lab")
 //!
 //! [[cells]]
 //! shape = "rbc"                   # "sphere" | "ellipsoid" | "rbc" | "prolate" | "oblate"
@@ -91,6 +93,7 @@ struct FlowSection {
     rate: Option<Spanned<f64>>,
     speed: Option<Spanned<f64>>,
     radius: Option<Spanned<f64>>,
+    frame: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -180,10 +183,18 @@ pub enum Flow {
         /// Shear rate `γ̇` (`[flow] rate`; its sign sets the direction).
         rate: f64,
     },
-    /// `u = ε̇ (x, −y, 0)`.
+    /// `u = ε̇ (x − o_x, −(y − o_y), 0)` about the origin `o` of the frame.
     Extensional {
         /// Strain rate `ε̇` (`[flow] rate`).
         rate: f64,
+        /// Whether the stagnation point follows the cells (`[flow] frame = "cells"`, the
+        /// default): `o` is, at the start of every step, the midpoint of the bounding box of
+        /// the cells' centres; otherwise (`frame = "lab"`) `o = 0`. Following the cells is a
+        /// uniform translation of the whole suspension (in free space it changes no shape and
+        /// no relative position), as the feedback of cross-slot experiments keeps a cell at the
+        /// stagnation point; in the lab frame the stagnation point is a saddle that a cell
+        /// leaves exponentially, at the strain rate, from the round-off of its position.
+        follow_cells: bool,
     },
     /// `u = (U (1 − (y² + z²)/R²), 0, 0)`.
     Poiseuille {
@@ -196,12 +207,34 @@ pub enum Flow {
 }
 
 impl Flow {
-    /// The background velocity at `x`.
+    /// The background velocity at `x` in a frame whose origin is `origin`: for an extensional
+    /// flow that follows the cells, `u(x − origin)`; every other flow is the lab frame's
+    /// [`Flow::velocity`] (`origin` unused).
+    pub fn velocity_about(&self, x: [f64; 3], origin: [f64; 3]) -> [f64; 3] {
+        if self.follows_cells() {
+            self.velocity([x[0] - origin[0], x[1] - origin[1], x[2] - origin[2]])
+        } else {
+            self.velocity(x)
+        }
+    }
+
+    /// Whether the flow's origin follows the cells (an extensional flow with `frame = "cells"`).
+    pub fn follows_cells(&self) -> bool {
+        matches!(
+            self,
+            Flow::Extensional {
+                follow_cells: true,
+                ..
+            }
+        )
+    }
+
+    /// The background velocity at `x` (lab frame).
     pub fn velocity(&self, x: [f64; 3]) -> [f64; 3] {
         match *self {
             Flow::None => [0.0; 3],
             Flow::Shear { rate } => [rate * x[1], 0.0, 0.0],
-            Flow::Extensional { rate } => [rate * x[0], -rate * x[1], 0.0],
+            Flow::Extensional { rate, .. } => [rate * x[0], -rate * x[1], 0.0],
             Flow::Poiseuille { speed, radius } => [
                 speed * (1.0 - (x[1] * x[1] + x[2] * x[2]) / (radius * radius)),
                 0.0,
@@ -449,6 +482,21 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
                 },
                 "extensional" => Flow::Extensional {
                     rate: need(&fl.rate, "rate")?,
+                    follow_cells: match &fl.frame {
+                        None => true,
+                        Some(f) => match f.get_ref().as_str() {
+                            "cells" => true,
+                            "lab" => false,
+                            other => {
+                                return Err(at(
+                                    f.span(),
+                                    format!(
+                                        "[flow] frame: unknown frame \"{other}\" (cells, lab)"
+                                    ),
+                                ))
+                            }
+                        },
+                    },
                 },
                 "poiseuille" => {
                     let speed = need(&fl.speed, "speed")?;
@@ -1085,6 +1133,10 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             enabled: *flow != Flow::None,
             reason: match flow {
                 Flow::None => "[flow] kind = \"none\" or absent".into(),
+                f if f.follows_cells() => format!(
+                    "{f:?}: stagnation point at the midpoint of the cells' centres, moved every \
+                     step (frame = \"cells\"; \"lab\" keeps it at 0)"
+                ),
                 f => format!("{f:?}"),
             },
         },

@@ -38,7 +38,7 @@ use serde::Serialize;
 use super::cells::{CellScene, Effect, Flow, Scheme};
 use super::cells_checkpoint::{self, Progress, Split};
 use super::cells_partition::{self, Reason};
-use super::cells_step::{accepted_step, step_error};
+use super::cells_step::{accepted_step, flow_origin, step_error};
 use crate::comm::{spread, CommError, Communicator, SerialComm};
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
@@ -315,7 +315,7 @@ pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
 fn coupling_params(scene: &CellScene) -> CouplingParams {
     let rate = match scene.flow {
         Flow::None => 0.0,
-        Flow::Shear { rate } | Flow::Extensional { rate } => rate.abs(),
+        Flow::Shear { rate } | Flow::Extensional { rate, .. } => rate.abs(),
         Flow::Poiseuille { speed, radius } => (speed / radius).abs(),
     };
     let auto_strength = scene
@@ -827,10 +827,11 @@ pub fn run_on(
             }
         }
         let t = Instant::now();
+        let origin = flow_origin(comm, &susp, &flow)?;
         let acc = accepted_step(
             comm,
             &mut susp,
-            &|x| flow.velocity(x),
+            &|x| flow.velocity_about(x, origin),
             &[],
             (k, prog.time, scene.numerics.t_end),
             dt_try,

@@ -4,6 +4,8 @@
 //! failed (stagnated, out of iterations), is repeated smaller from a snapshot of the cells,
 //! down to `dt_min`, before the error is returned.
 
+use super::cells::Flow;
+use super::cells_partition::centre;
 use super::cells_run::CellRunError;
 use crate::comm::Communicator;
 use crate::timestep::adaptive::AdaptiveDt;
@@ -107,4 +109,35 @@ pub(crate) fn accepted_step(
             .map_err(|e| step_error(step, time + dt_try, e))?;
         dt_try = d.dt.min(t_end - time);
     }
+}
+
+/// The origin of the flow's frame for the next step (collective over `comm`): for a flow that
+/// follows the cells ([`Flow::follows_cells`]), the midpoint of the bounding box of every
+/// cell's centre (the degree-0 coefficients), the same on every rank; else `0`.
+pub(crate) fn flow_origin(
+    comm: &dyn Communicator,
+    susp: &Suspension,
+    flow: &Flow,
+) -> Result<[f64; 3], CellRunError> {
+    if !flow.follows_cells() {
+        return Ok([0.0; 3]);
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for c in susp.coefs() {
+        let x = centre(c);
+        for d in 0..3 {
+            lo[d] = lo[d].min(x[d]);
+            hi[d] = hi[d].max(x[d]);
+        }
+    }
+    comm.all_min(&mut lo).map_err(CellRunError::Comm)?;
+    comm.all_max(&mut hi).map_err(CellRunError::Comm)?;
+    Ok(std::array::from_fn(|d| {
+        if lo[d].is_finite() && hi[d].is_finite() {
+            0.5 * (lo[d] + hi[d])
+        } else {
+            0.0
+        }
+    }))
 }

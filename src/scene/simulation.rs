@@ -39,7 +39,7 @@
 
 use super::cells::{CellScene, Effect, Scheme};
 use super::cells_run::{build, CellRunError};
-use super::cells_step::{accepted_step, step_error};
+use super::cells_step::{accepted_step, flow_origin, step_error};
 use crate::comm::SerialComm;
 use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::cell_force::CellForce;
@@ -154,10 +154,11 @@ impl Simulation {
         }
         let forces: Vec<&dyn CellForce> = self.forces.iter().map(|f| f.as_ref()).collect();
         let flow = self.scene.flow;
+        let origin = flow_origin(&SerialComm, &self.susp, &flow)?;
         let acc = accepted_step(
             &SerialComm,
             &mut self.susp,
-            &|x| flow.velocity(x),
+            &|x| flow.velocity_about(x, origin),
             &forces,
             (k, self.time, t_stop),
             dt_try,
