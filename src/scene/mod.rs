@@ -13,6 +13,7 @@ mod cells_step;
 pub mod dpd;
 pub mod dpd_run;
 pub mod simulation;
+pub mod spec;
 
 use std::path::{Path, PathBuf};
 

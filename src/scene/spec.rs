@@ -1,0 +1,352 @@
+//! Cell scenes written in code: [`SceneSpec`] is the scene file's schema as Rust types (every
+//! section and key of [`super::cells`], each optional with the file's default), so that a
+//! program and a file describe the same thing.
+//!
+//! * [`SceneSpec::build`] validates it into a [`CellScene`] with the file's own validation,
+//!   so the errors are the same (they name the section and key; there is no line to name);
+//! * [`SceneSpec::to_toml`] writes it as a scene file, [`SceneSpec::from_toml`] reads one
+//!   back: `from_toml(to_toml(s)) == s`, and `parse(to_toml(s))` is `s.build()`.
+//!
+//! ```
+//! use mobo::scene::spec::{CellGroupSpec, FlowKind, FlowSpec, NumericsSpec, SceneSpec, ShapeKind};
+//!
+//! let spec = SceneSpec {
+//!     flow: Some(FlowSpec { kind: FlowKind::Shear, rate: Some(1.0), ..Default::default() }),
+//!     cells: vec![
+//!         CellGroupSpec { shear_modulus: Some(0.2), ..CellGroupSpec::new(ShapeKind::Rbc) },
+//!         CellGroupSpec { center: Some([4.0, 0.0, 0.0]), ..CellGroupSpec::new(ShapeKind::Sphere) },
+//!     ],
+//!     numerics: Some(NumericsSpec { order: Some(8), dt: Some(0.01), ..Default::default() }),
+//!     ..Default::default()
+//! };
+//! let scene = spec.build()?;
+//! assert_eq!(scene.cells.len(), 2);
+//! assert_eq!(SceneSpec::from_toml(&spec.to_toml()?)?, spec);
+//! // The same validation as a file: a cell too close to another is refused.
+//! let mut bad = spec.clone();
+//! bad.cells[1].center = Some([0.5, 0.0, 0.0]);
+//! assert!(bad.build().unwrap_err().to_string().contains("overlap"));
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::cells::{parse, CellScene};
+use super::SceneError;
+
+/// The name a built scene's errors carry in place of a file.
+const SOURCE: &str = "<scene spec>";
+
+/// A whole cell scene: the sections of the file.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SceneSpec {
+    /// `[fluid]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fluid: Option<FluidSpec>,
+    /// `[flow]` (absent: quiescent fluid).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flow: Option<FlowSpec>,
+    /// `[[cells]]`, one entry per group of cells (at least one).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub cells: Vec<CellGroupSpec>,
+    /// `[numerics]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub numerics: Option<NumericsSpec>,
+    /// `[output]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub output: Option<OutputSpec>,
+}
+
+/// `[fluid]`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidSpec {
+    /// `viscosity`: μ of the suspending fluid.
+    pub viscosity: f64,
+}
+
+/// `[flow] kind`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FlowKind {
+    /// Quiescent fluid.
+    #[default]
+    None,
+    /// `u = (γ̇ y, 0, 0)`; needs `rate`.
+    Shear,
+    /// `u = ε̇ (x, −y, 0)`; needs `rate`; `frame` says where the stagnation point is.
+    Extensional,
+    /// `u = (U (1 − (y² + z²)/R²), 0, 0)`; needs `speed` and `radius`.
+    Poiseuille,
+}
+
+/// `[flow] frame` of an extensional flow.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FrameKind {
+    /// The stagnation point follows the cells (the default).
+    Cells,
+    /// The stagnation point stays at the origin.
+    Lab,
+}
+
+/// `[flow]`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlowSpec {
+    /// `kind`.
+    pub kind: FlowKind,
+    /// `rate`: shear rate or strain rate.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rate: Option<f64>,
+    /// `speed`: Poiseuille centreline speed.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub speed: Option<f64>,
+    /// `radius`: Poiseuille radius.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// `frame` of an extensional flow.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frame: Option<FrameKind>,
+}
+
+/// `[[cells]] shape`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ShapeKind {
+    /// A sphere.
+    Sphere,
+    /// An ellipsoid; needs `axes`.
+    Ellipsoid,
+    /// The biconcave red blood cell.
+    Rbc,
+    /// A prolate spheroid; needs `reduced_volume`.
+    Prolate,
+    /// An oblate spheroid; needs `reduced_volume`.
+    Oblate,
+}
+
+/// `[[cells]] placement`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PlacementKind {
+    /// On a cubic lattice of `spacing` about `center`.
+    Lattice,
+    /// At random in `region`, clear of each other and of earlier groups.
+    Random,
+}
+
+/// One `[[cells]]` entry: a cell, or `count` cells placed alike.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellGroupSpec {
+    /// `shape`.
+    pub shape: ShapeKind,
+    /// `radius`: equivalent radius (default 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// `center`: centroid (default the origin).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f64; 3]>,
+    /// `axes` of an ellipsoid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub axes: Option<[f64; 3]>,
+    /// `reduced_volume` of a spheroid, in (0, 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reduced_volume: Option<f64>,
+    /// `orientation`: rotation axis and angle in degrees.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub orientation: Option<[f64; 4]>,
+    /// `bending_modulus` (default 0.05).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bending_modulus: Option<f64>,
+    /// `shear_modulus`: Skalak `G_s` (default 0: none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub shear_modulus: Option<f64>,
+    /// `skalak_c`: Skalak area-dilation parameter (default 10).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub skalak_c: Option<f64>,
+    /// `viscosity_ratio`: `λ = μ_in/μ_out` (default 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub viscosity_ratio: Option<f64>,
+    /// `force`: body force per cell.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub force: Option<[f64; 3]>,
+    /// `count` of cells in the group (default 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub count: Option<usize>,
+    /// `placement` of a group.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub placement: Option<PlacementKind>,
+    /// `spacing` of a lattice (default 2.2 bounding radii).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub spacing: Option<f64>,
+    /// `region` of random placement: lower and upper corners.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub region: Option<[[f64; 3]; 2]>,
+    /// `seed` of random placement (default 1).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+}
+
+impl CellGroupSpec {
+    /// One cell of `shape` with every other key at its default.
+    pub fn new(shape: ShapeKind) -> Self {
+        CellGroupSpec {
+            shape,
+            radius: None,
+            center: None,
+            axes: None,
+            reduced_volume: None,
+            orientation: None,
+            bending_modulus: None,
+            shear_modulus: None,
+            skalak_c: None,
+            viscosity_ratio: None,
+            force: None,
+            count: None,
+            placement: None,
+            spacing: None,
+            region: None,
+            seed: None,
+        }
+    }
+}
+
+/// `[numerics] scheme`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SchemeKind {
+    /// First-order semi-implicit.
+    Euler,
+    /// Second-order BDF2.
+    Bdf2,
+}
+
+/// `[numerics] operator_storage`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StorageKind {
+    /// The fastest that fits in memory.
+    Auto,
+    /// Dense operators on the grid.
+    Grid,
+    /// Dense operators in coefficient space.
+    Coefficients,
+    /// Not stored.
+    MatrixFree,
+}
+
+/// `[numerics]`; every key optional (defaults as in the file's schema).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NumericsSpec {
+    /// `order`: SH order `p`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub order: Option<usize>,
+    /// `upsample`: quadrature order `q = upsample · p`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub upsample: Option<usize>,
+    /// `fmm_digits`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fmm_digits: Option<u32>,
+    /// `gmres_tol`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gmres_tol: Option<f64>,
+    /// `dt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt: Option<f64>,
+    /// `t_end`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub t_end: Option<f64>,
+    /// `scheme`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scheme: Option<SchemeKind>,
+    /// `adaptive_dt`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub adaptive_dt: Option<bool>,
+    /// `far_side_split`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub far_side_split: Option<bool>,
+    /// `operator_storage`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub operator_storage: Option<StorageKind>,
+    /// `dt_tolerance` of the adaptive step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt_tolerance: Option<f64>,
+    /// `dt_min` of the adaptive step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt_min: Option<f64>,
+    /// `dt_max` of the adaptive step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dt_max: Option<f64>,
+    /// `repulsion_range` of the contact repulsion.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub repulsion_range: Option<f64>,
+    /// `repulsion_strength` of the contact repulsion.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub repulsion_strength: Option<f64>,
+    /// `rebalance_every` (MPI runs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rebalance_every: Option<u64>,
+    /// `max_imbalance` (MPI runs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_imbalance: Option<f64>,
+    /// `gpu`: `Some(true)` / `Some(false)`; `None` is `"auto"`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gpu: Option<bool>,
+}
+
+/// `[output]`.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputSpec {
+    /// `every`: steps between frames.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub every: Option<u64>,
+    /// `npy` frames.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub npy: Option<bool>,
+    /// `vtk` frames.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vtk: Option<bool>,
+    /// `hdf5` frames.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub hdf5: Option<bool>,
+    /// `mesh_subdivisions` of the VTK meshes.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mesh_subdivisions: Option<u32>,
+    /// `checkpoint_every` steps.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checkpoint_every: Option<u64>,
+}
+
+impl SceneSpec {
+    /// The scene as a scene file.
+    pub fn to_toml(&self) -> Result<String, SceneError> {
+        toml::to_string(self).map_err(|e| SceneError {
+            file: SOURCE.into(),
+            place: None,
+            message: format!("cannot write the scene as TOML: {e}"),
+        })
+    }
+
+    /// A scene file's text as a spec (the schema only: [`SceneSpec::build`] validates).
+    pub fn from_toml(text: &str) -> Result<Self, SceneError> {
+        toml::from_str(text).map_err(|e| SceneError {
+            file: SOURCE.into(),
+            place: None,
+            message: e.message().to_string(),
+        })
+    }
+
+    /// Validate into a [`CellScene`], with the scene file's validation: the same checks and
+    /// messages (section and key named; no line, which a spec does not have).
+    pub fn build(&self) -> Result<CellScene, SceneError> {
+        let text = self.to_toml()?;
+        parse(Path::new(SOURCE), &text).map_err(|e| SceneError { place: None, ..e })
+    }
+}
