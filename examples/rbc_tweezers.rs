@@ -34,10 +34,9 @@ const SHEAR_N_PER_M: f64 = 6.3e-6;
 const BENDING_J: f64 = 2.4e-19;
 
 fn extent(g: &Geometry, d: usize) -> f64 {
-    let (lo, hi) = g
-        .x
-        .iter()
-        .fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x[d]), h.max(x[d])));
+    let (lo, hi) =
+        g.x.iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x[d]), h.max(x[d])));
     hi - lo
 }
 
@@ -86,7 +85,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sim.advance_to(t, |_, _| {})?;
             let d = extent(&sim.cell(0)?.geometry, 0);
             let rate = (d - last).abs() * r_um / check;
-            eprintln!("F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  rate {rate:.2e} µm/time", sim.time(), d * r_um);
+            eprintln!(
+                "F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  rate {rate:.2e} µm/time",
+                sim.time(),
+                d * r_um
+            );
             last = d;
             if rate < 1e-4 {
                 break;
