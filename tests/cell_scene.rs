@@ -331,6 +331,12 @@ fn specs_and_files_describe_the_same_scenes() {
         }
     }
     assert!(texts.len() >= 4, "{}", texts.len());
+    for gpu in ["\"auto\"", "true", "false"] {
+        texts.push((
+            format!("gpu = {gpu}"),
+            format!("[[cells]]\nshape = \"sphere\"\n[numerics]\ngpu = {gpu}\n"),
+        ));
+    }
     for (name, text) in &texts {
         let spec = SceneSpec::from_toml(text).unwrap_or_else(|e| panic!("{name}: {e}"));
         let again = SceneSpec::from_toml(&spec.to_toml().unwrap()).unwrap();

@@ -209,7 +209,9 @@ fn advance_to_lands_on_the_time_asked() {
     let steps = sim.advance_to(0.1, |s, _| times.push(s.time())).unwrap();
     assert_eq!(steps, 4);
     assert!((sim.time() - 0.1).abs() < 1e-12, "{}", sim.time());
-    assert!((times[2] - 0.09).abs() < 1e-12 && sim.dt() == 0.03);
+    // 0.03, 0.06, then the remaining 0.04 as two steps of 0.02 (BDF2's ratio stays ≤ 2).
+    assert!((times[1] - 0.06).abs() < 1e-12 && (times[2] - 0.08).abs() < 1e-12);
+    assert_eq!(sim.dt(), 0.03);
     assert!(sim
         .effects()
         .iter()
@@ -231,4 +233,26 @@ fn a_force_returning_nan_stops_the_step_with_the_cell_named() {
         e.contains("step 1") && e.contains("cell 1") && e.contains("user force"),
         "{e}"
     );
+}
+
+#[test]
+fn bad_tweezers_and_cell_indices_are_errors_not_panics() {
+    let text = "[[cells]]\nshape = \"sphere\"\n[numerics]\norder = 4\ndt = 0.05\nt_end = 1.0\n";
+    let mut sim = Simulation::new(scene(text)).unwrap();
+    let e = sim.cell(3).unwrap_err().to_string();
+    assert!(e.contains("no cell 3") && e.contains("1 cells"), "{e}");
+    for bad in [f64::NAN, 0.0, 0.7] {
+        let mut sim = Simulation::new(scene(text)).unwrap();
+        sim.add_force(PatchPair {
+            cell: 0,
+            axis: [1.0, 0.0, 0.0],
+            fraction: bad,
+            force: 1.0,
+        });
+        let e = sim.step().expect_err("invalid patch pair").to_string();
+        assert!(
+            e.contains("cell 1") && e.contains("user force"),
+            "fraction {bad}: {e}"
+        );
+    }
 }

@@ -1134,8 +1134,9 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             reason: match flow {
                 Flow::None => "[flow] kind = \"none\" or absent".into(),
                 f if f.follows_cells() => format!(
-                    "{f:?}: stagnation point at the midpoint of the cells' centres, moved every \
-                     step (frame = \"cells\"; \"lab\" keeps it at 0)"
+                    "{f:?}: stagnation point at the midpoint of the bounding box of the cells' \
+                     centres, moved every step (frame = \"cells\"; positions and velocities in \
+                     the summary are then those of this moving frame; \"lab\" keeps it at 0)"
                 ),
                 f => format!("{f:?}"),
             },

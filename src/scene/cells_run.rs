@@ -82,6 +82,14 @@ pub enum CellRunError {
     /// Communication between ranks failed, or another rank failed (its message).
     #[error("{0}")]
     Comm(CommError),
+    /// A cell index beyond the scene's cells.
+    #[error("no cell {index}: the scene has {cells} cells (indices from 0)")]
+    NoSuchCell {
+        /// The index asked for.
+        index: usize,
+        /// Cells in the scene.
+        cells: usize,
+    },
     /// A cell state gathered from the ranks does not decode.
     #[error("{0}")]
     State(#[from] CellStateError),

@@ -73,6 +73,8 @@ pub struct Simulation {
     calc: SurfaceCalculus,
     time: f64,
     steps: usize,
+    /// Time and step count of the last landing (fixed `dt`: `time = base.0 + (steps − base.1) dt`).
+    base: (f64, usize),
     /// The `dt` the next step tries.
     dt: f64,
     rejected: usize,
@@ -111,6 +113,7 @@ impl Simulation {
             calc,
             time: 0.0,
             steps: 0,
+            base: (0.0, 0),
             dt,
             rejected: 0,
         })
@@ -143,11 +146,21 @@ impl Simulation {
         self.step_until(f64::INFINITY)
     }
 
-    /// One step that does not pass `t_stop`.
+    /// One step that does not pass `t_stop`. With `t_stop` less than two steps away, the
+    /// remainder is split into two equal steps (each at least half of `dt`, which keeps BDF2's
+    /// step ratio at most 2) and the second lands on `t_stop` exactly.
     fn step_until(&mut self, t_stop: f64) -> Result<SuspensionReport, CellRunError> {
         let k = self.steps + 1;
-        let dt_try = self.dt.min(t_stop - self.time);
-        if self.adaptive.is_none() && dt_try < self.dt {
+        let left = t_stop - self.time;
+        let (dt_try, lands) = if left <= self.dt * (1.0 + 1e-9) {
+            (left, true)
+        } else if left < 2.0 * self.dt {
+            (0.5 * left, false)
+        } else {
+            (self.dt, false)
+        };
+        let shortened = dt_try != self.dt;
+        if self.adaptive.is_none() && shortened {
             self.susp
                 .set_dt(dt_try)
                 .map_err(|e| step_error(k, self.time + dt_try, e))?;
@@ -163,33 +176,48 @@ impl Simulation {
             (k, self.time, t_stop),
             dt_try,
             self.adaptive.as_ref(),
-        )?;
-        if self.adaptive.is_none() && dt_try < self.dt {
-            // Back to the scene's dt after a shortened last step.
+        );
+        if self.adaptive.is_none() && shortened {
+            // Back to the scene's dt after a shortened step, also when it failed.
             self.susp
                 .set_dt(self.dt)
                 .map_err(|e| step_error(k, self.time + dt_try, e))?;
         }
-        self.time += acc.dt;
+        let acc = acc?;
+        // Fixed dt: the time is counted in steps since the last landing (no sum of rounded
+        // steps); a landing puts it on the time asked exactly.
         self.steps = k;
+        if lands && acc.dt == dt_try {
+            self.time = t_stop;
+            self.base = (t_stop, k);
+        } else if self.adaptive.is_none() && !shortened {
+            self.time = self.base.0 + (k - self.base.1) as f64 * self.dt;
+        } else {
+            self.time += acc.dt;
+            self.base = (self.time, k);
+        }
         self.rejected += acc.rejected;
         if let Some(next) = acc.next_dt {
-            self.dt = next;
+            // A step shortened only to land does not shrink the next one, unless its error
+            // asked for a smaller step than the one it took.
+            self.dt = if shortened && next >= acc.dt {
+                next.max(self.dt)
+            } else {
+                next
+            };
         }
         Ok(acc.report)
     }
 
-    /// Step until `t` (the last step shortened to land on it), calling `observe` after every
-    /// step; returns the number of steps taken.
+    /// Step until `t` (the last two steps evened out to land on it exactly), calling `observe`
+    /// after every step; returns the number of steps taken.
     pub fn advance_to(
         &mut self,
         t: f64,
         mut observe: impl FnMut(&mut Simulation, &SuspensionReport),
     ) -> Result<usize, CellRunError> {
         let first = self.steps;
-        // Round-off in the sum of the steps does not add a step of a few ulps.
-        let done = t - 1e-9 * self.dt.max(f64::MIN_POSITIVE);
-        while self.time < done {
+        while self.time < t {
             let report = self.step_until(t)?;
             observe(self, &report);
         }
@@ -238,6 +266,12 @@ impl Simulation {
 
     /// Cell `i` as it stands: coefficients, geometry, tension, velocities.
     pub fn cell(&mut self, i: usize) -> Result<CellObservation, CellRunError> {
+        if i >= self.susp.len() {
+            return Err(CellRunError::NoSuchCell {
+                index: i,
+                cells: self.susp.len(),
+            });
+        }
         let state = self.susp.cell_state(i);
         let geometry = self.calc.geometry(&state.coefs)?;
         Ok(CellObservation {

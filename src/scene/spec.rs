@@ -295,9 +295,52 @@ pub struct NumericsSpec {
     /// `max_imbalance` (MPI runs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_imbalance: Option<f64>,
-    /// `gpu`: `Some(true)` / `Some(false)`; `None` is `"auto"`.
+    /// `gpu`: `"auto"`, `true` or `false`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub gpu: Option<bool>,
+    pub gpu: Option<GpuSpec>,
+}
+
+/// `[numerics] gpu`: written `"auto"`, `true` or `false` in the file.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum GpuSpec {
+    /// `"auto"`: the GPU near field where it pays.
+    Auto,
+    /// `true`: the GPU near field.
+    On,
+    /// `false`: the CPU near field.
+    Off,
+}
+
+/// How `gpu` is written: a flag or a word.
+#[derive(Serialize, Deserialize)]
+#[serde(untagged)]
+enum GpuWritten {
+    Flag(bool),
+    Word(String),
+}
+
+impl Serialize for GpuSpec {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            GpuSpec::Auto => GpuWritten::Word("auto".into()),
+            GpuSpec::On => GpuWritten::Flag(true),
+            GpuSpec::Off => GpuWritten::Flag(false),
+        }
+        .serialize(s)
+    }
+}
+
+impl<'de> Deserialize<'de> for GpuSpec {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        match GpuWritten::deserialize(d)? {
+            GpuWritten::Flag(true) => Ok(GpuSpec::On),
+            GpuWritten::Flag(false) => Ok(GpuSpec::Off),
+            GpuWritten::Word(w) if w == "auto" => Ok(GpuSpec::Auto),
+            GpuWritten::Word(w) => Err(serde::de::Error::custom(format!(
+                "gpu must be \"auto\", true or false, got \"{w}\""
+            ))),
+        }
+    }
 }
 
 /// `[output]`.

@@ -7,7 +7,8 @@
 //! membrane, the force the membrane exerts on the fluid, the sign convention of the body force)
 //! at the grid points. The step applies it explicitly, like the contact repulsion: through the
 //! cell's own single layer `S[t]` in its step and through the coupling, so that the other cells
-//! feel the flow it drives. A point force `F` on a patch `P` is the traction `F / |P|` on the
+//! feel the flow it drives. Like the contact repulsion, the traction is taken at `Xⁿ` and not
+//! extrapolated: with BDF2 a user force is first order in time. A point force `F` on a patch `P` is the traction `F / |P|` on the
 //! patch (`∫_P t dA = F` with the grid's weights); a potential `U(x)` per unit area gives
 //! `t = −∇U(X)`.
 //!
@@ -85,19 +86,38 @@ pub struct PatchPair {
     pub cell: usize,
     /// Direction of the pull (normalised when used).
     pub axis: [f64; 3],
-    /// Share of the cell's area in each patch (in `(0, 0.5)`).
+    /// Share of the cell's area in each patch, in `(0, 0.5]` (the last points at the same
+    /// position along the axis join too).
     pub fraction: f64,
     /// Magnitude `F` of the force on each patch.
     pub force: f64,
 }
 
 impl PatchPair {
-    /// Per grid point: `+1` on the `+` patch, `−1` on the `−` patch, `0` elsewhere.
+    /// Whether the parameters make sense: `fraction` in `(0, 0.5]`, a finite non-zero axis,
+    /// a finite force. [`CellForce::add_traction`] of an invalid pair writes NaN, which the
+    /// step reports as a non-finite user traction on the cell.
+    pub fn is_valid(&self) -> bool {
+        self.fraction > 0.0
+            && self.fraction <= 0.5
+            && self.axis.iter().all(|v| v.is_finite())
+            && dot(self.axis, self.axis) > 0.0
+            && self.force.is_finite()
+    }
+
+    /// Per grid point: `+1` on the `+` patch, `−1` on the `−` patch, `0` elsewhere. Points at
+    /// the same position along the axis (to 1e-12 of the extent) join a patch together, so
+    /// that a surface and grid symmetric under `x·a → −x·a` get mirror-image patches.
     pub fn patches(&self, g: &Geometry) -> Vec<i8> {
         let a = unit(self.axis);
         let s: Vec<f64> = g.x.iter().map(|x| dot(*x, a)).collect();
         let mut order: Vec<usize> = (0..s.len()).collect();
         order.sort_by(|&i, &j| s[i].total_cmp(&s[j]));
+        let (lo, hi) = match (order.first(), order.last()) {
+            (Some(&i), Some(&j)) => (s[i], s[j]),
+            _ => return Vec::new(),
+        };
+        let tie = 1e-12 * (hi - lo);
         let share = self.fraction.clamp(0.0, 0.5) * g.area();
         let mut side = vec![0i8; s.len()];
         for (sign, ends) in [
@@ -105,12 +125,15 @@ impl PatchPair {
             (1, &mut order.iter().rev()),
         ] {
             let mut taken = 0.0;
+            let mut last = f64::NAN;
             for &j in ends {
-                if taken >= share || side[j] != 0 {
+                let full = taken >= share && (s[j] - last).abs() > tie;
+                if full || side[j] != 0 {
                     break;
                 }
                 side[j] = sign;
                 taken += g.da[j];
+                last = s[j];
             }
         }
         side
@@ -124,6 +147,10 @@ impl CellForce for PatchPair {
 
     fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]) {
         if cell.id != self.cell {
+            return;
+        }
+        if !self.is_valid() {
+            out.fill(f64::NAN);
             return;
         }
         let g = cell.geometry;

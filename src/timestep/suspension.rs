@@ -511,7 +511,8 @@ impl Suspension {
 
     /// [`Suspension::step_on`] with the caller's `forces` ([`CellForce`]) evaluated at `time`
     /// (the start of the step) on every cell: each force's traction acts through the cell's own
-    /// single layer in its step and, through the coupling, on the other cells.
+    /// single layer in its step and, through the coupling, on the other cells. Over several
+    /// ranks every rank passes the same forces (each evaluates them on its own cells).
     pub fn step_with_forces(
         &mut self,
         comm: &dyn Communicator,
@@ -520,7 +521,12 @@ impl Suspension {
         forces: &[&dyn CellForce],
     ) -> Result<SuspensionReport, CellStepError> {
         let t0 = std::time::Instant::now();
-        let user = agree_cells(comm, self.user_tractions(time, forces))?;
+        // (Without forces nothing can fail, and no rank has any: no agreement needed.)
+        let user = if forces.is_empty() {
+            vec![Vec::new(); self.steppers.len()]
+        } else {
+            agree_cells(comm, self.user_tractions(time, forces))?
+        };
         let ids = &self.ids;
         if let Some(coupling) = &mut self.coupling {
             let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
@@ -589,12 +595,18 @@ impl Suspension {
         // With the caller's forces, the explicit traction of a cell is the contact repulsion
         // plus their tractions (without, the repulsion alone, not copied).
         let combined: Vec<Option<Vec<f64>>> = user
-            .iter()
+            .into_iter()
             .enumerate()
             .map(|(i, u)| {
-                (!u.is_empty()).then(|| match repulsion {
-                    Some(r) if !r[i].is_empty() => r[i].iter().zip(u).map(|(a, b)| a + b).collect(),
-                    _ => u.clone(),
+                // A cell the caller's forces leave alone takes the repulsion path as before.
+                if u.iter().all(|&v| v == 0.0) {
+                    return None;
+                }
+                Some(match repulsion {
+                    Some(r) if !r[i].is_empty() => {
+                        r[i].iter().zip(&u).map(|(a, b)| a + b).collect()
+                    }
+                    _ => u,
                 })
             })
             .collect();
