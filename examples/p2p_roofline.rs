@@ -100,7 +100,9 @@ fn main() {
     );
     let pts = Cloud::Uniform.points(n, 1);
     let order: Vec<usize> = (0..n).collect();
-    println!("| kernel | loop | pairs/s (10⁹) | flops/pair | GFLOP/s | of the same width's FMA peak |");
+    println!(
+        "| kernel | loop | pairs/s (10⁹) | flops/pair | GFLOP/s | of the same width's FMA peak |"
+    );
     println!("|---|---|---|---|---|---|");
     for (name, dim, flops) in [("Laplace", 1usize, 20.0), ("Stokeslet", 3, 37.0)] {
         let mut src = SourceBlock::new(&pts, None, &order);
