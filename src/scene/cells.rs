@@ -972,15 +972,12 @@ fn cell_specs(
                 tries += 1;
                 if tries > 1000 * count {
                     let volume: f64 = (0..3).map(|d| hi[d] - lo[d]).product();
-                    let cell = 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3);
+                    let ball = |r: f64| 4.0 / 3.0 * std::f64::consts::PI * r.powi(3);
+                    let cell = ball(radius);
                     let inside = |e: &&CellSpec| {
                         (0..3).all(|d| e.center[d] >= lo[d] && e.center[d] <= hi[d])
                     };
-                    let taken: f64 = earlier
-                        .iter()
-                        .filter(inside)
-                        .map(|e| 4.0 / 3.0 * std::f64::consts::PI * e.radius.powi(3))
-                        .sum();
+                    let taken: f64 = earlier.iter().filter(inside).map(|e| ball(e.radius)).sum();
                     return Err(at(
                         r.span(),
                         format!(

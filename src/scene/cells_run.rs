@@ -38,12 +38,11 @@ use serde::Serialize;
 use super::cells::{CellScene, Effect, Flow, Scheme};
 use super::cells_checkpoint::{self, Progress, Split};
 use super::cells_partition::{self, Reason};
-use super::cells_step::{accepted_step, flow_origin, step_error};
+use super::cells_step::{accepted_step, adaptive_control, flow_origin, step_error};
 use crate::comm::{spread, CommError, Communicator, SerialComm};
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
-use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::cell_state::{CellState, CellStateError};
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{OperatorStorage, TimeScheme, VesicleParams};
@@ -742,30 +741,7 @@ pub fn run_on(
             (prog, frames)
         }
     };
-    let adaptive = if scene.numerics.adaptive_dt {
-        let order = match scene.numerics.scheme {
-            Scheme::Euler => 1,
-            Scheme::Bdf2 => 2,
-        };
-        Some(
-            AdaptiveDt::new(
-                scene.numerics.dt_tolerance,
-                scene.numerics.t_end,
-                order,
-                dt,
-                scene.numerics.dt_min,
-                scene.numerics.dt_max,
-            )
-            .map_err(|e| CellRunError::Step {
-                step: 0,
-                time: 0.0,
-                cell: None,
-                source: Box::new(e),
-            })?,
-        )
-    } else {
-        None
-    };
+    let adaptive = adaptive_control(scene)?;
     if adaptive.is_some() {
         // A resumed adaptive run continues with the step it had chosen.
         susp.set_dt(prog.dt)

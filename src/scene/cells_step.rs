@@ -4,7 +4,7 @@
 //! failed (stagnated, out of iterations), is repeated smaller from a snapshot of the cells,
 //! down to `dt_min`, before the error is returned.
 
-use super::cells::Flow;
+use super::cells::{CellScene, Flow, Scheme};
 use super::cells_partition::centre;
 use super::cells_run::CellRunError;
 use crate::comm::Communicator;
@@ -38,6 +38,27 @@ pub(crate) fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunErr
         cell: e.cell.map(|c| c + 1),
         source: Box::new(e.source),
     }
+}
+
+/// The adaptive step control of `scene` (`None` with a fixed `dt`): its tolerance over
+/// `t_end`, the scheme's order, the first `dt` and its bounds.
+pub(crate) fn adaptive_control(scene: &CellScene) -> Result<Option<AdaptiveDt>, CellRunError> {
+    let n = &scene.numerics;
+    if !n.adaptive_dt {
+        return Ok(None);
+    }
+    let order = match n.scheme {
+        Scheme::Euler => 1,
+        Scheme::Bdf2 => 2,
+    };
+    AdaptiveDt::new(n.dt_tolerance, n.t_end, order, n.dt, n.dt_min, n.dt_max)
+        .map(Some)
+        .map_err(|e| CellRunError::Step {
+            step: 0,
+            time: 0.0,
+            cell: None,
+            source: Box::new(e),
+        })
 }
 
 /// Step `step` of `susp` from `time`, first tried at `dt_try`, with the caller's `forces`;

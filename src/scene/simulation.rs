@@ -37,9 +37,9 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use super::cells::{CellScene, Effect, Scheme};
+use super::cells::{CellScene, Effect};
 use super::cells_run::{build, CellRunError};
-use super::cells_step::{accepted_step, flow_origin, step_error};
+use super::cells_step::{accepted_step, adaptive_control, flow_origin, step_error};
 use crate::comm::SerialComm;
 use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::cell_force::CellForce;
@@ -84,25 +84,8 @@ impl Simulation {
     /// Build every cell of `scene` (their operators, the coupling of several cells).
     pub fn new(scene: CellScene) -> Result<Self, CellRunError> {
         let susp = build(&scene)?;
+        let adaptive = adaptive_control(&scene)?;
         let n = &scene.numerics;
-        let adaptive = if n.adaptive_dt {
-            let order = match n.scheme {
-                Scheme::Euler => 1,
-                Scheme::Bdf2 => 2,
-            };
-            Some(
-                AdaptiveDt::new(n.dt_tolerance, n.t_end, order, n.dt, n.dt_min, n.dt_max).map_err(
-                    |e| CellRunError::Step {
-                        step: 0,
-                        time: 0.0,
-                        cell: None,
-                        source: Box::new(e),
-                    },
-                )?,
-            )
-        } else {
-            None
-        };
         let calc = SurfaceCalculus::new(n.order)?;
         let dt = n.dt;
         Ok(Simulation {

@@ -17,6 +17,7 @@
 //! 2010): `±F` along an axis on the two end patches of a cell, each the points whose position
 //! along the axis lies in the outer `fraction` of the cell's extent.
 
+use crate::vesicle::dot;
 use crate::vesicle::geometry::Geometry;
 
 /// One cell as a [`CellForce`] sees it, at the start of a step.
@@ -170,10 +171,6 @@ impl CellForce for PatchPair {
             }
         }
     }
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 fn unit(a: [f64; 3]) -> [f64; 3] {

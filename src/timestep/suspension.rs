@@ -465,15 +465,12 @@ impl Suspension {
     }
 
     /// The tractions of the caller's `forces` on every cell held here at the start of a step
-    /// at `time` (order-`p` grid, `3n` each; empty vectors when there are no forces).
+    /// at `time` (order-`p` grid, `3n` each).
     fn user_tractions(
         &mut self,
         time: f64,
         forces: &[&dyn CellForce],
     ) -> Result<Vec<Vec<f64>>, CellStepError> {
-        if forces.is_empty() {
-            return Ok(vec![Vec::new(); self.steppers.len()]);
-        }
         let ids = &self.ids;
         self.steppers
             .par_iter_mut()
