@@ -52,17 +52,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 preconditioner: true,
                 scheme: TimeScheme::Euler,
                 viscosity_ratio: 1.0,
+                inextensible: true,
             };
             let mut st = VesicleStepper::new(p, params)?;
             let mut c = surface.coefs().to_vec();
             if name == "RBC Skalak" {
-                st.set_skalak(
-                    SkalakParams {
-                        shear_modulus: 0.2,
-                        dilation_ratio: 10.0,
-                    },
-                    &c,
-                )?;
+                st.set_skalak(SkalakParams::skalak(0.2, 10.0), &c)?;
             }
             let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
             let first = st.step(&mut c, &shear)?.gmres.iterations;

@@ -98,18 +98,13 @@ fn main() {
             TimeScheme::Euler
         },
         viscosity_ratio: 1.0,
+        inextensible: true,
     };
     let mut stepper = VesicleStepper::new(p, params).unwrap();
     let mut coefs = s.coefs().to_vec();
     if gs > 0.0 {
         stepper
-            .set_skalak(
-                SkalakParams {
-                    shear_modulus: gs,
-                    dilation_ratio: 10.0,
-                },
-                &coefs,
-            )
+            .set_skalak(SkalakParams::skalak(gs, 10.0), &coefs)
             .unwrap();
     }
     // Planar extension has its stagnation point at the origin, and a cell there is in an

@@ -151,6 +151,7 @@ fn main() {
         preconditioner: true,
         scheme: TimeScheme::Euler,
         viscosity_ratio: 1.0,
+        inextensible: true,
     };
     let mut stepper = VesicleStepper::new(p, params).unwrap();
     if let Some(s) = sigma0 {

@@ -47,6 +47,7 @@ fn main() {
         preconditioner: std::env::var("MOBO_NO_PRECONDITIONER").is_err(),
         scheme: mobo::timestep::semi_implicit::TimeScheme::Euler,
         viscosity_ratio: 1.0,
+        inextensible: true,
     };
     let mut st = VesicleStepper::new(p, params).unwrap();
     let mut coefs = s.coefs().to_vec();

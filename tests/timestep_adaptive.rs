@@ -34,6 +34,7 @@ fn stepper(scheme: TimeScheme, dt: f64) -> VesicleStepper {
             preconditioner: true,
             scheme,
             viscosity_ratio: 1.0,
+            inextensible: true,
         },
     )
     .unwrap()

@@ -393,6 +393,7 @@ fn spheres_with_contrast_still_sediment_at_the_two_sphere_mobility() {
                     preconditioner: true,
                     scheme: TimeScheme::Euler,
                     viscosity_ratio: 5.0,
+                    inextensible: true,
                 },
                 skalak: None,
             }

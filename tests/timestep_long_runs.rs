@@ -75,6 +75,7 @@ fn params(p: usize, dt: f64) -> VesicleParams {
         preconditioner: true,
         scheme: TimeScheme::Euler,
         viscosity_ratio: 1.0,
+        inextensible: true,
     }
 }
 
@@ -233,10 +234,7 @@ fn reparametrising_relabels_the_skalak_reference_and_keeps_the_elastic_energy() 
         std::array::from_fn(|i| (0..3).map(|k| shear[i][k] * x[k]).sum())
     })
     .unwrap();
-    let par = SkalakParams {
-        shear_modulus: 1.0,
-        dilation_ratio: 10.0,
-    };
+    let par = SkalakParams::skalak(1.0, 10.0);
     let energy = |surf: &[f64], reference: &[f64]| {
         let mut m = Membrane::new(p, 2 * p).unwrap();
         m.set_reference(reference).unwrap();

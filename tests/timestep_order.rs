@@ -47,6 +47,7 @@ fn advance(scheme: TimeScheme, start: &[f64], t: f64, steps: usize, post: Post) 
         preconditioner: true,
         scheme,
         viscosity_ratio: 1.0,
+        inextensible: true,
     };
     let mut st = VesicleStepper::new(P, prm).unwrap();
     let mut c = start.to_vec();
@@ -197,6 +198,7 @@ fn a_restarted_bdf2_run_continues_exactly() {
         preconditioner: true,
         scheme: TimeScheme::Bdf2,
         viscosity_ratio: 2.0,
+        inextensible: true,
     };
     let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
     let start = shapes::ellipsoid(P, [1.2, 1.0, 0.8]).unwrap();
@@ -242,6 +244,7 @@ fn a_restarted_bdf2_run_continues_exactly() {
     for lambda in [0.0, -1.0, f64::NAN] {
         let bad = VesicleParams {
             viscosity_ratio: lambda,
+            inextensible: true,
             ..prm
         };
         assert!(VesicleStepper::new(P, bad).is_err(), "λ = {lambda}");

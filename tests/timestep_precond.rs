@@ -27,6 +27,7 @@ fn params(p: usize, dt: f64, tol: f64, preconditioner: bool) -> VesicleParams {
         preconditioner,
         scheme: TimeScheme::Euler,
         viscosity_ratio: 1.0,
+        inextensible: true,
     }
 }
 
@@ -132,6 +133,7 @@ fn iteration_counts_drop_on_nonspherical_cells() {
         )]) {
             let prm = |pc| VesicleParams {
                 viscosity_ratio: lambda,
+                inextensible: true,
                 ..params(p, dt, tol, pc)
             };
             let (_, r0, _, t0) = one_step(p, s, prm(false));

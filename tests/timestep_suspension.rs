@@ -114,6 +114,7 @@ fn sedimentation(p: usize, a: f64, centres: &[[f64; 3]]) -> Vec<[f64; 3]> {
                     preconditioner: true,
                     scheme: TimeScheme::Euler,
                     viscosity_ratio: 1.0,
+                    inextensible: true,
                 },
                 skalak: None,
             }
@@ -226,6 +227,7 @@ fn head_on(strength: f64, steps: usize) -> (f64, f64, usize) {
                     preconditioner: true,
                     scheme: TimeScheme::Euler,
                     viscosity_ratio: 1.0,
+                    inextensible: true,
                 },
                 skalak: None,
             }

@@ -29,6 +29,7 @@ fn params(p: usize, force: [f64; 3], dt: f64) -> VesicleParams {
         preconditioner: false,
         scheme: mobo::timestep::semi_implicit::TimeScheme::Euler,
         viscosity_ratio: 1.0,
+        inextensible: true,
     }
 }
 
@@ -356,14 +357,8 @@ fn coefficient_and_grid_operator_storage_take_the_same_steps() {
         prm.preconditioner = true;
         prm.reparametrize = Some(ReparamParams::default());
         let mut st = VesicleStepper::new(p, prm).unwrap();
-        st.set_skalak(
-            SkalakParams {
-                shear_modulus: 0.5,
-                dilation_ratio: 10.0,
-            },
-            reference.coefs(),
-        )
-        .unwrap();
+        st.set_skalak(SkalakParams::skalak(0.5, 10.0), reference.coefs())
+            .unwrap();
         st.set_operator_storage(storage);
         assert_eq!(st.operator_storage(), storage);
         let mut c = s.coefs().to_vec();

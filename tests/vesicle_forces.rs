@@ -222,28 +222,29 @@ fn tension_force_by_virtual_work() {
 #[test]
 fn skalak_force_by_virtual_work() {
     let p = 16;
-    let par = SkalakParams {
-        shear_modulus: 1.5,
-        dilation_ratio: 10.0,
-    };
-    for (name, s) in shapes_under_test(p) {
-        for (q, tol_q) in Q_TOLERANCES {
-            let mut m = Membrane::new(p, q).unwrap();
-            m.set_reference(s.coefs()).unwrap();
-            // A deformed state: the reference plus a smooth displacement.
-            let x = axpy(s.coefs(), 1.0, &random_field_coefs(p, 5, 3, 0.1));
-            let dx = random_field_coefs(p, p, 4, 1.0);
-            check_virtual_work(
-                &format!("Skalak, {name}"),
-                &mut m,
-                &x,
-                &dx,
-                &|m| m.skalak_energy(&par).unwrap(),
-                &|m, f| m.skalak_force_upsampled(&par, f).unwrap(),
-                &|m, f| m.skalak_force(&par, f).unwrap(),
-                tol_q,
-                tol_q,
-            );
+    for par in [
+        SkalakParams::skalak(1.5, 10.0),
+        SkalakParams::neo_hookean(1.5),
+    ] {
+        for (name, s) in shapes_under_test(p) {
+            for (q, tol_q) in Q_TOLERANCES {
+                let mut m = Membrane::new(p, q).unwrap();
+                m.set_reference(s.coefs()).unwrap();
+                // A deformed state: the reference plus a smooth displacement.
+                let x = axpy(s.coefs(), 1.0, &random_field_coefs(p, 5, 3, 0.1));
+                let dx = random_field_coefs(p, p, 4, 1.0);
+                check_virtual_work(
+                    &format!("{:?}, {name}", par.law),
+                    &mut m,
+                    &x,
+                    &dx,
+                    &|m| m.skalak_energy(&par).unwrap(),
+                    &|m, f| m.skalak_force_upsampled(&par, f).unwrap(),
+                    &|m, f| m.skalak_force(&par, f).unwrap(),
+                    tol_q,
+                    tol_q,
+                );
+            }
         }
     }
 }
@@ -286,10 +287,7 @@ fn sphere_forces_in_closed_form() {
     assert_close("Laplace's law", &f, &want, 1e-12);
     // Skalak, uniform inflation λ of the reference sphere: isotropic tension
     // τ = (G_s/λ²)[λ²(λ² − 1) + Cλ⁴(λ⁴ − 1)], force −(2τ/R) n.
-    let par = SkalakParams {
-        shear_modulus: 1.2,
-        dilation_ratio: 3.0,
-    };
+    let par = SkalakParams::skalak(1.2, 3.0);
     let lam: f64 = 1.1;
     let s0 = shapes::sphere(p, r / lam).unwrap();
     m.set_reference(s0.coefs()).unwrap();
@@ -318,16 +316,28 @@ fn sphere_forces_in_closed_form() {
         &[ws * a0],
         1e-13,
     );
+    // Neo-Hookean, the same inflation: τ = (G_s/λ²)(λ² − 1/λ⁴), W_s = (G_s/2)(2λ² + 1/λ⁴ − 3).
+    let nh = SkalakParams::neo_hookean(1.2);
+    m.skalak_force(&nh, &mut f).unwrap();
+    let tau = nh.shear_modulus / l2 * (l2 - 1.0 / (l2 * l2));
+    let want: Vec<f64> = (0..3)
+        .flat_map(|c| g1.normal.iter().map(move |n| -2.0 * tau / r * n[c]))
+        .collect();
+    assert_close("neo-Hookean inflated sphere", &f, &want, 1e-12);
+    let ws = 0.5 * nh.shear_modulus * (2.0 * l2 + 1.0 / (l2 * l2) - 3.0);
+    assert_close(
+        "neo-Hookean energy",
+        &[m.skalak_energy(&nh).unwrap()],
+        &[ws * a0],
+        1e-13,
+    );
     let _ = sht;
 }
 
 #[test]
 fn skalak_force_vanishes_for_rigid_motions_of_the_reference() {
     let p = 12;
-    let par = SkalakParams {
-        shear_modulus: 1.0,
-        dilation_ratio: 50.0,
-    };
+    let par = SkalakParams::skalak(1.0, 50.0);
     let rbc = shapes::rbc(p).unwrap();
     let mut m = Membrane::with_default_upsampling(p).unwrap();
     m.set_reference(rbc.coefs()).unwrap();
@@ -499,19 +509,13 @@ fn bad_input_is_an_error() {
         m.tension_force(&[1.0; 3], &mut f),
         Err(VesicleError::Length { .. })
     ));
-    let par = SkalakParams {
-        shear_modulus: 1.0,
-        dilation_ratio: 1.0,
-    };
+    let par = SkalakParams::skalak(1.0, 1.0);
     assert!(matches!(
         m.skalak_force(&par, &mut f),
         Err(VesicleError::Missing(_))
     ));
     m.set_reference(s.coefs()).unwrap();
-    let bad = SkalakParams {
-        shear_modulus: -1.0,
-        dilation_ratio: 1.0,
-    };
+    let bad = SkalakParams::skalak(-1.0, 1.0);
     assert!(matches!(
         m.skalak_force(&bad, &mut f),
         Err(VesicleError::Parameter { .. })

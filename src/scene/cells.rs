@@ -20,8 +20,13 @@
 //! # axes = [1.0, 0.8, 0.6]        # ellipsoid (scaled to the equivalent radius)
 //! # reduced_volume = 0.9          # prolate, oblate
 //! # orientation = [0, 0, 1, 30]   # rotation axis and angle in degrees
-//! bending_modulus = 0.05
-//! shear_modulus = 0.0             # Skalak G_s (0: none)
+//! membrane = "vesicle"            # "vesicle" (locally inextensible: vesicles, RBCs) |
+//! #                               # "capsule" (elastic membrane whose area changes; needs
+//! #                               # shear_modulus > 0; follows material points, no
+//! #                               # reparametrisation; only the volume is restored)
+//! bending_modulus = 0.05          # default 0.05 (vesicle), 0 (capsule)
+//! shear_modulus = 0.0             # G_s of the elastic law (0: none)
+//! elastic_law = "skalak"          # "skalak" | "neo_hookean"
 //! skalak_c = 10.0                 # Skalak area-dilation parameter C
 //! viscosity_ratio = 1.0           # λ = μ_in / μ_out
 //! force = [0.0, 0.0, 0.0]         # body force per cell
@@ -69,6 +74,7 @@ use super::{line_col, parse_toml, read_scene_file, SceneError};
 use crate::gpu::GpuChoice;
 use crate::timestep::semi_implicit::OperatorStorage;
 use crate::vesicle::shapes::{self, Spheroid, Surface};
+use crate::vesicle::skalak::ElasticLaw;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -108,6 +114,8 @@ struct CellSection {
     bending_modulus: Option<Spanned<f64>>,
     shear_modulus: Option<Spanned<f64>>,
     skalak_c: Option<Spanned<f64>>,
+    membrane: Option<Spanned<String>>,
+    elastic_law: Option<Spanned<String>>,
     viscosity_ratio: Option<Spanned<f64>>,
     force: Option<Spanned<[f64; 3]>>,
     count: Option<Spanned<usize>>,
@@ -282,11 +290,15 @@ pub struct CellSpec {
     pub rotation: [[f64; 3]; 3],
     /// Bending modulus `κ_b` (default 0.05).
     pub bending_modulus: f64,
-    /// Skalak shear modulus `G_s` (default 0: no shear elasticity); the membrane is
-    /// stress-free at its initial shape.
+    /// Shear modulus `G_s` of the elastic law (default 0: no shear elasticity); the membrane
+    /// is stress-free at its initial shape.
     pub shear_modulus: f64,
     /// Skalak area-dilation parameter `C` (large `C`: nearly area-preserving; default 10).
     pub skalak_c: f64,
+    /// The strain-energy function of the shear elasticity (default Skalak).
+    pub elastic_law: ElasticLaw,
+    /// `false` for a capsule (`membrane = "capsule"`): no inextensibility constraint.
+    pub inextensible: bool,
     /// Viscosity ratio `λ = μ_in / μ_out` (default 1: no double layer).
     pub viscosity_ratio: f64,
     /// Body force on the cell, the total `F` (spread as a uniform traction `F / A`; default
@@ -856,13 +868,73 @@ fn cell_specs(
         None => Ok(default),
     };
     let radius = get(&c.radius, "radius", 1.0, true)?;
-    let bending = get(&c.bending_modulus, "bending_modulus", 0.05, true)?;
+    let inextensible = match &c.membrane {
+        None => true,
+        Some(m) => match m.get_ref().as_str() {
+            "vesicle" => true,
+            "capsule" => false,
+            other => {
+                return Err(at(
+                    m.span(),
+                    format!(
+                        "{}: unknown membrane \"{other}\" (vesicle, capsule)",
+                        key("membrane")
+                    ),
+                ))
+            }
+        },
+    };
+    let elastic_law = match &c.elastic_law {
+        None => ElasticLaw::Skalak,
+        Some(m) => match m.get_ref().as_str() {
+            "skalak" => ElasticLaw::Skalak,
+            "neo_hookean" => ElasticLaw::NeoHookean,
+            other => {
+                return Err(at(
+                    m.span(),
+                    format!(
+                        "{}: unknown elastic law \"{other}\" (skalak, neo_hookean)",
+                        key("elastic_law")
+                    ),
+                ))
+            }
+        },
+    };
+    // A capsule may have no bending stiffness (the benchmarks have none).
+    let bending = get(
+        &c.bending_modulus,
+        "bending_modulus",
+        if inextensible { 0.05 } else { 0.0 },
+        inextensible,
+    )?;
+    if bending < 0.0 {
+        let sp = c.bending_modulus.as_ref().expect("set").span();
+        return Err(at(
+            sp,
+            format!("{} must not be negative", key("bending_modulus")),
+        ));
+    }
     let shear = get(&c.shear_modulus, "shear_modulus", 0.0, false)?;
     if shear < 0.0 {
         let sp = c.shear_modulus.as_ref().expect("set").span();
         return Err(at(
             sp,
             format!("{} must not be negative", key("shear_modulus")),
+        ));
+    }
+    if !inextensible && shear == 0.0 {
+        let sp = c
+            .shear_modulus
+            .as_ref()
+            .map_or(c.membrane.as_ref().expect("capsule").span(), |s| s.span());
+        return Err(at(
+            sp,
+            format!(
+                "{} = \"capsule\" needs {} > 0: a capsule resists deformation through its \
+                 elastic law alone",
+                key("membrane"),
+                key("shear_modulus")
+            ),
         ));
     }
     let skalak_c = get(&c.skalak_c, "skalak_c", 10.0, true)?;
@@ -906,6 +978,8 @@ fn cell_specs(
         bending_modulus: bending,
         shear_modulus: shear,
         skalak_c,
+        elastic_law,
+        inextensible,
         viscosity_ratio: lambda,
         force,
         bounding_radius: bounding,
@@ -1076,6 +1150,12 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
         .filter(|&i| (cells[i].viscosity_ratio - 1.0).abs() > 0.0)
         .collect();
     let shear: Vec<usize> = (0..n).filter(|&i| cells[i].shear_modulus > 0.0).collect();
+    let capsules: Vec<usize> = (0..n).filter(|&i| !cells[i].inextensible).collect();
+    let neo_hookean: Vec<usize> = shear
+        .iter()
+        .copied()
+        .filter(|&i| cells[i].elastic_law == ElasticLaw::NeoHookean)
+        .collect();
     let forced: Vec<usize> = (0..n).filter(|&i| cells[i].force != [0.0; 3]).collect();
     let list = |v: &[usize]| {
         let s: Vec<String> = v.iter().take(5).map(|i| (i + 1).to_string()).collect();
@@ -1121,8 +1201,28 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             enabled: !shear.is_empty(),
             reason: if shear.is_empty() {
                 "every shear_modulus is 0".into()
+            } else if neo_hookean.is_empty() {
+                format!("shear_modulus > 0 for cells {} (Skalak law)", list(&shear))
             } else {
-                format!("shear_modulus > 0 for cells {}", list(&shear))
+                format!(
+                    "shear_modulus > 0 for cells {} (neo-Hookean law for cells {})",
+                    list(&shear),
+                    list(&neo_hookean)
+                )
+            },
+        },
+        Effect {
+            name: "capsule",
+            enabled: !capsules.is_empty(),
+            reason: if capsules.is_empty() {
+                "every membrane is a locally inextensible vesicle".into()
+            } else {
+                format!(
+                    "membrane = \"capsule\" for cells {}: no inextensibility constraint, the \
+                     elastic force linearly implicit, material points followed (no \
+                     reparametrisation), only the volume restored",
+                    list(&capsules)
+                )
             },
         },
         Effect {

@@ -288,7 +288,8 @@ pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
                 ..Default::default()
             },
             correct_drift: true,
-            reparametrize: Some(ReparamParams {
+            // A capsule's elasticity is measured from material points: its grid follows them.
+            reparametrize: cell.inextensible.then(|| ReparamParams {
                 max_iterations: 10,
                 ..Default::default()
             }),
@@ -298,12 +299,14 @@ pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
                 Scheme::Bdf2 => TimeScheme::Bdf2,
             },
             viscosity_ratio: cell.viscosity_ratio,
+            inextensible: cell.inextensible,
         };
         let skalak = (cell.shear_modulus > 0.0).then(|| {
             (
                 SkalakParams {
                     shear_modulus: cell.shear_modulus,
                     dilation_ratio: cell.skalak_c,
+                    law: cell.elastic_law,
                 },
                 coefs.clone(),
             )

@@ -169,6 +169,12 @@ pub struct CellGroupSpec {
     /// `skalak_c`: Skalak area-dilation parameter (default 10).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub skalak_c: Option<f64>,
+    /// `membrane`: an inextensible vesicle/RBC (default) or an elastic capsule.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub membrane: Option<MembraneKind>,
+    /// `elastic_law` of the shear elasticity (default Skalak).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub elastic_law: Option<ElasticLawKind>,
     /// `viscosity_ratio`: `λ = μ_in/μ_out` (default 1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub viscosity_ratio: Option<f64>,
@@ -205,6 +211,8 @@ impl CellGroupSpec {
             bending_modulus: None,
             shear_modulus: None,
             skalak_c: None,
+            membrane: None,
+            elastic_law: None,
             viscosity_ratio: None,
             force: None,
             count: None,
@@ -214,6 +222,26 @@ impl CellGroupSpec {
             seed: None,
         }
     }
+}
+
+/// `[[cells]] membrane`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MembraneKind {
+    /// Locally inextensible (vesicles, RBCs): the tension is an unknown of the step.
+    Vesicle,
+    /// Elastic, area free (capsules): resists through its `elastic_law` alone.
+    Capsule,
+}
+
+/// `[[cells]] elastic_law`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ElasticLawKind {
+    /// Skalak, with `skalak_c`.
+    Skalak,
+    /// Neo-Hookean.
+    NeoHookean,
 }
 
 /// `[numerics] scheme`.

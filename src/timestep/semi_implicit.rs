@@ -61,6 +61,27 @@
 //! suspension passes `(1 − λ) u` to the other cells as the density of this cell's double layer
 //! (explicitly, in the next step).
 //!
+//! ## Capsules
+//!
+//! Without the inextensibility constraint ([`VesicleParams::inextensible`] `= false`) the
+//! membrane resists through its hyperelastic law `f_e(X)` ([`crate::vesicle::skalak`]) and the
+//! tension disappears. The elastic force is linearised about the operators' geometry,
+//! `f_e(X) ≈ f_e(X*) + J (X − X*)` (linearly implicit, "implicit where it pays": the explicit
+//! limit `Δt ~ μ a / (G_s p)` falls with the order), and with `δ = X − X*` the step is
+//!
+//! ```text
+//!     a δ − (1−λ) D δ − τ S (B + J) δ = a (X̂ − X*) − (1−λ) D (X̂ − X*)
+//!                                        + τ (u_∞(X*) + S (f_e(X*) + B X* + f_ext))
+//! ```
+//!
+//! in `3n` unknowns. `J δ` is the directional derivative of the elastic force, taken by a
+//! central difference `(f_e(X* + εδ) − f_e(X* − εδ))/2ε` with `ε|δ|` a `10⁻⁵` fraction of the
+//! cell's size (relative error `~10⁻¹⁰`, which multiplies the small `δ = O(Δt)`, not the
+//! surface; a one-sided difference left GMRES at a `10⁻⁹` floor at small `Ca`). [`VesicleStepper::set_explicit_elasticity`] drops `J` (forward Euler in the
+//! elasticity; the reference whose stability limit this removes). The area is not a constraint:
+//! the step's error estimate is the change of volume alone, and the drift correction (if asked)
+//! restores the volume only, by a uniform normal displacement.
+//!
 //! ## Preconditioner
 //!
 //! With [`VesicleParams::preconditioner`] GMRES is right-preconditioned by the inverse step
@@ -89,7 +110,9 @@ use std::sync::{Arc, Mutex};
 
 use super::grid_frame::{grid_rotation, RotatedPreconditioner, IDENTITY};
 use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
-use super::step_engine::{EngineLease, EnginePool, OperatorWork, ProductWork, StepEngine};
+use super::step_engine::{
+    ElasticWork, EngineLease, EnginePool, OperatorWork, ProductWork, StepEngine,
+};
 use super::TimestepError;
 use super::{gmres, FnOperator, GmresParams, GmresReport, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
@@ -141,6 +164,10 @@ pub struct VesicleParams {
     pub scheme: TimeScheme,
     /// Viscosity ratio `λ = μ_in / μ_out` (positive; 1: no double layer).
     pub viscosity_ratio: f64,
+    /// `true`: a vesicle or RBC, locally inextensible (`∇ₛ·u = 0`, with the tension as
+    /// unknown). `false`: a capsule, whose membrane stretches and resists through its elastic law
+    /// alone ([`VesicleStepper::set_skalak`], required); see "Capsules" in the module docs.
+    pub inextensible: bool,
 }
 
 /// Explicit terms of one step (other cells, elastic forces computed at `Xⁿ`).
@@ -252,6 +279,8 @@ pub struct VesicleStepper {
     /// Membrane velocity of the last solve on the order-`p` grid (see
     /// [`VesicleStepper::velocity`]).
     velocity: Option<Vec<f64>>,
+    /// Capsules: the elastic force explicit (no Jacobian in the step).
+    explicit_elasticity: bool,
 }
 
 fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
@@ -269,7 +298,10 @@ fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
 impl VesicleStepper {
     /// Plans for order `p`.
     pub fn new(p: usize, params: VesicleParams) -> Result<Self, TimestepError> {
-        check("bending_modulus", params.bending_modulus)?;
+        if params.inextensible || params.bending_modulus != 0.0 {
+            // A capsule may have no bending stiffness at all.
+            check("bending_modulus", params.bending_modulus)?;
+        }
         check("viscosity", params.viscosity)?;
         check("dt", params.dt)?;
         check("viscosity_ratio", params.viscosity_ratio)?;
@@ -302,7 +334,15 @@ impl VesicleStepper {
             previous_dt: None,
             preconditioners: Vec::new(),
             velocity: None,
+            explicit_elasticity: false,
         })
+    }
+
+    /// Capsules: take the elastic force explicitly (`true`: forward Euler in the elasticity,
+    /// stable only below `Δt ~ μ a/(G_s p)`) or linearly implicit (`false`, the default; see
+    /// "Capsules" in the module docs). No effect on inextensible cells.
+    pub fn set_explicit_elasticity(&mut self, explicit: bool) {
+        self.explicit_elasticity = explicit;
     }
 
     /// An engine for one call, set up for this cell (far-side settings, Skalak reference).
@@ -709,7 +749,22 @@ impl VesicleStepper {
             ),
             _ => (coefs.to_vec(), coefs.to_vec()),
         };
-        let (pc_index, preconditioner_built) = if self.params.preconditioner {
+        let inextensible = self.params.inextensible;
+        let capsule_elastic = match (&self.skalak, inextensible) {
+            (_, true) => None,
+            (Some((sk, reference)), false) => Some((*sk, reference.clone())),
+            (None, false) => {
+                return Err(TimestepError::InvalidParameter {
+                    name: "elasticity",
+                    value: "none".into(),
+                    reason: "a capsule (inextensible = false) needs a membrane elasticity \
+                             (VesicleStepper::set_skalak)",
+                })
+            }
+        };
+        // The sphere preconditioner is that of the inextensible system.
+        let precondition = self.params.preconditioner && inextensible;
+        let (pc_index, preconditioner_built) = if precondition {
             // With the drift correction the area is the target area at every step: the sphere
             // is built from it (not from the current area, which differs in the last bits), so
             // that a restarted run rebuilds the very same preconditioner (bit-identical restart).
@@ -725,7 +780,7 @@ impl VesicleStepper {
         };
         // How far the grid has turned with the cell: the sphere preconditioner is turned with
         // it (see super::grid_frame).
-        let rotation = if self.params.preconditioner {
+        let rotation = if precondition {
             let g = engine.calc.geometry(&xstar)?;
             grid_rotation(&g, &engine.sht.grid().unit_points())
         } else {
@@ -790,113 +845,147 @@ impl VesicleStepper {
                 (c_d != 0.0).then_some(StepOperator::Dense(&self.d_op[..])),
             ),
         };
-        // Right-hand side [a X̂ − c_D D X̂ + τ (u_∞(X*) + u_other + S f_ext); Div X̂].
-        let mut b = vec![0.0; 4 * n];
         for c in 0..3 {
             for f in &mut fext[c * n..(c + 1) * n] {
                 *f += self.params.force[c] / area;
             }
         }
-        for j in 0..n {
-            let u = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
-            for c in 0..3 {
-                let other = extra.velocity.map_or(0.0, |v| v[c * n + j]);
-                b[c * n + j] = a_id * xh_grid[c * n + j] + tau * (u[c] + other);
+        let (report, x_new) = if let Some((sk, reference)) = &capsule_elastic {
+            // u_∞(X*) + the other cells' velocity on the grid.
+            let mut u = vec![0.0; 3 * n];
+            for j in 0..n {
+                let ui = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
+                for c in 0..3 {
+                    u[c * n + j] = ui[c] + extra.velocity.map_or(0.0, |v| v[c * n + j]);
+                }
             }
-        }
-        {
-            let OperatorWork {
-                membrane, products, ..
-            } = engine.work.get_mut().expect("operator lock");
-            apply_operators(
-                storage,
-                &engine.sht,
-                products,
-                &xstar,
-                (s_op, &fext, tau),
-                d_op.map(|d| (d, &xh_grid[..], -c_d)),
-                &mut b[..3 * n],
-            )?;
-            membrane.surface_divergence(&xh_grid, &mut b[3 * n..])?;
-        }
-        // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X].
-        let (work, sht) = (&engine.work, &engine.sht);
-        let failure: Mutex<Option<crate::vesicle::VesicleError>> = Mutex::new(None);
-        let op = FnOperator::new(4 * n, |z: &[f64], y: &mut [f64]| {
-            let (x, sigma) = z.split_at(3 * n);
-            let mut guard = work.lock().expect("operator lock");
-            let OperatorWork {
-                membrane,
-                fb,
-                ft,
-                products,
-            } = &mut *guard;
-            let r = membrane
-                .bending_linear(kappa, x, fb)
-                .and_then(|_| membrane.tension_force(sigma, ft))
-                .and_then(|_| membrane.surface_divergence(x, &mut y[3 * n..]))
-                .and_then(|_| {
-                    for (a, t) in fb.iter_mut().zip(ft.iter()) {
-                        *a += t;
-                    }
-                    for (yi, xi) in y[..3 * n].iter_mut().zip(x) {
-                        *yi = a_id * xi;
-                    }
-                    apply_operators(
-                        storage,
-                        sht,
-                        products,
-                        &xstar,
-                        (s_op, fb, -tau),
-                        d_op.map(|d| (d, x, -c_d)),
-                        &mut y[..3 * n],
-                    )
-                });
-            if let Err(e) = r {
-                *failure.lock().expect("failure lock") = Some(e);
-                y.fill(f64::NAN);
+            solve_capsule(
+                engine,
+                &CapsuleSystem {
+                    storage,
+                    s_op,
+                    d_op,
+                    xstar: &xstar,
+                    xs_grid: &xs_grid,
+                    xh_grid: &xh_grid,
+                    traction: &fext,
+                    velocity: &u,
+                    a_id,
+                    c_d,
+                    tau,
+                    kappa,
+                    jacobian: (!self.explicit_elasticity).then_some((sk, &reference[..])),
+                    size: (area / (4.0 * std::f64::consts::PI)).sqrt(),
+                },
+                &self.params.gmres,
+            )?
+        } else {
+            // Right-hand side [a X̂ − c_D D X̂ + τ (u_∞(X*) + u_other + S f_ext); Div X̂].
+            let mut b = vec![0.0; 4 * n];
+            for j in 0..n {
+                let u = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
+                for c in 0..3 {
+                    let other = extra.velocity.map_or(0.0, |v| v[c * n + j]);
+                    b[c * n + j] = a_id * xh_grid[c * n + j] + tau * (u[c] + other);
+                }
             }
-        });
-        // Initial guess: X* (the extrapolation for BDF2, Xⁿ for Euler) and the last tension.
-        let mut z0 = vec![0.0; 4 * n];
-        z0[..3 * n].copy_from_slice(&xs_grid);
-        z0[3 * n..].copy_from_slice(&self.sigma);
-        let mut z = vec![0.0; 4 * n];
-        let report = match pc_index {
-            Some(i) => gmres(
-                &op,
-                &RotatedPreconditioner::new(&self.preconditioners[i], rotation, n),
-                &b,
-                Some(&z0),
-                &mut z,
-                &self.params.gmres,
-                &mut engine.gmres_ws,
-            ),
-            None => gmres(
-                &op,
-                &Identity::new(4 * n),
-                &b,
-                Some(&z0),
-                &mut z,
-                &self.params.gmres,
-                &mut engine.gmres_ws,
-            ),
+            {
+                let OperatorWork {
+                    membrane, products, ..
+                } = engine.work.get_mut().expect("operator lock");
+                apply_operators(
+                    storage,
+                    &engine.sht,
+                    products,
+                    &xstar,
+                    (s_op, &fext, tau),
+                    d_op.map(|d| (d, &xh_grid[..], -c_d)),
+                    &mut b[..3 * n],
+                )?;
+                membrane.surface_divergence(&xh_grid, &mut b[3 * n..])?;
+            }
+            // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X].
+            let (work, sht) = (&engine.work, &engine.sht);
+            let failure: Mutex<Option<crate::vesicle::VesicleError>> = Mutex::new(None);
+            let op = FnOperator::new(4 * n, |z: &[f64], y: &mut [f64]| {
+                let (x, sigma) = z.split_at(3 * n);
+                let mut guard = work.lock().expect("operator lock");
+                let OperatorWork {
+                    membrane,
+                    fb,
+                    ft,
+                    products,
+                    ..
+                } = &mut *guard;
+                let r = membrane
+                    .bending_linear(kappa, x, fb)
+                    .and_then(|_| membrane.tension_force(sigma, ft))
+                    .and_then(|_| membrane.surface_divergence(x, &mut y[3 * n..]))
+                    .and_then(|_| {
+                        for (a, t) in fb.iter_mut().zip(ft.iter()) {
+                            *a += t;
+                        }
+                        for (yi, xi) in y[..3 * n].iter_mut().zip(x) {
+                            *yi = a_id * xi;
+                        }
+                        apply_operators(
+                            storage,
+                            sht,
+                            products,
+                            &xstar,
+                            (s_op, fb, -tau),
+                            d_op.map(|d| (d, x, -c_d)),
+                            &mut y[..3 * n],
+                        )
+                    });
+                if let Err(e) = r {
+                    *failure.lock().expect("failure lock") = Some(e);
+                    y.fill(f64::NAN);
+                }
+            });
+            // Initial guess: X* (the extrapolation for BDF2, Xⁿ for Euler) and the last tension.
+            let mut z0 = vec![0.0; 4 * n];
+            z0[..3 * n].copy_from_slice(&xs_grid);
+            z0[3 * n..].copy_from_slice(&self.sigma);
+            let mut z = vec![0.0; 4 * n];
+            let report = match pc_index {
+                Some(i) => gmres(
+                    &op,
+                    &RotatedPreconditioner::new(&self.preconditioners[i], rotation, n),
+                    &b,
+                    Some(&z0),
+                    &mut z,
+                    &self.params.gmres,
+                    &mut engine.gmres_ws,
+                ),
+                None => gmres(
+                    &op,
+                    &Identity::new(4 * n),
+                    &b,
+                    Some(&z0),
+                    &mut z,
+                    &self.params.gmres,
+                    &mut engine.gmres_ws,
+                ),
+            };
+            if let Some(e) = failure.into_inner().expect("failure lock") {
+                return Err(e.into());
+            }
+            // A (nearly) spherical cell makes the system singular: a constant tension gives the
+            // traction 2σHn with H constant, whose single layer vanishes on a closed surface. A
+            // right-hand side with a component outside the range (a sphere in a straining flow,
+            // to discretisation accuracy) then ends in `Breakdown`, which is reported as an error:
+            // the least-squares answer carries an arbitrary, possibly huge mean tension, and the
+            // explicit coupling would spread it to the other cells.
+            let report = report?;
+            self.sigma.copy_from_slice(&z[3 * n..]);
+            z.truncate(3 * n);
+            (report, z)
         };
-        if let Some(e) = failure.into_inner().expect("failure lock") {
-            return Err(e.into());
-        }
-        // A (nearly) spherical cell makes the system singular: a constant tension gives the
-        // traction 2σHn with H constant, whose single layer vanishes on a closed surface. A
-        // right-hand side with a component outside the range (a sphere in a straining flow,
-        // to discretisation accuracy) then ends in `Breakdown`, which is reported as an error:
-        // the least-squares answer carries an arbitrary, possibly huge mean tension, and the
-        // explicit coupling would spread it to the other cells.
-        let report = report?;
-        self.sigma.copy_from_slice(&z[3 * n..]);
         // The membrane velocity of this step, u = (Xⁿ⁺¹ − X̂)/τ on the grid.
         let velocity = self.velocity.get_or_insert_with(Vec::new);
         velocity.clear();
-        velocity.extend(z[..3 * n].iter().zip(&xh_grid).map(|(x, h)| (x - h) / tau));
+        velocity.extend(x_new.iter().zip(&xh_grid).map(|(x, h)| (x - h) / tau));
         if self.params.scheme == TimeScheme::Bdf2 {
             match &mut self.previous {
                 Some(prev) => prev.copy_from_slice(coefs),
@@ -906,22 +995,30 @@ impl VesicleStepper {
         }
         engine
             .sht
-            .forward(&z[..3 * n], coefs, &mut engine.ws)
+            .forward(&x_new, coefs, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
         // The error estimate of the flow step itself (before the reparametrisation, which
         // changes area and volume by the discretisation error, whatever the step).
         let area_volume_error = {
             let g = engine.calc.geometry(coefs)?;
-            ((g.area() - area0) / area0)
-                .abs()
-                .max(((g.volume() - volume0) / volume0).abs())
+            let dv = ((g.volume() - volume0) / volume0).abs();
+            // A capsule's area changes with the flow: only the volume is an invariant.
+            if inextensible {
+                ((g.area() - area0) / area0).abs().max(dv)
+            } else {
+                dv
+            }
         };
         if let Some(rp) = self.params.reparametrize {
             self.regrid(engine, coefs, &rp)?;
         }
         if self.params.correct_drift {
             let (area, volume) = self.targets.expect("set above");
-            correct_area_volume(engine, coefs, area, volume)?;
+            if inextensible {
+                correct_shape(engine, coefs, Some(area), volume)?;
+            } else {
+                correct_shape(engine, coefs, None, volume)?;
+            }
         }
         Ok(StepReport {
             gmres: report,
@@ -1004,23 +1101,25 @@ impl VesicleStepper {
         volume: f64,
     ) -> Result<(), TimestepError> {
         let mut engine = self.lease()?;
-        correct_area_volume(&mut engine, coefs, area, volume)
+        correct_shape(&mut engine, coefs, Some(area), volume)
     }
 }
 
-/// [`VesicleStepper::correct_area_volume`] with a lent engine.
-fn correct_area_volume(
+/// [`VesicleStepper::correct_area_volume`] with a lent engine; with `area = None` (a capsule,
+/// whose area is free) the volume alone, by a uniform normal displacement `α n`.
+fn correct_shape(
     engine: &mut StepEngine,
     coefs: &mut [f64],
-    area: f64,
+    area: Option<f64>,
     volume: f64,
 ) -> Result<(), TimestepError> {
     let n = engine.sht.n_points();
     let mut xg = vec![0.0; 3 * n];
     for _ in 0..3 {
         let g = engine.calc.geometry(coefs)?;
-        let (da, dv) = (area - g.area(), volume - g.volume());
-        if da.abs() <= 1e-14 * area && dv.abs() <= 1e-14 * volume {
+        let da = area.map_or(0.0, |a| a - g.area());
+        let dv = volume - g.volume();
+        if da.abs() <= 1e-14 * area.unwrap_or(0.0) && dv.abs() <= 1e-14 * volume {
             break;
         }
         let hh: Vec<f64> = g.h.iter().map(|h| h * h).collect();
@@ -1029,7 +1128,7 @@ fn correct_area_volume(
         let det = -2.0 * i0 * i2 + 2.0 * i1 * i1;
         // On a sphere H is constant and the system is singular (Cauchy–Schwarz): a sphere
         // of the target volume is the only freedom left, so restore the volume alone.
-        let (alpha, beta) = if det.abs() <= 1e-8 * 2.0 * i0 * i2 {
+        let (alpha, beta) = if area.is_none() || det.abs() <= 1e-8 * 2.0 * i0 * i2 {
             (dv / i0, 0.0)
         } else {
             (
@@ -1053,6 +1152,161 @@ fn correct_area_volume(
             .map_err(crate::vesicle::VesicleError::from)?;
     }
     Ok(())
+}
+
+/// The central-difference step of a capsule's elastic Jacobian, relative to the cell's size:
+/// truncation `~10⁻¹⁰` and round-off `~10⁻¹¹` relative to `J x`.
+const JACOBIAN_STEP: f64 = 1e-5;
+
+/// The linear system of a capsule's step (see "Capsules" in the module docs): operators at
+/// `X*`, grid vectors `3n`.
+struct CapsuleSystem<'a> {
+    storage: OperatorStorage,
+    s_op: StepOperator<'a>,
+    d_op: Option<StepOperator<'a>>,
+    /// `X*` as coefficients and on the grid, `X̂` on the grid.
+    xstar: &'a [f64],
+    xs_grid: &'a [f64],
+    xh_grid: &'a [f64],
+    /// `f_e(X*) + f_ext` (body force and extra tractions).
+    traction: &'a [f64],
+    /// `u_∞(X*)` plus the other cells' velocity.
+    velocity: &'a [f64],
+    a_id: f64,
+    c_d: f64,
+    tau: f64,
+    kappa: f64,
+    /// The elasticity whose Jacobian enters the operator (`None`: explicit elasticity) and its
+    /// reference surface.
+    jacobian: Option<(&'a SkalakParams, &'a [f64])>,
+    /// The cell's size (area-equivalent radius), the scale of the difference step.
+    size: f64,
+}
+
+/// Solve a capsule's step for `δ = X − X*`; returns the solve's report and `X = X* + δ` on the
+/// grid.
+fn solve_capsule(
+    engine: &mut StepEngine,
+    sys: &CapsuleSystem<'_>,
+    gmres_params: &GmresParams,
+) -> Result<(GmresReport, Vec<f64>), TimestepError> {
+    use crate::vesicle::VesicleError;
+    let n = engine.sht.n_points();
+    let nc = engine.sht.n_coefs();
+    let (a_id, c_d, tau, kappa) = (sys.a_id, sys.c_d, sys.tau, sys.kappa);
+    // Right-hand side a (X̂ − X*) − c_D D (X̂ − X*) + τ (u + S (f_e(X*) + f_ext + B X*)).
+    let dh: Vec<f64> = sys
+        .xh_grid
+        .iter()
+        .zip(sys.xs_grid)
+        .map(|(h, s)| h - s)
+        .collect();
+    let mut b: Vec<f64> = dh
+        .iter()
+        .zip(sys.velocity)
+        .map(|(d, u)| a_id * d + tau * u)
+        .collect();
+    {
+        let OperatorWork {
+            membrane,
+            fb,
+            products,
+            elastic,
+            ..
+        } = engine.work.get_mut().expect("operator lock");
+        membrane.bending_linear(kappa, sys.xs_grid, fb)?;
+        for (f, t) in fb.iter_mut().zip(sys.traction) {
+            *f += t;
+        }
+        apply_operators(
+            sys.storage,
+            &engine.sht,
+            products,
+            sys.xstar,
+            (sys.s_op, fb, tau),
+            sys.d_op.map(|d| (d, &dh[..], -c_d)),
+            &mut b,
+        )?;
+        if let Some((_, reference)) = sys.jacobian {
+            let el = match elastic {
+                Some(el) => el,
+                None => elastic.insert(ElasticWork::new(
+                    membrane.order(),
+                    membrane.upsampled_order(),
+                    nc,
+                )?),
+            };
+            el.membrane.set_reference(reference)?;
+        }
+    }
+    let (work, sht) = (&engine.work, &engine.sht);
+    let failure: Mutex<Option<VesicleError>> = Mutex::new(None);
+    let op = FnOperator::new(3 * n, |x: &[f64], y: &mut [f64]| {
+        let mut guard = work.lock().expect("operator lock");
+        let OperatorWork {
+            membrane,
+            fb,
+            products,
+            elastic,
+            ..
+        } = &mut *guard;
+        let r = (|| {
+            membrane.bending_linear(kappa, x, fb)?;
+            if let (Some((par, _)), Some(el)) = (sys.jacobian, elastic.as_mut()) {
+                // J x ≈ (f_e(X* + εx) − f_e(X* − εx))/2ε, ε|x| = 10⁻⁵ × the cell's size.
+                sht.forward(x, &mut el.dir, &mut products.ws)?;
+                let norm = el.dir.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if norm > 0.0 {
+                    let eps = JACOBIAN_STEP * sys.size / norm;
+                    for sign in [1.0, -1.0] {
+                        for ((d, s), v) in el.dc.iter_mut().zip(sys.xstar).zip(&el.dir) {
+                            *d = s + sign * eps * v;
+                        }
+                        el.membrane.set_geometry(&el.dc)?;
+                        el.membrane.skalak_force(par, &mut el.fp)?;
+                        let w = sign / (2.0 * eps);
+                        for (f, p) in fb.iter_mut().zip(&el.fp) {
+                            *f += w * p;
+                        }
+                    }
+                }
+            }
+            for (yi, xi) in y.iter_mut().zip(x) {
+                *yi = a_id * xi;
+            }
+            apply_operators(
+                sys.storage,
+                sht,
+                products,
+                sys.xstar,
+                (sys.s_op, fb, -tau),
+                sys.d_op.map(|d| (d, x, -c_d)),
+                y,
+            )
+        })();
+        if let Err(e) = r {
+            *failure.lock().expect("failure lock") = Some(e);
+            y.fill(f64::NAN);
+        }
+    });
+    let mut z = vec![0.0; 3 * n];
+    let report = gmres(
+        &op,
+        &Identity::new(3 * n),
+        &b,
+        None,
+        &mut z,
+        gmres_params,
+        &mut engine.gmres_ws,
+    );
+    if let Some(e) = failure.into_inner().expect("failure lock") {
+        return Err(e.into());
+    }
+    let report = report?;
+    for (zi, s) in z.iter_mut().zip(sys.xs_grid) {
+        *zi += s;
+    }
+    Ok((report, z))
 }
 
 /// Assemble the dense operator of `kernel` at the surface `coefs` into `out`, kept as `storage`

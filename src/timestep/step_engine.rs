@@ -33,6 +33,33 @@ pub(crate) struct OperatorWork {
     pub ft: Vec<f64>,
     /// The self-interaction products.
     pub products: ProductWork,
+    /// A capsule's elastic Jacobian (made at its first use).
+    pub elastic: Option<ElasticWork>,
+}
+
+/// The scratch of a capsule's elastic Jacobian-vector products: a second membrane engine for
+/// the perturbed surface, so that the operators' frozen geometry stays set.
+pub(crate) struct ElasticWork {
+    pub membrane: Membrane,
+    /// The direction and the perturbed surface (coefficients, `3n_c`) and its elastic force
+    /// (`3n`).
+    pub dir: Vec<f64>,
+    pub dc: Vec<f64>,
+    pub fp: Vec<f64>,
+}
+
+impl ElasticWork {
+    /// For orders `(p, q)`, `n_c` coefficients per component.
+    pub fn new(p: usize, q: usize, nc: usize) -> Result<Self, TimestepError> {
+        let membrane = Membrane::new(p, q)?;
+        let n = membrane.n_points();
+        Ok(ElasticWork {
+            membrane,
+            dir: vec![0.0; 3 * nc],
+            dc: vec![0.0; 3 * nc],
+            fp: vec![0.0; 3 * n],
+        })
+    }
 }
 
 /// The layer potentials and the scratch of the self-interaction products of a step.
@@ -77,6 +104,7 @@ impl StepEngine {
                     yc: vec![0.0; 3 * nc],
                     yg: vec![0.0; 3 * n],
                 },
+                elastic: None,
             }),
             ws: sht.workspace(),
             gmres_ws: GmresWorkspace::new(4 * n, restart),

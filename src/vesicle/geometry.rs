@@ -154,6 +154,36 @@ impl Geometry {
     pub fn principal_axes(&self) -> ([f64; 3], [[f64; 3]; 3]) {
         symmetric_eigen3(self.inertia_tensor())
     }
+    /// The ellipsoid of the same volume and inertia tensor: its semi-axes and their unit
+    /// directions (`axes[i]` belongs to `semi_axes[i]`), from the principal moments
+    /// `I_a = V(b² + c²)/5`: `a² = (5/2V)(I_b + I_c − I_a)`.
+    pub fn equivalent_ellipsoid(&self) -> ([f64; 3], [[f64; 3]; 3]) {
+        let (m, axes) = self.principal_axes();
+        let s = 2.5 / self.volume();
+        let semi = std::array::from_fn(|i| {
+            let (b, c) = (m[(i + 1) % 3], m[(i + 2) % 3]);
+            (s * (b + c - m[i])).max(0.0).sqrt()
+        });
+        (semi, axes)
+    }
+    /// Taylor deformation `D = (L − B)/(L + B)` in the plane normal to `vorticity`: `L` and `B`
+    /// are the semi-axes of the [equivalent ellipsoid](Self::equivalent_ellipsoid) other than
+    /// the one closest to the vorticity direction (the shear plane of a cell in simple shear).
+    pub fn taylor_deformation(&self, vorticity: [f64; 3]) -> f64 {
+        let (semi, axes) = self.equivalent_ellipsoid();
+        let k = (0..3)
+            .max_by(|&i, &j| {
+                dot(axes[i], vorticity)
+                    .abs()
+                    .total_cmp(&dot(axes[j], vorticity).abs())
+            })
+            .expect("three axes");
+        let (l, b) = {
+            let (x, y) = (semi[(k + 1) % 3], semi[(k + 2) % 3]);
+            (x.max(y), x.min(y))
+        };
+        (l - b) / (l + b)
+    }
     /// Reduced volume `6√π V / A^{3/2}`.
     pub fn reduced_volume(&self) -> f64 {
         6.0 * PI.sqrt() * self.volume() / self.area().powf(1.5)

@@ -1,11 +1,21 @@
-//! Skalak shear elasticity relative to a stress-free reference surface.
+//! Hyperelastic membranes (Skalak and neo-Hookean laws) relative to a stress-free reference
+//! surface.
 //!
 //! With the reference metric `A_ij` and the current metric `a_ij` of the same parametrisation:
-//! `I₁ = A^{ij} a_ij − 2`, `J² = det a / det A`, `I₂ = J² − 1`,
-//! `W_s = (G_s/4)(I₁² + 2I₁ − 2I₂ + C I₂²)` per unit reference area (Skalak et al., Biophys. J.
-//! 13, 1973), `E_s = ∫ W_s dA_ref`. Varying `a_ij` gives the contravariant Cauchy tension
-//! `T^{ij} = (2/J) ∂W_s/∂a_ij = (G_s/J)[(I₁ + 1) A^{ij} + J²(C I₂ − 1) a^{ij}]`; in principal
-//! stretches this is Skalak's `τ₁ = G_s/(λ₁λ₂) [λ₁²(λ₁² − 1) + C(λ₁λ₂)²((λ₁λ₂)² − 1)]`. The tension
+//! `I₁ = A^{ij} a_ij − 2`, `J² = det a / det A`, `I₂ = J² − 1`, and per unit reference area
+//!
+//! * **Skalak** (Skalak et al., Biophys. J. 13, 1973): `W_s = (G_s/4)(I₁² + 2I₁ − 2I₂ + C I₂²)`,
+//!   area-dilation modulus `K_s = G_s(1 + 2C)`, surface Poisson ratio `ν_s = C/(1 + C)`;
+//! * **neo-Hookean** (a thin sheet of incompressible neo-Hookean material; Barthès-Biesel,
+//!   Diaz & Dhenin, J. Fluid Mech. 460, 2002): `W_s = (G_s/2)(I₁ + 1/(I₂ + 1) − 1)`, which
+//!   softens under area dilation; `ν_s = 1/2` and surface Young modulus `E_s = 3G_s` at small
+//!   strain, the same as Skalak with `C = 1` to first order.
+//!
+//! `E_s = ∫ W_s dA_ref`. Varying `a_ij` gives the contravariant Cauchy tension
+//! `T^{ij} = (2/J) ∂W_s/∂a_ij`: for Skalak
+//! `T^{ij} = (G_s/J)[(I₁ + 1) A^{ij} + J²(C I₂ − 1) a^{ij}]` (in principal stretches Skalak's
+//! `τ₁ = G_s/(λ₁λ₂) [λ₁²(λ₁² − 1) + C(λ₁λ₂)²((λ₁λ₂)² − 1)]`), for neo-Hookean
+//! `T^{ij} = (G_s/J)(A^{ij} − a^{ij}/J²)` (`τ₁ = G_s/(λ₁λ₂) [λ₁² − 1/(λ₁λ₂)²]`). The tension
 //! tensor `τ = T^{ij} X_i ⊗ X_j` is a smooth Cartesian field; its six components are transformed
 //! on the order-`q` grid and the force is the surface divergence `f_k = ∇_s·(τ e_k)`, so that
 //! `∫ f·δX dA = −δE_s` (integration by parts on the closed surface; `τ` is tangential).
@@ -15,13 +25,46 @@ use super::membrane::Membrane;
 use super::{check_len, VesicleError};
 use crate::sph_harmonics::{resample_coefs, Deriv};
 
-/// Skalak parameters: shear modulus `G_s` and area-dilation ratio `C`.
+/// The strain-energy function of a hyperelastic membrane (module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ElasticLaw {
+    /// Skalak: strain-hardening, area dilation resisted with `K_s = G_s(1 + 2C)`.
+    #[default]
+    Skalak,
+    /// Neo-Hookean: strain-softening under area dilation; `C` is not used.
+    NeoHookean,
+}
+
+/// Membrane elasticity: the law, the shear modulus `G_s` and (Skalak) the area-dilation ratio
+/// `C`. The name is historical: the struct carries either law.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SkalakParams {
     /// `G_s`.
     pub shear_modulus: f64,
-    /// `C` (area-dilation modulus over shear modulus; large for RBCs).
+    /// `C` (area-dilation modulus over shear modulus; large for RBCs). Skalak only.
     pub dilation_ratio: f64,
+    /// Skalak or neo-Hookean.
+    pub law: ElasticLaw,
+}
+
+impl SkalakParams {
+    /// The Skalak law with `G_s` and `C`.
+    pub fn skalak(shear_modulus: f64, dilation_ratio: f64) -> Self {
+        SkalakParams {
+            shear_modulus,
+            dilation_ratio,
+            law: ElasticLaw::Skalak,
+        }
+    }
+
+    /// The neo-Hookean law with `G_s` (surface Young modulus `E_s = 3G_s` at small strain).
+    pub fn neo_hookean(shear_modulus: f64) -> Self {
+        SkalakParams {
+            shear_modulus,
+            dilation_ratio: 0.0,
+            law: ElasticLaw::NeoHookean,
+        }
+    }
 }
 
 impl SkalakParams {
@@ -75,11 +118,21 @@ fn skalak_point(par: &SkalakParams, refm: [f64; 3], cur: [f64; 3]) -> (f64, [f64
     let j2 = det_a / det_a_ref;
     let i2 = j2 - 1.0;
     let (gs, c) = (par.shear_modulus, par.dilation_ratio);
-    let w = 0.25 * gs * (i1 * i1 + 2.0 * i1 - 2.0 * i2 + c * i2 * i2);
     let j = j2.sqrt();
-    let t: [f64; 3] =
-        std::array::from_fn(|k| gs / j * ((i1 + 1.0) * ai[k] + j2 * (c * i2 - 1.0) * ci[k]));
-    (w, t)
+    match par.law {
+        ElasticLaw::Skalak => {
+            let w = 0.25 * gs * (i1 * i1 + 2.0 * i1 - 2.0 * i2 + c * i2 * i2);
+            let t: [f64; 3] = std::array::from_fn(|k| {
+                gs / j * ((i1 + 1.0) * ai[k] + j2 * (c * i2 - 1.0) * ci[k])
+            });
+            (w, t)
+        }
+        ElasticLaw::NeoHookean => {
+            let w = 0.5 * gs * (i1 + 1.0 / j2 - 1.0);
+            let t: [f64; 3] = std::array::from_fn(|k| gs / j * (ai[k] - ci[k] / j2));
+            (w, t)
+        }
+    }
 }
 
 impl Membrane {
