@@ -44,6 +44,7 @@ fn main() {
         scheme: mobo::timestep::semi_implicit::TimeScheme::Bdf2,
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     };
     let rbc = shapes::rbc(p).unwrap();
     // One stepper first: the tables shared per (p, q) are built once per process.

@@ -53,6 +53,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 scheme: TimeScheme::Euler,
                 viscosity_ratio: 1.0,
                 inextensible: true,
+                elastic_stepping: None,
             };
             let mut st = VesicleStepper::new(p, params)?;
             let mut c = surface.coefs().to_vec();

@@ -99,6 +99,7 @@ fn main() {
         },
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     };
     let mut stepper = VesicleStepper::new(p, params).unwrap();
     let mut coefs = s.coefs().to_vec();

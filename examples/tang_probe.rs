@@ -152,6 +152,7 @@ fn main() {
         scheme: TimeScheme::Euler,
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     };
     let mut stepper = VesicleStepper::new(p, params).unwrap();
     if let Some(s) = sigma0 {

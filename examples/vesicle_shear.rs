@@ -48,6 +48,7 @@ fn main() {
         scheme: mobo::timestep::semi_implicit::TimeScheme::Euler,
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     };
     let mut st = VesicleStepper::new(p, params).unwrap();
     let mut coefs = s.coefs().to_vec();

@@ -35,6 +35,7 @@ fn stepper(scheme: TimeScheme, dt: f64) -> VesicleStepper {
             scheme,
             viscosity_ratio: 1.0,
             inextensible: true,
+            elastic_stepping: None,
         },
     )
     .unwrap()

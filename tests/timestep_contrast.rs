@@ -394,6 +394,7 @@ fn spheres_with_contrast_still_sediment_at_the_two_sphere_mobility() {
                     scheme: TimeScheme::Euler,
                     viscosity_ratio: 5.0,
                     inextensible: true,
+                    elastic_stepping: None,
                 },
                 skalak: None,
             }

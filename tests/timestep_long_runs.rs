@@ -76,6 +76,7 @@ fn params(p: usize, dt: f64) -> VesicleParams {
         scheme: TimeScheme::Euler,
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     }
 }
 

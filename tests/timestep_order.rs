@@ -48,6 +48,7 @@ fn advance(scheme: TimeScheme, start: &[f64], t: f64, steps: usize, post: Post) 
         scheme,
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     };
     let mut st = VesicleStepper::new(P, prm).unwrap();
     let mut c = start.to_vec();
@@ -199,6 +200,7 @@ fn a_restarted_bdf2_run_continues_exactly() {
         scheme: TimeScheme::Bdf2,
         viscosity_ratio: 2.0,
         inextensible: true,
+        elastic_stepping: None,
     };
     let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
     let start = shapes::ellipsoid(P, [1.2, 1.0, 0.8]).unwrap();
@@ -245,6 +247,7 @@ fn a_restarted_bdf2_run_continues_exactly() {
         let bad = VesicleParams {
             viscosity_ratio: lambda,
             inextensible: true,
+            elastic_stepping: None,
             ..prm
         };
         assert!(VesicleStepper::new(P, bad).is_err(), "λ = {lambda}");

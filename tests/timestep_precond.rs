@@ -28,6 +28,7 @@ fn params(p: usize, dt: f64, tol: f64, preconditioner: bool) -> VesicleParams {
         scheme: TimeScheme::Euler,
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     }
 }
 
@@ -134,6 +135,7 @@ fn iteration_counts_drop_on_nonspherical_cells() {
             let prm = |pc| VesicleParams {
                 viscosity_ratio: lambda,
                 inextensible: true,
+                elastic_stepping: None,
                 ..params(p, dt, tol, pc)
             };
             let (_, r0, _, t0) = one_step(p, s, prm(false));

@@ -115,6 +115,7 @@ fn sedimentation(p: usize, a: f64, centres: &[[f64; 3]]) -> Vec<[f64; 3]> {
                     scheme: TimeScheme::Euler,
                     viscosity_ratio: 1.0,
                     inextensible: true,
+                    elastic_stepping: None,
                 },
                 skalak: None,
             }
@@ -228,6 +229,7 @@ fn head_on(strength: f64, steps: usize) -> (f64, f64, usize) {
                     scheme: TimeScheme::Euler,
                     viscosity_ratio: 1.0,
                     inextensible: true,
+                    elastic_stepping: None,
                 },
                 skalak: None,
             }

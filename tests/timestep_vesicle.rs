@@ -30,6 +30,7 @@ fn params(p: usize, force: [f64; 3], dt: f64) -> VesicleParams {
         scheme: mobo::timestep::semi_implicit::TimeScheme::Euler,
         viscosity_ratio: 1.0,
         inextensible: true,
+        elastic_stepping: None,
     }
 }
 

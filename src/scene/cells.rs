@@ -43,6 +43,8 @@
 //! dt = 0.01
 //! t_end = 1.0
 //! scheme = "euler"                # "euler" | "bdf2"
+//! elasticity = "auto"             # elastic force: "explicit" | "implicit" (linearised, a
+//! #                               # Jacobian per GMRES iteration) | "auto" (implicit for capsules)
 //! adaptive_dt = false             # true: dt from the area/volume error (dt is the first step)
 //! far_side_split = true           # split off the own far side in the singular quadrature
 //! operator_storage = "auto"       # self-interaction: "auto" | "grid" | "coefficients" | "matrix_free"
@@ -72,7 +74,7 @@ use toml::Spanned;
 
 use super::{line_col, parse_toml, read_scene_file, SceneError};
 use crate::gpu::GpuChoice;
-use crate::timestep::semi_implicit::OperatorStorage;
+use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
 
@@ -135,6 +137,7 @@ struct NumericsSection {
     dt: Option<Spanned<f64>>,
     t_end: Option<Spanned<f64>>,
     scheme: Option<Spanned<String>>,
+    elasticity: Option<Spanned<String>>,
     adaptive_dt: Option<bool>,
     far_side_split: Option<bool>,
     operator_storage: Option<Spanned<String>>,
@@ -348,6 +351,9 @@ pub struct Numerics {
     pub t_end: f64,
     /// Time-integration scheme (default [`Scheme::Euler`]).
     pub scheme: Scheme,
+    /// How the elastic force enters the step (`None`, `"auto"`: linearly implicit for
+    /// capsules, explicit for inextensible cells).
+    pub elasticity: Option<ElasticStepping>,
     /// Choose `dt` from the area/volume error estimate ([`crate::timestep::adaptive`];
     /// default off).
     pub adaptive_dt: bool,
@@ -596,6 +602,23 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
                     return Err(at(
                         s.span(),
                         format!("[numerics] scheme: unknown scheme \"{other}\" (euler, bdf2)"),
+                    ))
+                }
+            },
+        },
+        elasticity: match n.and_then(|n| n.elasticity.as_ref()) {
+            None => None,
+            Some(s) => match s.get_ref().as_str() {
+                "auto" => None,
+                "explicit" => Some(ElasticStepping::Explicit),
+                "implicit" => Some(ElasticStepping::LinearlyImplicit),
+                other => {
+                    return Err(at(
+                        s.span(),
+                        format!(
+                            "[numerics] elasticity: unknown choice \"{other}\" (auto, explicit, \
+                             implicit)"
+                        ),
                     ))
                 }
             },

@@ -300,6 +300,7 @@ pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
             },
             viscosity_ratio: cell.viscosity_ratio,
             inextensible: cell.inextensible,
+            elastic_stepping: scene.numerics.elasticity,
         };
         let skalak = (cell.shear_modulus > 0.0).then(|| {
             (

@@ -244,6 +244,18 @@ pub enum ElasticLawKind {
     NeoHookean,
 }
 
+/// `[numerics] elasticity`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ElasticityKind {
+    /// Linearly implicit for capsules, explicit for inextensible cells.
+    Auto,
+    /// At the operators' geometry.
+    Explicit,
+    /// Linearised (a Jacobian-vector product per GMRES iteration).
+    Implicit,
+}
+
 /// `[numerics] scheme`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -293,6 +305,9 @@ pub struct NumericsSpec {
     /// `scheme`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub scheme: Option<SchemeKind>,
+    /// `elasticity`: how the elastic force enters the step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub elasticity: Option<ElasticityKind>,
     /// `adaptive_dt`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub adaptive_dt: Option<bool>,

@@ -77,7 +77,8 @@
 //! in `3n` unknowns. `J δ` is the directional derivative of the elastic force, taken by a
 //! central difference `(f_e(X* + εδ) − f_e(X* − εδ))/2ε` with `ε|δ|` a `10⁻⁵` fraction of the
 //! cell's size (relative error `~10⁻¹⁰`, which multiplies the small `δ = O(Δt)`, not the
-//! surface; a one-sided difference left GMRES at a `10⁻⁹` floor at small `Ca`). [`VesicleStepper::set_explicit_elasticity`] drops `J` (forward Euler in the
+//! surface; a one-sided difference left GMRES at a `10⁻⁹` floor at small `Ca`).
+//! [`VesicleParams::elastic_stepping`] `= Some(Explicit)` drops `J` (forward Euler in the
 //! elasticity; the reference whose stability limit this removes). The area is not a constraint:
 //! the step's error estimate is the change of volume alone, and the drift correction (if asked)
 //! restores the volume only, by a uniform normal displacement.
@@ -134,6 +135,17 @@ pub enum TimeScheme {
     Bdf2,
 }
 
+/// How the membrane's elastic force (Skalak or neo-Hookean) enters the step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ElasticStepping {
+    /// Evaluated at the operators' geometry `X*` (forward Euler in the elasticity; stable only
+    /// below `Δt ~ μa/(G_s p)`).
+    Explicit,
+    /// Linearised about `X*`: `f_e(X) ≈ f_e(X*) + J (X − X*)`, the Jacobian applied in every
+    /// GMRES iteration by a central difference ("Capsules" in the module docs).
+    LinearlyImplicit,
+}
+
 /// Relative drift of the area-equivalent radius that triggers a rebuild of the preconditioner.
 const PRECONDITIONER_RADIUS_RTOL: f64 = 1e-2;
 
@@ -168,6 +180,9 @@ pub struct VesicleParams {
     /// unknown). `false`: a capsule, whose membrane stretches and resists through its elastic law
     /// alone ([`VesicleStepper::set_skalak`], required); see "Capsules" in the module docs.
     pub inextensible: bool,
+    /// How the elastic force enters the step (`None`: linearly implicit for a capsule,
+    /// explicit for an inextensible cell, whose tension carries most of the in-plane load).
+    pub elastic_stepping: Option<ElasticStepping>,
 }
 
 /// Explicit terms of one step (other cells, elastic forces computed at `Xⁿ`).
@@ -279,8 +294,6 @@ pub struct VesicleStepper {
     /// Membrane velocity of the last solve on the order-`p` grid (see
     /// [`VesicleStepper::velocity`]).
     velocity: Option<Vec<f64>>,
-    /// Capsules: the elastic force explicit (no Jacobian in the step).
-    explicit_elasticity: bool,
 }
 
 fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
@@ -334,15 +347,7 @@ impl VesicleStepper {
             previous_dt: None,
             preconditioners: Vec::new(),
             velocity: None,
-            explicit_elasticity: false,
         })
-    }
-
-    /// Capsules: take the elastic force explicitly (`true`: forward Euler in the elasticity,
-    /// stable only below `Δt ~ μ a/(G_s p)`) or linearly implicit (`false`, the default; see
-    /// "Capsules" in the module docs). No effect on inextensible cells.
-    pub fn set_explicit_elasticity(&mut self, explicit: bool) {
-        self.explicit_elasticity = explicit;
     }
 
     /// An engine for one call, set up for this cell (far-side settings, Skalak reference).
@@ -762,6 +767,11 @@ impl VesicleStepper {
                 })
             }
         };
+        let implicit_elastic = self.skalak.is_some()
+            && self
+                .params
+                .elastic_stepping
+                .map_or(!inextensible, |e| e == ElasticStepping::LinearlyImplicit);
         // The sphere preconditioner is that of the inextensible system.
         let precondition = self.params.preconditioner && inextensible;
         let (pc_index, preconditioner_built) = if precondition {
@@ -874,7 +884,7 @@ impl VesicleStepper {
                     c_d,
                     tau,
                     kappa,
-                    jacobian: (!self.explicit_elasticity).then_some((sk, &reference[..])),
+                    jacobian: implicit_elastic.then_some((sk, &reference[..])),
                     size: (area / (4.0 * std::f64::consts::PI)).sqrt(),
                 },
                 &self.params.gmres,
@@ -904,7 +914,21 @@ impl VesicleStepper {
                 )?;
                 membrane.surface_divergence(&xh_grid, &mut b[3 * n..])?;
             }
-            // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X].
+            // With the elasticity linearly implicit, the Jacobian's engine (see below).
+            let jacobian = match (&self.skalak, implicit_elastic) {
+                (Some((sk, reference)), true) => {
+                    let OperatorWork {
+                        membrane, elastic, ..
+                    } = engine.work.get_mut().expect("operator lock");
+                    elastic_work(elastic, membrane, nc, reference)?;
+                    Some(*sk)
+                }
+                _ => None,
+            };
+            let size = (area / (4.0 * std::f64::consts::PI)).sqrt();
+            let with_jacobian = std::sync::atomic::AtomicBool::new(false);
+            // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X] (plus −τ S J X
+            // once `with_jacobian` is set).
             let (work, sht) = (&engine.work, &engine.sht);
             let failure: Mutex<Option<crate::vesicle::VesicleError>> = Mutex::new(None);
             let op = FnOperator::new(4 * n, |z: &[f64], y: &mut [f64]| {
@@ -915,7 +939,7 @@ impl VesicleStepper {
                     fb,
                     ft,
                     products,
-                    ..
+                    elastic,
                 } = &mut *guard;
                 let r = membrane
                     .bending_linear(kappa, x, fb)
@@ -924,6 +948,22 @@ impl VesicleStepper {
                     .and_then(|_| {
                         for (a, t) in fb.iter_mut().zip(ft.iter()) {
                             *a += t;
+                        }
+                        if let (Some(par), Some(el), true) = (
+                            &jacobian,
+                            elastic.as_mut(),
+                            with_jacobian.load(std::sync::atomic::Ordering::Relaxed),
+                        ) {
+                            add_elastic_jacobian(
+                                el,
+                                sht,
+                                &mut products.ws,
+                                par,
+                                &xstar,
+                                size,
+                                x,
+                                fb,
+                            )?;
                         }
                         for (yi, xi) in y[..3 * n].iter_mut().zip(x) {
                             *yi = a_id * xi;
@@ -947,6 +987,19 @@ impl VesicleStepper {
             let mut z0 = vec![0.0; 4 * n];
             z0[..3 * n].copy_from_slice(&xs_grid);
             z0[3 * n..].copy_from_slice(&self.sigma);
+            if jacobian.is_some() {
+                // Solve for δ = X − X* (so that the Jacobian's relative error multiplies the
+                // small δ, as for capsules): b ← b − A [X*; 0] with A without J, then J on.
+                let mut xs0 = vec![0.0; 4 * n];
+                xs0[..3 * n].copy_from_slice(&xs_grid);
+                let mut shift = vec![0.0; 4 * n];
+                super::LinearOperator::apply(&op, &xs0, &mut shift);
+                for (bi, si) in b.iter_mut().zip(&shift) {
+                    *bi -= si;
+                }
+                z0[..3 * n].fill(0.0);
+                with_jacobian.store(true, std::sync::atomic::Ordering::Relaxed);
+            }
             let mut z = vec![0.0; 4 * n];
             let report = match pc_index {
                 Some(i) => gmres(
@@ -980,6 +1033,11 @@ impl VesicleStepper {
             let report = report?;
             self.sigma.copy_from_slice(&z[3 * n..]);
             z.truncate(3 * n);
+            if jacobian.is_some() {
+                for (zi, s) in z.iter_mut().zip(&xs_grid) {
+                    *zi += s;
+                }
+            }
             (report, z)
         };
         // The membrane velocity of this step, u = (Xⁿ⁺¹ − X̂)/τ on the grid.
@@ -1154,6 +1212,59 @@ fn correct_shape(
     Ok(())
 }
 
+/// `f ← f + J x`: the directional derivative of the elastic force at the surface `xstar`
+/// (coefficients) along the grid vector `x` (`3n`), by a central difference with `ε|x|` a
+/// [`JACOBIAN_STEP`] fraction of `size` (the engine `el` holds the reference surface).
+#[allow(clippy::too_many_arguments)] // the pieces of a lent engine, borrowed separately
+fn add_elastic_jacobian(
+    el: &mut ElasticWork,
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    par: &SkalakParams,
+    xstar: &[f64],
+    size: f64,
+    x: &[f64],
+    f: &mut [f64],
+) -> Result<(), crate::vesicle::VesicleError> {
+    sht.forward(x, &mut el.dir, ws)?;
+    let norm = el.dir.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if norm == 0.0 {
+        return Ok(());
+    }
+    let eps = JACOBIAN_STEP * size / norm;
+    for sign in [1.0, -1.0] {
+        for ((d, s), v) in el.dc.iter_mut().zip(xstar).zip(&el.dir) {
+            *d = s + sign * eps * v;
+        }
+        el.membrane.set_geometry(&el.dc)?;
+        el.membrane.skalak_force(par, &mut el.fp)?;
+        let w = sign / (2.0 * eps);
+        for (fi, p) in f.iter_mut().zip(&el.fp) {
+            *fi += w * p;
+        }
+    }
+    Ok(())
+}
+
+/// The engine of the elastic Jacobian in `work` (made at its first use), with `reference` set.
+fn elastic_work<'a>(
+    elastic: &'a mut Option<ElasticWork>,
+    membrane: &Membrane,
+    nc: usize,
+    reference: &[f64],
+) -> Result<&'a mut ElasticWork, TimestepError> {
+    let el = match elastic {
+        Some(el) => el,
+        None => elastic.insert(ElasticWork::new(
+            membrane.order(),
+            membrane.upsampled_order(),
+            nc,
+        )?),
+    };
+    el.membrane.set_reference(reference)?;
+    Ok(el)
+}
+
 /// The central-difference step of a capsule's elastic Jacobian, relative to the cell's size:
 /// truncation `~10⁻¹⁰` and round-off `~10⁻¹¹` relative to `J x`.
 const JACOBIAN_STEP: f64 = 1e-5;
@@ -1228,15 +1339,7 @@ fn solve_capsule(
             &mut b,
         )?;
         if let Some((_, reference)) = sys.jacobian {
-            let el = match elastic {
-                Some(el) => el,
-                None => elastic.insert(ElasticWork::new(
-                    membrane.order(),
-                    membrane.upsampled_order(),
-                    nc,
-                )?),
-            };
-            el.membrane.set_reference(reference)?;
+            elastic_work(elastic, membrane, nc, reference)?;
         }
     }
     let (work, sht) = (&engine.work, &engine.sht);
@@ -1253,23 +1356,7 @@ fn solve_capsule(
         let r = (|| {
             membrane.bending_linear(kappa, x, fb)?;
             if let (Some((par, _)), Some(el)) = (sys.jacobian, elastic.as_mut()) {
-                // J x ≈ (f_e(X* + εx) − f_e(X* − εx))/2ε, ε|x| = 10⁻⁵ × the cell's size.
-                sht.forward(x, &mut el.dir, &mut products.ws)?;
-                let norm = el.dir.iter().map(|v| v * v).sum::<f64>().sqrt();
-                if norm > 0.0 {
-                    let eps = JACOBIAN_STEP * sys.size / norm;
-                    for sign in [1.0, -1.0] {
-                        for ((d, s), v) in el.dc.iter_mut().zip(sys.xstar).zip(&el.dir) {
-                            *d = s + sign * eps * v;
-                        }
-                        el.membrane.set_geometry(&el.dc)?;
-                        el.membrane.skalak_force(par, &mut el.fp)?;
-                        let w = sign / (2.0 * eps);
-                        for (f, p) in fb.iter_mut().zip(&el.fp) {
-                            *f += w * p;
-                        }
-                    }
-                }
+                add_elastic_jacobian(el, sht, &mut products.ws, par, sys.xstar, sys.size, x, fb)?;
             }
             for (yi, xi) in y.iter_mut().zip(x) {
                 *yi = a_id * xi;
