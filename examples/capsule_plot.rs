@@ -24,7 +24,7 @@ fn rows(text: &str) -> Vec<(String, f64, f64)> {
                 .next()?
                 .parse()
                 .ok()?;
-            let inner = l.split('(').nth(1)?;
+            let inner = l.split(" (").nth(1)?;
             let mut parts = inner.split(", ");
             let law = parts.next()?.to_string();
             let ca: f64 = parts.next()?.strip_prefix("Ca ")?.parse().ok()?;

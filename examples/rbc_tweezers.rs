@@ -3,10 +3,11 @@
 //! ([`Simulation`] and a [`PatchPair`] force) rather than a scene file.
 //!
 //! ```text
-//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION]
+//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION ELASTICITY]
 //! ```
 //!
-//! Defaults: `12 0,88,193 40 0.01 0.025`. The cell: the biconcave RBC scaled to a diameter of
+//! Defaults: `12 0,88,193 40 0.01 0.025 implicit` (`ELASTICITY`: the scene's
+//! `[numerics] elasticity`, `implicit` or `explicit`). The cell: the biconcave RBC scaled to a diameter of
 //! 7.82 µm (equivalent radius `R = 7.82/(2α)` µm, `α` = [`RBC_ALPHA`]), Skalak shear modulus
 //! `G_s = 6.3 µN/m` and bending rigidity `κ = 2.4·10⁻¹⁹ J` (the moduli of Fedosov et al.,
 //! Biophys. J. 98, 2010, fitted to Mills' data), a locally inextensible membrane, viscosity
@@ -52,12 +53,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let t_max: f64 = a.get(2).map_or(Ok(40.0), |s| s.parse())?;
     let dt: f64 = a.get(3).map_or(Ok(0.01), |s| s.parse())?;
     let fraction: f64 = a.get(4).map_or(Ok(0.025), |s| s.parse())?;
+    let elasticity = a.get(5).map_or("implicit", |s| s.as_str());
     let r_um = DIAMETER_UM / (2.0 * RBC_ALPHA);
     let r_m = r_um * 1e-6;
     let kappa = BENDING_J / (SHEAR_N_PER_M * r_m * r_m);
     println!(
         "RBC of diameter {DIAMETER_UM} µm (R = {r_um:.4} µm), G_s = 6.3 µN/m, κ = 2.4e-19 J: \
-         κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each",
+         κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each, \
+         elasticity {elasticity}",
         100.0 * fraction
     );
     println!();
@@ -67,7 +70,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let f = f_pn * 1e-12 / (SHEAR_N_PER_M * r_m);
         let text = format!(
             "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
-             bending_modulus = {kappa}\n\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n"
+             bending_modulus = {kappa}\n\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n\
+             elasticity = \"{elasticity}\"\n"
         );
         let scene = parse(Path::new("rbc_tweezers (in code)"), &text)?;
         let mut sim = Simulation::new(scene)?;
