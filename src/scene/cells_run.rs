@@ -97,7 +97,8 @@ pub enum CellRunError {
 /// Per-cell observables at the end of the run (`summary.json`'s `per_cell`, in scene order).
 #[derive(Clone, Debug, Serialize)]
 pub struct CellSummary {
-    /// Relative change of the area since the start of the run, `(A − A₀)/A₀` (signed).
+    /// Relative change of the area since the start of the run, `(A − A₀)/A₀` (signed). An
+    /// error for an inextensible cell; for a capsule its strain (the area changes physically).
     pub area_drift: f64,
     /// Relative change of the enclosed volume since the start, `(V − V₀)/V₀` (signed).
     pub volume_drift: f64,
