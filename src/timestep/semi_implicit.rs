@@ -83,6 +83,12 @@
 //! the step's error estimate is the change of volume alone, and the drift correction (if asked)
 //! restores the volume only, by a uniform normal displacement.
 //!
+//! An inextensible cell with shear elasticity (an RBC) may take the same linearisation
+//! (`elastic_stepping = Some(LinearlyImplicit)`; its default is explicit, the tension carrying
+//! most of the in-plane load): its `4n` system is then solved for `[δ; σ]`, the right-hand side
+//! shifted by the operator (without `J`) applied to `[X*; 0]`, and `−τ S J δ` added to every
+//! product. The sphere preconditioner does not see `J`, so the iterations grow with `G_s Δt`.
+//!
 //! ## Preconditioner
 //!
 //! With [`VesicleParams::preconditioner`] GMRES is right-preconditioned by the inverse step
