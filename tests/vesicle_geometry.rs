@@ -721,3 +721,40 @@ fn bad_input_is_an_error() {
         Err(VesicleError::Order { .. })
     ));
 }
+
+#[test]
+fn the_equivalent_ellipsoid_of_an_ellipsoid_is_itself_and_gives_its_taylor_deformation() {
+    let p = 16;
+    let mut s = shapes::ellipsoid(p, [1.3, 0.9, 0.6]).unwrap();
+    // Turned by 30° about z, then moved: the axes turn with it, the semi-axes do not change.
+    let (c, sn) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+    s.rotate([[c, -sn, 0.0], [sn, c, 0.0], [0.0, 0.0, 1.0]])
+        .unwrap();
+    s.translate([0.4, -1.0, 2.0]);
+    let g = SurfaceCalculus::new(p)
+        .unwrap()
+        .geometry(s.coefs())
+        .unwrap();
+    let (semi, axes) = g.equivalent_ellipsoid();
+    let mut got: Vec<(f64, [f64; 3])> = semi.into_iter().zip(axes).collect();
+    got.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let want = [
+        (1.3, [c, sn, 0.0]),
+        (0.9, [-sn, c, 0.0]),
+        (0.6, [0.0, 0.0, 1.0]),
+    ];
+    for ((a, axis), (wa, waxis)) in got.iter().zip(want) {
+        assert!((a - wa).abs() < 1e-10, "semi-axis {a} vs {wa}");
+        let along: f64 = axis.iter().zip(waxis).map(|(x, y)| x * y).sum();
+        assert!(
+            (along.abs() - 1.0).abs() < 1e-10,
+            "axis {axis:?} vs {waxis:?}"
+        );
+    }
+    // Shear plane x–y (vorticity along z): D = (1.3 − 0.9)/(1.3 + 0.9).
+    let d = g.taylor_deformation([0.0, 0.0, 1.0]);
+    assert!((d - 0.4 / 2.2).abs() < 1e-10, "{d}");
+    // Vorticity along the longest axis: the other two, (0.9 − 0.6)/(0.9 + 0.6).
+    let d = g.taylor_deformation([c, sn, 0.0]);
+    assert!((d - 0.3 / 1.5).abs() < 1e-10, "{d}");
+}

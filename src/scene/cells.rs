@@ -795,6 +795,17 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         cells.extend(group);
     }
     check_overlaps(&cells, file)?;
+    if let (true, Some(c)) = (numerics.adaptive_dt, cells.iter().find(|c| !c.inextensible)) {
+        return Err(SceneError::new(
+            file,
+            format!(
+                "[numerics] adaptive_dt = true cannot step capsules (the [[cells]] entry at line \
+                 {}): the adaptive step size is controlled by the area/volume change of a step, \
+                 which does not show a capsule's elastic error; use a fixed dt",
+                c.line
+            ),
+        ));
+    }
     let mut effects = effects(&cells, &flow);
     effects.push(Effect {
         name: "adaptive_dt",
@@ -961,6 +972,26 @@ fn cell_specs(
         ));
     }
     let skalak_c = get(&c.skalak_c, "skalak_c", 10.0, true)?;
+    // Keys that would be silently ignored are refused.
+    if let (Some(l), true) = (&c.elastic_law, shear == 0.0) {
+        return Err(at(
+            l.span(),
+            format!(
+                "{} needs {} > 0 (without it the membrane has no shear elasticity)",
+                key("elastic_law"),
+                key("shear_modulus")
+            ),
+        ));
+    }
+    if let (Some(k), ElasticLaw::NeoHookean) = (&c.skalak_c, elastic_law) {
+        return Err(at(
+            k.span(),
+            format!(
+                "{} applies to the Skalak law only, not to elastic_law = \"neo_hookean\"",
+                key("skalak_c")
+            ),
+        ));
+    }
     let lambda = get(&c.viscosity_ratio, "viscosity_ratio", 1.0, true)?;
     let vec3 = |v: &Option<Spanned<[f64; 3]>>, name: &str| -> Result<[f64; 3], SceneError> {
         match v {
@@ -1242,8 +1273,9 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             } else {
                 format!(
                     "membrane = \"capsule\" for cells {}: no inextensibility constraint, the \
-                     elastic force linearly implicit, material points followed (no \
-                     reparametrisation), only the volume restored",
+                     elastic force linearly implicit (unless [numerics] elasticity = \
+                     \"explicit\"), material points followed (no reparametrisation), only the \
+                     volume restored",
                     list(&capsules)
                 )
             },

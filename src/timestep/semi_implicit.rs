@@ -144,8 +144,8 @@ pub enum TimeScheme {
 /// How the membrane's elastic force (Skalak or neo-Hookean) enters the step.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ElasticStepping {
-    /// Evaluated at the operators' geometry `X*` (forward Euler in the elasticity; stable only
-    /// below `Δt ~ μa/(G_s p)`).
+    /// Evaluated at the operators' geometry `X*` (`Xⁿ` for Euler, the extrapolation for BDF2;
+    /// stable only below `Δt ~ μa/(G_s p)`).
     Explicit,
     /// Linearised about `X*`: `f_e(X) ≈ f_e(X*) + J (X − X*)`, the Jacobian applied in every
     /// GMRES iteration by a central difference ("Capsules" in the module docs).
@@ -176,7 +176,8 @@ pub struct VesicleParams {
     /// 2011 §3.4), before the drift correction.
     pub reparametrize: Option<ReparamParams>,
     /// Right-precondition GMRES by the inverse step operator of the area-equivalent sphere
-    /// ([`super::sphere_preconditioner`]).
+    /// ([`super::sphere_preconditioner`]). Inextensible cells only: a capsule's system has no
+    /// tension block, and it is solved unpreconditioned whatever this says.
     pub preconditioner: bool,
     /// Euler or BDF2.
     pub scheme: TimeScheme,
@@ -1157,7 +1158,9 @@ impl VesicleStepper {
     }
 
     /// Move the surface along its normal by `(α + β H) n` so that its area and volume become
-    /// `area` and `volume` (three Newton steps; quadratic convergence from a small drift).
+    /// `area` and `volume` (three Newton steps; quadratic convergence from a small drift). For
+    /// both, whatever the cell: the step's own correction of a capsule restores the volume
+    /// alone.
     pub fn correct_area_volume(
         &mut self,
         coefs: &mut [f64],

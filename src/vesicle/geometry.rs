@@ -154,9 +154,10 @@ impl Geometry {
     pub fn principal_axes(&self) -> ([f64; 3], [[f64; 3]; 3]) {
         symmetric_eigen3(self.inertia_tensor())
     }
-    /// The ellipsoid of the same volume and inertia tensor: its semi-axes and their unit
-    /// directions (`axes[i]` belongs to `semi_axes[i]`), from the principal moments
-    /// `I_a = V(b² + c²)/5`: `a² = (5/2V)(I_b + I_c − I_a)`.
+    /// The ellipsoid with the same inertia tensor per unit volume (the same principal axes and
+    /// second moments; its volume equals `V` only when the surface is an ellipsoid): its
+    /// semi-axes and their unit directions (`axes[i]` belongs to `semi_axes[i]`), from the
+    /// principal moments `I_a = V(b² + c²)/5`: `a² = (5/2V)(I_b + I_c − I_a)`.
     pub fn equivalent_ellipsoid(&self) -> ([f64; 3], [[f64; 3]; 3]) {
         let (m, axes) = self.principal_axes();
         let s = 2.5 / self.volume();
