@@ -3,11 +3,12 @@
 //! ([`Simulation`] and a [`PatchPair`] force) rather than a scene file.
 //!
 //! ```text
-//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION ELASTICITY]
+//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION ELASTICITY EDGE]
 //! ```
 //!
-//! Defaults: `12 0,88,193 40 0.01 0.025 implicit` (`ELASTICITY`: the scene's
-//! `[numerics] elasticity`, `implicit` or `explicit`). The cell: the biconcave RBC scaled to a diameter of
+//! Defaults: `12 0,88,193 40 0.01 0.025 implicit 0` (`ELASTICITY`: the scene's
+//! `[numerics] elasticity`, `implicit` or `explicit`; `EDGE` > 0: a [`SmoothPatchPair`] whose
+//! edge is that share of the cell's extent, 0: the hard [`PatchPair`]). The cell: the biconcave RBC scaled to a diameter of
 //! 7.82 µm (equivalent radius `R = 7.82/(2α)` µm, `α` = [`RBC_ALPHA`]), Skalak shear modulus
 //! `G_s = 6.3 µN/m` and bending rigidity `κ = 2.4·10⁻¹⁹ J` (the moduli of Fedosov et al.,
 //! Biophys. J. 98, 2010, fitted to Mills' data), a locally inextensible membrane, viscosity
@@ -23,7 +24,7 @@ use std::path::Path;
 
 use mobo::scene::cells::parse;
 use mobo::scene::simulation::Simulation;
-use mobo::timestep::cell_force::PatchPair;
+use mobo::timestep::cell_force::{PatchPair, SmoothPatchPair};
 use mobo::vesicle::geometry::Geometry;
 use mobo::vesicle::shapes::RBC_ALPHA;
 
@@ -54,13 +55,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let dt: f64 = a.get(3).map_or(Ok(0.01), |s| s.parse())?;
     let fraction: f64 = a.get(4).map_or(Ok(0.025), |s| s.parse())?;
     let elasticity = a.get(5).map_or("implicit", |s| s.as_str());
+    let edge: f64 = a.get(6).map_or(Ok(0.0), |s| s.parse())?;
     let r_um = DIAMETER_UM / (2.0 * RBC_ALPHA);
     let r_m = r_um * 1e-6;
     let kappa = BENDING_J / (SHEAR_N_PER_M * r_m * r_m);
     println!(
         "RBC of diameter {DIAMETER_UM} µm (R = {r_um:.4} µm), G_s = 6.3 µN/m, κ = 2.4e-19 J: \
-         κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each, \
-         elasticity {elasticity}",
+         κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each \
+         (edge {edge}), elasticity {elasticity}",
         100.0 * fraction
     );
     println!();
@@ -75,12 +77,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
         let scene = parse(Path::new("rbc_tweezers (in code)"), &text)?;
         let mut sim = Simulation::new(scene)?;
-        sim.add_force(PatchPair {
+        let pair = PatchPair {
             cell: 0,
             axis: [1.0, 0.0, 0.0],
             fraction,
             force: f,
-        });
+        };
+        if edge > 0.0 {
+            sim.add_force(SmoothPatchPair { pair, width: edge });
+        } else {
+            sim.add_force(pair);
+        }
         let a0 = sim.cell(0)?.geometry.area();
         let mut last = extent(&sim.cell(0)?.geometry, 0);
         let check = 0.5;

@@ -256,3 +256,73 @@ fn bad_tweezers_and_cell_indices_are_errors_not_panics() {
         );
     }
 }
+
+#[test]
+fn smooth_tweezers_carry_plus_and_minus_f_and_move_continuously_with_the_surface() {
+    use mobo::timestep::cell_force::SmoothPatchPair;
+    use mobo::vesicle::shapes;
+    let p = 12;
+    let smooth = SmoothPatchPair {
+        pair: PatchPair {
+            cell: 0,
+            axis: [1.0, 0.0, 0.0],
+            fraction: 0.025,
+            force: 0.7,
+        },
+        width: 0.1,
+    };
+    let mut calc = SurfaceCalculus::new(p).unwrap();
+    let load = |coefs: &[f64], calc: &mut SurfaceCalculus| {
+        let g = calc.geometry(coefs).unwrap();
+        let n = g.n_points();
+        let mut t = vec![0.0; 3 * n];
+        smooth.add_traction(
+            &CellView {
+                id: 0,
+                time: 0.0,
+                coefs,
+                geometry: &g,
+            },
+            &mut t,
+        );
+        (g, t)
+    };
+    let rbc = shapes::rbc(p).unwrap();
+    let (g, t) = load(rbc.coefs(), &mut calc);
+    let n = g.n_points();
+    // Each patch carries its share of the area and ±F along x; nothing across.
+    for (w, sign) in smooth.weights(&g).iter().zip([1.0, -1.0]) {
+        let share: f64 = w.iter().zip(&g.da).map(|(a, b)| a * b).sum();
+        assert!((share / g.area() - 0.025).abs() < 1e-9, "{share}");
+        let on = |c: usize| -> f64 {
+            (0..n)
+                .filter(|&j| w[j] > 0.0)
+                .map(|j| t[c * n + j] * g.da[j])
+                .sum()
+        };
+        assert!((on(0) - sign * 0.7).abs() < 1e-12, "{}", on(0));
+        assert!(on(1).abs() < 1e-14 && on(2).abs() < 1e-14);
+    }
+    // Turned by 1e-4 rad about z, the load changes by O(1e-4) of its size: no point jumps in
+    // or out of a patch (the hard PatchPair would move whole grid points' loads).
+    let mut turned = rbc.clone();
+    let a = 1e-4f64;
+    turned
+        .rotate([
+            [a.cos(), -a.sin(), 0.0],
+            [a.sin(), a.cos(), 0.0],
+            [0.0, 0.0, 1.0],
+        ])
+        .unwrap();
+    let (_, t2) = load(turned.coefs(), &mut calc);
+    let scale = t.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let change = t
+        .iter()
+        .zip(&t2)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+    println!(
+        "largest traction change {:.2e} of the largest traction",
+        change / scale
+    );
+    assert!(change < 1e-3 * scale, "{change} vs {scale}");
+}

@@ -173,6 +173,95 @@ impl CellForce for PatchPair {
     }
 }
 
+/// [`PatchPair`] with a smooth edge: the load `±F a` spread with the weight
+/// `w = h((x·a − s_±)/(W L))` (`h` the C¹ ramp `3u² − 2u³` from 0 at `u = −½` to 1 at `u = ½`,
+/// `L` the cell's extent along `a`, `W` = [`width`](Self::width)), the centre `s_±` of each
+/// edge set by bisection so that `Σ w dA = fraction · A`; the traction is `±F a w / Σ w dA`.
+/// The weight is continuous in the positions, so the load does not jump when grid points cross
+/// the edge (the reparametrisation moves them along the surface every step), which a hard
+/// patch does; `W → 0` is the hard patch.
+#[derive(Clone, Debug)]
+pub struct SmoothPatchPair {
+    /// The pulled cell, axis, area share of each patch and force, as for [`PatchPair`].
+    pub pair: PatchPair,
+    /// Width of the edge as a share of the cell's extent along the axis (positive).
+    pub width: f64,
+}
+
+/// The C¹ ramp: 0 below `−½`, 1 above `½`, `3t² − 2t³` with `t = u + ½` between.
+fn ramp(u: f64) -> f64 {
+    let t = (u + 0.5).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
+impl SmoothPatchPair {
+    /// Per grid point, the weights of the `+` and `−` patches (each in `[0, 1]`).
+    pub fn weights(&self, g: &Geometry) -> [Vec<f64>; 2] {
+        let a = unit(self.pair.axis);
+        let s: Vec<f64> = g.x.iter().map(|x| dot(*x, a)).collect();
+        let (lo, hi) = s
+            .iter()
+            .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+        let w = self.width * (hi - lo);
+        let share = self.pair.fraction.clamp(0.0, 0.5) * g.area();
+        [1.0, -1.0].map(|sign: f64| {
+            // Σ h(sign (s − c)/w) dA falls as c moves inwards → outwards: bisection on c.
+            let load = |c: f64| -> f64 {
+                s.iter()
+                    .zip(&g.da)
+                    .map(|(&sj, &da)| ramp(sign * (sj - c) / w) * da)
+                    .sum()
+            };
+            let (mut inner, mut outer) = if sign > 0.0 {
+                (lo, hi + w)
+            } else {
+                (hi, lo - w)
+            };
+            for _ in 0..100 {
+                let mid = 0.5 * (inner + outer);
+                if load(mid) > share {
+                    inner = mid;
+                } else {
+                    outer = mid;
+                }
+            }
+            let c = 0.5 * (inner + outer);
+            s.iter().map(|&sj| ramp(sign * (sj - c) / w)).collect()
+        })
+    }
+}
+
+impl CellForce for SmoothPatchPair {
+    fn name(&self) -> &str {
+        "smooth patch pair (optical tweezers)"
+    }
+
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]) {
+        if cell.id != self.pair.cell {
+            return;
+        }
+        if !(self.pair.is_valid() && self.width.is_finite() && self.width > 0.0) {
+            out.fill(f64::NAN);
+            return;
+        }
+        let g = cell.geometry;
+        let n = g.n_points();
+        let a = unit(self.pair.axis);
+        for (w, sign) in self.weights(g).iter().zip([1.0, -1.0]) {
+            let area: f64 = w.iter().zip(&g.da).map(|(wj, da)| wj * da).sum();
+            if area <= 0.0 {
+                continue;
+            }
+            let t = sign * self.pair.force / area;
+            for (j, wj) in w.iter().enumerate() {
+                for c in 0..3 {
+                    out[c * n + j] += t * wj * a[c];
+                }
+            }
+        }
+    }
+}
+
 fn unit(a: [f64; 3]) -> [f64; 3] {
     let r = dot(a, a).sqrt();
     if r > 0.0 {
