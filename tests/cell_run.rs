@@ -164,7 +164,11 @@ fn every_example_cell_scene_runs() {
         let capsule = std::fs::read_to_string(path)
             .unwrap()
             .contains("membrane = \"capsule\"");
-        let drift = if capsule { "volume_drift" } else { "area_drift" };
+        let drift = if capsule {
+            "volume_drift"
+        } else {
+            "area_drift"
+        };
         assert!(
             s[drift].as_f64().unwrap().abs() < 1e-6,
             "{}: {s}",
