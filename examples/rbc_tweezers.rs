@@ -97,9 +97,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let d = extent(&sim.cell(0)?.geometry, 0);
             let rate = (d - last).abs() * r_um / check;
             eprintln!(
-                "F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  rate {rate:.2e} µm/time",
+                "F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  D_T = {:.4} µm  rate {rate:.2e} µm/time",
                 sim.time(),
-                d * r_um
+                d * r_um,
+                extent(&sim.cell(0)?.geometry, 1) * r_um
             );
             last = d;
             if rate < 1e-4 {
