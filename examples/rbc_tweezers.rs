@@ -3,12 +3,13 @@
 //! ([`Simulation`] and a [`PatchPair`] force) rather than a scene file.
 //!
 //! ```text
-//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION ELASTICITY EDGE]
+//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION ELASTICITY EDGE MEMBRANE]
 //! ```
 //!
 //! Defaults: `12 0,88,193 40 0.01 0.025 implicit 0` (`ELASTICITY`: the scene's
 //! `[numerics] elasticity`, `implicit` or `explicit`; `EDGE` > 0: a [`SmoothPatchPair`] whose
-//! edge is that share of the cell's extent, 0: the hard [`PatchPair`]). The cell: the biconcave RBC scaled to a diameter of
+//! edge is that share of the cell's extent, 0: the hard [`PatchPair`]; `MEMBRANE`: `vesicle`,
+//! locally inextensible, or `capsule:C`, a membrane whose area is resisted by Skalak's `C` alone). The cell: the biconcave RBC scaled to a diameter of
 //! 7.82 µm (equivalent radius `R = 7.82/(2α)` µm, `α` = [`RBC_ALPHA`]), Skalak shear modulus
 //! `G_s = 6.3 µN/m` and bending rigidity `κ = 2.4·10⁻¹⁹ J` (the moduli of Fedosov et al.,
 //! Biophys. J. 98, 2010, fitted to Mills' data), a locally inextensible membrane, viscosity
@@ -56,6 +57,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fraction: f64 = a.get(4).map_or(Ok(0.025), |s| s.parse())?;
     let elasticity = a.get(5).map_or("implicit", |s| s.as_str());
     let edge: f64 = a.get(6).map_or(Ok(0.0), |s| s.parse())?;
+    // "vesicle" (locally inextensible, the default) or "capsule:C" (area resisted by Skalak's C).
+    let membrane = match a.get(7).map(|s| s.as_str()) {
+        None | Some("vesicle") => String::new(),
+        Some(m) => match m.strip_prefix("capsule:") {
+            Some(c) => format!("membrane = \"capsule\"\nskalak_c = {}\n", c.parse::<f64>()?),
+            None => return Err(format!("MEMBRANE {m}: vesicle or capsule:C").into()),
+        },
+    };
     let r_um = DIAMETER_UM / (2.0 * RBC_ALPHA);
     let r_m = r_um * 1e-6;
     let kappa = BENDING_J / (SHEAR_N_PER_M * r_m * r_m);
@@ -72,7 +81,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let f = f_pn * 1e-12 / (SHEAR_N_PER_M * r_m);
         let text = format!(
             "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
-             bending_modulus = {kappa}\n\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n\
+             bending_modulus = {kappa}\n{membrane}\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n\
              elasticity = \"{elasticity}\"\n"
         );
         let scene = parse(Path::new("rbc_tweezers (in code)"), &text)?;
