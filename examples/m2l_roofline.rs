@@ -21,10 +21,7 @@
 //!   the one-thread triad bandwidth measured in the same run, from memory and from cache (one
 //!   chunk's source and target slices, a few MB, stay in the last-level cache while its pairs
 //!   run): `roof = min(GEMM, AI × cache bandwidth)`.
-use std::time::Instant;
-
-use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, Par};
+use faer::Par;
 use mobo::fmm::calibration::order_for_digits;
 use mobo::fmm::evaluator::FmmKernel;
 use mobo::fmm::kernels::{Kernel, Laplace, Stokeslet};
@@ -33,42 +30,16 @@ use mobo::fmm::surface::CubeSurface;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
-/// Best of `reps` timings of `f`, after one warm-up call.
-fn best<F: FnMut()>(reps: usize, mut f: F) -> f64 {
-    f();
-    (0..reps)
-        .map(|_| {
-            let t = Instant::now();
-            f();
-            t.elapsed().as_secs_f64()
-        })
-        .fold(f64::INFINITY, f64::min)
-}
-
-/// faer's one-thread `n × n` GEMM rate, GFLOP/s.
-fn gemm_rate(n: usize) -> f64 {
-    let a = Mat::<f64>::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 - 5.0);
-    let b = Mat::<f64>::from_fn(n, n, |i, j| ((i * 5 + j) % 13) as f64 - 6.0);
-    let mut c = Mat::<f64>::zeros(n, n);
-    let t = best(5, || {
-        matmul(
-            c.as_mut(),
-            Accum::Replace,
-            a.as_ref(),
-            b.as_ref(),
-            1.0,
-            Par::Seq,
-        );
-        std::hint::black_box(&c);
-    });
-    2.0 * (n * n * n) as f64 / t / 1e9
-}
+/// The benches' timing helpers (best-of-N wall time, faer's GEMM rate).
+#[path = "../benches/common/mod.rs"]
+mod timing;
+use timing::{best_of, gemm_rate};
 
 /// One-thread triad `a = b + s c` over three arrays of `n` values, GB/s (24 bytes per element).
 fn triad_bandwidth(n: usize) -> f64 {
     let (b, c) = (vec![1.0f64; n], vec![2.0f64; n]);
     let mut a = vec![0.0f64; n];
-    let t = best(5, || {
+    let t = best_of(5, 0.0, || {
         for ((x, y), z) in a.iter_mut().zip(&b).zip(&c) {
             *x = y + 0.5 * z;
         }
@@ -81,7 +52,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
     let boxes: usize = a.first().map_or(Ok(4096), |s| s.parse())?;
     let reps: usize = a.get(1).map_or(Ok(3), |s| s.parse())?;
-    let gemm = gemm_rate(1024);
+    let gemm = gemm_rate(1024, Par::Seq);
     // Memory (3 × 32 MB) and cache (3 × 2 MB: the size of one chunk's source and target
     // slices here, which stay in the last-level cache while the chunk's pairs run).
     let bw = triad_bandwidth(4 << 20);
@@ -121,7 +92,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .map(|_| rng.random::<f64>() - 0.5)
             .collect();
         let mut tgt = vec![0.0; nch * boxes * tl];
-        let secs = best(reps, || {
+        let secs = best_of(reps, 0.0, || {
             for c in 0..nch {
                 let sc = &src[c * boxes * sl..(c + 1) * boxes * sl];
                 let tc = &mut tgt[c * boxes * tl..(c + 1) * boxes * tl];

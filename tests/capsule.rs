@@ -19,7 +19,7 @@
 use std::path::Path;
 
 mod common;
-use common::{frame_bits, mobo, summary, tmpdir, write};
+use common::{frame_bits, mobo, stop_and_resume, summary, tmpdir, write};
 
 use mobo::scene::cells::parse;
 use mobo::scene::simulation::Simulation;
@@ -417,18 +417,7 @@ fn two_capsules_stopped_and_resumed_give_the_uninterrupted_run_bit_for_bit() {
     assert!(area.abs() > 1e-4, "{area}");
     assert!(volume.abs() < 1e-12, "{volume}");
     let part = dir.join("part");
-    let o = mobo(&[
-        "run",
-        &scene,
-        "--out",
-        part.to_str().unwrap(),
-        "--quiet",
-        "--max-steps",
-        "4",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = mobo(&["run", "--resume", part.to_str().unwrap(), "--quiet"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    stop_and_resume(&scene, &part, 4);
     assert_eq!(summary(&part)["completed"].as_bool(), Some(true));
     assert_eq!(
         frame_bits(&part, true),

@@ -4,7 +4,7 @@
 //! between cells, whose explicit double layer carries the membrane velocities over).
 
 mod common;
-use common::{frame_bits, mobo, run_example_scenes, summary, tmpdir, write};
+use common::{frame_bits, mobo, run_example_scenes, stop_and_resume, summary, tmpdir, write};
 
 #[test]
 fn a_sedimenting_vesicle_scene_moves_at_the_stokes_speed() {
@@ -351,18 +351,7 @@ fn a_run_with_a_viscosity_contrast_between_cells_resumes_to_bit_identical_result
     let want = frames_of(&full);
 
     let part = dir.join("part");
-    let o = mobo(&[
-        "run",
-        &scene,
-        "--out",
-        part.to_str().unwrap(),
-        "--quiet",
-        "--max-steps",
-        "5",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = mobo(&["run", "--resume", part.to_str().unwrap(), "--quiet"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    stop_and_resume(&scene, &part, 5);
     let s = summary(&part);
     assert_eq!(s["completed"].as_bool(), Some(true));
     assert_eq!(

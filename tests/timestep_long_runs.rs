@@ -13,7 +13,7 @@
 //! * a solve that stagnates fails early, naming step, cell and residual history.
 
 mod common;
-use common::{frame_bits, mobo, tmpdir, write};
+use common::{frame_bits, mobo, stop_and_resume, tmpdir, write};
 
 use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::grid_frame::{grid_rotation, polar_rotation};
@@ -346,18 +346,7 @@ every = 4
     let o = mobo(&["run", &scene, "--out", full.to_str().unwrap(), "--quiet"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let part = dir.join("part");
-    let o = mobo(&[
-        "run",
-        &scene,
-        "--out",
-        part.to_str().unwrap(),
-        "--quiet",
-        "--max-steps",
-        "5",
-    ]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let o = mobo(&["run", "--resume", part.to_str().unwrap(), "--quiet"]);
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    stop_and_resume(&scene, &part, 5);
     let (a, b) = (frame_bits(&full, true), frame_bits(&part, true));
     assert_eq!(a.len(), 4);
     assert_eq!(a, b, "stop at 5 + resume = one run, bit for bit");

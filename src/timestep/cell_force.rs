@@ -155,20 +155,11 @@ impl CellForce for PatchPair {
             return;
         }
         let g = cell.geometry;
-        let n = g.n_points();
         let a = unit(self.axis);
         let side = self.patches(g);
         for sign in [1i8, -1] {
-            let area: f64 = (0..n).filter(|&j| side[j] == sign).map(|j| g.da[j]).sum();
-            if area <= 0.0 {
-                continue;
-            }
-            let t = f64::from(sign) * self.force / area;
-            for j in (0..n).filter(|&j| side[j] == sign) {
-                for c in 0..3 {
-                    out[c * n + j] += t * a[c];
-                }
-            }
+            let weight = |j: usize| if side[j] == sign { 1.0 } else { 0.0 };
+            spread(out, g, a, f64::from(sign) * self.force, weight);
         }
     }
 }
@@ -245,18 +236,27 @@ impl CellForce for SmoothPatchPair {
             return;
         }
         let g = cell.geometry;
-        let n = g.n_points();
         let a = unit(self.pair.axis);
         for (w, sign) in self.weights(g).iter().zip([1.0, -1.0]) {
-            let area: f64 = w.iter().zip(&g.da).map(|(wj, da)| wj * da).sum();
-            if area <= 0.0 {
-                continue;
-            }
-            let t = sign * self.pair.force / area;
-            for (j, wj) in w.iter().enumerate() {
-                for c in 0..3 {
-                    out[c * n + j] += t * wj * a[c];
-                }
+            spread(out, g, a, sign * self.pair.force, |j| w[j]);
+        }
+    }
+}
+
+/// `out += (F / Σ w dA) w a`: the force `F a` spread over the points of weight `w` (nothing
+/// where the weights carry no area).
+fn spread(out: &mut [f64], g: &Geometry, a: [f64; 3], force: f64, w: impl Fn(usize) -> f64) {
+    let n = g.n_points();
+    let area: f64 = (0..n).map(|j| w(j) * g.da[j]).sum();
+    if area <= 0.0 {
+        return;
+    }
+    let t = force / area;
+    for j in 0..n {
+        let wj = w(j);
+        if wj != 0.0 {
+            for c in 0..3 {
+                out[c * n + j] += t * wj * a[c];
             }
         }
     }

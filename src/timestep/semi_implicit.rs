@@ -762,18 +762,14 @@ impl VesicleStepper {
             _ => (coefs.to_vec(), coefs.to_vec()),
         };
         let inextensible = self.params.inextensible;
-        let capsule_elastic = match (&self.skalak, inextensible) {
-            (_, true) => None,
-            (Some((sk, reference)), false) => Some((*sk, reference.clone())),
-            (None, false) => {
-                return Err(TimestepError::InvalidParameter {
-                    name: "elasticity",
-                    value: "none".into(),
-                    reason: "a capsule (inextensible = false) needs a membrane elasticity \
-                             (VesicleStepper::set_skalak)",
-                })
-            }
-        };
+        if !inextensible && self.skalak.is_none() {
+            return Err(TimestepError::InvalidParameter {
+                name: "elasticity",
+                value: "none".into(),
+                reason: "a capsule (inextensible = false) needs a membrane elasticity \
+                         (VesicleStepper::set_skalak)",
+            });
+        }
         let implicit_elastic = self.skalak.is_some()
             && self
                 .params
@@ -867,15 +863,17 @@ impl VesicleStepper {
                 *f += self.params.force[c] / area;
             }
         }
-        let (report, x_new) = if let Some((sk, reference)) = &capsule_elastic {
-            // u_∞(X*) + the other cells' velocity on the grid.
-            let mut u = vec![0.0; 3 * n];
-            for j in 0..n {
-                let ui = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
-                for c in 0..3 {
-                    u[c * n + j] = ui[c] + extra.velocity.map_or(0.0, |v| v[c * n + j]);
-                }
+        // u_∞(X*) + the other cells' velocity on the grid.
+        let mut u = vec![0.0; 3 * n];
+        for j in 0..n {
+            let ui = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
+            for c in 0..3 {
+                u[c * n + j] = ui[c] + extra.velocity.map_or(0.0, |v| v[c * n + j]);
             }
+        }
+        // The cell's size (area-equivalent radius), the scale of the Jacobian's difference step.
+        let size = (area / (4.0 * std::f64::consts::PI)).sqrt();
+        let (report, x_new) = if let (Some((sk, reference)), false) = (&self.skalak, inextensible) {
             solve_capsule(
                 engine,
                 &CapsuleSystem {
@@ -892,19 +890,15 @@ impl VesicleStepper {
                     tau,
                     kappa,
                     jacobian: implicit_elastic.then_some((sk, &reference[..])),
-                    size: (area / (4.0 * std::f64::consts::PI)).sqrt(),
+                    size,
                 },
                 &self.params.gmres,
             )?
         } else {
             // Right-hand side [a X̂ − c_D D X̂ + τ (u_∞(X*) + u_other + S f_ext); Div X̂].
             let mut b = vec![0.0; 4 * n];
-            for j in 0..n {
-                let u = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
-                for c in 0..3 {
-                    let other = extra.velocity.map_or(0.0, |v| v[c * n + j]);
-                    b[c * n + j] = a_id * xh_grid[c * n + j] + tau * (u[c] + other);
-                }
+            for ((bi, h), ui) in b.iter_mut().zip(&xh_grid).zip(&u) {
+                *bi = a_id * h + tau * ui;
             }
             {
                 let OperatorWork {
@@ -932,7 +926,6 @@ impl VesicleStepper {
                 }
                 _ => None,
             };
-            let size = (area / (4.0 * std::f64::consts::PI)).sqrt();
             let with_jacobian = std::sync::atomic::AtomicBool::new(false);
             // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X] (plus −τ S J X
             // once `with_jacobian` is set).
@@ -1079,11 +1072,8 @@ impl VesicleStepper {
         }
         if self.params.correct_drift {
             let (area, volume) = self.targets.expect("set above");
-            if inextensible {
-                correct_shape(engine, coefs, Some(area), volume)?;
-            } else {
-                correct_shape(engine, coefs, None, volume)?;
-            }
+            // A capsule's area is free: the volume alone.
+            correct_shape(engine, coefs, inextensible.then_some(area), volume)?;
         }
         Ok(StepReport {
             gmres: report,

@@ -12,6 +12,25 @@ pub fn mobo(args: &[&str]) -> Output {
         .expect("run mobo")
 }
 
+/// `mobo run SCENE --out PART --quiet --max-steps STEPS`, then `mobo run --resume PART --quiet`,
+/// each asserted to succeed: the stopped-and-resumed run of the resume tests.
+pub fn stop_and_resume(scene: &str, part: &std::path::Path, steps: usize) {
+    let part = part.to_str().unwrap();
+    let steps = steps.to_string();
+    let o = mobo(&[
+        "run",
+        scene,
+        "--out",
+        part,
+        "--quiet",
+        "--max-steps",
+        &steps,
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = mobo(&["run", "--resume", part, "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 /// A fresh, empty temporary directory named after the test and this process.
 pub fn tmpdir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("mobo-test-{name}-{}", std::process::id()));
