@@ -43,10 +43,12 @@
 //! ```
 
 pub mod cell_list;
+pub mod crossing;
 pub mod membrane;
 pub mod pair_force;
 pub mod poiseuille;
 pub mod rng;
+pub mod suspension;
 pub mod system;
 pub mod walls;
 

@@ -287,6 +287,16 @@ impl DpdSystem {
 
     /// One velocity-Verlet step.
     pub fn step(&mut self) -> Result<(), DpdError> {
+        self.kick_and_drift();
+        self.settle()?;
+        self.kick();
+        Ok(())
+    }
+
+    /// The first half of a step: the half kick `v += (dt/2m) F`, the drift `x += dt v` (positions
+    /// not yet wrapped into the box) and the step counter. The drift of moving particle `i` was
+    /// `dt · v_i` with its current `v_i`.
+    pub(crate) fn kick_and_drift(&mut self) {
         let t0 = std::time::Instant::now();
         let h = 0.5 * self.params.dt / self.params.mass;
         let dt = self.params.dt;
@@ -304,13 +314,31 @@ impl DpdSystem {
             &p.moves,
         );
         self.step += 1;
+        self.timings.integrate_s += t0.elapsed().as_secs_f64();
+    }
+
+    /// After the drift: the wall's bounce-back, wrapping into the box, the sort by cell and the
+    /// pair and body forces at the new positions (noise of the current step).
+    pub(crate) fn settle(&mut self) -> Result<(), DpdError> {
+        let t1 = std::time::Instant::now();
         self.bounce_back();
         self.wrap_and_check(self.step)?;
-        let t1 = std::time::Instant::now();
-        self.sort();
         let t2 = std::time::Instant::now();
-        self.compute_forces();
+        self.sort();
         let t3 = std::time::Instant::now();
+        self.compute_forces();
+        let t4 = std::time::Instant::now();
+        self.timings.integrate_s += (t2 - t1).as_secs_f64();
+        self.timings.sort_s += (t3 - t2).as_secs_f64();
+        self.timings.forces_s += (t4 - t3).as_secs_f64();
+        Ok(())
+    }
+
+    /// The second half kick `v += (dt/2m) F` with the forces of [`Self::settle`] (and whatever
+    /// a coupled model added to them since).
+    pub(crate) fn kick(&mut self) {
+        let t0 = std::time::Instant::now();
+        let h = 0.5 * self.params.dt / self.params.mass;
         let p = &mut self.particles;
         add_masked3(
             [&mut p.vx, &mut p.vy, &mut p.vz],
@@ -318,11 +346,17 @@ impl DpdSystem {
             h,
             &p.moves,
         );
-        let t4 = std::time::Instant::now();
-        self.timings.integrate_s += (t1 - t0).as_secs_f64() + (t4 - t3).as_secs_f64();
-        self.timings.sort_s += (t2 - t1).as_secs_f64();
-        self.timings.forces_s += (t3 - t2).as_secs_f64();
-        Ok(())
+        self.timings.integrate_s += t0.elapsed().as_secs_f64();
+    }
+
+    /// The cell list and the particles (sorted by it), with the force arrays to add to: what
+    /// a coupled model needs to add pair forces with the solvent.
+    pub(crate) fn split_for_coupling(&mut self) -> (&CellList, &Particles, [&mut Vec<f64>; 3]) {
+        (
+            &self.cells,
+            &self.particles,
+            [&mut self.fx, &mut self.fy, &mut self.fz],
+        )
     }
 
     /// Bounce the moving particles that drifted into the wall back (see [`super::walls`]),

@@ -1,0 +1,921 @@
+//! Cells in the DPD fluid: membranes whose vertices are particles of the fluid, coupled to the
+//! solvent by dissipative and random pair forces, with the solvent bounced back off the moving
+//! triangles so that no particle crosses a membrane (Fedosov, Caswell & Karniadakis 2010;
+//! Mirheo, Alexeev et al. 2020).
+//!
+//! # The model
+//!
+//! * **Vertices** are particles of mass `m_v` stepped by the same velocity-Verlet scheme as the
+//!   solvent. Their forces: the membrane's own ([`Membrane::add_forces`] and its viscosity,
+//!   [`Membrane::add_viscous_forces`]), the solvent coupling below, the body force of the fluid
+//!   (the same force per particle as the solvent), a contact repulsion from the vertices of
+//!   other cells and an optional external force per cell.
+//! * **Solvent–vertex pairs** (`r < r_c`, `w = 1 − r/r_c`, `e = (x_v − x_s)/r`) interact by the
+//!   dissipative and random parts of the DPD force only:
+//!
+//!   ```text
+//!   F_vs = [ −γ w^{2k} (v_vs·e) + √(2γ k_BT) w^k ξ_vs / √dt ] e,
+//!   ```
+//!
+//!   with `γ = γ_in` for the solvent inside that cell and `γ_out` for the rest (the drag that
+//!   gives the no-slip condition; Fedosov's choice of different coefficients inside and out).
+//!   `ξ_vs` is keyed on `(seed, step, vertex id, solvent id)` as in the fluid, so the pair
+//!   forces conserve momentum exactly and do not depend on thread count or particle order.
+//! * **Inner and outer solvent** are told apart at the start (the particles inside each
+//!   membrane, by the winding number of [`super::crossing`]). Bounce-back keeps them apart; a
+//!   more viscous inner fluid is modelled by an extra dissipative and random pair force between
+//!   inner particles of the same cell with coefficient `γ_Δ` (independent noise, so the inner
+//!   pairs feel `γ + γ_Δ` with the fluctuation–dissipation theorem intact).
+//! * **Bounce-back.** After the drift each solvent particle's path `x − dt v → x` is tested
+//!   against the triangles of every membrane, each moving linearly from its position at the
+//!   start of the step to its end ([`super::crossing::first_crossing`]). At the earliest
+//!   crossing `t` with barycentric coordinates `λ`, the particle collides with the triangle's
+//!   point, whose velocity is `u = Σ λ_k v_k` and whose effective mass is `M = m_v/Σλ_k²` (an
+//!   impulse `J` spread as `λ_k J` over the vertices changes `u` by `J Σλ²/m_v`). The relative
+//!   velocity `w = v − u` is reversed (no slip, no penetration) by the impulse `J = −2μw`,
+//!   `μ = mM/(m + M)`: the particle takes `v + J/m`, the vertices `−λ_k J/m_v`, which conserves
+//!   momentum *and* kinetic energy. (Reversing `w` against an infinitely heavy triangle,
+//!   `v' = 2u − v`, as for walls, would heat the membrane by `2m²|w|²Σλ²/m_v` per bounce.) The
+//!   particle then moves away from the triangle's point at the end of the step for the rest
+//!   of the step.
+//! * **Leaks** are counted every `check_every` steps: a solvent particle on the wrong side of a
+//!   membrane (inside a cell it did not start in, or out of its own) is a leak.
+//!
+//! # Example
+//!
+//! ```
+//! use mobo::dpd::membrane::{Bending, MembraneParams};
+//! use mobo::dpd::pair_force::PairParams;
+//! use mobo::dpd::suspension::{CellSpec, CouplingParams, DpdSuspension};
+//! use mobo::dpd::system::{BodyForce, DpdParams, DpdSystem};
+//! use mobo::vesicle::{shapes, CellMesh};
+//!
+//! let pair = PairParams { a: 25.0, gamma: 4.5, kbt: 1.0, rc: 1.0, power: 1.0 };
+//! let params = DpdParams { box_len: [7.0; 3], pair, dt: 0.005, mass: 1.0, seed: 3 };
+//! let fluid = DpdSystem::random_fluid(params, 3.0, BodyForce::None)?;
+//! // A sphere of radius 1.8 triangulated from its spherical-harmonic surface.
+//! let mesh = CellMesh::icosphere(&shapes::sphere(8, 1.8)?, 2)?;
+//! let vertices: Vec<[f64; 3]> = mesh.vertices.iter().map(|v| v.map(|c| c + 3.5)).collect();
+//! let mut membrane = MembraneParams::new(1.0, 0.05);
+//! membrane.ka = 500.0;
+//! membrane.kv = 500.0;
+//! let cell = CellSpec { vertices, triangles: mesh.triangles.clone(), params: membrane };
+//! let mut sim = DpdSuspension::new(fluid, vec![cell], CouplingParams::default())?;
+//! for _ in 0..20 {
+//!     sim.step()?;
+//! }
+//! assert_eq!(sim.leaked(), 0);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+// Component loops over 3-vectors read best with the index.
+#![allow(clippy::needless_range_loop)]
+
+use super::crossing::{first_crossing, inside};
+use super::membrane::{Membrane, MembraneParams, MembraneTopology};
+use super::pair_force::minimum_image;
+use super::rng::{mix64, normal, pair_noise, step_key, stream};
+use super::system::{BodyForce, DpdSystem};
+use super::{require, DpdError};
+
+/// Parameters of the coupling between membranes and solvent.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct CouplingParams {
+    /// Dissipative coefficient `γ_out` of pairs of a vertex and a solvent particle outside its
+    /// cell.
+    pub gamma_out: f64,
+    /// Dissipative coefficient `γ_in` of pairs of a vertex and a solvent particle inside its
+    /// cell.
+    pub gamma_in: f64,
+    /// Kernel exponent `k` of the solvent–vertex pairs.
+    pub power: f64,
+    /// Extra dissipative coefficient `γ_Δ ≥ 0` between inner solvent particles of the same
+    /// cell (a more viscous inner fluid); 0 for the same fluid inside and out.
+    pub inner_extra_gamma: f64,
+    /// Amplitude of the conservative repulsion `a_c w e` between vertices of different cells.
+    pub contact_a: f64,
+    /// Vertex mass `m_v`.
+    pub vertex_mass: f64,
+    /// Steps between leak counts (0: never).
+    pub check_every: u64,
+}
+
+impl Default for CouplingParams {
+    /// `γ_in = γ_out = 15`, `k = 1/4` (Fedosov's softer kernel for the membrane pairs), no
+    /// viscosity contrast, `a_c = 25`, `m_v = 1`, leaks counted every 100 steps.
+    fn default() -> Self {
+        Self {
+            gamma_out: 15.0,
+            gamma_in: 15.0,
+            power: 0.25,
+            inner_extra_gamma: 0.0,
+            contact_a: 25.0,
+            vertex_mass: 1.0,
+            check_every: 100,
+        }
+    }
+}
+
+impl CouplingParams {
+    /// Check every parameter's domain.
+    pub fn validate(&self) -> Result<(), DpdError> {
+        let nonneg = |v: f64| v >= 0.0 && v.is_finite();
+        require(
+            nonneg(self.gamma_out),
+            "gamma_out",
+            self.gamma_out,
+            "must be ≥ 0",
+        )?;
+        require(
+            nonneg(self.gamma_in),
+            "gamma_in",
+            self.gamma_in,
+            "must be ≥ 0",
+        )?;
+        require(
+            self.power > 0.0 && self.power.is_finite(),
+            "membrane kernel power",
+            self.power,
+            "must be positive",
+        )?;
+        require(
+            nonneg(self.inner_extra_gamma),
+            "inner_extra_gamma",
+            self.inner_extra_gamma,
+            "must be ≥ 0",
+        )?;
+        require(
+            nonneg(self.contact_a),
+            "contact_a",
+            self.contact_a,
+            "must be ≥ 0",
+        )?;
+        require(
+            self.vertex_mass > 0.0 && self.vertex_mass.is_finite(),
+            "vertex mass",
+            self.vertex_mass,
+            "must be positive",
+        )
+    }
+}
+
+/// A cell to put into the fluid: its mesh (vertices at their initial, stress-free positions,
+/// inside the box or its periodic images; triangles counter-clockwise seen from outside) and
+/// its membrane parameters.
+#[derive(Clone, Debug)]
+pub struct CellSpec {
+    /// Vertex positions.
+    pub vertices: Vec<[f64; 3]>,
+    /// Triangles.
+    pub triangles: Vec<[usize; 3]>,
+    /// Membrane parameters.
+    pub params: MembraneParams,
+}
+
+/// One cell in the fluid.
+#[derive(Clone, Debug)]
+pub struct FluidCell {
+    membrane: Membrane,
+    /// Vertex positions, unwrapped (continuous in time; images of the box are equivalent).
+    x: Vec<[f64; 3]>,
+    /// Vertex velocities.
+    v: Vec<[f64; 3]>,
+    /// Vertex forces at the current positions.
+    f: Vec<[f64; 3]>,
+    /// Positions at the start of the current step's drift.
+    x_old: Vec<[f64; 3]>,
+    /// Id of the first vertex (the noise key; ids follow the solvent's).
+    id0: u32,
+    /// External force on the whole cell (spread evenly over its vertices).
+    external: [f64; 3],
+}
+
+impl FluidCell {
+    /// The membrane (topology, parameters, reference geometry).
+    pub fn membrane(&self) -> &Membrane {
+        &self.membrane
+    }
+
+    /// Vertex positions (unwrapped).
+    pub fn positions(&self) -> &[[f64; 3]] {
+        &self.x
+    }
+
+    /// Vertex velocities.
+    pub fn velocities(&self) -> &[[f64; 3]] {
+        &self.v
+    }
+
+    /// The mean of the vertex positions.
+    pub fn centroid(&self) -> [f64; 3] {
+        mean(&self.x)
+    }
+
+    /// The mean vertex velocity.
+    pub fn mean_velocity(&self) -> [f64; 3] {
+        mean(&self.v)
+    }
+
+    /// The external force on the cell.
+    pub fn external_force(&self) -> [f64; 3] {
+        self.external
+    }
+}
+
+fn mean(v: &[[f64; 3]]) -> [f64; 3] {
+    let n = v.len().max(1) as f64;
+    let mut s = [0.0; 3];
+    for p in v {
+        for k in 0..3 {
+            s[k] += p[k];
+        }
+    }
+    s.map(|c| c / n)
+}
+
+/// Marker of a solvent particle outside every cell.
+const OUTSIDE: u32 = u32::MAX;
+
+/// Salts of the noise streams of the coupling (distinct from the fluid's pair noise).
+const SALT_COUPLING: u64 = 0x5bd1_e995_0000_0001;
+const SALT_INNER: u64 = 0x5bd1_e995_0000_0002;
+const SALT_MEMBRANE: u64 = 0x5bd1_e995_0000_0003;
+
+/// Cells in a DPD fluid (see the module docs).
+#[derive(Clone, Debug)]
+pub struct DpdSuspension {
+    /// The fluid (solvent particles, walls, body force).
+    pub fluid: DpdSystem,
+    cells: Vec<FluidCell>,
+    coupling: CouplingParams,
+    /// Cell index of the solvent particle of each id (`OUTSIDE` for the outer solvent).
+    owner: Vec<u32>,
+    bounces: u64,
+    leaked: u64,
+    max_leaked: u64,
+}
+
+impl DpdSuspension {
+    /// Put `cells` into `fluid` (its solvent fills the whole box, inside the cells too): the
+    /// solvent inside each membrane becomes its inner solvent, the vertices start at rest plus
+    /// thermal velocities, and the forces of the initial state are computed.
+    ///
+    /// Errors: invalid parameters or meshes, a cell that with `2 r_c` does not fit in the box,
+    /// or cells whose membranes overlap (a vertex of one inside another).
+    pub fn new(
+        fluid: DpdSystem,
+        cells: Vec<CellSpec>,
+        coupling: CouplingParams,
+    ) -> Result<Self, DpdError> {
+        coupling.validate()?;
+        let l = fluid.params.box_len;
+        let max_id = fluid.particles.id.iter().copied().max().unwrap_or(0);
+        let mut id0 = max_id
+            .checked_add(1)
+            .ok_or_else(|| DpdError::Mesh("no ids left for the membrane vertices".into()))?;
+        let kbt = fluid.params.pair.kbt;
+        let seed = fluid.params.seed;
+        let mut built = Vec::with_capacity(cells.len());
+        for (ci, spec) in cells.into_iter().enumerate() {
+            let n = spec.vertices.len();
+            let topology = MembraneTopology::new(n, &spec.triangles)?;
+            let membrane = Membrane::new(topology, spec.params, &spec.vertices)?;
+            let (lo, hi) = bbox(&spec.vertices);
+            for k in 0..3 {
+                if hi[k] - lo[k] + 2.0 * fluid.params.pair.rc > l[k] {
+                    return Err(DpdError::Mesh(format!(
+                        "cell {ci} spans {:.3} along axis {k}: with 2 r_c it must fit in the \
+                         box ({:.3})",
+                        hi[k] - lo[k],
+                        l[k]
+                    )));
+                }
+            }
+            // Thermal velocities with zero mean.
+            let s = (kbt / coupling.vertex_mass).sqrt();
+            let tag = 1000 + ci as u64;
+            let mut v: Vec<[f64; 3]> = (0..n)
+                .map(|i| {
+                    [0, 1, 2].map(|k| {
+                        let j = (6 * i + 2 * k) as u64;
+                        s * normal(stream(seed, tag, j), stream(seed, tag, j + 1))
+                    })
+                })
+                .collect();
+            let m = mean(&v);
+            v.iter_mut().for_each(|p| (0..3).for_each(|k| p[k] -= m[k]));
+            built.push(FluidCell {
+                membrane,
+                x: spec.vertices.clone(),
+                v,
+                f: vec![[0.0; 3]; n],
+                x_old: spec.vertices,
+                id0,
+                external: [0.0; 3],
+            });
+            id0 = id0
+                .checked_add(n as u32)
+                .ok_or_else(|| DpdError::Mesh("too many membrane vertices for u32 ids".into()))?;
+        }
+        // No vertex of one cell inside another.
+        for a in 0..built.len() {
+            for b in 0..built.len() {
+                if a == b {
+                    continue;
+                }
+                let tb = built[b].membrane.topology().triangles().to_vec();
+                let cb = built[b].centroid();
+                if let Some(k) = built[a].x.iter().position(|&p| {
+                    let q = image_near(p, cb, l);
+                    inside(q, &built[b].x, &tb)
+                }) {
+                    return Err(DpdError::Mesh(format!(
+                        "cells {a} and {b} overlap: vertex {k} of cell {a} is inside cell {b}"
+                    )));
+                }
+            }
+        }
+        let mut sim = DpdSuspension {
+            owner: vec![OUTSIDE; id0 as usize],
+            fluid,
+            cells: built,
+            coupling,
+            bounces: 0,
+            leaked: 0,
+            max_leaked: 0,
+        };
+        let owner = sim.sides();
+        sim.owner = owner;
+        sim.add_coupling_forces()?;
+        Ok(sim)
+    }
+
+    /// The cells.
+    pub fn cells(&self) -> &[FluidCell] {
+        &self.cells
+    }
+
+    /// The coupling parameters.
+    pub fn coupling(&self) -> &CouplingParams {
+        &self.coupling
+    }
+
+    /// Set the external force on cell `cell` (spread evenly over its vertices; the opposite
+    /// force is spread over the moving solvent particles, so that the total momentum is
+    /// conserved, as by a pressure gradient in a periodic box).
+    pub fn set_external_force(&mut self, cell: usize, force: [f64; 3]) -> Result<(), DpdError> {
+        let n = self.cells.len();
+        let c = self.cells.get_mut(cell).ok_or(DpdError::Length {
+            what: "cell index",
+            len: cell,
+            expected: n,
+        })?;
+        require(
+            force.iter().all(|f| f.is_finite()),
+            "external force",
+            force[0],
+            "must be finite",
+        )?;
+        c.external = force;
+        Ok(())
+    }
+
+    /// Bounce-backs off membranes so far.
+    pub fn bounces(&self) -> u64 {
+        self.bounces
+    }
+
+    /// Solvent particles on the wrong side of a membrane at the last count.
+    pub fn leaked(&self) -> u64 {
+        self.leaked
+    }
+
+    /// The most solvent particles found on the wrong side at any count.
+    pub fn max_leaked(&self) -> u64 {
+        self.max_leaked
+    }
+
+    /// Number of solvent particles inside cell `cell` (its inner solvent).
+    pub fn inner_count(&self, cell: usize) -> usize {
+        self.owner.iter().filter(|&&o| o == cell as u32).count()
+    }
+
+    /// Total momentum of solvent and vertices.
+    pub fn momentum(&self) -> [f64; 3] {
+        let mut p = self.fluid.momentum();
+        let m = self.coupling.vertex_mass;
+        for c in &self.cells {
+            for v in &c.v {
+                for k in 0..3 {
+                    p[k] += m * v[k];
+                }
+            }
+        }
+        p
+    }
+
+    /// Kinetic temperature of the vertices, `m_v ⟨|v − v̄_cell|²⟩ / 3` (each cell's mean
+    /// velocity removed).
+    pub fn vertex_temperature(&self) -> f64 {
+        let (mut s, mut n) = (0.0, 0usize);
+        for c in &self.cells {
+            let vm = c.mean_velocity();
+            for v in &c.v {
+                s += (0..3).map(|k| (v[k] - vm[k]).powi(2)).sum::<f64>();
+            }
+            n += c.v.len().saturating_sub(1);
+        }
+        self.coupling.vertex_mass * s / (3.0 * n.max(1) as f64)
+    }
+
+    /// One velocity-Verlet step of solvent and vertices, with the bounce-back off the moving
+    /// membranes between the drift and the force evaluation.
+    pub fn step(&mut self) -> Result<(), DpdError> {
+        let dt = self.fluid.params.dt;
+        let h = 0.5 * dt / self.coupling.vertex_mass;
+        self.fluid.kick_and_drift();
+        for c in &mut self.cells {
+            for ((x, xo), (v, f)) in
+                c.x.iter_mut()
+                    .zip(c.x_old.iter_mut())
+                    .zip(c.v.iter_mut().zip(&c.f))
+            {
+                *xo = *x;
+                for k in 0..3 {
+                    v[k] += h * f[k];
+                    x[k] += dt * v[k];
+                }
+            }
+        }
+        self.bounce_off_membranes();
+        self.bounce_vertices_off_wall();
+        self.fluid.settle()?;
+        self.add_coupling_forces()?;
+        self.fluid.kick();
+        for c in &mut self.cells {
+            for (v, f) in c.v.iter_mut().zip(&c.f) {
+                for k in 0..3 {
+                    v[k] += h * f[k];
+                }
+            }
+        }
+        let every = self.coupling.check_every;
+        if every > 0 && self.fluid.step.is_multiple_of(every) {
+            self.count_leaks();
+        }
+        Ok(())
+    }
+
+    /// Count the solvent particles on the wrong side of a membrane now.
+    pub fn count_leaks(&mut self) -> u64 {
+        let sides = self.sides();
+        let leaked = sides
+            .iter()
+            .zip(&self.owner)
+            .take(self.owner.len())
+            .filter(|(a, b)| a != b)
+            .count() as u64;
+        self.leaked = leaked;
+        self.max_leaked = self.max_leaked.max(leaked);
+        leaked
+    }
+
+    /// The cell each solvent id is inside now (`OUTSIDE` if none), by the winding number of
+    /// each membrane over the particles near it. Vertex ids (above the solvent's) are
+    /// `OUTSIDE`.
+    fn sides(&self) -> Vec<u32> {
+        let p = &self.fluid.particles;
+        let l = self.fluid.params.box_len;
+        let mut out = vec![OUTSIDE; self.owner.len()];
+        for (ci, c) in self.cells.iter().enumerate() {
+            let (lo, hi) = bbox(&c.x);
+            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+            let tris = c.membrane.topology().triangles();
+            for i in 0..p.len() {
+                if p.moves[i] == 0.0 {
+                    continue;
+                }
+                let q = image_near([p.x[i], p.y[i], p.z[i]], centre, l);
+                if (0..3).any(|k| q[k] < lo[k] || q[k] > hi[k]) {
+                    continue;
+                }
+                if inside(q, &c.x, tris) {
+                    out[p.id[i] as usize] = ci as u32;
+                }
+            }
+        }
+        out
+    }
+
+    /// Bounce the solvent particles whose drift crossed a membrane (see the module docs).
+    fn bounce_off_membranes(&mut self) {
+        let dt = self.fluid.params.dt;
+        let l = self.fluid.params.box_len;
+        let ms = self.fluid.params.mass;
+        let mv = self.coupling.vertex_mass;
+        let rc = self.fluid.params.pair.rc;
+        for c in &mut self.cells {
+            let tris = c.membrane.topology().triangles();
+            // Swept bounding box of the membrane over the step, and a bin grid of side r_c
+            // over it holding the triangles whose swept boxes touch each bin.
+            let (lo0, hi0) = bbox(&c.x_old);
+            let (lo1, hi1) = bbox(&c.x);
+            let lo = [0, 1, 2].map(|k| lo0[k].min(lo1[k]) - 1e-9);
+            let hi = [0, 1, 2].map(|k| hi0[k].max(hi1[k]) + 1e-9);
+            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+            let dims = [0, 1, 2].map(|k| (((hi[k] - lo[k]) / rc).ceil() as usize).max(1));
+            let bin_of = |p: [f64; 3]| {
+                [0, 1, 2]
+                    .map(|k| (((p[k] - lo[k]) / rc).floor().max(0.0) as usize).min(dims[k] - 1))
+            };
+            let mut bins: Vec<Vec<u32>> = vec![Vec::new(); dims[0] * dims[1] * dims[2]];
+            for (t, tri) in tris.iter().enumerate() {
+                let pts = [0, 1, 2].map(|j| [c.x_old[tri[j]], c.x[tri[j]]]);
+                let flat: Vec<[f64; 3]> = pts.iter().flatten().copied().collect();
+                let (tl, th) = bbox(&flat);
+                let (b0, b1) = (bin_of(tl), bin_of(th));
+                for bz in b0[2]..=b1[2] {
+                    for by in b0[1]..=b1[1] {
+                        for bx in b0[0]..=b1[0] {
+                            bins[(bz * dims[1] + by) * dims[0] + bx].push(t as u32);
+                        }
+                    }
+                }
+            }
+            let p = &mut self.fluid.particles;
+            for i in 0..p.len() {
+                if p.moves[i] == 0.0 {
+                    continue;
+                }
+                let v = [p.vx[i], p.vy[i], p.vz[i]];
+                let x1 = [p.x[i], p.y[i], p.z[i]];
+                // The image of the path nearest the membrane.
+                let x0 = [0, 1, 2].map(|k| x1[k] - dt * v[k]);
+                let q0 = image_near(x0, centre, l);
+                let shift = [0, 1, 2].map(|k| q0[k] - x0[k]);
+                let q1 = [0, 1, 2].map(|k| x1[k] + shift[k]);
+                if (0..3).any(|k| q0[k].max(q1[k]) < lo[k] || q0[k].min(q1[k]) > hi[k]) {
+                    continue;
+                }
+                let (pl, ph) = bbox(&[q0, q1]);
+                let (b0, b1) = (bin_of(pl), bin_of(ph));
+                let mut best: Option<(super::crossing::Crossing, usize)> = None;
+                for bz in b0[2]..=b1[2] {
+                    for by in b0[1]..=b1[1] {
+                        for bx in b0[0]..=b1[0] {
+                            for &t in &bins[(bz * dims[1] + by) * dims[0] + bx] {
+                                let tri = tris[t as usize];
+                                let t0 = tri.map(|j| c.x_old[j]);
+                                let t1 = tri.map(|j| c.x[j]);
+                                if let Some(hit) = first_crossing(q0, q1, t0, t1) {
+                                    if best.is_none_or(|(b, _)| hit.t < b.t) {
+                                        best = Some((hit, t as usize));
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                let Some((hit, t)) = best else { continue };
+                let tri = tris[t];
+                let lam = hit.bary;
+                // Velocity of the triangle's point, and the point at the end of the step.
+                let mut u = [0.0; 3];
+                let mut q = [0.0; 3];
+                for (j, &vtx) in tri.iter().enumerate() {
+                    for k in 0..3 {
+                        u[k] += lam[j] * (c.x[vtx][k] - c.x_old[vtx][k]) / dt;
+                        q[k] += lam[j] * c.x[vtx][k];
+                    }
+                }
+                // The collision of the particle with the triangle's point, whose effective
+                // mass is M = m_v / Σλ² (an impulse J spread as λ_k J over the vertices changes
+                // the point's velocity by J Σλ²/m_v): the relative velocity w = v − u is
+                // reversed, J = −2μw with μ = mM/(m + M), which conserves momentum and energy.
+                let w = [0, 1, 2].map(|k| v[k] - u[k]);
+                let jmp = collision_impulse(w, lam, ms, mv);
+                let vn = [0, 1, 2].map(|k| v[k] + jmp[k] / ms);
+                let (a1, b1v, c1) = (c.x[tri[0]], c.x[tri[1]], c.x[tri[2]]);
+                let nrm = cross3(sub3(b1v, a1), sub3(c1, a1));
+                let nn = (nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]).sqrt();
+                let nh = nrm.map(|c| hit.side * c / nn);
+                // The rest of the step from the triangle's point at the end of the step, moving
+                // away from it (−w relative to it), and a small step off the plane towards the
+                // side the particle came from.
+                let rest = (1.0 - hit.t) * dt;
+                let away = -(w[0] * nh[0] + w[1] * nh[1] + w[2] * nh[2]);
+                let eps = 1e-7 * rc;
+                let xn = [0, 1, 2].map(|k| {
+                    let off = if away > 0.0 { -rest * w[k] } else { 0.0 };
+                    q[k] + off + eps * nh[k] - shift[k]
+                });
+                (p.x[i], p.y[i], p.z[i]) = (xn[0], xn[1], xn[2]);
+                (p.vx[i], p.vy[i], p.vz[i]) = (vn[0], vn[1], vn[2]);
+                // The opposite impulse on the triangle's vertices.
+                for (j, &vtx) in tri.iter().enumerate() {
+                    for k in 0..3 {
+                        c.v[vtx][k] -= lam[j] * jmp[k] / mv;
+                    }
+                }
+                self.bounces += 1;
+            }
+        }
+    }
+
+    /// Vertices that drifted into the wall are bounced back like solvent particles.
+    fn bounce_vertices_off_wall(&mut self) {
+        let Some(wall) = self.fluid.wall else { return };
+        let dt = self.fluid.params.dt;
+        let l = self.fluid.params.box_len;
+        for c in &mut self.cells {
+            for (x, v) in c.x.iter_mut().zip(c.v.iter_mut()) {
+                let w = wrap(*x, l);
+                if wall.sdf(w) < 0.0 {
+                    continue;
+                }
+                let (wn, vn) = wall.bounce(w, *v, dt);
+                for k in 0..3 {
+                    x[k] += wn[k] - w[k];
+                }
+                *v = vn;
+            }
+        }
+    }
+
+    /// The membranes' own forces, the solvent–vertex pairs, the inner viscosity, the contacts
+    /// between cells, the body force on the vertices and the external forces, added to the
+    /// fluid's forces (already holding the solvent pairs) and stored for the vertices.
+    fn add_coupling_forces(&mut self) -> Result<(), DpdError> {
+        let params = self.fluid.params;
+        let (dt, l, rc) = (params.dt, params.box_len, params.pair.rc);
+        let kbt = params.pair.kbt;
+        let step = self.fluid.step;
+        let cp = self.coupling;
+        let key = step_key(params.seed ^ SALT_COUPLING, step);
+        let inv_sqrt_dt = 1.0 / dt.sqrt();
+        let moving = self.fluid.n_moving().max(1) as f64;
+        let mut counter = [0.0; 3];
+        for (ci, c) in self.cells.iter_mut().enumerate() {
+            c.f.iter_mut().for_each(|f| *f = [0.0; 3]);
+            c.membrane.add_forces(&c.x, &mut c.f)?;
+            c.membrane.add_viscous_forces(
+                &c.x,
+                &c.v,
+                step,
+                mix64(params.seed ^ SALT_MEMBRANE ^ ci as u64),
+                dt,
+                &mut c.f,
+            )?;
+            let nv = c.x.len() as f64;
+            for k in 0..3 {
+                counter[k] += c.external[k];
+            }
+            // Body force (per particle, as on the solvent) and the external force.
+            for (x, f) in c.x.iter().zip(c.f.iter_mut()) {
+                let g = match self.fluid.body {
+                    BodyForce::None => [0.0; 3],
+                    BodyForce::Constant(g) => g,
+                    BodyForce::ReversePoiseuille { force } => {
+                        let z = wrap(*x, l)[2];
+                        [if z < 0.5 * l[2] { force } else { -force }, 0.0, 0.0]
+                    }
+                };
+                for k in 0..3 {
+                    f[k] += g[k] + c.external[k] / nv;
+                }
+            }
+        }
+        // Solvent–vertex pairs.
+        let (cells_list, p, [fx, fy, fz]) = self.fluid.split_for_coupling();
+        let (grid, starts) = (&cells_list.grid, &cells_list.starts);
+        let weight = |w: f64| if cp.power == 1.0 { w } else { w.powf(cp.power) };
+        for (ci, c) in self.cells.iter_mut().enumerate() {
+            for (vi, (x, (v, f))) in c.x.iter().zip(c.v.iter().zip(c.f.iter_mut())).enumerate() {
+                let xw = wrap(*x, l);
+                let vid = c.id0 + vi as u32;
+                for (nc, s) in grid.neighbours(grid.cell_of(xw)) {
+                    for j in starts[nc]..starts[nc + 1] {
+                        let d = [
+                            xw[0] - (p.x[j] + s[0]),
+                            xw[1] - (p.y[j] + s[1]),
+                            xw[2] - (p.z[j] + s[2]),
+                        ];
+                        let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                        if r2 >= rc * rc || r2 == 0.0 {
+                            continue;
+                        }
+                        let r = r2.sqrt();
+                        let w = 1.0 - r / rc;
+                        let wr = weight(w);
+                        let gamma = if self.owner[p.id[j] as usize] == ci as u32 {
+                            cp.gamma_in
+                        } else {
+                            cp.gamma_out
+                        };
+                        let ve = ((v[0] - p.vx[j]) * d[0]
+                            + (v[1] - p.vy[j]) * d[1]
+                            + (v[2] - p.vz[j]) * d[2])
+                            / r;
+                        let sigma = (2.0 * gamma * kbt).sqrt();
+                        let fm = (-gamma * wr * wr * ve
+                            + sigma * wr * pair_noise(key, vid, p.id[j]) * inv_sqrt_dt)
+                            / r;
+                        for k in 0..3 {
+                            f[k] += fm * d[k];
+                        }
+                        fx[j] -= fm * d[0];
+                        fy[j] -= fm * d[1];
+                        fz[j] -= fm * d[2];
+                    }
+                }
+            }
+        }
+        // The counter-force of the external forces on the moving solvent.
+        if counter.iter().any(|&c| c != 0.0) {
+            for i in 0..p.len() {
+                let m = p.moves[i];
+                fx[i] -= m * counter[0] / moving;
+                fy[i] -= m * counter[1] / moving;
+                fz[i] -= m * counter[2] / moving;
+            }
+        }
+        // A more viscous inner fluid: extra dissipative + random pairs among the inner
+        // solvent of each cell (independent noise).
+        if cp.inner_extra_gamma > 0.0 {
+            let key_in = step_key(params.seed ^ SALT_INNER, step);
+            let sigma = (2.0 * cp.inner_extra_gamma * kbt).sqrt();
+            for ci in 0..self.cells.len() {
+                let members: Vec<usize> = (0..p.len())
+                    .filter(|&i| self.owner[p.id[i] as usize] == ci as u32)
+                    .collect();
+                for (a, &i) in members.iter().enumerate() {
+                    for &j in &members[a + 1..] {
+                        let d =
+                            minimum_image([p.x[i], p.y[i], p.z[i]], [p.x[j], p.y[j], p.z[j]], l);
+                        let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                        if r2 >= rc * rc || r2 == 0.0 {
+                            continue;
+                        }
+                        let r = r2.sqrt();
+                        let wr = params.pair.weight_r(1.0 - r / rc);
+                        let ve = ((p.vx[i] - p.vx[j]) * d[0]
+                            + (p.vy[i] - p.vy[j]) * d[1]
+                            + (p.vz[i] - p.vz[j]) * d[2])
+                            / r;
+                        let fm = (-cp.inner_extra_gamma * wr * wr * ve
+                            + sigma * wr * pair_noise(key_in, p.id[i], p.id[j]) * inv_sqrt_dt)
+                            / r;
+                        fx[i] += fm * d[0];
+                        fy[i] += fm * d[1];
+                        fz[i] += fm * d[2];
+                        fx[j] -= fm * d[0];
+                        fy[j] -= fm * d[1];
+                        fz[j] -= fm * d[2];
+                    }
+                }
+            }
+        }
+        // Contact repulsion between vertices of different cells.
+        if cp.contact_a > 0.0 && self.cells.len() > 1 {
+            let nc = self.cells.len();
+            let boxes: Vec<([f64; 3], [f64; 3])> = self.cells.iter().map(|c| bbox(&c.x)).collect();
+            for a in 0..nc {
+                for b in a + 1..nc {
+                    // Skip pairs whose boxes (nearest images) are farther apart than r_c.
+                    let ca = [0, 1, 2].map(|k| 0.5 * (boxes[a].0[k] + boxes[a].1[k]));
+                    let cb = [0, 1, 2].map(|k| 0.5 * (boxes[b].0[k] + boxes[b].1[k]));
+                    let dc = minimum_image(ca, cb, l);
+                    let far = (0..3).any(|k| {
+                        dc[k].abs()
+                            > 0.5 * (boxes[a].1[k] - boxes[a].0[k] + boxes[b].1[k] - boxes[b].0[k])
+                                + rc
+                    });
+                    if far {
+                        continue;
+                    }
+                    let (left, right) = self.cells.split_at_mut(b);
+                    let (ca, cb) = (&mut left[a], &mut right[0]);
+                    for (xa, fa) in ca.x.iter().zip(ca.f.iter_mut()) {
+                        for (xb, fb) in cb.x.iter().zip(cb.f.iter_mut()) {
+                            let d = minimum_image(*xa, *xb, l);
+                            let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                            if r2 >= rc * rc || r2 == 0.0 {
+                                continue;
+                            }
+                            let r = r2.sqrt();
+                            let fm = cp.contact_a * (1.0 - r / rc) / r;
+                            for k in 0..3 {
+                                fa[k] += fm * d[k];
+                                fb[k] -= fm * d[k];
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        if let Some((ci, vi)) = self.cells.iter().enumerate().find_map(|(ci, c)| {
+            c.f.iter()
+                .position(|f| f.iter().any(|v| !v.is_finite()))
+                .map(|vi| (ci, vi))
+        }) {
+            let x = self.cells[ci].x[vi];
+            return Err(DpdError::Unstable {
+                step,
+                particle: (self.cells[ci].id0 as usize) + vi,
+                position: x,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// The impulse `J` on a particle of mass `ms` hitting the point of barycentric coordinates
+/// `lam` of a triangle whose vertices have mass `mv`, with relative velocity `w = v − u`: the
+/// point's effective mass is `M = m_v/Σλ²`, and `J = −2μw` (`μ = m_s M/(m_s + M)`) reverses
+/// the relative velocity while conserving momentum (the vertices take `−λ_k J`) and kinetic
+/// energy.
+fn collision_impulse(w: [f64; 3], lam: [f64; 3], ms: f64, mv: f64) -> [f64; 3] {
+    let lam2 = lam[0] * lam[0] + lam[1] * lam[1] + lam[2] * lam[2];
+    let big_m = mv / lam2;
+    let mu = ms * big_m / (ms + big_m);
+    w.map(|c| -2.0 * mu * c)
+}
+
+fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// Axis-aligned bounding box.
+fn bbox(x: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for p in x {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    (lo, hi)
+}
+
+/// `p` wrapped into `[0, L)`.
+fn wrap(p: [f64; 3], l: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|k| {
+        let w = p[k].rem_euclid(l[k]);
+        if w >= l[k] {
+            0.0
+        } else {
+            w
+        }
+    })
+}
+
+/// The periodic image of `p` nearest `centre`.
+fn image_near(p: [f64; 3], centre: [f64; 3], l: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|k| p[k] - l[k] * ((p[k] - centre[k]) / l[k]).round())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The collision conserves momentum and kinetic energy and reverses the relative velocity
+    /// of the particle and the triangle's point (the vertices' velocities averaged with `λ`).
+    #[test]
+    fn collision_conserves_momentum_and_energy() {
+        let (ms, mv) = (1.3, 0.7);
+        let v = [0.4, -1.1, 0.25];
+        let vk = [[0.1, 0.2, -0.3], [-0.5, 0.05, 0.6], [0.3, -0.2, 0.1]];
+        for lam in [[0.2, 0.3, 0.5], [1.0, 0.0, 0.0], [0.5, 0.5, 0.0]] {
+            let u = [0, 1, 2].map(|k| (0..3).map(|j| lam[j] * vk[j][k]).sum::<f64>());
+            let w = [0, 1, 2].map(|k| v[k] - u[k]);
+            let jmp = collision_impulse(w, lam, ms, mv);
+            let vn = [0, 1, 2].map(|k| v[k] + jmp[k] / ms);
+            let vkn: Vec<[f64; 3]> = (0..3)
+                .map(|j| [0, 1, 2].map(|k| vk[j][k] - lam[j] * jmp[k] / mv))
+                .collect();
+            let ke = |v: [f64; 3], m: f64| 0.5 * m * (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            let e0 = ke(v, ms) + vk.iter().map(|&q| ke(q, mv)).sum::<f64>();
+            let e1 = ke(vn, ms) + vkn.iter().map(|&q| ke(q, mv)).sum::<f64>();
+            assert!((e1 - e0).abs() < 1e-14 * e0, "{lam:?}: energy {e0} → {e1}");
+            for k in 0..3 {
+                let p0 = ms * v[k] + mv * vk.iter().map(|q| q[k]).sum::<f64>();
+                let p1 = ms * vn[k] + mv * vkn.iter().map(|q| q[k]).sum::<f64>();
+                assert!((p1 - p0).abs() < 1e-14, "{lam:?}: momentum {p0} → {p1}");
+                let un = (0..3).map(|j| lam[j] * vkn[j][k]).sum::<f64>();
+                assert!(
+                    (vn[k] - un + w[k]).abs() < 1e-14,
+                    "{lam:?}: relative velocity"
+                );
+            }
+        }
+    }
+}
