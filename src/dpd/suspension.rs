@@ -220,6 +220,15 @@ impl FluidCell {
     pub fn external_force(&self) -> [f64; 3] {
         self.external
     }
+
+    /// Area and volume now, relative to the reference (stress-free) ones, minus one.
+    pub fn area_volume_change(&self) -> Result<(f64, f64), DpdError> {
+        let m = &self.membrane;
+        Ok((
+            m.area(&self.x)? / m.area0() - 1.0,
+            m.volume(&self.x)? / m.volume0() - 1.0,
+        ))
+    }
 }
 
 fn mean(v: &[[f64; 3]]) -> [f64; 3] {
@@ -231,6 +240,30 @@ fn mean(v: &[[f64; 3]]) -> [f64; 3] {
         }
     }
     s.map(|c| c / n)
+}
+
+/// The state of one cell for a checkpoint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CellState {
+    /// Vertex positions (unwrapped).
+    pub x: Vec<[f64; 3]>,
+    /// Vertex velocities.
+    pub v: Vec<[f64; 3]>,
+    /// Vertex forces.
+    pub f: Vec<[f64; 3]>,
+    /// External force on the cell.
+    pub external: [f64; 3],
+}
+
+/// The state of a suspension beyond its fluid, for a checkpoint.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SuspensionState {
+    /// Per cell.
+    pub cells: Vec<CellState>,
+    /// The cell each particle id started in (`u32::MAX`: outside every cell).
+    pub owner: Vec<u32>,
+    /// Bounces, leaked particles at the last count, most leaked at any count.
+    pub counters: [u64; 3],
 }
 
 /// Marker of a solvent particle outside every cell.
@@ -350,6 +383,91 @@ impl DpdSuspension {
         Ok(sim)
     }
 
+    /// The dynamic state beyond the fluid's, for a checkpoint ([`Self::restore`]).
+    pub fn state(&self) -> SuspensionState {
+        SuspensionState {
+            cells: self
+                .cells
+                .iter()
+                .map(|c| CellState {
+                    x: c.x.clone(),
+                    v: c.v.clone(),
+                    f: c.f.clone(),
+                    external: c.external,
+                })
+                .collect(),
+            owner: self.owner.clone(),
+            counters: [self.bounces, self.leaked, self.max_leaked],
+        }
+    }
+
+    /// A suspension restored from a checkpoint: `fluid` restored with its stored forces (which
+    /// hold the coupling forces), the cells built from `cells` (their reference geometry) and
+    /// set to `state`, no force evaluated, so that stepping continues bit for bit.
+    pub fn restore(
+        fluid: DpdSystem,
+        cells: Vec<CellSpec>,
+        coupling: CouplingParams,
+        state: SuspensionState,
+    ) -> Result<Self, DpdError> {
+        coupling.validate()?;
+        if state.cells.len() != cells.len() {
+            return Err(DpdError::Length {
+                what: "checkpointed cells",
+                len: state.cells.len(),
+                expected: cells.len(),
+            });
+        }
+        let max_id = fluid.particles.id.iter().copied().max().unwrap_or(0);
+        let mut id0 = max_id + 1;
+        let mut built = Vec::with_capacity(cells.len());
+        for (spec, st) in cells.into_iter().zip(state.cells) {
+            let n = spec.vertices.len();
+            for (what, len) in [
+                ("cell positions", st.x.len()),
+                ("cell velocities", st.v.len()),
+                ("cell forces", st.f.len()),
+            ] {
+                if len != n {
+                    return Err(DpdError::Length {
+                        what,
+                        len,
+                        expected: n,
+                    });
+                }
+            }
+            let topology = MembraneTopology::new(n, &spec.triangles)?;
+            let membrane = Membrane::new(topology, spec.params, &spec.vertices)?;
+            built.push(FluidCell {
+                membrane,
+                x_old: st.x.clone(),
+                x: st.x,
+                v: st.v,
+                f: st.f,
+                id0,
+                external: st.external,
+            });
+            id0 += n as u32;
+        }
+        if state.owner.len() != id0 as usize {
+            return Err(DpdError::Length {
+                what: "solvent owners",
+                len: state.owner.len(),
+                expected: id0 as usize,
+            });
+        }
+        let [bounces, leaked, max_leaked] = state.counters;
+        Ok(DpdSuspension {
+            fluid,
+            cells: built,
+            coupling,
+            owner: state.owner,
+            bounces,
+            leaked,
+            max_leaked,
+        })
+    }
+
     /// The cells.
     pub fn cells(&self) -> &[FluidCell] {
         &self.cells
@@ -361,8 +479,8 @@ impl DpdSuspension {
     }
 
     /// Set the external force on cell `cell` (spread evenly over its vertices; the opposite
-    /// force is spread over the moving solvent particles, so that the total momentum is
-    /// conserved, as by a pressure gradient in a periodic box).
+    /// force is spread over the moving solvent particles outside every cell, so that the total
+    /// momentum is conserved, as by a pressure gradient in a periodic box).
     pub fn set_external_force(&mut self, cell: usize, force: [f64; 3]) -> Result<(), DpdError> {
         let n = self.cells.len();
         let c = self.cells.get_mut(cell).ok_or(DpdError::Length {
@@ -653,7 +771,15 @@ impl DpdSuspension {
         let cp = self.coupling;
         let key = step_key(params.seed ^ SALT_COUPLING, step);
         let inv_sqrt_dt = 1.0 / dt.sqrt();
-        let moving = self.fluid.n_moving().max(1) as f64;
+        // The external forces are balanced on the moving outer solvent (the fluid a pressure
+        // gradient would push; the inner solvent moves with its cell).
+        let outer = {
+            let p = &self.fluid.particles;
+            (0..p.len())
+                .filter(|&i| p.moves[i] != 0.0 && self.owner[p.id[i] as usize] == OUTSIDE)
+                .count()
+                .max(1) as f64
+        };
         let mut counter = [0.0; 3];
         for (ci, c) in self.cells.iter_mut().enumerate() {
             c.f.iter_mut().for_each(|f| *f = [0.0; 3]);
@@ -733,10 +859,12 @@ impl DpdSuspension {
         // The counter-force of the external forces on the moving solvent.
         if counter.iter().any(|&c| c != 0.0) {
             for i in 0..p.len() {
-                let m = p.moves[i];
-                fx[i] -= m * counter[0] / moving;
-                fy[i] -= m * counter[1] / moving;
-                fz[i] -= m * counter[2] / moving;
+                if p.moves[i] == 0.0 || self.owner[p.id[i] as usize] != OUTSIDE {
+                    continue;
+                }
+                fx[i] -= counter[0] / outer;
+                fy[i] -= counter[1] / outer;
+                fz[i] -= counter[2] / outer;
             }
         }
         // A more viscous inner fluid: extra dissipative + random pairs among the inner

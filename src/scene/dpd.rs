@@ -31,16 +31,45 @@
 //! flow = "poiseuille"        # with walls: the body force `force` along x everywhere
 //! ```
 //!
-//! Membranes (cells in the DPD fluid) are not built yet.
+//! Cells in the fluid ([`crate::dpd::suspension`]): membranes on the icosphere of a
+//! spherical-harmonic shape, with the Fedosov (2010) parameters from physical moduli, coupled
+//! to the solvent by dissipative pairs and bounce-back:
+//!
+//! ```toml
+//! [[dpd.cells]]
+//! shape = "rbc"              # "sphere" | "rbc" (biconcave, axis z) | "prolate" | "oblate"
+//! radius = 3.0               # volume-equivalent radius (3V/4π)^(1/3)
+//! reduced_volume = 0.9       # prolate/oblate only
+//! center = [8.0, 8.0, 8.0]
+//! subdivisions = 3           # icosphere level: 10·4^s + 2 vertices (s = 3: 642)
+//! shear_modulus = 100.0      # μ0 (k_BT/r_c² units of the scene)
+//! bending_rigidity = 20.0    # κ
+//! bending = "juelicher"      # or "kantor_nelson"; spontaneous c0 (default 0) or theta0
+//! ka = 4900.0                # global area (default 4900), kd local area (100), kv volume (5000)
+//! gamma_t = 20.0             # membrane viscosity (γ_C = γ_T/3 unless gamma_c is given)
+//! force = [5.0, 0.0, 0.0]    # external pull on the cell, balanced on the outer solvent
+//!
+//! [dpd.coupling]             # all optional
+//! gamma_out = 15.0           # solvent–vertex dissipation outside
+//! gamma_in = 15.0            # and inside the cell
+//! power = 0.25               # their kernel exponent
+//! inner_gamma = 0.0          # extra dissipation among inner solvent (a more viscous cytoplasm)
+//! contact_a = 25.0           # repulsion between vertices of different cells
+//! vertex_mass = 1.0
+//! check_every = 100          # steps between leak counts
+//! ```
 
 use std::path::Path;
 
 use serde::Deserialize;
 
 use super::{parse_toml, read_scene_file, SceneError};
+use crate::dpd::membrane::{BendingModel, MembraneParams, Moduli};
 use crate::dpd::pair_force::PairParams;
+use crate::dpd::suspension::{CellSpec, CouplingParams};
 use crate::dpd::system::{BodyForce, DpdParams};
 use crate::dpd::walls::Wall;
+use crate::vesicle::{shapes, CellMesh};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -91,6 +120,82 @@ struct DpdSection {
     walls: Option<WallsSection>,
     #[serde(default = "three_hundred")]
     wall_warmup: u64,
+    #[serde(default)]
+    cells: Vec<CellSection>,
+    coupling: Option<CouplingSection>,
+}
+
+/// One `[[dpd.cells]]` entry.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CellSection {
+    shape: String,
+    radius: f64,
+    reduced_volume: Option<f64>,
+    center: [f64; 3],
+    #[serde(default = "three_u32")]
+    subdivisions: u32,
+    shear_modulus: f64,
+    bending_rigidity: f64,
+    #[serde(default = "juelicher")]
+    bending: String,
+    c0: Option<f64>,
+    theta0: Option<f64>,
+    #[serde(default = "ka_default")]
+    ka: f64,
+    #[serde(default = "kd_default")]
+    kd: f64,
+    #[serde(default = "kv_default")]
+    kv: f64,
+    #[serde(default = "gamma_t_default")]
+    gamma_t: f64,
+    gamma_c: Option<f64>,
+    force: Option<[f64; 3]>,
+}
+
+/// `[dpd.coupling]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CouplingSection {
+    gamma_out: Option<f64>,
+    gamma_in: Option<f64>,
+    power: Option<f64>,
+    inner_gamma: Option<f64>,
+    contact_a: Option<f64>,
+    vertex_mass: Option<f64>,
+    check_every: Option<u64>,
+}
+
+fn three_u32() -> u32 {
+    3
+}
+fn juelicher() -> String {
+    "juelicher".into()
+}
+fn ka_default() -> f64 {
+    4900.0
+}
+fn kd_default() -> f64 {
+    100.0
+}
+fn kv_default() -> f64 {
+    5000.0
+}
+fn gamma_t_default() -> f64 {
+    20.0
+}
+
+/// A cell of a DPD scene: its mesh and membrane, and the external force on it.
+#[derive(Clone, Debug)]
+pub struct DpdCell {
+    /// Shape name as given.
+    pub shape: String,
+    /// Volume-equivalent radius `(3V/4π)^{1/3}`.
+    pub radius: f64,
+    /// The mesh and membrane parameters.
+    pub spec: CellSpec,
+    /// External force on the cell.
+    pub force: [f64; 3],
 }
 
 /// `walls = { kind = "planes", gap = 10.0 }` or `{ kind = "cylinder", radius = 5.0 }`.
@@ -147,6 +252,10 @@ pub struct DpdScene {
     pub wall: Option<Wall>,
     /// Steps the periodic fluid is equilibrated before the wall particles are frozen.
     pub wall_warmup: u64,
+    /// Cells in the fluid (`[[dpd.cells]]`).
+    pub cells: Vec<DpdCell>,
+    /// Their coupling to the solvent (`[dpd.coupling]`).
+    pub coupling: CouplingParams,
 }
 
 impl DpdScene {
@@ -355,6 +464,11 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
     params
         .validate()
         .map_err(|e| SceneError::new(file, format!("[dpd]: {e}")))?;
+    let coupling = coupling_params(file, text, d.coupling.as_ref())?;
+    let mut cells = Vec::with_capacity(d.cells.len());
+    for (k, c) in d.cells.iter().enumerate() {
+        cells.push(cell(file, text, k, c, &params, wall.as_ref())?);
+    }
     Ok(DpdScene {
         params,
         density: d.density,
@@ -367,7 +481,233 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         save_every: d.save_every,
         wall,
         wall_warmup: d.wall_warmup,
+        cells,
+        coupling,
     })
+}
+
+/// `[dpd.coupling]` with its defaults ([`CouplingParams::default`]).
+fn coupling_params(
+    file: &Path,
+    text: &str,
+    c: Option<&CouplingSection>,
+) -> Result<CouplingParams, SceneError> {
+    let mut out = CouplingParams::default();
+    let Some(c) = c else { return Ok(out) };
+    out.gamma_out = c.gamma_out.unwrap_or(out.gamma_out);
+    out.gamma_in = c.gamma_in.unwrap_or(out.gamma_in);
+    out.power = c.power.unwrap_or(out.power);
+    out.inner_extra_gamma = c.inner_gamma.unwrap_or(out.inner_extra_gamma);
+    out.contact_a = c.contact_a.unwrap_or(out.contact_a);
+    out.vertex_mass = c.vertex_mass.unwrap_or(out.vertex_mass);
+    out.check_every = c.check_every.unwrap_or(out.check_every);
+    out.validate().map_err(|e| {
+        let mut err = SceneError::new(file, format!("[dpd.coupling]: {e}"));
+        err.place = section_place(text, "[dpd.coupling]", 0);
+        err
+    })?;
+    Ok(out)
+}
+
+/// The `k`-th `[[dpd.cells]]` entry built: its shape on the icosphere, the membrane from its
+/// moduli, checked against the box and the walls.
+fn cell(
+    file: &Path,
+    text: &str,
+    k: usize,
+    c: &CellSection,
+    params: &DpdParams,
+    wall: Option<&Wall>,
+) -> Result<DpdCell, SceneError> {
+    let located = |key: &str, why: String| {
+        let mut e = SceneError::new(file, format!("[[dpd.cells]] entry {}: {key}: {why}", k + 1));
+        e.place = cell_key_place(text, k, key).or_else(|| section_place(text, "[[dpd.cells]]", k));
+        e
+    };
+    let positive = |key: &str, v: f64| {
+        if v.is_finite() && v > 0.0 {
+            Ok(())
+        } else {
+            Err(located(key, format!("must be a positive number, got {v}")))
+        }
+    };
+    positive("radius", c.radius)?;
+    positive("shear_modulus", c.shear_modulus)?;
+    for (key, v) in [
+        ("bending_rigidity", c.bending_rigidity),
+        ("ka", c.ka),
+        ("kd", c.kd),
+        ("kv", c.kv),
+        ("gamma_t", c.gamma_t),
+    ] {
+        if !(v.is_finite() && v >= 0.0) {
+            return Err(located(key, format!("must be a number ≥ 0, got {v}")));
+        }
+    }
+    if !(1..=6).contains(&c.subdivisions) {
+        return Err(located(
+            "subdivisions",
+            format!(
+                "must be 1 to 6 (10·4^s + 2 vertices), got {}",
+                c.subdivisions
+            ),
+        ));
+    }
+    let order = 16;
+    let shape_err = |e: crate::vesicle::VesicleError| located("shape", e.to_string());
+    let mut surface = match (c.shape.as_str(), c.reduced_volume) {
+        ("sphere", None) => shapes::sphere(order, 1.0).map_err(shape_err)?,
+        ("rbc", None) => shapes::rbc(order).map_err(shape_err)?,
+        ("prolate" | "oblate", Some(v)) => {
+            if !(v > 0.0 && v <= 1.0) {
+                return Err(located(
+                    "reduced_volume",
+                    format!("must be in (0, 1], got {v}"),
+                ));
+            }
+            let kind = if c.shape == "prolate" {
+                shapes::Spheroid::Prolate
+            } else {
+                shapes::Spheroid::Oblate
+            };
+            shapes::reduced_volume_spheroid(order, v, kind, 1.0).map_err(shape_err)?
+        }
+        ("prolate" | "oblate", None) => {
+            return Err(located(
+                "reduced_volume",
+                format!("shape \"{}\" needs reduced_volume", c.shape),
+            ))
+        }
+        (_, Some(_)) if c.shape == "sphere" || c.shape == "rbc" => {
+            return Err(located(
+                "reduced_volume",
+                format!("only prolate and oblate shapes take it, not \"{}\"", c.shape),
+            ))
+        }
+        (other, _) => {
+            return Err(located(
+                "shape",
+                format!(
+                    "unknown shape \"{other}\" (expected \"sphere\", \"rbc\", \"prolate\" or \"oblate\")"
+                ),
+            ))
+        }
+    };
+    surface
+        .scale_to_equivalent_radius(c.radius)
+        .map_err(shape_err)?;
+    let mesh = CellMesh::icosphere(&surface, c.subdivisions).map_err(shape_err)?;
+    let lengths = mesh.edge_lengths();
+    let l0 = lengths.iter().sum::<f64>() / lengths.len() as f64;
+    let bending = match (c.bending.as_str(), c.c0, c.theta0) {
+        ("juelicher", c0, None) => BendingModel::Juelicher {
+            c0: c0.unwrap_or(0.0),
+        },
+        ("kantor_nelson", None, theta0) => BendingModel::KantorNelson {
+            theta0: theta0.unwrap_or(0.0),
+        },
+        ("juelicher", _, Some(_)) => {
+            return Err(located(
+                "theta0",
+                "Jülicher bending takes c0, not theta0".into(),
+            ))
+        }
+        ("kantor_nelson", Some(_), _) => {
+            return Err(located(
+                "c0",
+                "Kantor–Nelson bending takes theta0, not c0".into(),
+            ))
+        }
+        (other, _, _) => {
+            return Err(located(
+                "bending",
+                format!("unknown model \"{other}\" (expected \"juelicher\" or \"kantor_nelson\")"),
+            ))
+        }
+    };
+    let membrane = MembraneParams::from_moduli(&Moduli {
+        shear_modulus: c.shear_modulus,
+        bending_rigidity: c.bending_rigidity,
+        bending,
+        ka: c.ka,
+        kd: c.kd,
+        kv: c.kv,
+        kbt: params.pair.kbt.max(f64::MIN_POSITIVE),
+        x0: 1.0 / 2.2,
+        m: 2.0,
+        mean_edge_length: l0,
+        gamma_t: c.gamma_t,
+        gamma_c: c.gamma_c,
+    })
+    .map_err(|e| located("shear_modulus", e.to_string()))?;
+    let l = params.box_len;
+    for a in 0..3 {
+        if !(c.center[a].is_finite() && c.center[a] >= 0.0 && c.center[a] < l[a]) {
+            return Err(located(
+                "center",
+                format!(
+                    "{:?} is not inside the box {:?} (component {} out of [0, {}))",
+                    c.center,
+                    l,
+                    ["x", "y", "z"][a],
+                    l[a]
+                ),
+            ));
+        }
+    }
+    let vertices: Vec<[f64; 3]> = mesh
+        .vertices
+        .iter()
+        .map(|v| [0, 1, 2].map(|a| v[a] + c.center[a]))
+        .collect();
+    if let Some(w) = wall {
+        if let Some(v) = vertices
+            .iter()
+            .position(|&x| w.sdf(x) > -0.5 * params.pair.rc)
+        {
+            return Err(located(
+                "center",
+                format!(
+                    "the cell reaches into the wall (vertex {v} at {:?} is closer than r_c/2 to it)",
+                    vertices[v]
+                ),
+            ));
+        }
+    }
+    let force = c.force.unwrap_or([0.0; 3]);
+    if force.iter().any(|f| !f.is_finite()) {
+        return Err(located("force", format!("must be finite, got {force:?}")));
+    }
+    Ok(DpdCell {
+        shape: c.shape.clone(),
+        radius: c.radius,
+        spec: CellSpec {
+            vertices,
+            triangles: mesh.triangles.clone(),
+            params: membrane,
+        },
+        force,
+    })
+}
+
+/// Line and column of the `k`-th header `header` (e.g. `[[dpd.cells]]`).
+fn section_place(text: &str, header: &str, k: usize) -> Option<(usize, usize)> {
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.trim_start().starts_with(header))
+        .nth(k)
+        .map(|(i, l)| (i + 1, l.len() - l.trim_start().len() + 1))
+}
+
+/// Line and column of `key = …` inside the `k`-th `[[dpd.cells]]` entry.
+fn cell_key_place(text: &str, k: usize, key: &str) -> Option<(usize, usize)> {
+    let (start, _) = section_place(text, "[[dpd.cells]]", k)?;
+    let body: Vec<&str> = text
+        .lines()
+        .skip(start)
+        .take_while(|l| !l.trim_start().starts_with('['))
+        .collect();
+    key_place(&body.join("\n"), key).map(|(line, col)| (line + start, col))
 }
 
 /// Line and column of `key = …` in the text (the first line that assigns it).

@@ -10,7 +10,11 @@
 //!   profile sampler, the observables), every `save_every` steps and at the end; a resumed
 //!   run continues bit for bit;
 //! * `summary.json`: effects and why, settings, timings, particle-steps per second, drifts,
-//!   and for periodic Poiseuille flow `"viscosity": {"value", "stderr", …}`.
+//!   and for periodic Poiseuille flow `"viscosity": {"value", "stderr", …}`;
+//! * with cells (`[[dpd.cells]]`): `membranes_SSSSSSSS.vtp` every `save_every` steps (all
+//!   membranes, with `cell` and `velocity` point data) and `membranes.pvd` listing them, and
+//!   `"membranes"` in the summary (bounces, leaked solvent, each cell's centre, velocity,
+//!   area and volume change).
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -28,10 +32,12 @@ use crate::dpd::pair_force::Particles;
 use crate::dpd::poiseuille::{
     kinetic_theory_viscosity, FlowGeometry, KineticViscosity, ProfileSampler, ViscosityFit,
 };
+use crate::dpd::suspension::{CellState, CouplingParams, DpdSuspension, SuspensionState};
 use crate::dpd::system::{BodyForce, DpdSystem, DpdTimings};
 use crate::dpd::walls::Wall;
 use crate::dpd::DpdError;
 use crate::io::checkpoint::Checkpoint;
+use crate::io::vtk::{write_polydata, write_pvd, DataArray, DataValues, PolyMesh, PvdEntry};
 use crate::io::{write_atomic, IoError};
 
 /// The copy of the scene in the output directory.
@@ -157,8 +163,8 @@ pub struct DpdSummary {
     /// `max_t |P(t) − P(0)|` per particle, in units of the thermal momentum `√(m k_BT)`
     /// (a body force changes `P` only when it does not sum to zero).
     pub momentum_drift: f64,
-    /// Particles found inside a wall after the bounce-back (`null` without walls; membranes
-    /// are not built yet).
+    /// Particles found inside a wall after the bounce-back (`null` without walls; leaks
+    /// through membranes are in `membranes`).
     pub leaked_particles: Option<u64>,
     /// Bounce-backs off the walls (`null` without walls).
     pub bounces: Option<u64>,
@@ -166,6 +172,203 @@ pub struct DpdSummary {
     pub fluid_particles: usize,
     /// Periodic Poiseuille flow: the viscosity fitted to the velocity profile.
     pub viscosity: Option<ViscositySummary>,
+    /// Cells in the fluid (`null` without `[[dpd.cells]]`).
+    pub membranes: Option<MembraneSummary>,
+}
+
+/// The cells of a run in `summary.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct MembraneSummary {
+    /// Number of cells.
+    pub cells: usize,
+    /// Membrane vertices, all cells.
+    pub vertices: usize,
+    /// The coupling to the solvent.
+    pub coupling: CouplingParams,
+    /// Bounce-backs of solvent off membranes.
+    pub bounces: u64,
+    /// The most solvent particles found on the wrong side of a membrane at any count (every
+    /// `coupling.check_every` steps).
+    pub leaked_particles: u64,
+    /// Solvent on the wrong side at the last count.
+    pub leaked_at_last_count: u64,
+    /// Kinetic temperature of the vertices now (each cell's mean velocity removed).
+    pub vertex_temperature: f64,
+    /// Per cell.
+    pub per_cell: Vec<CellSummary>,
+}
+
+/// One cell in `summary.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct CellSummary {
+    /// Shape as given.
+    pub shape: String,
+    /// Volume-equivalent radius as given.
+    pub radius: f64,
+    /// Vertices.
+    pub vertices: usize,
+    /// Solvent particles inside it.
+    pub inner_solvent: usize,
+    /// Mean vertex position (unwrapped).
+    pub centroid: [f64; 3],
+    /// Mean vertex velocity.
+    pub velocity: [f64; 3],
+    /// External force.
+    pub force: [f64; 3],
+    /// Area now over the reference area, minus one.
+    pub area_change: f64,
+    /// Volume now over the reference volume, minus one.
+    pub volume_change: f64,
+}
+
+/// What a run steps: the fluid alone, or cells in it.
+enum Model {
+    Fluid(Box<DpdSystem>),
+    Cells(Box<DpdSuspension>),
+}
+
+impl Model {
+    fn fluid(&self) -> &DpdSystem {
+        match self {
+            Model::Fluid(f) => f,
+            Model::Cells(s) => &s.fluid,
+        }
+    }
+
+    fn step(&mut self) -> Result<(), DpdError> {
+        match self {
+            Model::Fluid(f) => f.step(),
+            Model::Cells(s) => s.step(),
+        }
+    }
+
+    /// Total momentum (solvent and vertices).
+    fn momentum(&self) -> [f64; 3] {
+        match self {
+            Model::Fluid(f) => f.momentum(),
+            Model::Cells(s) => s.momentum(),
+        }
+    }
+
+    fn cells(&self) -> Option<&DpdSuspension> {
+        match self {
+            Model::Fluid(_) => None,
+            Model::Cells(s) => Some(s),
+        }
+    }
+}
+
+/// The fluid of a new run, with the scene's cells put into it.
+fn build_model(scene: &DpdScene) -> Result<Model, DpdRunError> {
+    let sys = match scene.wall {
+        None => DpdSystem::random_fluid(scene.params, scene.density, scene.body)?,
+        Some(w) => DpdSystem::with_wall(
+            scene.params,
+            scene.density,
+            scene.body,
+            w,
+            scene.wall_warmup,
+        )?,
+    };
+    if scene.cells.is_empty() {
+        return Ok(Model::Fluid(Box::new(sys)));
+    }
+    let specs = scene.cells.iter().map(|c| c.spec.clone()).collect();
+    let mut sim = DpdSuspension::new(sys, specs, scene.coupling)?;
+    for (k, c) in scene.cells.iter().enumerate() {
+        if c.force != [0.0; 3] {
+            sim.set_external_force(k, c.force)?;
+        }
+    }
+    Ok(Model::Cells(Box::new(sim)))
+}
+
+/// Write the membranes of step `step` (`membranes_SSSSSSSS.vtp`) and the collection of every
+/// such frame in `out` (`membranes.pvd`).
+fn write_membranes(out: &Path, sim: &DpdSuspension) -> Result<(), DpdRunError> {
+    let step = sim.fluid.step;
+    let mut mesh = PolyMesh::default();
+    let (mut cell, mut vel) = (Vec::new(), Vec::new());
+    for (k, c) in sim.cells().iter().enumerate() {
+        let base = mesh.points.len();
+        mesh.points.extend_from_slice(c.positions());
+        mesh.triangles.extend(
+            c.membrane()
+                .topology()
+                .triangles()
+                .iter()
+                .map(|t| t.map(|i| i + base)),
+        );
+        cell.extend(std::iter::repeat_n(k as i32, c.positions().len()));
+        vel.extend(c.velocities().iter().flatten().copied());
+    }
+    mesh.point_data.push(DataArray::ints("cell", cell));
+    mesh.point_data.push(DataArray {
+        name: "velocity".into(),
+        components: 3,
+        values: DataValues::Float64(vel),
+    });
+    write_polydata(&out.join(format!("membranes_{step:08}.vtp")), &mesh)?;
+    // The collection: every frame in the directory up to this step (a resumed run's earlier
+    // frames included, later ones of an abandoned run left out).
+    let dt = sim.fluid.params.dt;
+    let mut frames: Vec<(u64, String)> = std::fs::read_dir(out)
+        .map_err(|source| IoError::File {
+            path: out.to_path_buf(),
+            source,
+        })?
+        .filter_map(|e| {
+            let name = e.ok()?.file_name().into_string().ok()?;
+            let s: u64 = name
+                .strip_prefix("membranes_")?
+                .strip_suffix(".vtp")?
+                .parse()
+                .ok()?;
+            (s <= step).then_some((s, name))
+        })
+        .collect();
+    frames.sort();
+    let entries: Vec<PvdEntry> = frames
+        .into_iter()
+        .map(|(s, file)| PvdEntry {
+            time: s as f64 * dt,
+            file,
+        })
+        .collect();
+    write_pvd(&out.join("membranes.pvd"), &entries)?;
+    Ok(())
+}
+
+fn membrane_summary(scene: &DpdScene, sim: &DpdSuspension) -> MembraneSummary {
+    MembraneSummary {
+        cells: sim.cells().len(),
+        vertices: sim.cells().iter().map(|c| c.positions().len()).sum(),
+        coupling: *sim.coupling(),
+        bounces: sim.bounces(),
+        leaked_particles: sim.max_leaked(),
+        leaked_at_last_count: sim.leaked(),
+        vertex_temperature: sim.vertex_temperature(),
+        per_cell: sim
+            .cells()
+            .iter()
+            .zip(&scene.cells)
+            .enumerate()
+            .map(|(k, (c, sc))| {
+                let (da, dv) = c.area_volume_change().unwrap_or((f64::NAN, f64::NAN));
+                CellSummary {
+                    shape: sc.shape.clone(),
+                    radius: sc.radius,
+                    vertices: c.positions().len(),
+                    inner_solvent: sim.inner_count(k),
+                    centroid: c.centroid(),
+                    velocity: c.mean_velocity(),
+                    force: c.external_force(),
+                    area_change: da,
+                    volume_change: dv,
+                }
+            })
+            .collect(),
+    }
 }
 
 /// The effects a scene calls for.
@@ -197,8 +400,28 @@ pub fn effects(scene: &DpdScene) -> Vec<Effect> {
         },
         Effect {
             name: "membranes",
-            enabled: false,
-            reason: "cells in the DPD fluid are not built yet (the membrane model is in dpd::membrane)".into(),
+            enabled: !scene.cells.is_empty(),
+            reason: if scene.cells.is_empty() {
+                "no [[dpd.cells]]".into()
+            } else {
+                let c = &scene.coupling;
+                format!(
+                    "{} cell(s), {} vertices: Fedosov membranes from moduli, solvent coupling \
+                     gamma_out = {}, gamma_in = {}, k = {}, bounce-back off the moving \
+                     triangles, leaks counted every {} steps{}",
+                    scene.cells.len(),
+                    scene.cells.iter().map(|c| c.spec.vertices.len()).sum::<usize>(),
+                    c.gamma_out,
+                    c.gamma_in,
+                    c.power,
+                    c.check_every,
+                    if c.inner_extra_gamma > 0.0 {
+                        format!(", inner fluid extra gamma {}", c.inner_extra_gamma)
+                    } else {
+                        String::new()
+                    }
+                )
+            },
         },
         Effect {
             name: "walls",
@@ -245,30 +468,24 @@ pub fn run(
     opts: &DpdRunOptions,
 ) -> Result<DpdSummary, DpdRunError> {
     let ckpt_path = out.join(CHECKPOINT);
-    let (mut sys, mut sampler, mut rows, mut wall_before, p0) = if opts.resume {
+    let (mut model, mut sampler, mut rows, mut wall_before, p0) = if opts.resume {
         restore(scene, &ckpt_path)?
     } else {
         write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
-        let sys = match scene.wall {
-            None => DpdSystem::random_fluid(scene.params, scene.density, scene.body)?,
-            Some(w) => DpdSystem::with_wall(
-                scene.params,
-                scene.density,
-                scene.body,
-                w,
-                scene.wall_warmup,
-            )?,
-        };
+        let model = build_model(scene)?;
+        if let Some(sim) = model.cells() {
+            write_membranes(out, sim)?;
+        }
         let sampler = ProfileSampler::with_geometry(
             flow_geometry(scene),
             scene.params.box_len,
             scene.bins,
             scene.block_samples().max(1) as usize,
         );
-        let p0 = sys.momentum();
+        let p0 = model.momentum();
         let mut rows = Vec::new();
-        push_row(&mut rows, &sys);
-        (sys, sampler, rows, 0.0, p0)
+        push_row(&mut rows, &model);
+        (model, sampler, rows, 0.0, p0)
     };
     let bar = if opts.quiet {
         ProgressBar::hidden()
@@ -281,15 +498,17 @@ pub fn run(
             .expect("static template")
             .progress_chars("=> "),
         );
-        b.set_position(sys.step);
+        b.set_position(model.fluid().step);
         b
     };
     let sample_end = scene.equilibrate + scene.block_samples() * scene.blocks * scene.sample_every;
     let start = Instant::now();
-    let first = sys.step;
+    let first = model.fluid().step;
     let mut completed = true;
-    while sys.step < scene.steps {
-        if opts.max_steps.is_some_and(|m| sys.step - first >= m)
+    while model.fluid().step < scene.steps {
+        if opts
+            .max_steps
+            .is_some_and(|m| model.fluid().step - first >= m)
             || opts
                 .stop
                 .as_ref()
@@ -298,37 +517,40 @@ pub fn run(
             completed = false;
             break;
         }
-        sys.step()?;
-        let s = sys.step;
+        model.step()?;
+        let s = model.fluid().step;
         if s > scene.equilibrate
             && s <= sample_end
             && (s - scene.equilibrate).is_multiple_of(scene.sample_every)
         {
-            sampler.sample(&sys);
+            sampler.sample(model.fluid());
         }
         if s % scene.save_every == 0 || s == scene.steps {
-            push_row(&mut rows, &sys);
+            push_row(&mut rows, &model);
             bar.set_position(s);
-            bar.set_message(format!("k_BT = {:.4}", sys.kinetic_temperature()));
+            bar.set_message(format!("k_BT = {:.4}", model.fluid().kinetic_temperature()));
+            if let Some(sim) = model.cells() {
+                write_membranes(out, sim)?;
+            }
             if s < scene.steps {
                 let wall = wall_before + start.elapsed().as_secs_f64();
-                checkpoint(&sys, &sampler, &rows, wall, p0).write(&ckpt_path)?;
+                checkpoint(&model, &sampler, &rows, wall, p0).write(&ckpt_path)?;
             }
         }
     }
     bar.finish_and_clear();
-    let done = sys.step - first;
+    let done = model.fluid().step - first;
     let this_wall = start.elapsed().as_secs_f64();
     wall_before += this_wall;
     if !completed {
-        push_row(&mut rows, &sys);
+        push_row(&mut rows, &model);
     }
-    checkpoint(&sys, &sampler, &rows, wall_before, p0).write(&ckpt_path)?;
-    let fit = driving_force(scene).and_then(|g| sampler.viscosity(sys.density(), g));
+    checkpoint(&model, &sampler, &rows, wall_before, p0).write(&ckpt_path)?;
+    let fit = driving_force(scene).and_then(|g| sampler.viscosity(model.fluid().density(), g));
     let flow_kt = sampler.flow_temperature(scene.params.mass);
     let summary = summarise(
         scene,
-        &sys,
+        &model,
         fit.as_ref(),
         flow_kt,
         &rows,
@@ -351,8 +573,9 @@ fn driving_force(scene: &DpdScene) -> Option<f64> {
     }
 }
 
-fn push_row(rows: &mut Vec<f64>, sys: &DpdSystem) {
-    let p = sys.momentum();
+fn push_row(rows: &mut Vec<f64>, model: &Model) {
+    let p = model.momentum();
+    let sys = model.fluid();
     rows.extend([
         sys.step as f64,
         sys.time(),
@@ -367,7 +590,7 @@ fn push_row(rows: &mut Vec<f64>, sys: &DpdSystem) {
 #[allow(clippy::too_many_arguments)]
 fn summarise(
     scene: &DpdScene,
-    sys: &DpdSystem,
+    model: &Model,
     fit: Option<&ViscosityFit>,
     flow_kt: Option<f64>,
     rows: &[f64],
@@ -378,6 +601,7 @@ fn summarise(
     this_wall: f64,
 ) -> DpdSummary {
     let prm = &scene.params;
+    let sys = model.fluid();
     let n = sys.len();
     let after: Vec<&[f64]> = rows
         .chunks_exact(OBS_COLS)
@@ -451,6 +675,7 @@ fn summarise(
         bounces: scene.wall.map(|_| sys.bounces),
         fluid_particles: sys.n_moving(),
         viscosity,
+        membranes: model.cells().map(|sim| membrane_summary(scene, sim)),
     }
 }
 
@@ -497,12 +722,13 @@ fn write_outputs(
 
 /// The checkpoint of the whole run state.
 fn checkpoint(
-    sys: &DpdSystem,
+    model: &Model,
     sampler: &ProfileSampler,
     rows: &[f64],
     wall: f64,
     p0: [f64; 3],
 ) -> Checkpoint {
+    let sys = model.fluid();
     let n = sys.len();
     let mut c = Checkpoint::new(json!({
         "kind": "dpd",
@@ -541,10 +767,31 @@ fn checkpoint(
     );
     let (state, shape) = sampler.state();
     c.push("profile_sampler", shape, state);
+    if let Some(sim) = model.cells() {
+        let st = sim.state();
+        let flat = |v: &[[f64; 3]]| v.iter().flatten().copied().collect::<Vec<f64>>();
+        for (k, cs) in st.cells.iter().enumerate() {
+            let nv = cs.x.len();
+            c.push(format!("cell{k}_x"), vec![nv, 3], flat(&cs.x));
+            c.push(format!("cell{k}_v"), vec![nv, 3], flat(&cs.v));
+            c.push(format!("cell{k}_f"), vec![nv, 3], flat(&cs.f));
+            c.push(format!("cell{k}_external"), vec![3], cs.external.to_vec());
+        }
+        c.push(
+            "owner",
+            vec![st.owner.len()],
+            st.owner.iter().map(|&o| o as f64).collect(),
+        );
+        c.push(
+            "membrane_counters",
+            vec![3],
+            st.counters.iter().map(|&v| v as f64).collect(),
+        );
+    }
     c
 }
 
-type Restored = (DpdSystem, ProfileSampler, Vec<f64>, f64, [f64; 3]);
+type Restored = (Model, ProfileSampler, Vec<f64>, f64, [f64; 3]);
 
 fn restore(scene: &DpdScene, path: &Path) -> Result<Restored, DpdRunError> {
     let c = Checkpoint::read(path)?;
@@ -613,5 +860,54 @@ fn restore(scene: &DpdScene, path: &Path) -> Result<Restored, DpdRunError> {
     if p0.len() != 3 || rows.len() % OBS_COLS != 0 {
         return Err(bad("momentum0 or observables have the wrong shape".into()));
     }
-    Ok((sys, sampler, rows, wall, [p0[0], p0[1], p0[2]]))
+    let model = if scene.cells.is_empty() {
+        Model::Fluid(Box::new(sys))
+    } else {
+        let triples = |name: &str, n: usize| -> Result<Vec<[f64; 3]>, DpdRunError> {
+            let v = get(name)?;
+            if v.len() != 3 * n {
+                return Err(bad(format!(
+                    "array '{name}' has {} values, the scene's cell needs {}",
+                    v.len(),
+                    3 * n
+                )));
+            }
+            Ok(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+        };
+        let mut cells = Vec::with_capacity(scene.cells.len());
+        for (k, sc) in scene.cells.iter().enumerate() {
+            let nv = sc.spec.vertices.len();
+            let ext = triples(&format!("cell{k}_external"), 1)?;
+            cells.push(CellState {
+                x: triples(&format!("cell{k}_x"), nv)?,
+                v: triples(&format!("cell{k}_v"), nv)?,
+                f: triples(&format!("cell{k}_f"), nv)?,
+                external: ext[0],
+            });
+        }
+        let owner = get("owner")?;
+        if owner
+            .iter()
+            .any(|&o| !(o >= 0.0 && o <= u32::MAX as f64 && o.fract() == 0.0))
+        {
+            return Err(bad(
+                "array 'owner' holds values that are not cell indices".into()
+            ));
+        }
+        let counters = get("membrane_counters")?;
+        if counters.len() != 3 {
+            return Err(bad("array 'membrane_counters' has the wrong shape".into()));
+        }
+        let state = SuspensionState {
+            cells,
+            owner: owner.iter().map(|&o| o as u32).collect(),
+            counters: [counters[0] as u64, counters[1] as u64, counters[2] as u64],
+        };
+        let specs = scene.cells.iter().map(|c| c.spec.clone()).collect();
+        Model::Cells(Box::new(
+            DpdSuspension::restore(sys, specs, scene.coupling, state)
+                .map_err(|e| bad(format!("does not fit the scene: {e}")))?,
+        ))
+    };
+    Ok((model, sampler, rows, wall, [p0[0], p0[1], p0[2]]))
 }

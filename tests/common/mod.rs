@@ -107,3 +107,15 @@ pub fn frame_bits(out: &std::path::Path, tension: bool) -> Vec<Vec<u64>> {
 }
 
 pub mod quadrature;
+
+/// The bits of the named arrays of `dir/checkpoint.bin`, for bit-for-bit comparisons of runs.
+pub fn checkpoint_bits(dir: &std::path::Path, names: &[&str]) -> Vec<(String, Vec<u64>)> {
+    let c = mobo::io::checkpoint::Checkpoint::read(&dir.join("checkpoint.bin")).unwrap();
+    names
+        .iter()
+        .map(|n| {
+            let a = c.get(n).unwrap_or_else(|| panic!("array {n}"));
+            (n.to_string(), a.data.iter().map(|v| v.to_bits()).collect())
+        })
+        .collect()
+}
