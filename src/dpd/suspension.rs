@@ -266,6 +266,9 @@ pub struct SuspensionState {
     pub counters: [u64; 3],
 }
 
+/// Collisions of one particle with membranes followed within one step.
+const MAX_BOUNCES: usize = 4;
+
 /// Marker of a solvent particle outside every cell.
 const OUTSIDE: u32 = u32::MAX;
 
@@ -675,67 +678,91 @@ impl DpdSuspension {
                 if (0..3).any(|k| q0[k].max(q1[k]) < lo[k] || q0[k].min(q1[k]) > hi[k]) {
                     continue;
                 }
-                let (pl, ph) = bbox(&[q0, q1]);
-                let (b0, b1) = (bin_of(pl), bin_of(ph));
-                let mut best: Option<(super::crossing::Crossing, usize)> = None;
-                for bz in b0[2]..=b1[2] {
-                    for by in b0[1]..=b1[1] {
-                        for bx in b0[0]..=b1[0] {
-                            for &t in &bins[(bz * dims[1] + by) * dims[0] + bx] {
-                                let tri = tris[t as usize];
-                                let t0 = tri.map(|j| c.x_old[j]);
-                                let t1 = tri.map(|j| c.x[j]);
-                                if let Some(hit) = first_crossing(q0, q1, t0, t1) {
-                                    if best.is_none_or(|(b, _)| hit.t < b.t) {
-                                        best = Some((hit, t as usize));
+                // The path is followed through up to MAX_BOUNCES collisions: after each, the
+                // rest of the step (from the collision point at fraction `t0` to the end) is
+                // tested again against the triangles moving from their positions at `t0` to
+                // their ends, so that a particle bounced near an edge cannot slip through the
+                // neighbouring triangle.
+                let (mut s0, mut s1, mut t0, mut vel) = (q0, q1, 0.0f64, v);
+                for _ in 0..MAX_BOUNCES {
+                    let (pl, ph) = bbox(&[s0, s1]);
+                    let (b0, b1) = (bin_of(pl), bin_of(ph));
+                    let at = |j: usize| -> [f64; 3] {
+                        [0, 1, 2].map(|k| c.x_old[j][k] + t0 * (c.x[j][k] - c.x_old[j][k]))
+                    };
+                    let mut best: Option<(super::crossing::Crossing, usize)> = None;
+                    for bz in b0[2]..=b1[2] {
+                        for by in b0[1]..=b1[1] {
+                            for bx in b0[0]..=b1[0] {
+                                for &t in &bins[(bz * dims[1] + by) * dims[0] + bx] {
+                                    let tri = tris[t as usize];
+                                    let tri0 = tri.map(at);
+                                    let tri1 = tri.map(|j| c.x[j]);
+                                    if let Some(hit) = first_crossing(s0, s1, tri0, tri1) {
+                                        if best.is_none_or(|(b, _)| hit.t < b.t) {
+                                            best = Some((hit, t as usize));
+                                        }
                                     }
                                 }
                             }
                         }
                     }
-                }
-                let Some((hit, t)) = best else { continue };
-                let tri = tris[t];
-                let lam = hit.bary;
-                // Velocity of the triangle's point, and the point at the end of the step.
-                let mut u = [0.0; 3];
-                let mut q = [0.0; 3];
-                for (j, &vtx) in tri.iter().enumerate() {
-                    for k in 0..3 {
-                        u[k] += lam[j] * (c.x[vtx][k] - c.x_old[vtx][k]) / dt;
-                        q[k] += lam[j] * c.x[vtx][k];
+                    let Some((hit, t)) = best else { break };
+                    let tri = tris[t];
+                    let lam = hit.bary;
+                    let t_hit = t0 + hit.t * (1.0 - t0);
+                    // Velocity of the triangle's point over the step, and the point at the end
+                    // of the step.
+                    let mut u = [0.0; 3];
+                    let mut q = [0.0; 3];
+                    for (j, &vtx) in tri.iter().enumerate() {
+                        for k in 0..3 {
+                            u[k] += lam[j] * (c.x[vtx][k] - c.x_old[vtx][k]) / dt;
+                            q[k] += lam[j] * c.x[vtx][k];
+                        }
                     }
-                }
-                // The collision of the particle with the triangle's point, whose effective
-                // mass is M = m_v / Σλ² (an impulse J spread as λ_k J over the vertices changes
-                // the point's velocity by J Σλ²/m_v): the relative velocity w = v − u is
-                // reversed, J = −2μw with μ = mM/(m + M), which conserves momentum and energy.
-                let w = [0, 1, 2].map(|k| v[k] - u[k]);
-                let jmp = collision_impulse(w, lam, ms, mv);
-                let vn = [0, 1, 2].map(|k| v[k] + jmp[k] / ms);
-                let (a1, b1v, c1) = (c.x[tri[0]], c.x[tri[1]], c.x[tri[2]]);
-                let nrm = cross3(sub3(b1v, a1), sub3(c1, a1));
-                let nn = (nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]).sqrt();
-                let nh = nrm.map(|c| hit.side * c / nn);
-                // The rest of the step from the triangle's point at the end of the step, moving
-                // away from it (−w relative to it), and a small step off the plane towards the
-                // side the particle came from.
-                let rest = (1.0 - hit.t) * dt;
-                let away = -(w[0] * nh[0] + w[1] * nh[1] + w[2] * nh[2]);
-                let eps = 1e-7 * rc;
-                let xn = [0, 1, 2].map(|k| {
-                    let off = if away > 0.0 { -rest * w[k] } else { 0.0 };
-                    q[k] + off + eps * nh[k] - shift[k]
-                });
-                (p.x[i], p.y[i], p.z[i]) = (xn[0], xn[1], xn[2]);
-                (p.vx[i], p.vy[i], p.vz[i]) = (vn[0], vn[1], vn[2]);
-                // The opposite impulse on the triangle's vertices.
-                for (j, &vtx) in tri.iter().enumerate() {
+                    // The collision with the triangle's point (see `collision_impulse`).
+                    let w = [0, 1, 2].map(|k| vel[k] - u[k]);
+                    let jmp = collision_impulse(w, lam, ms, mv);
                     for k in 0..3 {
-                        c.v[vtx][k] -= lam[j] * jmp[k] / mv;
+                        vel[k] += jmp[k] / ms;
                     }
+                    for (j, &vtx) in tri.iter().enumerate() {
+                        for k in 0..3 {
+                            c.v[vtx][k] -= lam[j] * jmp[k] / mv;
+                        }
+                    }
+                    self.bounces += 1;
+                    // The unit normal towards the side the particle came from, at the hit and
+                    // at the end of the step.
+                    let normal = |pts: [[f64; 3]; 3]| {
+                        let n = cross3(sub3(pts[1], pts[0]), sub3(pts[2], pts[0]));
+                        let nn = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                        n.map(|c| hit.side * c / nn)
+                    };
+                    let n_hit = normal(tri.map(|j| {
+                        [0, 1, 2].map(|k| c.x_old[j][k] + t_hit * (c.x[j][k] - c.x_old[j][k]))
+                    }));
+                    let n_end = normal(tri.map(|j| c.x[j]));
+                    // The rest of the step: away from the triangle's point with the reversed
+                    // relative velocity −w (riding with the point if that is not away from
+                    // the plane), a small step off the plane on the particle's side.
+                    let rest = (1.0 - t_hit) * dt;
+                    let away = -(w[0] * n_end[0] + w[1] * n_end[1] + w[2] * n_end[2]);
+                    let eps = 1e-7 * rc;
+                    let hit_point = [0, 1, 2].map(|k| s0[k] + hit.t * (s1[k] - s0[k]));
+                    s0 = [0, 1, 2].map(|k| hit_point[k] + eps * n_hit[k]);
+                    s1 = [0, 1, 2].map(|k| {
+                        let off = if away > 0.0 { -rest * w[k] } else { 0.0 };
+                        q[k] + off + eps * n_end[k]
+                    });
+                    t0 = t_hit;
                 }
-                self.bounces += 1;
+                if t0 > 0.0 {
+                    (p.x[i], p.y[i], p.z[i]) =
+                        (s1[0] - shift[0], s1[1] - shift[1], s1[2] - shift[2]);
+                    (p.vx[i], p.vy[i], p.vz[i]) = (vel[0], vel[1], vel[2]);
+                }
             }
         }
     }
@@ -745,6 +772,7 @@ impl DpdSuspension {
         let Some(wall) = self.fluid.wall else { return };
         let dt = self.fluid.params.dt;
         let l = self.fluid.params.box_len;
+        let speed = self.fluid.wall_speed;
         for c in &mut self.cells {
             for (x, v) in c.x.iter_mut().zip(c.v.iter_mut()) {
                 let w = wrap(*x, l);
@@ -752,10 +780,11 @@ impl DpdSuspension {
                     continue;
                 }
                 let (wn, vn) = wall.bounce(w, *v, dt);
+                let uw = super::system::wall_velocity(wall, speed, wn);
                 for k in 0..3 {
                     x[k] += wn[k] - w[k];
                 }
-                *v = vn;
+                *v = [vn[0] + 2.0 * uw[0], vn[1], vn[2]];
             }
         }
     }

@@ -113,6 +113,9 @@ pub struct DpdSystem {
     pub bounces: u64,
     /// Moving particles found inside the wall after a step's bounce-back (should stay 0).
     pub leaked: u64,
+    /// Speed `U` of plane walls sliding along `x` (Couette flow): the upper wall moves at
+    /// `+U`, the lower at `−U` ([`Self::start_couette`]); 0 for resting walls.
+    pub wall_speed: f64,
     cells: CellList,
     perm: Vec<u32>,
     scratch: [Vec<f64>; 7],
@@ -218,6 +221,7 @@ impl DpdSystem {
             wall,
             bounces: 0,
             leaked: 0,
+            wall_speed: 0.0,
             perm: Vec::new(),
             scratch: Default::default(),
             scratch_id: Vec::new(),
@@ -374,13 +378,46 @@ impl DpdSystem {
                 continue;
             }
             let (x, v) = wall.bounce(x, [p.vx[i], p.vy[i], p.vz[i]], dt);
+            // Off a sliding wall the velocity relative to it is reversed: v' = 2 U_w − v.
+            let uw = wall_velocity(wall, self.wall_speed, x);
             (p.x[i], p.y[i], p.z[i]) = (x[0], x[1], x[2]);
-            (p.vx[i], p.vy[i], p.vz[i]) = (v[0], v[1], v[2]);
+            (p.vx[i], p.vy[i], p.vz[i]) = (v[0] + 2.0 * uw[0], v[1], v[2]);
             self.bounces += 1;
             if wall.sdf(x) >= 0.0 {
                 self.leaked += 1;
             }
         }
+    }
+
+    /// Slide plane walls along `x` at `±speed` and start the Couette flow of shear rate about
+    /// `2 speed / gap`): the frozen particles above the channel's middle take velocity
+    /// `+speed x̂`, those below `−speed x̂` (their positions stay frozen: a translation-invariant
+    /// layer of random particles moving along itself looks the same at every instant, up to its
+    /// particular arrangement), which the dissipative force drags the fluid with, and
+    /// bounce-back reverses a particle's velocity relative to the wall it hits.
+    ///
+    /// The moving particles are given the steady linear profile `u_x = speed (2z − lo − hi)/gap`
+    /// on top of their (thermal) velocities, so that the flow starts developed.
+    pub fn start_couette(&mut self, speed: f64) -> Result<(), DpdError> {
+        let Some(Wall::Planes { lo, hi }) = self.wall else {
+            return Err(DpdError::Parameter {
+                name: "wall speed",
+                value: speed,
+                reason: "sliding walls need plane walls",
+            });
+        };
+        require(speed.is_finite(), "wall speed", speed, "must be finite")?;
+        self.wall_speed = speed;
+        let mid = 0.5 * (lo + hi);
+        let p = &mut self.particles;
+        for i in 0..p.len() {
+            if p.moves[i] == 0.0 {
+                p.vx[i] = if p.z[i] > mid { speed } else { -speed };
+            } else {
+                p.vx[i] += speed * (2.0 * p.z[i] - lo - hi) / (hi - lo);
+            }
+        }
+        Ok(())
     }
 
     /// A fluid of density `density` bounded by `wall`: a periodic fluid filling the box is
@@ -624,6 +661,22 @@ impl DpdSystem {
             })
             .collect();
         Ok((centres, g))
+    }
+}
+
+/// The velocity of the wall surface nearest `x`: `±speed x̂` for sliding planes (upper `+`),
+/// zero otherwise.
+pub(crate) fn wall_velocity(wall: Wall, speed: f64, x: [f64; 3]) -> [f64; 3] {
+    match wall {
+        Wall::Planes { lo, hi } if speed != 0.0 => {
+            let u = if x[2] > 0.5 * (lo + hi) {
+                speed
+            } else {
+                -speed
+            };
+            [u, 0.0, 0.0]
+        }
+        _ => [0.0; 3],
     }
 }
 

@@ -29,6 +29,8 @@
 //! walls = { kind = "cylinder", radius = 5.0 }  # a pipe along x; box y, z ≥ 2 (radius + rc)
 //! wall_warmup = 300          # steps the periodic fluid is equilibrated before freezing walls
 //! flow = "poiseuille"        # with walls: the body force `force` along x everywhere
+//! flow = "couette"           # with planes: the walls slide along x at ±wall_speed
+//! wall_speed = 0.5           # (shear rate ≈ 2 wall_speed / gap; the fluid starts linear)
 //! ```
 //!
 //! Cells in the fluid ([`crate::dpd::suspension`]): membranes on the icosphere of a
@@ -120,6 +122,7 @@ struct DpdSection {
     walls: Option<WallsSection>,
     #[serde(default = "three_hundred")]
     wall_warmup: u64,
+    wall_speed: Option<f64>,
     #[serde(default)]
     cells: Vec<CellSection>,
     coupling: Option<CouplingSection>,
@@ -252,6 +255,8 @@ pub struct DpdScene {
     pub wall: Option<Wall>,
     /// Steps the periodic fluid is equilibrated before the wall particles are frozen.
     pub wall_warmup: u64,
+    /// Speed of the sliding plane walls (`flow = "couette"`; 0 otherwise).
+    pub wall_speed: f64,
     /// Cells in the fluid (`[[dpd.cells]]`).
     pub cells: Vec<DpdCell>,
     /// Their coupling to the solvent (`[dpd.coupling]`).
@@ -432,14 +437,48 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
             Some(g) => return Err(located("force", format!("must be a non-zero number, got {g}"))),
             None => return Err(bad("force", "required for flow = \"poiseuille\"".into())),
         },
+        "couette" => {
+            if !matches!(wall, Some(Wall::Planes { .. })) {
+                return Err(located(
+                    "flow",
+                    "couette flow is driven by sliding plane walls: give walls = { kind = \"planes\", … }".into(),
+                ));
+            }
+            if d.force.is_some() {
+                return Err(located(
+                    "force",
+                    "couette flow is driven by wall_speed, not a body force".into(),
+                ));
+            }
+            BodyForce::None
+        }
         other => {
             return Err(located(
                 "flow",
                 format!(
-                    "unknown flow \"{other}\" (expected \"none\", \"periodic_poiseuille\" or \"poiseuille\")"
+                    "unknown flow \"{other}\" (expected \"none\", \"periodic_poiseuille\", \"poiseuille\" or \"couette\")"
                 ),
             ))
         }
+    };
+    let wall_speed = match (d.flow.as_str(), d.wall_speed) {
+        ("couette", Some(u)) if u.is_finite() && u != 0.0 => u,
+        ("couette", Some(u)) => {
+            return Err(located(
+                "wall_speed",
+                format!("must be a non-zero number, got {u}"),
+            ))
+        }
+        ("couette", None) => {
+            return Err(bad("wall_speed", "required for flow = \"couette\"".into()))
+        }
+        (_, Some(_)) => {
+            return Err(located(
+                "wall_speed",
+                "only flow = \"couette\" slides the walls".into(),
+            ))
+        }
+        (_, None) => 0.0,
     };
     let equilibrate = d.equilibrate.unwrap_or(steps / 5);
     if equilibrate >= steps {
@@ -481,6 +520,7 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         save_every: d.save_every,
         wall,
         wall_warmup: d.wall_warmup,
+        wall_speed,
         cells,
         coupling,
     })

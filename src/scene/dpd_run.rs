@@ -172,8 +172,50 @@ pub struct DpdSummary {
     pub fluid_particles: usize,
     /// Periodic Poiseuille flow: the viscosity fitted to the velocity profile.
     pub viscosity: Option<ViscositySummary>,
+    /// Couette flow: the shear rate fitted to the profile (`null` otherwise).
+    pub shear_rate: Option<ShearRate>,
     /// Cells in the fluid (`null` without `[[dpd.cells]]`).
     pub membranes: Option<MembraneSummary>,
+}
+
+/// The shear rate of a Couette flow.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShearRate {
+    /// Slope of `u_x(z)` fitted by least squares to the bins in the middle 70 % of the channel.
+    pub fitted: f64,
+    /// `2U/gap`, the rate without slip at the walls.
+    pub nominal: f64,
+}
+
+/// The shear rate fitted to the middle 70 % of the channel's profile (Couette flow only).
+fn shear_rate(scene: &DpdScene, sampler: &ProfileSampler) -> Option<ShearRate> {
+    let Some(Wall::Planes { lo, hi }) = scene.wall else {
+        return None;
+    };
+    if scene.wall_speed == 0.0 || sampler.blocks.is_empty() {
+        return None;
+    }
+    let (mid, half) = (0.5 * (lo + hi), 0.35 * (hi - lo));
+    let pts: Vec<(f64, f64)> = sampler
+        .profile()
+        .into_iter()
+        .filter(|(z, _, _)| (z - mid).abs() <= half)
+        .map(|(z, v, _)| (z, v))
+        .collect();
+    let n = pts.len() as f64;
+    if n < 2.0 {
+        return None;
+    }
+    let (mz, mv) = (
+        pts.iter().map(|p| p.0).sum::<f64>() / n,
+        pts.iter().map(|p| p.1).sum::<f64>() / n,
+    );
+    let szz: f64 = pts.iter().map(|p| (p.0 - mz).powi(2)).sum();
+    let szv: f64 = pts.iter().map(|p| (p.0 - mz) * (p.1 - mv)).sum();
+    Some(ShearRate {
+        fitted: szv / szz,
+        nominal: 2.0 * scene.wall_speed / (hi - lo),
+    })
 }
 
 /// The cells of a run in `summary.json`.
@@ -270,6 +312,10 @@ fn build_model(scene: &DpdScene) -> Result<Model, DpdRunError> {
             scene.wall_warmup,
         )?,
     };
+    let mut sys = sys;
+    if scene.wall_speed != 0.0 {
+        sys.start_couette(scene.wall_speed)?;
+    }
     if scene.cells.is_empty() {
         return Ok(Model::Fluid(Box::new(sys)));
     }
@@ -435,6 +481,19 @@ pub fn effects(scene: &DpdScene) -> Vec<Effect> {
             },
         },
         Effect {
+            name: "sliding walls (Couette flow)",
+            enabled: scene.wall_speed != 0.0,
+            reason: match scene.wall {
+                Some(Wall::Planes { lo, hi }) if scene.wall_speed != 0.0 => format!(
+                    "flow = \"couette\", wall_speed = ±{}: nominal shear rate {:.4} (2U/gap), \
+                     the rate in the channel fitted to the profile",
+                    scene.wall_speed,
+                    2.0 * scene.wall_speed / (hi - lo)
+                ),
+                _ => "walls at rest (or none)".into(),
+            },
+        },
+        Effect {
             name: "body force (plane/pipe Poiseuille)",
             enabled: matches!(scene.body, BodyForce::Constant(_)),
             reason: match scene.body {
@@ -548,9 +607,11 @@ pub fn run(
     checkpoint(&model, &sampler, &rows, wall_before, p0).write(&ckpt_path)?;
     let fit = driving_force(scene).and_then(|g| sampler.viscosity(model.fluid().density(), g));
     let flow_kt = sampler.flow_temperature(scene.params.mass);
+    let shear = shear_rate(scene, &sampler);
     let summary = summarise(
         scene,
         &model,
+        shear,
         fit.as_ref(),
         flow_kt,
         &rows,
@@ -591,6 +652,7 @@ fn push_row(rows: &mut Vec<f64>, model: &Model) {
 fn summarise(
     scene: &DpdScene,
     model: &Model,
+    shear: Option<ShearRate>,
     fit: Option<&ViscosityFit>,
     flow_kt: Option<f64>,
     rows: &[f64],
@@ -675,6 +737,7 @@ fn summarise(
         bounces: scene.wall.map(|_| sys.bounces),
         fluid_particles: sys.n_moving(),
         viscosity,
+        shear_rate: shear,
         membranes: model.cells().map(|sim| membrane_summary(scene, sim)),
     }
 }
@@ -844,6 +907,8 @@ fn restore(scene: &DpdScene, path: &Path) -> Result<Restored, DpdRunError> {
         return Err(bad("array 'walls' has the wrong shape".into()));
     }
     (sys.bounces, sys.leaked) = (counts[0] as u64, counts[1] as u64);
+    // The frozen particles' velocities are in the checkpoint; the bounce-back needs the speed.
+    sys.wall_speed = scene.wall_speed;
     let sampler_state = c
         .get("profile_sampler")
         .ok_or_else(|| bad("array 'profile_sampler' missing".into()))?;
