@@ -103,8 +103,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Some((ts, ds)) => print!("steady D {ds:.5} at t {ts:.2}, "),
         None => print!("not steady, "),
     }
+    // Inclination of the longest axis in the shear plane (x towards the gradient y), degrees.
+    let (semi, axes) = calc.geometry(&coefs)?.equivalent_ellipsoid();
+    let long = (0..3)
+        .filter(|&k| axes[k][2].abs() < 0.7)
+        .max_by(|&i, &j| semi[i].total_cmp(&semi[j]))
+        .unwrap_or(0);
+    let mut theta = axes[long][1].atan2(axes[long][0]).to_degrees();
+    if theta > 90.0 {
+        theta -= 180.0;
+    } else if theta < -90.0 {
+        theta += 180.0;
+    }
     println!(
-        "D(t_end) {end:.5} ({law}, Ca {ca}, p {p}, dt {dt}; {:.1} iterations per step, {:.1} s)",
+        "D(t_end) {end:.5}, inclination {theta:.1} deg ({law}, Ca {ca}, p {p}, dt {dt}; {:.1} \
+         iterations per step, {:.1} s)",
         iters as f64 / steps as f64,
         t0.elapsed().as_secs_f64()
     );

@@ -221,6 +221,35 @@ impl FluidCell {
         self.external
     }
 
+    /// The ellipsoid with the same volume second moments as the membrane's enclosed volume
+    /// (`∫_V (x − c)(x − c)ᵀ dV`, summed over the tetrahedra of each triangle with the
+    /// centroid `c`; an ellipsoid of semi-axes `a_k` has `V a_k²/5` on its principal axes):
+    /// semi-axes `a_k = √(5 λ_k / V)` in descending order, and their unit directions
+    /// (`axes[k]` belongs to `semi_axes[k]`).
+    pub fn equivalent_ellipsoid(&self) -> ([f64; 3], [[f64; 3]; 3]) {
+        let c = self.centroid();
+        let mut m = [[0.0; 3]; 3];
+        let mut vol = 0.0;
+        for t in self.membrane.topology().triangles() {
+            let p = t.map(|j| sub3(self.x[j], c));
+            let v6 = dot3(p[0], cross3(p[1], p[2]));
+            let sum = [0, 1, 2].map(|k| p[0][k] + p[1][k] + p[2][k]);
+            vol += v6 / 6.0;
+            for i in 0..3 {
+                for j in 0..3 {
+                    let pp: f64 = p.iter().map(|q| q[i] * q[j]).sum();
+                    m[i][j] += v6 / 120.0 * (pp + sum[i] * sum[j]);
+                }
+            }
+        }
+        let (vals, vecs) = symmetric_eigen3(m);
+        let mut order = [0usize, 1, 2];
+        order.sort_by(|&a, &b| vals[b].total_cmp(&vals[a]));
+        let semi = order.map(|k| (5.0 * vals[k].max(0.0) / vol).sqrt());
+        let axes = order.map(|k| [vecs[0][k], vecs[1][k], vecs[2][k]]);
+        (semi, axes)
+    }
+
     /// Area and volume now, relative to the reference (stress-free) ones, minus one.
     pub fn area_volume_change(&self) -> Result<(f64, f64), DpdError> {
         let m = &self.membrane;
@@ -998,6 +1027,50 @@ fn collision_impulse(w: [f64; 3], lam: [f64; 3], ms: f64, mv: f64) -> [f64; 3] {
     w.map(|c| -2.0 * mu * c)
 }
 
+fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// Eigenvalues and eigenvectors (columns of the returned matrix) of a symmetric 3 × 3 matrix,
+/// by cyclic Jacobi rotations.
+fn symmetric_eigen3(mut a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
+    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    for _ in 0..50 {
+        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
+        let scale = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
+        if off <= 1e-15 * scale || off == 0.0 {
+            break;
+        }
+        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
+            if a[p][q] == 0.0 {
+                continue;
+            }
+            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
+            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let t = if theta == 0.0 { 1.0 } else { t };
+            let c = 1.0 / (t * t + 1.0).sqrt();
+            let s = t * c;
+            // A ← Jᵀ A J with the rotation J in the (p, q) plane.
+            for k in 0..3 {
+                let (akp, akq) = (a[k][p], a[k][q]);
+                a[k][p] = c * akp - s * akq;
+                a[k][q] = s * akp + c * akq;
+            }
+            for k in 0..3 {
+                let (apk, aqk) = (a[p][k], a[q][k]);
+                a[p][k] = c * apk - s * aqk;
+                a[q][k] = s * apk + c * aqk;
+            }
+            for row in v.iter_mut() {
+                let (vp, vq) = (row[p], row[q]);
+                row[p] = c * vp - s * vq;
+                row[q] = s * vp + c * vq;
+            }
+        }
+    }
+    ([a[0][0], a[1][1], a[2][2]], v)
+}
+
 fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
@@ -1043,6 +1116,43 @@ fn image_near(p: [f64; 3], centre: [f64; 3], l: [f64; 3]) -> [f64; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The equivalent ellipsoid of a triangulated ellipsoid (axes 3, 2, 1.2, turned about z)
+    /// recovers its semi-axes and directions (to the mesh's discretisation error).
+    #[test]
+    fn equivalent_ellipsoid_of_a_meshed_ellipsoid() {
+        let (x, tris) = crate::dpd::membrane::test_support::icosphere(4);
+        let (ca, sa) = (0.6f64.cos(), 0.6f64.sin());
+        let pts: Vec<[f64; 3]> = x
+            .iter()
+            .map(|p| {
+                let q = [3.0 * p[0], 2.0 * p[1], 1.2 * p[2]];
+                [
+                    ca * q[0] - sa * q[1] + 5.0,
+                    sa * q[0] + ca * q[1] - 1.0,
+                    q[2] + 2.0,
+                ]
+            })
+            .collect();
+        let topology = MembraneTopology::new(pts.len(), &tris).unwrap();
+        let membrane = Membrane::new(topology, MembraneParams::new(1.0, 0.05), &pts).unwrap();
+        let n = pts.len();
+        let cell = FluidCell {
+            membrane,
+            x: pts.clone(),
+            v: vec![[0.0; 3]; n],
+            f: vec![[0.0; 3]; n],
+            x_old: pts,
+            id0: 0,
+            external: [0.0; 3],
+        };
+        let (semi, axes) = cell.equivalent_ellipsoid();
+        for (s, want) in semi.iter().zip([3.0, 2.0, 1.2]) {
+            assert!((s - want).abs() < 0.01 * want, "{semi:?}");
+        }
+        assert!((axes[0][0].abs() - ca).abs() < 1e-3 && (axes[0][1].abs() - sa).abs() < 1e-3);
+        assert!(axes[2][2].abs() > 0.999);
+    }
 
     /// The collision conserves momentum and kinetic energy and reverses the relative velocity
     /// of the particle and the triangle's point (the vertices' velocities averaged with `λ`).

@@ -97,7 +97,7 @@ mod topology;
 mod viscous;
 
 #[cfg(test)]
-mod test_support;
+pub(crate) mod test_support;
 
 pub use energy::{EnergyParts, Membrane, Term};
 pub use params::{sphere_spontaneous_angle, Bending, BendingModel, MembraneParams, Moduli};

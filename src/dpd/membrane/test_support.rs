@@ -29,7 +29,7 @@ pub(super) fn octahedron() -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
 /// The icosphere (the icosahedron subdivided `k` times, midpoints pushed to the unit sphere):
 /// the parameter-sphere points of [`crate::vesicle::CellMesh::icosphere`], used here as a
 /// plain test mesh (the membrane code itself does not depend on the vesicle module).
-pub(super) fn icosphere(k: usize) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
+pub(crate) fn icosphere(k: usize) -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
     let surface = crate::vesicle::shapes::sphere(2, 1.0).expect("unit sphere");
     let mesh = crate::vesicle::CellMesh::icosphere(&surface, k as u32).expect("icosphere");
     (mesh.sphere_points, mesh.triangles)
