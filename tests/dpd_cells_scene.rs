@@ -83,36 +83,20 @@ fn bad_cell_entries_name_the_line_and_the_problem() {
         e.contains("[dpd.coupling]") && e.contains("gamma_out"),
         "{e}"
     );
-    // Two overlapping cells, and a cell too large for the box: refused when the run is built.
-    let dir = tmpdir("bad");
-    let two = format!(
+    // Two overlapping cells, and a cell too large for the box.
+    let e = err_of(&format!(
         "{BASE}\n[[dpd.cells]]\nshape = \"sphere\"\nradius = 2.0\ncenter = [5.0, 4.0, 4.0]\n\
          shear_modulus = 100.0\nbending_rigidity = 20.0\n"
+    ));
+    assert!(
+        e.contains("entry 2") && e.contains("overlaps entry 1"),
+        "{e}"
     );
-    let scene = dir.join("two.toml");
-    std::fs::write(&scene, two).unwrap();
-    let o = mobo(&[
-        "dpd",
-        scene.to_str().unwrap(),
-        "--out",
-        dir.join("o").to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(!o.status.success());
-    let msg = String::from_utf8_lossy(&o.stderr);
-    assert!(msg.contains("overlap"), "{msg}");
-    let big = BASE.replace("radius = 2.0", "radius = 3.5");
-    std::fs::write(&scene, big).unwrap();
-    let o = mobo(&[
-        "dpd",
-        scene.to_str().unwrap(),
-        "--out",
-        dir.join("o2").to_str().unwrap(),
-        "--quiet",
-    ]);
-    assert!(!o.status.success());
-    let msg = String::from_utf8_lossy(&o.stderr);
-    assert!(msg.contains("must fit in the box"), "{msg}");
+    let e = err_of(&BASE.replace("radius = 2.0", "radius = 3.5"));
+    assert!(
+        e.starts_with("s.toml:14:") && e.contains("must fit in the box"),
+        "{e}"
+    );
 }
 
 fn arrays(dir: &Path) -> Vec<(String, Vec<u64>)> {

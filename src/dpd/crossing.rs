@@ -47,8 +47,9 @@ pub struct Crossing {
     pub t: f64,
     /// Barycentric coordinates `(λ_a, λ_b, λ_c)` of the meeting point in the triangle at `t`.
     pub bary: [f64; 3],
-    /// Sign of `F(0)`: `+1` if the particle started on the side the normal
-    /// `(B − A) × (C − A)` points to (outside, for an outward-oriented surface), `−1` if not.
+    /// The side the particle came from: `+1` if it arrived from the side the normal
+    /// `(B − A) × (C − A)` points to (outside, for an outward-oriented surface), `−1` if not
+    /// (the sign of `F` just before the crossing).
     pub side: f64,
 }
 
@@ -167,12 +168,11 @@ pub fn first_crossing(
         push(-qc / qb);
     }
     breaks[nb] = 1.0;
-    let side = f0.signum();
     let mut lo_val = f0;
     for k in 0..nb {
         let (mut lo, mut hi) = (breaks[k], breaks[k + 1]);
         let hi_val = f(hi);
-        let crosses = hi_val == 0.0 || (hi_val.signum() != lo_val.signum() && lo_val != 0.0);
+        let crosses = lo_val != 0.0 && (hi_val == 0.0 || hi_val.signum() != lo_val.signum());
         let next_lo_val = hi_val;
         if crosses {
             // Bisect to the last bit: the root is the first t with sign(F) ≠ side.
@@ -190,6 +190,7 @@ pub fn first_crossing(
                 }
             }
             let t = hi;
+            let side = sgn_lo;
             let q = lerp(p0, dp, t);
             let tri = [lerp(a0, da, t), lerp(b0, db, t), lerp(c0, dc, t)];
             if let Some(bary) = barycentric(q, tri[0], tri[1], tri[2]) {

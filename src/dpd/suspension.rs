@@ -90,7 +90,9 @@ pub struct CouplingParams {
     /// Kernel exponent `k` of the solvent–vertex pairs.
     pub power: f64,
     /// Extra dissipative coefficient `γ_Δ ≥ 0` between inner solvent particles of the same
-    /// cell (a more viscous inner fluid); 0 for the same fluid inside and out.
+    /// cell (a more viscous inner fluid); 0 for the same fluid inside and out (scene key and
+    /// JSON `inner_gamma`).
+    #[serde(rename = "inner_gamma")]
     pub inner_extra_gamma: f64,
     /// Amplitude of the conservative repulsion `a_c w e` between vertices of different cells.
     pub contact_a: f64,
@@ -526,7 +528,26 @@ impl DpdSuspension {
             force[0],
             "must be finite",
         )?;
+        // The stored forces (of the next half kick) change by the difference: on the
+        // vertices, and its opposite on the moving outer solvent.
+        let delta = [0, 1, 2].map(|k| force[k] - c.external[k]);
         c.external = force;
+        let nv = c.f.len() as f64;
+        for f in &mut c.f {
+            for k in 0..3 {
+                f[k] += delta[k] / nv;
+            }
+        }
+        let p = &self.fluid.particles;
+        let outer: Vec<usize> = (0..p.len())
+            .filter(|&i| p.moves[i] != 0.0 && self.owner[p.id[i] as usize] == OUTSIDE)
+            .collect();
+        let n_outer = outer.len().max(1) as f64;
+        for i in outer {
+            self.fluid.fx[i] -= delta[0] / n_outer;
+            self.fluid.fy[i] -= delta[1] / n_outer;
+            self.fluid.fz[i] -= delta[2] / n_outer;
+        }
         Ok(())
     }
 
@@ -597,8 +618,9 @@ impl DpdSuspension {
                 }
             }
         }
-        self.bounce_off_membranes();
+        self.check_vertex_drift()?;
         self.bounce_vertices_off_wall();
+        self.bounce_off_membranes();
         self.fluid.settle()?;
         self.add_coupling_forces()?;
         self.fluid.kick();
@@ -612,6 +634,24 @@ impl DpdSuspension {
         let every = self.coupling.check_every;
         if every > 0 && self.fluid.step.is_multiple_of(every) {
             self.count_leaks();
+        }
+        Ok(())
+    }
+
+    /// A vertex that is not finite or moved more than a quarter of the box in one step: the
+    /// time step is too large for the membrane's forces ([`DpdError::Unstable`]).
+    fn check_vertex_drift(&self) -> Result<(), DpdError> {
+        let l = self.fluid.params.box_len;
+        for c in &self.cells {
+            for (vi, (x, xo)) in c.x.iter().zip(&c.x_old).enumerate() {
+                if (0..3).any(|k| !x[k].is_finite() || (x[k] - xo[k]).abs() > 0.25 * l[k]) {
+                    return Err(DpdError::Unstable {
+                        step: self.fluid.step,
+                        particle: c.id0 as usize + vi,
+                        position: *x,
+                    });
+                }
+            }
         }
         Ok(())
     }
@@ -673,7 +713,10 @@ impl DpdSuspension {
             let lo = [0, 1, 2].map(|k| lo0[k].min(lo1[k]) - 1e-9);
             let hi = [0, 1, 2].map(|k| hi0[k].max(hi1[k]) + 1e-9);
             let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-            let dims = [0, 1, 2].map(|k| (((hi[k] - lo[k]) / rc).ceil() as usize).max(1));
+            // (The drift check bounds the box; the cap keeps the grid small regardless.)
+            let dims = [0, 1, 2].map(|k| {
+                (((hi[k] - lo[k]) / rc).ceil() as usize).clamp(1, (l[k] / rc) as usize + 2)
+            });
             let bin_of = |p: [f64; 3]| {
                 [0, 1, 2]
                     .map(|k| (((p[k] - lo[k]) / rc).floor().max(0.0) as usize).min(dims[k] - 1))
@@ -750,9 +793,18 @@ impl DpdSuspension {
                             q[k] += lam[j] * c.x[vtx][k];
                         }
                     }
-                    // The collision with the triangle's point (see `collision_impulse`).
+                    // The collision with the triangle's point (see `collision_impulse`), whose
+                    // velocity now is Σλ_k v_k (the vertices' current velocities: an earlier
+                    // collision in this step may have changed them since they drifted with
+                    // `u`), so that every collision conserves energy; `u` places the particle.
+                    let mut up = [0.0; 3];
+                    for (j, &vtx) in tri.iter().enumerate() {
+                        for k in 0..3 {
+                            up[k] += lam[j] * c.v[vtx][k];
+                        }
+                    }
+                    let jmp = collision_impulse([0, 1, 2].map(|k| vel[k] - up[k]), lam, ms, mv);
                     let w = [0, 1, 2].map(|k| vel[k] - u[k]);
-                    let jmp = collision_impulse(w, lam, ms, mv);
                     for k in 0..3 {
                         vel[k] += jmp[k] / ms;
                     }
@@ -803,17 +855,20 @@ impl DpdSuspension {
         let l = self.fluid.params.box_len;
         let speed = self.fluid.wall_speed;
         for c in &mut self.cells {
-            for (x, v) in c.x.iter_mut().zip(c.v.iter_mut()) {
+            for ((x, xo), v) in c.x.iter_mut().zip(&c.x_old).zip(c.v.iter_mut()) {
                 let w = wrap(*x, l);
                 if wall.sdf(w) < 0.0 {
                     continue;
                 }
-                let (wn, vn) = wall.bounce(w, *v, dt);
+                // The path of this step's drift, x_old → x.
+                let disp = [0, 1, 2].map(|k| (x[k] - xo[k]) / dt);
+                let (wn, _) = wall.bounce(w, disp, dt);
                 let uw = super::system::wall_velocity(wall, speed, wn);
                 for k in 0..3 {
                     x[k] += wn[k] - w[k];
                 }
-                *v = [vn[0] + 2.0 * uw[0], vn[1], vn[2]];
+                // The velocity relative to the wall reversed.
+                *v = [0, 1, 2].map(|k| 2.0 * uw[k] - v[k]);
             }
         }
     }
@@ -846,7 +901,7 @@ impl DpdSuspension {
                 &c.x,
                 &c.v,
                 step,
-                mix64(params.seed ^ SALT_MEMBRANE ^ ci as u64),
+                mix64(params.seed ^ SALT_MEMBRANE).wrapping_add(ci as u64),
                 dt,
                 &mut c.f,
             )?;

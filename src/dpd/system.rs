@@ -417,6 +417,8 @@ impl DpdSystem {
                 p.vx[i] += speed * (2.0 * p.z[i] - lo - hi) / (hi - lo);
             }
         }
+        // The dissipative forces of the next half kick see the new velocities.
+        self.compute_forces();
         Ok(())
     }
 

@@ -504,9 +504,27 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         .validate()
         .map_err(|e| SceneError::new(file, format!("[dpd]: {e}")))?;
     let coupling = coupling_params(file, text, d.coupling.as_ref())?;
-    let mut cells = Vec::with_capacity(d.cells.len());
+    let mut cells: Vec<DpdCell> = Vec::with_capacity(d.cells.len());
     for (k, c) in d.cells.iter().enumerate() {
-        cells.push(cell(file, text, k, c, &params, wall.as_ref())?);
+        let built = cell(file, text, k, c, &params, wall.as_ref())?;
+        if let Some(j) = cells
+            .iter()
+            .position(|other| overlap(&other.spec, &built.spec, box_len))
+        {
+            let mut e = SceneError::new(
+                file,
+                format!(
+                    "[[dpd.cells]] entry {}: center: the cell overlaps entry {} (a vertex of \
+                     one is inside the other)",
+                    k + 1,
+                    j + 1
+                ),
+            );
+            e.place = cell_key_place(text, k, "center")
+                .or_else(|| section_place(text, "[[dpd.cells]]", k));
+            return Err(e);
+        }
+        cells.push(built);
     }
     Ok(DpdScene {
         params,
@@ -679,7 +697,7 @@ fn cell(
         gamma_t: c.gamma_t,
         gamma_c: c.gamma_c,
     })
-    .map_err(|e| located("shear_modulus", e.to_string()))?;
+    .map_err(|e| located("membrane moduli", e.to_string()))?;
     let l = params.box_len;
     for a in 0..3 {
         if !(c.center[a].is_finite() && c.center[a] >= 0.0 && c.center[a] < l[a]) {
@@ -700,6 +718,24 @@ fn cell(
         .iter()
         .map(|v| [0, 1, 2].map(|a| v[a] + c.center[a]))
         .collect();
+    for a in 0..3 {
+        let (lo, hi) = vertices
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+                (lo.min(v[a]), hi.max(v[a]))
+            });
+        if hi - lo + 2.0 * params.pair.rc > l[a] {
+            return Err(located(
+                "radius",
+                format!(
+                    "the cell spans {:.3} along {}: with 2 r_c it must fit in the box ({})",
+                    hi - lo,
+                    ["x", "y", "z"][a],
+                    l[a]
+                ),
+            ));
+        }
+    }
     if let Some(w) = wall {
         if let Some(v) = vertices
             .iter()
@@ -728,6 +764,34 @@ fn cell(
         },
         force,
     })
+}
+
+/// Whether a vertex of either cell is inside the other (nearest periodic images).
+fn overlap(a: &CellSpec, b: &CellSpec, l: [f64; 3]) -> bool {
+    use crate::dpd::crossing::inside;
+    let centre = |v: &[[f64; 3]]| {
+        let n = v.len() as f64;
+        [0, 1, 2].map(|k| v.iter().map(|p| p[k]).sum::<f64>() / n)
+    };
+    let extent = |v: &[[f64; 3]], c: [f64; 3]| {
+        v.iter()
+            .map(|p| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f64>().sqrt())
+            .fold(0.0, f64::max)
+    };
+    let (ca, cb) = (centre(&a.vertices), centre(&b.vertices));
+    let image =
+        |p: [f64; 3], c: [f64; 3]| [0, 1, 2].map(|k| p[k] - l[k] * ((p[k] - c[k]) / l[k]).round());
+    let d = image(cb, ca);
+    let dist = (0..3).map(|k| (d[k] - ca[k]).powi(2)).sum::<f64>().sqrt();
+    if dist > extent(&a.vertices, ca) + extent(&b.vertices, cb) {
+        return false;
+    }
+    b.vertices
+        .iter()
+        .any(|&p| inside(image(p, ca), &a.vertices, &a.triangles))
+        || a.vertices
+            .iter()
+            .any(|&p| inside(image(p, cb), &b.vertices, &b.triangles))
 }
 
 /// Line and column of the `k`-th header `header` (e.g. `[[dpd.cells]]`).
