@@ -53,8 +53,8 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
     );
     let e = err_of(&BASE.replace("steps = 120", "steps = 120\nt_end = 3.0"));
     assert!(e.contains("either steps or t_end"), "{e}");
-    let e = err_of(&BASE.replace("flow = \"periodic_poiseuille\"", "flow = \"couette\""));
-    assert!(e.contains("unknown flow \"couette\""), "{e}");
+    let e = err_of(&BASE.replace("flow = \"periodic_poiseuille\"", "flow = \"vortex\""));
+    assert!(e.contains("unknown flow \"vortex\""), "{e}");
     let e = err_of(&BASE.replace("force = 0.2\n", ""));
     assert!(e.contains("force") && e.contains("required"), "{e}");
     let e = err_of(&BASE.replace(
