@@ -585,6 +585,30 @@ impl DpdSuspension {
         p
     }
 
+    /// Kinetic temperature of the inner solvent of cell `cell`, `m ⟨|v − v̄|²⟩/3` about its
+    /// mean velocity (NaN if it has fewer than two particles).
+    pub fn inner_temperature(&self, cell: usize) -> f64 {
+        let p = &self.fluid.particles;
+        let members: Vec<usize> = (0..p.len())
+            .filter(|&i| self.owner[p.id[i] as usize] == cell as u32)
+            .collect();
+        let n = members.len();
+        if n < 2 {
+            return f64::NAN;
+        }
+        let mean =
+            [&p.vx, &p.vy, &p.vz].map(|v| members.iter().map(|&i| v[i]).sum::<f64>() / n as f64);
+        let s: f64 = members
+            .iter()
+            .map(|&i| {
+                (p.vx[i] - mean[0]).powi(2)
+                    + (p.vy[i] - mean[1]).powi(2)
+                    + (p.vz[i] - mean[2]).powi(2)
+            })
+            .sum();
+        self.fluid.params.mass * s / (3.0 * (n - 1) as f64)
+    }
+
     /// Kinetic temperature of the vertices, `m_v ⟨|v − v̄_cell|²⟩ / 3` (each cell's mean
     /// velocity removed).
     pub fn vertex_temperature(&self) -> f64 {
