@@ -170,7 +170,8 @@ pub struct DpdSummary {
     pub bounces: Option<u64>,
     /// Moving (fluid) particles; the rest are frozen wall particles.
     pub fluid_particles: usize,
-    /// Periodic Poiseuille flow: the viscosity fitted to the velocity profile.
+    /// Periodic or walled Poiseuille flow of the fluid alone: the viscosity fitted to the velocity
+    /// profile (`null` with cells, which disturb the profile).
     pub viscosity: Option<ViscositySummary>,
     /// Couette flow: the shear rate fitted to the profile (`null` otherwise).
     pub shear_rate: Option<ShearRate>,
@@ -438,8 +439,12 @@ pub fn effects(scene: &DpdScene) -> Vec<Effect> {
             name: "periodic Poiseuille body force",
             enabled: matches!(scene.body, BodyForce::ReversePoiseuille { .. }),
             reason: match scene.body {
-                BodyForce::ReversePoiseuille { force } => format!(
+                BodyForce::ReversePoiseuille { force } if scene.cells.is_empty() => format!(
                     "flow = \"periodic_poiseuille\", force = {force}: viscosity fitted to the profile"
+                ),
+                BodyForce::ReversePoiseuille { force } => format!(
+                    "flow = \"periodic_poiseuille\", force = {force}: no viscosity fit (the \
+                     cells disturb the profile; profile.csv has it)"
                 ),
                 _ => "flow = \"none\"".into(),
             },
@@ -605,7 +610,10 @@ pub fn run(
         push_row(&mut rows, &model);
     }
     checkpoint(&model, &sampler, &rows, wall_before, p0).write(&ckpt_path)?;
-    let fit = driving_force(scene).and_then(|g| sampler.viscosity(model.fluid().density(), g));
+    // With cells in the flow the profile is not the fluid's alone: no viscosity is fitted.
+    let fit = driving_force(scene)
+        .filter(|_| scene.cells.is_empty())
+        .and_then(|g| sampler.viscosity(model.fluid().density(), g));
     let flow_kt = sampler.flow_temperature(scene.params.mass);
     let shear = shear_rate(scene, &sampler);
     let summary = summarise(
