@@ -71,6 +71,7 @@
 // Component loops over 3-vectors read best with the index.
 #![allow(clippy::needless_range_loop)]
 
+use super::cell_list::CellList;
 use super::crossing::{first_crossing, inside};
 use super::membrane::{Membrane, MembraneParams, MembraneTopology};
 use super::pair_force::minimum_image;
@@ -701,11 +702,13 @@ impl DpdSuspension {
         let p = &self.fluid.particles;
         let l = self.fluid.params.box_len;
         let mut out = vec![OUTSIDE; self.owner.len()];
+        let mut near = Vec::new();
         for (ci, c) in self.cells.iter().enumerate() {
             let (lo, hi) = bbox(&c.x);
             let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
             let tris = c.membrane.topology().triangles();
-            for i in 0..p.len() {
+            particles_near(self.fluid.cell_list(), lo, hi, &mut near);
+            for &i in &near {
                 if p.moves[i] == 0.0 {
                     continue;
                 }
@@ -728,6 +731,7 @@ impl DpdSuspension {
         let ms = self.fluid.params.mass;
         let mv = self.coupling.vertex_mass;
         let rc = self.fluid.params.pair.rc;
+        let mut near = Vec::new();
         for c in &mut self.cells {
             let tris = c.membrane.topology().triangles();
             // Swept bounding box of the membrane over the step, and a bin grid of side r_c
@@ -759,8 +763,11 @@ impl DpdSuspension {
                     }
                 }
             }
+            // Candidates: the particles of the cells around the swept box (a particle moves
+            // far less than a cell, r_c, in a step since the last sort).
+            particles_near(self.fluid.cell_list(), lo, hi, &mut near);
             let p = &mut self.fluid.particles;
-            for i in 0..p.len() {
+            for &i in &near {
                 if p.moves[i] == 0.0 {
                     continue;
                 }
@@ -1009,8 +1016,13 @@ impl DpdSuspension {
         if cp.inner_extra_gamma > 0.0 {
             let key_in = step_key(params.seed ^ SALT_INNER, step);
             let sigma = (2.0 * cp.inner_extra_gamma * kbt).sqrt();
+            let mut near = Vec::new();
             for ci in 0..self.cells.len() {
-                let members: Vec<usize> = (0..p.len())
+                let (lo, hi) = bbox(&self.cells[ci].x);
+                particles_near(cells_list, lo, hi, &mut near);
+                let members: Vec<usize> = near
+                    .iter()
+                    .copied()
                     .filter(|&i| self.owner[p.id[i] as usize] == ci as u32)
                     .collect();
                 for (a, &i) in members.iter().enumerate() {
@@ -1160,6 +1172,33 @@ fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
         a[2] * b[0] - a[0] * b[2],
         a[0] * b[1] - a[1] * b[0],
     ]
+}
+
+/// The particles (indices into the sorted arrays) of the cells of `cells` that overlap the box
+/// `[lo, hi]` widened by one cell on every side, periodic images included, into `out`: every
+/// particle within a cell side of the box at the last sort.
+fn particles_near(cells: &CellList, lo: [f64; 3], hi: [f64; 3], out: &mut Vec<usize>) {
+    out.clear();
+    let g = &cells.grid;
+    let range = |k: usize| -> Vec<usize> {
+        let n = g.dims[k] as i64;
+        let a = (lo[k] * g.inv_cell[k]).floor() as i64 - 1;
+        let b = (hi[k] * g.inv_cell[k]).floor() as i64 + 1;
+        if b - a + 1 >= n {
+            (0..g.dims[k]).collect()
+        } else {
+            (a..=b).map(|c| c.rem_euclid(n) as usize).collect()
+        }
+    };
+    let (rx, ry, rz) = (range(0), range(1), range(2));
+    for &cz in &rz {
+        for &cy in &ry {
+            for &cx in &rx {
+                let c = (cz * g.dims[1] + cy) * g.dims[0] + cx;
+                out.extend(cells.starts[c]..cells.starts[c + 1]);
+            }
+        }
+    }
 }
 
 /// Axis-aligned bounding box.

@@ -353,6 +353,11 @@ impl DpdSystem {
         self.timings.integrate_s += t0.elapsed().as_secs_f64();
     }
 
+    /// The cell list of the particles as last sorted (by [`Self::settle`]).
+    pub(crate) fn cell_list(&self) -> &CellList {
+        &self.cells
+    }
+
     /// The cell list and the particles (sorted by it), with the force arrays to add to: what
     /// a coupled model needs to add pair forces with the solvent.
     pub(crate) fn split_for_coupling(&mut self) -> (&CellList, &Particles, [&mut Vec<f64>; 3]) {
