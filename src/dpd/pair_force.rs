@@ -80,7 +80,7 @@ impl PairParams {
 }
 
 #[inline(always)]
-fn weight_r(power: f64, w: f64) -> f64 {
+pub(crate) fn weight_r(power: f64, w: f64) -> f64 {
     if power == 1.0 {
         w
     } else if power == 0.5 {

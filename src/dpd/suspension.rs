@@ -958,7 +958,7 @@ impl DpdSuspension {
         // Solvent–vertex pairs.
         let (cells_list, p, [fx, fy, fz]) = self.fluid.split_for_coupling();
         let (grid, starts) = (&cells_list.grid, &cells_list.starts);
-        let weight = |w: f64| if cp.power == 1.0 { w } else { w.powf(cp.power) };
+        let weight = |w: f64| super::pair_force::weight_r(cp.power, w);
         for (ci, c) in self.cells.iter_mut().enumerate() {
             for (vi, (x, (v, f))) in c.x.iter().zip(c.v.iter().zip(c.f.iter_mut())).enumerate() {
                 let xw = wrap(*x, l);
