@@ -64,18 +64,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let lengths = mesh.edge_lengths();
     let l0 = lengths.iter().sum::<f64>() / lengths.len() as f64;
     let membrane = MembraneParams::from_moduli(&Moduli {
-        shear_modulus: mu0,
-        bending_rigidity: 2.0,
-        bending: BendingModel::Juelicher { c0: 2.0 / radius },
         ka: 0.5 * mu0,
         kd: 0.5 * mu0,
-        kv: 5000.0,
-        kbt: 1.0,
-        x0: 1.0 / 2.2,
-        m: 2.0,
-        mean_edge_length: l0,
         gamma_t: 0.0,
         gamma_c: Some(0.0),
+        ..Moduli::new(mu0, 2.0, BendingModel::Juelicher { c0: 2.0 / radius }, l0)
     })?;
     let centre = [0.5 * box_len[0], 0.5 * box_len[1], 0.5 * box_len[2]];
     let cell = CellSpec {

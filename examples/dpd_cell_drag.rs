@@ -62,20 +62,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mesh = CellMesh::icosphere(&shapes::sphere(8, radius)?, sub as u32)?;
     let lengths = mesh.edge_lengths();
     let l0 = lengths.iter().sum::<f64>() / lengths.len() as f64;
-    let membrane = MembraneParams::from_moduli(&Moduli {
-        shear_modulus: 100.0,
-        bending_rigidity: 20.0,
-        bending: BendingModel::Juelicher { c0: 2.0 / radius },
-        ka: 4900.0,
-        kd: 100.0,
-        kv: 5000.0,
-        kbt: 1.0,
-        x0: 1.0 / 2.2,
-        m: 2.0,
-        mean_edge_length: l0,
-        gamma_t: 20.0,
-        gamma_c: None,
-    })?;
+    let membrane = MembraneParams::from_moduli(&Moduli::new(
+        100.0,
+        20.0,
+        BendingModel::Juelicher { c0: 2.0 / radius },
+        l0,
+    ))?;
     let c = 0.5 * side;
     let cell = CellSpec {
         vertices: mesh.vertices.iter().map(|v| v.map(|x| x + c)).collect(),

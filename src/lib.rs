@@ -21,6 +21,7 @@
 //!
 //! * [`durable`]: atomic file replacement and the FNV-1a checksum, below every other layer.
 //! * [`check`]: relative max-norm errors of a fast routine against its reference (tests).
+//! * [`linalg3`]: the eigen-decomposition of symmetric 3 × 3 matrices.
 //! * [`comm`]: the communicator the distributed algorithms are written against (one rank, or
 //!   MPI ranks with the `mpi` feature).
 //! * [`gpu`]: one wgpu device per process and batched pair sums on it (`gpu` feature).
@@ -63,6 +64,7 @@ pub mod durable;
 pub mod fmm;
 pub mod gpu;
 pub mod io;
+pub mod linalg3;
 pub mod report;
 pub mod scene;
 pub mod sph_harmonics;

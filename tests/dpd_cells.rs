@@ -38,20 +38,12 @@ fn sphere_cell(radius: f64, centre: [f64; 3], subdivisions: u32) -> CellSpec {
     let mesh = CellMesh::icosphere(&shapes::sphere(8, radius).unwrap(), subdivisions).unwrap();
     let lengths = mesh.edge_lengths();
     let l0 = lengths.iter().sum::<f64>() / lengths.len() as f64;
-    let params = MembraneParams::from_moduli(&Moduli {
-        shear_modulus: 100.0,
-        bending_rigidity: 20.0,
-        bending: BendingModel::Juelicher { c0: 2.0 / radius },
-        ka: 4900.0,
-        kd: 100.0,
-        kv: 5000.0,
-        kbt: 1.0,
-        x0: 1.0 / 2.2,
-        m: 2.0,
-        mean_edge_length: l0,
-        gamma_t: 20.0,
-        gamma_c: None,
-    })
+    let params = MembraneParams::from_moduli(&Moduli::new(
+        100.0,
+        20.0,
+        BendingModel::Juelicher { c0: 2.0 / radius },
+        l0,
+    ))
     .unwrap();
     CellSpec {
         vertices: mesh

@@ -5,9 +5,8 @@
 mod common;
 
 use std::path::Path;
-use std::process::Output;
 
-use common::{checkpoint_bits, mobo, summary, tmpdir};
+use common::{checkpoint_bits, mobo, ok, summary, tmpdir, DPD_PARTICLE_ARRAYS};
 use mobo::scene::dpd::parse;
 
 /// A sphere of radius 2 pulled along x through the standard fluid in a box of 8.
@@ -37,15 +36,6 @@ check_every = 10
 
 fn err_of(text: &str) -> String {
     parse(Path::new("s.toml"), text).unwrap_err().to_string()
-}
-
-fn ok(o: &Output, what: &str) {
-    assert!(
-        o.status.success(),
-        "{what}: {}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
 }
 
 #[test]
@@ -100,26 +90,18 @@ fn bad_cell_entries_name_the_line_and_the_problem() {
 }
 
 fn arrays(dir: &Path) -> Vec<(String, Vec<u64>)> {
-    checkpoint_bits(
-        dir,
-        &[
-            "x",
-            "y",
-            "z",
-            "vx",
-            "vy",
-            "vz",
-            "fx",
-            "fy",
-            "fz",
-            "id",
+    let names: Vec<&str> = DPD_PARTICLE_ARRAYS
+        .iter()
+        .copied()
+        .chain([
             "cell0_x",
             "cell0_v",
             "cell0_f",
             "owner",
             "membrane_counters",
-        ],
-    )
+        ])
+        .collect();
+    checkpoint_bits(dir, &names)
 }
 
 #[test]

@@ -107,21 +107,7 @@ fn mean_edge(mesh: &CellMesh) -> f64 {
 /// Parameters in units of the equivalent radius and `k_BT = 1`: μ0 = 100 with Fedosov's
 /// `k_a = 4900, k_d = 100, k_v = 5000`, and bending rigidity `kappa`.
 fn reduced_params_kappa(l0: f64, bending: BendingModel, kappa: f64) -> MembraneParams {
-    MembraneParams::from_moduli(&Moduli {
-        shear_modulus: 100.0,
-        bending_rigidity: kappa,
-        bending,
-        ka: 4900.0,
-        kd: 100.0,
-        kv: 5000.0,
-        kbt: 1.0,
-        x0: 1.0 / 2.2,
-        m: 2.0,
-        mean_edge_length: l0,
-        gamma_t: 20.0,
-        gamma_c: None,
-    })
-    .unwrap()
+    MembraneParams::from_moduli(&Moduli::new(100.0, kappa, bending, l0)).unwrap()
 }
 
 /// [`reduced_params_kappa`] with a large bending rigidity κ = 50 (bending forces comparable

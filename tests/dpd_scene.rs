@@ -1,18 +1,12 @@
 //! `mobo dpd`: scene errors that name the file, the place and the problem; a run's files;
 //! bit-for-bit restart from a checkpoint; the example scene.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+mod common;
 
-use mobo::io::checkpoint::Checkpoint;
+use std::path::Path;
+
+use common::{checkpoint_bits, mobo, ok, summary, tmpdir, DPD_PARTICLE_ARRAYS};
 use mobo::scene::dpd::parse;
-
-fn tmpdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("mobo-dpd-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
 
 const BASE: &str = r#"[dpd]
 box = [5.0, 5.0, 8.0]
@@ -96,43 +90,13 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
     assert!(e.starts_with("s.toml:3:"), "{e}");
 }
 
-fn mobo(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_mobo"))
-        .args(args)
-        .output()
-        .expect("mobo runs")
-}
-
-fn ok(o: &Output, what: &str) {
-    assert!(
-        o.status.success(),
-        "{what}: {}\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-}
-
 fn arrays(dir: &Path) -> Vec<(String, Vec<u64>)> {
-    let c = Checkpoint::read(&dir.join("checkpoint.bin")).unwrap();
-    [
-        "x",
-        "y",
-        "z",
-        "vx",
-        "vy",
-        "vz",
-        "fx",
-        "fy",
-        "fz",
-        "id",
-        "profile_sampler",
-    ]
-    .iter()
-    .map(|n| {
-        let a = c.get(n).unwrap_or_else(|| panic!("array {n}"));
-        (n.to_string(), a.data.iter().map(|v| v.to_bits()).collect())
-    })
-    .collect()
+    let names: Vec<&str> = DPD_PARTICLE_ARRAYS
+        .iter()
+        .copied()
+        .chain(["profile_sampler"])
+        .collect();
+    checkpoint_bits(dir, &names)
 }
 
 #[test]
@@ -155,8 +119,7 @@ fn a_run_writes_its_files_and_a_resumed_run_continues_bit_for_bit() {
     ] {
         assert!(whole.join(f).is_file(), "{f} missing");
     }
-    let sum: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(whole.join("summary.json")).unwrap()).unwrap();
+    let sum = summary(&whole);
     assert_eq!(sum["particles"].as_u64(), Some(600));
     assert_eq!(sum["steps"].as_u64(), Some(120));
     assert!(sum["particle_steps_per_second"].as_f64().unwrap() > 0.0);
@@ -270,8 +233,7 @@ fn the_example_scene_runs_shortened() {
         ]),
         "example",
     );
-    let sum: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    let sum = summary(&out);
     assert_eq!(sum["particles"].as_u64(), Some(6000));
     assert!(sum["viscosity"].is_object());
     // The kinetic temperature includes the driven flow; about the profile it is near k_BT
@@ -303,8 +265,7 @@ fn a_channel_run_reports_walls_and_resumes_bit_for_bit() {
         &mobo(&["dpd", s, "--out", whole.to_str().unwrap(), "--quiet"]),
         "channel run",
     );
-    let sum: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(whole.join("summary.json")).unwrap()).unwrap();
+    let sum = summary(&whole);
     assert_eq!(sum["leaked_particles"].as_u64(), Some(0));
     assert!(sum["bounces"].as_u64().unwrap() > 0);
     let fluid = sum["fluid_particles"].as_u64().unwrap();

@@ -358,25 +358,7 @@ mod tests {
 
     #[test]
     fn winding_number_of_an_octahedron() {
-        let v = [
-            [1.0, 0.0, 0.0],
-            [-1.0, 0.0, 0.0],
-            [0.0, 1.0, 0.0],
-            [0.0, -1.0, 0.0],
-            [0.0, 0.0, 1.0],
-            [0.0, 0.0, -1.0],
-        ];
-        // Counter-clockwise seen from outside.
-        let t = [
-            [0, 2, 4],
-            [2, 1, 4],
-            [1, 3, 4],
-            [3, 0, 4],
-            [2, 0, 5],
-            [1, 2, 5],
-            [3, 1, 5],
-            [0, 3, 5],
-        ];
+        let (v, t) = crate::dpd::membrane::test_support::octahedron();
         let total: f64 = t
             .iter()
             .map(|&[a, b, c]| solid_angle([0.1, -0.2, 0.05], v[a], v[b], v[c]))

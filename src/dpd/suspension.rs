@@ -74,7 +74,7 @@
 use super::cell_list::CellList;
 use super::crossing::{first_crossing, inside};
 use super::membrane::{Membrane, MembraneParams, MembraneTopology};
-use super::pair_force::minimum_image;
+use super::pair_force::{minimum_image, Particles};
 use super::rng::{mix64, normal, pair_noise, step_key, stream};
 use super::system::{BodyForce, DpdSystem};
 use super::{require, DpdError};
@@ -175,6 +175,45 @@ pub struct CellSpec {
     pub params: MembraneParams,
 }
 
+impl CellSpec {
+    /// Whether a vertex of either cell is inside the other, in a periodic box of sides `box_len`
+    /// (nearest images); see [`meshes_overlap`].
+    pub fn overlaps(&self, other: &CellSpec, box_len: [f64; 3]) -> bool {
+        meshes_overlap(
+            &self.vertices,
+            &self.triangles,
+            &other.vertices,
+            &other.triangles,
+            box_len,
+        )
+    }
+}
+
+/// Whether a vertex of either closed mesh `(va, ta)`, `(vb, tb)` is inside the other (winding
+/// number, nearest periodic images in a box of sides `l`); meshes whose bounding spheres about
+/// their vertex means are apart are not tested further.
+pub fn meshes_overlap(
+    va: &[[f64; 3]],
+    ta: &[[usize; 3]],
+    vb: &[[f64; 3]],
+    tb: &[[usize; 3]],
+    l: [f64; 3],
+) -> bool {
+    let extent = |v: &[[f64; 3]], c: [f64; 3]| {
+        v.iter()
+            .map(|p| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f64>().sqrt())
+            .fold(0.0, f64::max)
+    };
+    let (ca, cb) = (mean(va), mean(vb));
+    let d = image_near(cb, ca, l);
+    let dist = (0..3).map(|k| (d[k] - ca[k]).powi(2)).sum::<f64>().sqrt();
+    if dist > extent(va, ca) + extent(vb, cb) {
+        return false;
+    }
+    vb.iter().any(|&p| inside(image_near(p, ca, l), va, ta))
+        || va.iter().any(|&p| inside(image_near(p, cb, l), vb, tb))
+}
+
 /// One cell in the fluid.
 #[derive(Clone, Debug)]
 pub struct FluidCell {
@@ -245,11 +284,11 @@ impl FluidCell {
                 }
             }
         }
-        let (vals, vecs) = symmetric_eigen3(m);
-        let mut order = [0usize, 1, 2];
-        order.sort_by(|&a, &b| vals[b].total_cmp(&vals[a]));
+        // Ascending eigenvalues; the semi-axes descending.
+        let (vals, vecs) = crate::linalg3::symmetric_eigen3(m);
+        let order = [2, 1, 0];
         let semi = order.map(|k| (5.0 * vals[k].max(0.0) / vol).sqrt());
-        let axes = order.map(|k| [vecs[0][k], vecs[1][k], vecs[2][k]]);
+        let axes = order.map(|k| vecs[k]);
         (semi, axes)
     }
 
@@ -296,6 +335,24 @@ pub struct SuspensionState {
     pub owner: Vec<u32>,
     /// Bounces, leaked particles at the last count, most leaked at any count.
     pub counters: [u64; 3],
+}
+
+/// The counter-force of external forces on cells: `−total`, spread evenly over the moving
+/// solvent outside every cell (the fluid a pressure gradient would push; the inner solvent
+/// moves with its cell), added to the force arrays.
+fn spread_over_outer_solvent(
+    p: &Particles,
+    owner: &[u32],
+    total: [f64; 3],
+    [fx, fy, fz]: [&mut Vec<f64>; 3],
+) {
+    let outer = |i: usize| p.moves[i] != 0.0 && owner[p.id[i] as usize] == OUTSIDE;
+    let n = (0..p.len()).filter(|&i| outer(i)).count().max(1) as f64;
+    for i in (0..p.len()).filter(|&i| outer(i)) {
+        fx[i] -= total[0] / n;
+        fy[i] -= total[1] / n;
+        fz[i] -= total[2] / n;
+    }
 }
 
 /// Collisions of one particle with membranes followed within one step.
@@ -387,18 +444,12 @@ impl DpdSuspension {
         }
         // No vertex of one cell inside another.
         for a in 0..built.len() {
-            for b in 0..built.len() {
-                if a == b {
-                    continue;
-                }
-                let tb = built[b].membrane.topology().triangles().to_vec();
-                let cb = built[b].centroid();
-                if let Some(k) = built[a].x.iter().position(|&p| {
-                    let q = image_near(p, cb, l);
-                    inside(q, &built[b].x, &tb)
-                }) {
+            for b in a + 1..built.len() {
+                let (ca, cb) = (&built[a], &built[b]);
+                let (ta, tb) = (ca.membrane.topology(), cb.membrane.topology());
+                if meshes_overlap(&ca.x, ta.triangles(), &cb.x, tb.triangles(), l) {
                     return Err(DpdError::Mesh(format!(
-                        "cells {a} and {b} overlap: vertex {k} of cell {a} is inside cell {b}"
+                        "cells {a} and {b} overlap: a vertex of one is inside the other"
                     )));
                 }
             }
@@ -539,16 +590,8 @@ impl DpdSuspension {
                 f[k] += delta[k] / nv;
             }
         }
-        let p = &self.fluid.particles;
-        let outer: Vec<usize> = (0..p.len())
-            .filter(|&i| p.moves[i] != 0.0 && self.owner[p.id[i] as usize] == OUTSIDE)
-            .collect();
-        let n_outer = outer.len().max(1) as f64;
-        for i in outer {
-            self.fluid.fx[i] -= delta[0] / n_outer;
-            self.fluid.fy[i] -= delta[1] / n_outer;
-            self.fluid.fz[i] -= delta[2] / n_outer;
-        }
+        let (_, p, f) = self.fluid.split_for_coupling();
+        spread_over_outer_solvent(p, &self.owner, delta, f);
         Ok(())
     }
 
@@ -915,15 +958,6 @@ impl DpdSuspension {
         let cp = self.coupling;
         let key = step_key(params.seed ^ SALT_COUPLING, step);
         let inv_sqrt_dt = 1.0 / dt.sqrt();
-        // The external forces are balanced on the moving outer solvent (the fluid a pressure
-        // gradient would push; the inner solvent moves with its cell).
-        let outer = {
-            let p = &self.fluid.particles;
-            (0..p.len())
-                .filter(|&i| p.moves[i] != 0.0 && self.owner[p.id[i] as usize] == OUTSIDE)
-                .count()
-                .max(1) as f64
-        };
         let mut counter = [0.0; 3];
         for (ci, c) in self.cells.iter_mut().enumerate() {
             c.f.iter_mut().for_each(|f| *f = [0.0; 3]);
@@ -1000,16 +1034,8 @@ impl DpdSuspension {
                 }
             }
         }
-        // The counter-force of the external forces on the moving solvent.
         if counter.iter().any(|&c| c != 0.0) {
-            for i in 0..p.len() {
-                if p.moves[i] == 0.0 || self.owner[p.id[i] as usize] != OUTSIDE {
-                    continue;
-                }
-                fx[i] -= counter[0] / outer;
-                fy[i] -= counter[1] / outer;
-                fz[i] -= counter[2] / outer;
-            }
+            spread_over_outer_solvent(p, &self.owner, counter, [&mut *fx, &mut *fy, &mut *fz]);
         }
         // A more viscous inner fluid: extra dissipative + random pairs among the inner
         // solvent of each cell (independent noise).
@@ -1120,46 +1146,6 @@ fn collision_impulse(w: [f64; 3], lam: [f64; 3], ms: f64, mv: f64) -> [f64; 3] {
 
 fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-/// Eigenvalues and eigenvectors (columns of the returned matrix) of a symmetric 3 × 3 matrix,
-/// by cyclic Jacobi rotations.
-fn symmetric_eigen3(mut a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    for _ in 0..50 {
-        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
-        let scale = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
-        if off <= 1e-15 * scale || off == 0.0 {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q] == 0.0 {
-                continue;
-            }
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let t = if theta == 0.0 { 1.0 } else { t };
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            // A ← Jᵀ A J with the rotation J in the (p, q) plane.
-            for k in 0..3 {
-                let (akp, akq) = (a[k][p], a[k][q]);
-                a[k][p] = c * akp - s * akq;
-                a[k][q] = s * akp + c * akq;
-            }
-            for k in 0..3 {
-                let (apk, aqk) = (a[p][k], a[q][k]);
-                a[p][k] = c * apk - s * aqk;
-                a[q][k] = s * apk + c * aqk;
-            }
-            for row in v.iter_mut() {
-                let (vp, vq) = (row[p], row[q]);
-                row[p] = c * vp - s * vq;
-                row[q] = s * vp + c * vq;
-            }
-        }
-    }
-    ([a[0][0], a[1][1], a[2][2]], v)
 }
 
 fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

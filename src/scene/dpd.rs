@@ -144,14 +144,10 @@ struct CellSection {
     bending: String,
     c0: Option<f64>,
     theta0: Option<f64>,
-    #[serde(default = "ka_default")]
-    ka: f64,
-    #[serde(default = "kd_default")]
-    kd: f64,
-    #[serde(default = "kv_default")]
-    kv: f64,
-    #[serde(default = "gamma_t_default")]
-    gamma_t: f64,
+    ka: Option<f64>,
+    kd: Option<f64>,
+    kv: Option<f64>,
+    gamma_t: Option<f64>,
     gamma_c: Option<f64>,
     force: Option<[f64; 3]>,
 }
@@ -174,18 +170,6 @@ fn three_u32() -> u32 {
 }
 fn juelicher() -> String {
     "juelicher".into()
-}
-fn ka_default() -> f64 {
-    4900.0
-}
-fn kd_default() -> f64 {
-    100.0
-}
-fn kv_default() -> f64 {
-    5000.0
-}
-fn gamma_t_default() -> f64 {
-    20.0
 }
 
 /// A cell of a DPD scene: its mesh and membrane, and the external force on it.
@@ -509,7 +493,7 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         let built = cell(file, text, k, c, &params, wall.as_ref())?;
         if let Some(j) = cells
             .iter()
-            .position(|other| overlap(&other.spec, &built.spec, box_len))
+            .position(|other| other.spec.overlaps(&built.spec, box_len))
         {
             let mut e = SceneError::new(
                 file,
@@ -592,12 +576,13 @@ fn cell(
     positive("radius", c.radius)?;
     positive("shear_modulus", c.shear_modulus)?;
     for (key, v) in [
-        ("bending_rigidity", c.bending_rigidity),
+        ("bending_rigidity", Some(c.bending_rigidity)),
         ("ka", c.ka),
         ("kd", c.kd),
         ("kv", c.kv),
         ("gamma_t", c.gamma_t),
     ] {
+        let Some(v) = v else { continue };
         if !(v.is_finite() && v >= 0.0) {
             return Err(located(key, format!("must be a number ≥ 0, got {v}")));
         }
@@ -683,19 +668,16 @@ fn cell(
             ))
         }
     };
+    // Fedosov's values (`Moduli::new`) where the entry gives none.
+    let base = Moduli::new(c.shear_modulus, c.bending_rigidity, bending, l0);
     let membrane = MembraneParams::from_moduli(&Moduli {
-        shear_modulus: c.shear_modulus,
-        bending_rigidity: c.bending_rigidity,
-        bending,
-        ka: c.ka,
-        kd: c.kd,
-        kv: c.kv,
+        ka: c.ka.unwrap_or(base.ka),
+        kd: c.kd.unwrap_or(base.kd),
+        kv: c.kv.unwrap_or(base.kv),
         kbt: params.pair.kbt.max(f64::MIN_POSITIVE),
-        x0: 1.0 / 2.2,
-        m: 2.0,
-        mean_edge_length: l0,
-        gamma_t: c.gamma_t,
+        gamma_t: c.gamma_t.unwrap_or(base.gamma_t),
         gamma_c: c.gamma_c,
+        ..base
     })
     .map_err(|e| located("membrane moduli", e.to_string()))?;
     let l = params.box_len;
@@ -764,34 +746,6 @@ fn cell(
         },
         force,
     })
-}
-
-/// Whether a vertex of either cell is inside the other (nearest periodic images).
-fn overlap(a: &CellSpec, b: &CellSpec, l: [f64; 3]) -> bool {
-    use crate::dpd::crossing::inside;
-    let centre = |v: &[[f64; 3]]| {
-        let n = v.len() as f64;
-        [0, 1, 2].map(|k| v.iter().map(|p| p[k]).sum::<f64>() / n)
-    };
-    let extent = |v: &[[f64; 3]], c: [f64; 3]| {
-        v.iter()
-            .map(|p| (0..3).map(|k| (p[k] - c[k]).powi(2)).sum::<f64>().sqrt())
-            .fold(0.0, f64::max)
-    };
-    let (ca, cb) = (centre(&a.vertices), centre(&b.vertices));
-    let image =
-        |p: [f64; 3], c: [f64; 3]| [0, 1, 2].map(|k| p[k] - l[k] * ((p[k] - c[k]) / l[k]).round());
-    let d = image(cb, ca);
-    let dist = (0..3).map(|k| (d[k] - ca[k]).powi(2)).sum::<f64>().sqrt();
-    if dist > extent(&a.vertices, ca) + extent(&b.vertices, cb) {
-        return false;
-    }
-    b.vertices
-        .iter()
-        .any(|&p| inside(image(p, ca), &a.vertices, &a.triangles))
-        || a.vertices
-            .iter()
-            .any(|&p| inside(image(p, cb), &b.vertices, &b.triangles))
 }
 
 /// Line and column of the `k`-th header `header` (e.g. `[[dpd.cells]]`).

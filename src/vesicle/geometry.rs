@@ -195,51 +195,7 @@ impl Geometry {
     }
 }
 
-/// Eigen-decomposition of a symmetric 3 × 3 matrix by cyclic Jacobi rotations: eigenvalues in
-/// ascending order and unit eigenvectors (`vecs[i]` belongs to `vals[i]`).
-#[allow(clippy::needless_range_loop)] // index-heavy 3 × 3 linear algebra
-pub fn symmetric_eigen3(a: [[f64; 3]; 3]) -> ([f64; 3], [[f64; 3]; 3]) {
-    let mut a = a;
-    let mut v = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]; // columns = eigenvectors
-    for _ in 0..64 {
-        let off = a[0][1].abs() + a[0][2].abs() + a[1][2].abs();
-        let scale = a[0][0].abs() + a[1][1].abs() + a[2][2].abs();
-        if off <= 1e-17 * scale || off == 0.0 {
-            break;
-        }
-        for (p, q) in [(0, 1), (0, 2), (1, 2)] {
-            if a[p][q] == 0.0 {
-                continue;
-            }
-            let theta = (a[q][q] - a[p][p]) / (2.0 * a[p][q]);
-            let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-            let t = if theta == 0.0 { 1.0 } else { t };
-            let c = 1.0 / (t * t + 1.0).sqrt();
-            let s = t * c;
-            // A ← Jᵀ A J with J the rotation in the (p, q) plane.
-            for k in 0..3 {
-                let (akp, akq) = (a[k][p], a[k][q]);
-                a[k][p] = c * akp - s * akq;
-                a[k][q] = s * akp + c * akq;
-            }
-            for k in 0..3 {
-                let (apk, aqk) = (a[p][k], a[q][k]);
-                a[p][k] = c * apk - s * aqk;
-                a[q][k] = s * apk + c * aqk;
-            }
-            for row in v.iter_mut() {
-                let (vp, vq) = (row[p], row[q]);
-                row[p] = c * vp - s * vq;
-                row[q] = s * vp + c * vq;
-            }
-        }
-    }
-    let mut idx = [0, 1, 2];
-    idx.sort_by(|&i, &j| a[i][i].total_cmp(&a[j][j]));
-    let vals = idx.map(|i| a[i][i]);
-    let vecs = idx.map(|i| [v[0][i], v[1][i], v[2][i]]);
-    (vals, vecs)
-}
+pub use crate::linalg3::symmetric_eigen3;
 
 /// A transform plan of order `p` and scratch for geometry and surface differential operators.
 pub struct SurfaceCalculus {

@@ -31,6 +31,16 @@ pub fn stop_and_resume(scene: &str, part: &std::path::Path, steps: usize) {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
 
+/// Assert that a `mobo` run succeeded, showing its output if not.
+pub fn ok(o: &Output, what: &str) {
+    assert!(
+        o.status.success(),
+        "{what}: {}\n{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
 /// A fresh, empty temporary directory named after the test and this process.
 pub fn tmpdir(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("mobo-test-{name}-{}", std::process::id()));
@@ -107,6 +117,10 @@ pub fn frame_bits(out: &std::path::Path, tension: bool) -> Vec<Vec<u64>> {
 }
 
 pub mod quadrature;
+
+/// The particle arrays of a `mobo dpd` checkpoint (positions, velocities, forces, ids).
+pub const DPD_PARTICLE_ARRAYS: [&str; 10] =
+    ["x", "y", "z", "vx", "vy", "vz", "fx", "fy", "fz", "id"];
 
 /// The bits of the named arrays of `dir/checkpoint.bin`, for bit-for-bit comparisons of runs.
 pub fn checkpoint_bits(dir: &std::path::Path, names: &[&str]) -> Vec<(String, Vec<u64>)> {

@@ -102,6 +102,34 @@ fn wlc_g(x: f64) -> f64 {
     0.25 / ((1.0 - x) * (1.0 - x)) - 0.25 + x
 }
 
+impl Moduli {
+    /// Shear modulus `μ0`, bending rigidity `κ` and model, and the mesh's mean edge length, in
+    /// units of `k_BT = 1`, with Fedosov's (2010) remaining values: `k_a = 4900`,
+    /// `k_d = 100`, `k_v = 5000`, `x0 = 1/2.2`, `m = 2`, membrane viscosity `γ_T = 20` and
+    /// `γ_C = γ_T/3`. Change any of them with struct update syntax.
+    pub fn new(
+        shear_modulus: f64,
+        bending_rigidity: f64,
+        bending: BendingModel,
+        mean_edge_length: f64,
+    ) -> Self {
+        Self {
+            shear_modulus,
+            bending_rigidity,
+            bending,
+            ka: 4900.0,
+            kd: 100.0,
+            kv: 5000.0,
+            kbt: 1.0,
+            x0: 1.0 / 2.2,
+            m: 2.0,
+            mean_edge_length,
+            gamma_t: 20.0,
+            gamma_c: None,
+        }
+    }
+}
+
 impl MembraneParams {
     /// Springs with thermal energy `kbt` and persistence length `persistence_length`,
     /// `x0 = 1/2.2`, `m = 2`, no bending, no area or volume terms, no viscosity.

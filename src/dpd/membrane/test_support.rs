@@ -4,7 +4,7 @@ use super::viscous::noise;
 use super::{Bending, MembraneParams};
 
 /// Octahedron (6 vertices, counter-clockwise from outside).
-pub(super) fn octahedron() -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
+pub(crate) fn octahedron() -> (Vec<[f64; 3]>, Vec<[usize; 3]>) {
     let x = vec![
         [1.0, 0.0, 0.0],
         [-1.0, 0.0, 0.0],
