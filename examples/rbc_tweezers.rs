@@ -77,12 +77,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!();
     println!("| F (pN) | F/(G_s R) | D_A (µm) | Mills D_A | error | D_T (µm) | Mills D_T | error | t | steps | area drift |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|");
+    // PRECONDITIONER=cell: each cell's own operator inverted ([numerics] preconditioner).
+    let preconditioner = std::env::var("PRECONDITIONER").unwrap_or_else(|_| "sphere".into());
     for &f_pn in &forces {
         let f = f_pn * 1e-12 / (SHEAR_N_PER_M * r_m);
         let text = format!(
             "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
              bending_modulus = {kappa}\n{membrane}\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n\
-             elasticity = \"{elasticity}\"\n"
+             elasticity = \"{elasticity}\"\npreconditioner = \"{preconditioner}\"\n"
         );
         let scene = parse(Path::new("rbc_tweezers (in code)"), &text)?;
         let mut sim = Simulation::new(scene)?;

@@ -48,6 +48,9 @@
 //! adaptive_dt = false             # true: dt from the area/volume error (dt is the first step)
 //! far_side_split = true           # split off the own far side in the singular quadrature
 //! operator_storage = "auto"       # self-interaction: "auto" | "grid" | "coefficients" | "matrix_free"
+//! preconditioner = "sphere"       # GMRES: "sphere" (the sphere's inverse, turned with the grid) |
+//! #                               # "cell" (the cell's own operator inverted, rebuilt when stale)
+//! # preconditioner_rebuild_after = 6  # "cell": a step of more iterations rebuilds it
 //! # dt_tolerance = 1e-3           # adaptive: relative area/volume error allowed over the run
 //! # dt_min = 1e-5, dt_max = 0.1   # adaptive: bounds of dt (defaults dt/1000, max(dt, t_end/10))
 //! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
@@ -74,7 +77,7 @@ use toml::Spanned;
 
 use super::{line_col, parse_toml, read_scene_file, SceneError};
 use crate::gpu::GpuChoice;
-use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage};
+use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
 
@@ -141,6 +144,8 @@ struct NumericsSection {
     adaptive_dt: Option<bool>,
     far_side_split: Option<bool>,
     operator_storage: Option<Spanned<String>>,
+    preconditioner: Option<Spanned<String>>,
+    preconditioner_rebuild_after: Option<Spanned<u64>>,
     dt_tolerance: Option<Spanned<f64>>,
     dt_min: Option<Spanned<f64>>,
     dt_max: Option<Spanned<f64>>,
@@ -364,6 +369,9 @@ pub struct Numerics {
     /// ([`crate::timestep::semi_implicit::OperatorStorage`]); `None` ("auto", the default): the
     /// fastest whose operators for all cells fit in 60 % of the memory available at the start.
     pub operator_storage: Option<OperatorStorage>,
+    /// GMRES preconditioner of every inextensible cell (default: the sphere's; see
+    /// [`crate::timestep::semi_implicit::Preconditioning`]).
+    pub preconditioning: Preconditioning,
     /// Adaptive `dt`: relative area/volume error allowed over the run (default `1e-3`).
     pub dt_tolerance: f64,
     /// Adaptive `dt`: smallest step (default `dt/1000`).
@@ -643,6 +651,7 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
                 }
             },
         },
+        preconditioning: preconditioning(n, &at)?,
         dt_tolerance: match n.and_then(|n| n.dt_tolerance.as_ref()) {
             Some(t) => {
                 let v = positive(t, "[numerics] dt_tolerance")?;
@@ -835,6 +844,50 @@ type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
 type Check<'a> = dyn Fn(&Spanned<f64>, &str) -> Result<f64, SceneError> + 'a;
 
 /// The cells of `[[cells]]` entry `k`; random placement keeps clear of the `earlier` entries' cells.
+/// `[numerics] preconditioner` and `preconditioner_rebuild_after`.
+fn preconditioning(
+    n: Option<&NumericsSection>,
+    at: &dyn Fn(std::ops::Range<usize>, String) -> SceneError,
+) -> Result<Preconditioning, SceneError> {
+    let rebuild = n.and_then(|n| n.preconditioner_rebuild_after.as_ref());
+    let kind = n.and_then(|n| n.preconditioner.as_ref());
+    let rebuild_after = match rebuild {
+        Some(r) => {
+            let v = *r.get_ref();
+            if v == 0 {
+                return Err(at(
+                    r.span(),
+                    "[numerics] preconditioner_rebuild_after must be at least 1 (iterations)"
+                        .into(),
+                ));
+            }
+            usize::try_from(v).unwrap_or(usize::MAX)
+        }
+        None => match Preconditioning::CELL {
+            Preconditioning::Cell { rebuild_after } => rebuild_after,
+            Preconditioning::Sphere => unreachable!("CELL is a cell preconditioner"),
+        },
+    };
+    match kind.map(|k| (k, k.get_ref().as_str())) {
+        None | Some((_, "sphere")) => {
+            if let Some(r) = rebuild {
+                return Err(at(
+                    r.span(),
+                    "[numerics] preconditioner_rebuild_after applies to preconditioner = \"cell\" \
+                     only"
+                        .into(),
+                ));
+            }
+            Ok(Preconditioning::Sphere)
+        }
+        Some((_, "cell")) => Ok(Preconditioning::Cell { rebuild_after }),
+        Some((k, other)) => Err(at(
+            k.span(),
+            format!("[numerics] preconditioner: unknown preconditioner \"{other}\" (sphere, cell)"),
+        )),
+    }
+}
+
 fn cell_specs(
     c: &CellSection,
     k: usize,

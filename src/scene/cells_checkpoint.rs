@@ -8,14 +8,18 @@
 //! has one), `membrane_velocities` (runs with an inter-cell double layer), `iterations` (GMRES
 //! iterations of each cell's last solve), `owners` (the rank of each cell, with the header's
 //! `ranks`: a run resumed on as many ranks keeps the split and so continues bit for bit), and
-//! the run's `start_observables`, `frame_times`, `clocks`, `time_steps`. Checkpoints written
-//! before `iterations` and `owners` existed are read (iterations 0, a fresh split).
+//! the run's `start_observables`, `frame_times`, `clocks`, `time_steps`; each cell's own
+//! preconditioner as what it was built from, `preconditioner_surfaces`,
+//! `preconditioner_steps` (`τ`, iterations of its last step) and `preconditioner_references`
+//! (the Skalak reference of its Jacobian). Checkpoints written before `iterations`, `owners`
+//! or the preconditioner records existed are read (iterations 0, a fresh split, no own
+//! preconditioners).
 
 use std::path::Path;
 
 use super::cells_run::{CellRunError, CHECKPOINT};
 use crate::io::checkpoint::Checkpoint;
-use crate::timestep::cell_state::CellState;
+use crate::timestep::cell_state::{CellState, PreconditionerRecord};
 
 /// Everything a run carries from step to step besides the cells' own state.
 #[derive(Clone, Debug, Default)]
@@ -199,6 +203,33 @@ pub(crate) fn save(
             .map(|s| s.previous_dt.unwrap_or(f64::NAN))
             .collect(),
     );
+    // Each cell's own preconditioner, as what it was built from (rebuilt on load).
+    let records: Vec<_> = states.iter().map(|s| s.preconditioner.as_ref()).collect();
+    optional_rows(
+        &mut ck,
+        "preconditioner_surfaces",
+        records.iter().map(|r| r.map(|r| &r.surface[..])).collect(),
+        ncoef,
+    );
+    let steps: Vec<Option<[f64; 2]>> = records
+        .iter()
+        .map(|r| r.map(|r| [r.tau, r.last_iterations as f64]))
+        .collect();
+    optional_rows(
+        &mut ck,
+        "preconditioner_steps",
+        steps.iter().map(|r| r.as_ref().map(|v| &v[..])).collect(),
+        2,
+    );
+    optional_rows(
+        &mut ck,
+        "preconditioner_references",
+        records
+            .iter()
+            .map(|r| r.and_then(|r| r.jacobian_reference.as_deref()))
+            .collect(),
+        ncoef,
+    );
     ck.write(&out.join(CHECKPOINT))?;
     Ok(())
 }
@@ -285,6 +316,33 @@ pub(crate) fn load(
         Some(_) => get("iterations", nc)?.to_vec(),
         None => vec![0.0; nc],
     };
+    // Absent from checkpoints written before cells had their own preconditioners.
+    let pc_surfaces = optional("preconditioner_surfaces", ncoef)?;
+    let pc_steps = optional("preconditioner_steps", 2)?;
+    let pc_references = optional("preconditioner_references", ncoef)?;
+    let mut records = Vec::with_capacity(nc);
+    for (i, (surface, steps)) in pc_surfaces.into_iter().zip(&pc_steps).enumerate() {
+        records.push(match (surface, steps) {
+            (None, None) => None,
+            (Some(surface), Some(st)) if st[1] >= 0.0 && st[1].fract() == 0.0 => {
+                Some(PreconditionerRecord {
+                    surface,
+                    tau: st[0],
+                    jacobian_reference: pc_references[i].clone(),
+                    last_iterations: st[1] as usize,
+                })
+            }
+            _ => {
+                return Err(checkpoint_error(
+                    out,
+                    format!(
+                        "the preconditioner record of cell {} is incomplete or not a count",
+                        i + 1
+                    ),
+                ))
+            }
+        });
+    }
     let row = |a: &[f64], i: usize, w: usize| a[i * w..(i + 1) * w].to_vec();
     let finite_row = |a: &[f64], i: usize, w: usize| {
         let r = row(a, i, w);
@@ -311,6 +369,7 @@ pub(crate) fn load(
             velocity: velocity[i].clone(),
             previous_velocity: previous_velocity[i].clone(),
             iterations: its as usize,
+            preconditioner: records[i].take(),
         });
     }
     let split = match (ck.meta["ranks"].as_u64(), ck.get("owners")) {

@@ -231,6 +231,9 @@ pub struct Counters {
     /// Stresslet FMMs built for the inter-cell double layer (several cells, some `λ ≠ 1`: one
     /// per step from the second on; 0 otherwise).
     pub double_layer_fmm_builds: usize,
+    /// Cells' own preconditioners built (`[numerics] preconditioner = "cell"`; in this
+    /// invocation, those rebuilt from a checkpoint's records included).
+    pub preconditioner_builds: usize,
 }
 
 /// One cell's observables from its coefficients.
@@ -388,6 +391,7 @@ pub fn build_part(
         OperatorStorage::for_budget(setups.len(), p, 1 + usize::from(contrast), budget)
     });
     susp.set_operator_storage(storage);
+    susp.set_preconditioning(scene.numerics.preconditioning);
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,
@@ -769,13 +773,16 @@ pub fn run_on(
     let mut k = prog.step;
     let mut clock = RankClock::default();
     let mut log = Vec::new();
-    // Double-layer assemblies of cells that left this rank (their steppers went with them).
-    let mut dl_assemblies = 0usize;
-    let dl_count = |s: &Suspension| {
-        s.steppers()
-            .iter()
-            .map(|s| s.double_layer_assemblies)
-            .sum::<usize>()
+    // Double-layer assemblies and own-preconditioner builds of cells that left this rank
+    // (their steppers went with them).
+    let mut left = [0usize; 2];
+    let counts = |s: &Suspension| {
+        s.steppers().iter().fold([0usize; 2], |[d, b], s| {
+            [
+                d + s.double_layer_assemblies,
+                b + s.own_preconditioner_builds,
+            ]
+        })
     };
     // The run ends at t_end up to round-off in the sum of adaptive steps.
     let t_done = scene.numerics.t_end * (1.0 - 1e-12);
@@ -788,7 +795,7 @@ pub fn run_on(
         if ends_run(k, prog.time) {
             break;
         }
-        let held = dl_count(&susp);
+        let held = counts(&susp);
         rebalance(
             comm,
             &mut susp,
@@ -803,7 +810,10 @@ pub fn run_on(
             &mut clock,
             &mut log,
         )?;
-        dl_assemblies += held - dl_count(&susp).min(held);
+        let kept = counts(&susp);
+        for ((l, h), k) in left.iter_mut().zip(held).zip(kept) {
+            *l += h - k.min(h);
+        }
         k += 1;
         let dt_try = match &adaptive {
             None => dt,
@@ -950,7 +960,8 @@ pub fn run_on(
     let rows = gather_rows(comm, local, nc, 9)?;
     let split = split_summary(comm, &susp, &clock, &log, k + 1 - first)?;
     let stats = susp.coupling_stats().unwrap_or_default();
-    let mut dl = [(dl_assemblies + dl_count(&susp)) as u64];
+    let now = counts(&susp);
+    let mut dl = [(left[0] + now[0]) as u64, (left[1] + now[1]) as u64];
     comm.all_sum_u64(&mut dl).map_err(CellRunError::Comm)?;
     let Some(rows) = rows else {
         return Ok(None);
@@ -1023,6 +1034,7 @@ pub fn run_on(
             fmm_builds: stats.fmm_builds,
             repulsion_points: stats.repulsion_points,
             double_layer_assemblies: dl[0] as usize,
+            preconditioner_builds: dl[1] as usize,
             near_points: stats.near_points,
             near_pairs: stats.near_pairs,
             double_layer_fmm_builds: stats.double_layer_fmm_builds,

@@ -280,6 +280,16 @@ pub enum StorageKind {
     MatrixFree,
 }
 
+/// `[numerics] preconditioner`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PreconditionerKind {
+    /// The inverse step operator of the cell's area-equivalent sphere (the default).
+    Sphere,
+    /// The inverse of the cell's own step operator, rebuilt when stale.
+    Cell,
+}
+
 /// `[numerics]`; every key optional (defaults as in the file's schema).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -317,6 +327,12 @@ pub struct NumericsSpec {
     /// `operator_storage`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub operator_storage: Option<StorageKind>,
+    /// `preconditioner`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub preconditioner: Option<PreconditionerKind>,
+    /// `preconditioner_rebuild_after` (with `preconditioner = "cell"`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub preconditioner_rebuild_after: Option<u64>,
     /// `dt_tolerance` of the adaptive step.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dt_tolerance: Option<f64>,

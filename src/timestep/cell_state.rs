@@ -8,7 +8,8 @@
 //! from. (The sphere preconditioner is rebuilt, at the radius of the drift-correction target
 //! area, which the state carries; without drift correction its radius would be the current
 //! one, and a moved cell's GMRES iterates would differ from a kept cell's at the solver
-//! tolerance.)
+//! tolerance. The cell's own preconditioner is rebuilt from its [`PreconditionerRecord`]: the
+//! surface, `τ` and Skalak reference of the operator it inverts.)
 //!
 //! ## Flat codec
 //!
@@ -18,6 +19,23 @@
 //! its full length (absent ones as zeros), so that every cell of an order takes the same
 //! [`CellState::encoded_len`] values and a buffer of many cells is sliced without a header.
 //! Values travel as their bits: the decoded state is bit-identical.
+
+/// What a cell's own preconditioner
+/// ([`super::semi_implicit::Preconditioning::Cell`]) was built from: a stepper given it
+/// rebuilds the very same preconditioner (bit for bit), so it travels with the state instead of
+/// the `(4n_c)²` inverse.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PreconditionerRecord {
+    /// The surface (order-`p` coefficients) at which the inverted step operator was frozen
+    /// (the build step's `X*`).
+    pub surface: Vec<f64>,
+    /// That operator's `τ`.
+    pub tau: f64,
+    /// The Skalak reference of the elastic Jacobian in that operator (`None`: no Jacobian).
+    pub jacobian_reference: Option<Vec<f64>>,
+    /// GMRES iterations of the last step that used it (its staleness).
+    pub last_iterations: usize,
+}
 
 /// What a cell carries between steps.
 #[derive(Clone, Debug, PartialEq)]
@@ -43,6 +61,8 @@ pub struct CellState {
     /// GMRES iterations of the cell's last solve (0 before the first): the measured cost that
     /// weighs the cell when cells are split between ranks.
     pub iterations: usize,
+    /// The cell's own preconditioner, if it has one.
+    pub preconditioner: Option<PreconditionerRecord>,
 }
 
 /// A buffer that does not hold a cell state of the expected size.
@@ -58,13 +78,16 @@ const MEMBRANE_VELOCITY: u64 = 8;
 const SKALAK: u64 = 16;
 const VELOCITY: u64 = 32;
 const PREVIOUS_VELOCITY: u64 = 64;
+const PRECONDITIONER: u64 = 128;
+const PRECONDITIONER_JACOBIAN: u64 = 256;
 
 impl CellState {
     /// Values one state takes in the flat codec for `ncoef` coefficients and `n` grid points.
     pub fn encoded_len(ncoef: usize, n: usize) -> usize {
         // presence, iterations, coefs, sigma, targets (2), previous, previous dt,
-        // membrane velocity, Skalak reference, velocity, previous velocity.
-        2 + ncoef + n + 2 + ncoef + 1 + 3 * n + ncoef + 3 * n + 3 * n
+        // membrane velocity, Skalak reference, velocity, previous velocity, preconditioner
+        // (surface, τ, last iterations, Jacobian reference).
+        2 + ncoef + n + 2 + ncoef + 1 + 3 * n + ncoef + 3 * n + 3 * n + ncoef + 2 + ncoef
     }
 
     /// Append the state (see the module docs); `ncoef` and `n` are taken from `coefs` and
@@ -80,6 +103,13 @@ impl CellState {
             (self.skalak_reference.is_some(), SKALAK),
             (self.velocity.is_some(), VELOCITY),
             (self.previous_velocity.is_some(), PREVIOUS_VELOCITY),
+            (self.preconditioner.is_some(), PRECONDITIONER),
+            (
+                self.preconditioner
+                    .as_ref()
+                    .is_some_and(|r| r.jacobian_reference.is_some()),
+                PRECONDITIONER_JACOBIAN,
+            ),
         ] {
             if present {
                 flags |= bit;
@@ -101,6 +131,11 @@ impl CellState {
         field(out, &self.skalak_reference, ncoef);
         field(out, &self.velocity, 3 * n);
         field(out, &self.previous_velocity, 3 * n);
+        let rec = self.preconditioner.as_ref();
+        field(out, &rec.map(|r| r.surface.clone()), ncoef);
+        out.push(rec.map_or(0.0, |r| r.tau));
+        out.push(rec.map_or(0.0, |r| r.last_iterations as f64));
+        field(out, &rec.and_then(|r| r.jacobian_reference.clone()), ncoef);
     }
 
     /// Read one state of a cell with `ncoef` coefficients and `n` grid points from the start
@@ -121,7 +156,7 @@ impl CellState {
             }
         };
         let flags = word(buf[0], "presence word")?;
-        if flags >= 128 {
+        if flags >= 512 {
             return Err(CellStateError(format!(
                 "presence word {flags} has unknown bits"
             )));
@@ -145,6 +180,21 @@ impl CellState {
         let skalak_reference = Some(take(ncoef).to_vec()).filter(|_| has(SKALAK));
         let velocity = Some(take(3 * n).to_vec()).filter(|_| has(VELOCITY));
         let previous_velocity = Some(take(3 * n).to_vec()).filter(|_| has(PREVIOUS_VELOCITY));
+        let surface = take(ncoef).to_vec();
+        let tau = take(1)[0];
+        let last = take(1)[0];
+        let jacobian_reference =
+            Some(take(ncoef).to_vec()).filter(|_| has(PRECONDITIONER_JACOBIAN));
+        let preconditioner = if has(PRECONDITIONER) {
+            Some(PreconditionerRecord {
+                surface,
+                tau,
+                jacobian_reference,
+                last_iterations: word(last, "preconditioner iteration count")? as usize,
+            })
+        } else {
+            None
+        };
         Ok(CellState {
             coefs,
             sigma,
@@ -156,6 +206,7 @@ impl CellState {
             velocity,
             previous_velocity,
             iterations,
+            preconditioner,
         })
     }
 }
@@ -185,21 +236,36 @@ mod tests {
             velocity: Some(v(3 * n)),
             previous_velocity: full.then(|| v(3 * n)),
             iterations: 17,
+            preconditioner: full.then(|| PreconditionerRecord {
+                surface: v(ncoef),
+                tau: 0.0125,
+                jacobian_reference: seed.is_multiple_of(2).then(|| v(ncoef)),
+                last_iterations: 5,
+            }),
         }
     }
 
     #[test]
     fn states_round_trip_bit_for_bit_back_to_back() {
-        let (a, b) = (state(1, true), state(2, false));
+        // Full without and with the Jacobian's reference in the preconditioner record, and bare.
+        let states = [state(1, true), state(2, false), state(4, true)];
+        assert!(states[2]
+            .preconditioner
+            .as_ref()
+            .unwrap()
+            .jacobian_reference
+            .is_some());
         let mut buf = Vec::new();
-        a.encode(&mut buf);
-        b.encode(&mut buf);
+        for s in &states {
+            s.encode(&mut buf);
+        }
         let len = CellState::encoded_len(48, 24);
-        assert_eq!(buf.len(), 2 * len);
+        assert_eq!(buf.len(), 3 * len);
+        for (k, s) in states.iter().enumerate() {
+            let back = CellState::decode(&buf[k * len..(k + 1) * len], 48, 24).unwrap();
+            assert_eq!(&back, s);
+        }
         let a2 = CellState::decode(&buf[..len], 48, 24).unwrap();
-        let b2 = CellState::decode(&buf[len..], 48, 24).unwrap();
-        assert_eq!(a2, a);
-        assert_eq!(b2, b);
         assert!(a2.drift_targets.unwrap().1.is_sign_negative(), "-0.0 kept");
     }
 

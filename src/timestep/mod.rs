@@ -88,6 +88,7 @@
 
 pub mod adaptive;
 pub mod cell_force;
+pub mod cell_preconditioner;
 pub mod cell_state;
 pub mod coupling;
 mod gmres;
@@ -96,6 +97,7 @@ mod operator;
 pub mod semi_implicit;
 pub mod sphere_preconditioner;
 mod step_engine;
+mod step_operator;
 pub mod suspension;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};

@@ -19,6 +19,18 @@ pub trait LinearOperator: Sync {
     }
     /// `y ← A x`.
     fn apply(&self, x: &[f64], y: &mut [f64]);
+    /// `Y ← A X` for `k` columns stored one after the other (`X`: `k · ncols` values, `Y`:
+    /// `k · nrows`). By default one [`LinearOperator::apply`] per column; operators with dense
+    /// parts override it with one matrix product for all columns.
+    fn apply_batch(&self, x: &[f64], y: &mut [f64], k: usize) {
+        for (xc, yc) in x
+            .chunks_exact(self.ncols())
+            .zip(y.chunks_exact_mut(self.nrows()))
+            .take(k)
+        {
+            self.apply(xc, yc);
+        }
+    }
 }
 
 /// `y = A x` by a dense matrix-vector product (faer, with its global parallelism setting).
@@ -64,6 +76,9 @@ impl<T: LinearOperator + ?Sized> LinearOperator for &T {
     }
     fn apply(&self, x: &[f64], y: &mut [f64]) {
         (**self).apply(x, y)
+    }
+    fn apply_batch(&self, x: &[f64], y: &mut [f64], k: usize) {
+        (**self).apply_batch(x, y, k)
     }
 }
 

@@ -115,15 +115,17 @@
 
 use std::sync::{Arc, Mutex};
 
+use super::cell_preconditioner::{CellPreconditioner, CellPreconditionerOp};
+use super::cell_state::PreconditionerRecord;
 use super::grid_frame::{grid_rotation, RotatedPreconditioner, IDENTITY};
 use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
-use super::step_engine::{
-    ElasticWork, EngineLease, EnginePool, OperatorWork, ProductWork, StepEngine,
+use super::step_engine::{ElasticWork, EngineLease, EnginePool, OperatorWork, StepEngine};
+use super::step_operator::{
+    add_elastic_jacobian, apply_operators, InextensibleOperator, StepOperator,
 };
 use super::TimestepError;
 use super::{gmres, FnOperator, GmresParams, GmresReport, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
-use crate::vesicle::coefficient_operator::add_product;
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
@@ -154,6 +156,50 @@ pub enum ElasticStepping {
 
 /// Relative drift of the area-equivalent radius that triggers a rebuild of the preconditioner.
 const PRECONDITIONER_RADIUS_RTOL: f64 = 1e-2;
+
+/// Which preconditioner GMRES uses for an inextensible cell (with
+/// [`VesicleParams::preconditioner`] on; see "Preconditioner" in the module docs).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Preconditioning {
+    /// The inverse step operator of the sphere of the cell's area, turned with the grid
+    /// ([`super::sphere_preconditioner`]): built once, cheap to keep, its error grows with the
+    /// cell's distance from the sphere.
+    #[default]
+    Sphere,
+    /// The inverse of the cell's own step operator ([`super::cell_preconditioner`]), built at a
+    /// step and reused until a step takes more than `rebuild_after` GMRES iterations (or `τ`
+    /// changes): then the next step rebuilds it. A cell too close to a sphere to invert its
+    /// own operator uses the sphere's.
+    Cell {
+        /// Iterations of a step above which the next step rebuilds the preconditioner.
+        rebuild_after: usize,
+    },
+}
+
+impl Preconditioning {
+    /// The cell's own operator, rebuilt after a step of more than 6 iterations.
+    pub const CELL: Preconditioning = Preconditioning::Cell { rebuild_after: 6 };
+}
+
+/// A cell's own preconditioner: what it was built from, and the inverse.
+struct OwnPreconditioner {
+    record: PreconditionerRecord,
+    inverse: OwnInverse,
+}
+
+enum OwnInverse {
+    Built(CellPreconditioner),
+    /// The cell was too close to a sphere to invert its own operator: the sphere's
+    /// preconditioner serves until this goes stale.
+    Singular,
+    /// To be rebuilt from the record before its next use (a restored state).
+    Pending,
+}
+
+/// A singular own operator is tried again only after a step of more than this many times
+/// `rebuild_after` iterations with the sphere's preconditioner (a cell near a sphere, which
+/// the sphere's serves well, would otherwise try at every step).
+const SINGULAR_RETRY_FACTOR: usize = 3;
 
 /// Physical and numerical parameters of a vesicle step.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -210,7 +256,7 @@ pub struct StepReport {
     pub gmres: GmresReport,
     /// The scheme of this step (the first step of a BDF2 run is Euler).
     pub scheme: TimeScheme,
-    /// Whether the sphere preconditioner was (re)built in this step.
+    /// Whether a preconditioner (the sphere's or the cell's own) was (re)built in this step.
     pub preconditioner_built: bool,
     /// The step's area/volume error, `max(|Aⁿ⁺¹ − Aⁿ|/Aⁿ, |Vⁿ⁺¹ − Vⁿ|/Vⁿ)` measured before the
     /// drift correction: the exact flow keeps both, so this is an error estimate of the step
@@ -298,6 +344,12 @@ pub struct VesicleStepper {
     previous_dt: Option<f64>,
     /// Sphere preconditioners built so far (at most two: the Euler and the BDF2 `τ`).
     preconditioners: Vec<SpherePreconditioner>,
+    /// Which preconditioner the steps use.
+    preconditioning: Preconditioning,
+    /// The cell's own preconditioner ([`Preconditioning::Cell`]), once built.
+    own: Option<OwnPreconditioner>,
+    /// Own preconditioners built so far.
+    pub own_preconditioner_builds: usize,
     /// Membrane velocity of the last solve on the order-`p` grid (see
     /// [`VesicleStepper::velocity`]).
     velocity: Option<Vec<f64>>,
@@ -353,6 +405,9 @@ impl VesicleStepper {
             previous: None,
             previous_dt: None,
             preconditioners: Vec::new(),
+            preconditioning: Preconditioning::default(),
+            own: None,
+            own_preconditioner_builds: 0,
             velocity: None,
         })
     }
@@ -418,6 +473,52 @@ impl VesicleStepper {
         self.set_skalak(params, reference)
     }
 
+    /// Which preconditioner the steps use.
+    pub fn preconditioning(&self) -> Preconditioning {
+        self.preconditioning
+    }
+
+    /// Use `preconditioning` from the next step on (a change drops the cell's own
+    /// preconditioner, if any).
+    pub fn set_preconditioning(&mut self, preconditioning: Preconditioning) {
+        if preconditioning != self.preconditioning {
+            self.own = None;
+        }
+        self.preconditioning = preconditioning;
+    }
+
+    /// What the cell's own preconditioner was built from (`None`: it has none), for a
+    /// checkpoint or a cell moving to another rank.
+    pub fn own_preconditioner_record(&self) -> Option<&PreconditionerRecord> {
+        self.own.as_ref().map(|o| &o.record)
+    }
+
+    /// Give the cell the own preconditioner built from `record` (`None`: none): unless it is
+    /// the one it holds, it is rebuilt from the record before the next step that uses it, bit
+    /// for bit the one the record came from (a resumed run, a cell moved here, a repeated
+    /// step).
+    pub fn set_own_preconditioner_record(&mut self, record: Option<&PreconditionerRecord>) {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let same = |a: &PreconditionerRecord, b: &PreconditionerRecord| {
+            bits(&a.surface) == bits(&b.surface)
+                && a.tau.to_bits() == b.tau.to_bits()
+                && a.jacobian_reference.as_deref().map(bits)
+                    == b.jacobian_reference.as_deref().map(bits)
+        };
+        match (record, &mut self.own) {
+            (None, _) => self.own = None,
+            (Some(r), Some(o)) if same(r, &o.record) => {
+                o.record.last_iterations = r.last_iterations;
+            }
+            (Some(r), _) => {
+                self.own = Some(OwnPreconditioner {
+                    record: r.clone(),
+                    inverse: OwnInverse::Pending,
+                })
+            }
+        }
+    }
+
     /// How the dense self-interaction operators are kept between assembly and application.
     pub fn operator_storage(&self) -> OperatorStorage {
         self.storage
@@ -448,6 +549,10 @@ impl VesicleStepper {
                 .iter()
                 .map(|m| m.memory_bytes())
                 .sum::<usize>()
+            + match self.own.as_ref().map(|o| &o.inverse) {
+                Some(OwnInverse::Built(pc)) => pc.memory_bytes(),
+                _ => 0,
+            }
             + std::mem::size_of::<Self>()
     }
 
@@ -689,6 +794,110 @@ impl VesicleStepper {
         Ok((self.preconditioners.len() - 1, true))
     }
 
+    /// Get the cell's own preconditioner ready for a step with coefficients `coef` (and the
+    /// elastic Jacobian if `with_jacobian`): dropped when stale, rebuilt from its record when
+    /// pending. Returns whether the step must build a new one (from its own operator).
+    fn prepare_own(
+        &mut self,
+        engine: &mut StepEngine,
+        coef: &StepCoefficients,
+        with_jacobian: bool,
+        precondition: bool,
+    ) -> Result<bool, TimestepError> {
+        let Preconditioning::Cell { rebuild_after } = self.preconditioning else {
+            self.own = None;
+            return Ok(false);
+        };
+        // Matrix-free storage would apply a matrix-free product per column of the build.
+        if !precondition || self.storage == OperatorStorage::MatrixFree {
+            self.own = None;
+            return Ok(false);
+        }
+        let stale = self.own.as_ref().is_none_or(|o| {
+            let limit = match o.inverse {
+                OwnInverse::Singular => SINGULAR_RETRY_FACTOR * rebuild_after,
+                _ => rebuild_after,
+            };
+            o.record.tau != coef.tau
+                || o.record.jacobian_reference.is_some() != with_jacobian
+                || (with_jacobian && self.skalak.is_none())
+                || o.record.last_iterations > limit
+        });
+        if stale {
+            self.own = None;
+            return Ok(true);
+        }
+        if let Some(mut o) = self.own.take() {
+            if matches!(o.inverse, OwnInverse::Pending) {
+                o.inverse = self.rebuild_from_record(engine, &o.record)?;
+                self.own_preconditioner_builds += 1;
+            }
+            self.own = Some(o);
+        }
+        Ok(false)
+    }
+
+    /// The own preconditioner of `record`, built as the step that made the record built it:
+    /// the operators assembled at its surface, with its `τ` and Jacobian.
+    fn rebuild_from_record(
+        &self,
+        engine: &mut StepEngine,
+        record: &PreconditionerRecord,
+    ) -> Result<OwnInverse, TimestepError> {
+        let coef = StepCoefficients::new(
+            self.params.viscosity_ratio,
+            record.tau,
+            self.params.bending_modulus,
+            self.params.viscosity,
+        );
+        let (a_id, c_d) = (coef.identity, coef.double_layer);
+        let size = {
+            let w = engine.work.get_mut().expect("operator lock");
+            w.membrane.set_geometry(&record.surface)?;
+            (w.membrane.geometry()?.area() / (4.0 * std::f64::consts::PI)).sqrt()
+        };
+        let viscosity = self.params.viscosity;
+        let (mut s_op, mut d_op) = (Vec::new(), Vec::new());
+        let single = LayerKernel::SingleLayer { viscosity };
+        assemble_operator(engine, self.storage, single, &record.surface, &mut s_op)?;
+        if c_d != 0.0 {
+            let double = LayerKernel::DoubleLayer;
+            assemble_operator(engine, self.storage, double, &record.surface, &mut d_op)?;
+        }
+        let jacobian = match (&record.jacobian_reference, &self.skalak) {
+            (Some(reference), Some((sk, _))) => {
+                let OperatorWork {
+                    membrane, elastic, ..
+                } = engine.work.get_mut().expect("operator lock");
+                elastic_work(elastic, membrane, self.nc, reference)?;
+                Some(*sk)
+            }
+            _ => None,
+        };
+        let op = InextensibleOperator::new(
+            self.n,
+            &engine.work,
+            &engine.sht,
+            self.storage,
+            &record.surface,
+            (
+                StepOperator::Dense(&s_op),
+                (c_d != 0.0).then_some(StepOperator::Dense(&d_op)),
+            ),
+            [a_id, c_d, record.tau, self.params.bending_modulus],
+            jacobian,
+            size,
+        );
+        if jacobian.is_some() {
+            op.enable_jacobian();
+        }
+        match CellPreconditioner::build(&op, &engine.sht, a_id) {
+            Ok(pc) => Ok(OwnInverse::Built(pc)),
+            Err(TimestepError::SingularBlock { .. }) => Ok(OwnInverse::Singular),
+            Err(e) => Err(op.take_failure().map_or(e, TimestepError::from)),
+        }
+    }
+
     /// One step with explicit terms (the velocity induced by other cells, extra tractions).
     pub fn step_with(
         &mut self,
@@ -791,6 +1000,12 @@ impl VesicleStepper {
         } else {
             (None, false)
         };
+        let build_own = self.prepare_own(
+            engine,
+            &coef,
+            precondition && implicit_elastic,
+            precondition,
+        )?;
         // How far the grid has turned with the cell: the sphere preconditioner is turned with
         // it (see super::grid_frame).
         let rotation = if precondition {
@@ -873,6 +1088,7 @@ impl VesicleStepper {
         }
         // The cell's size (area-equivalent radius), the scale of the Jacobian's difference step.
         let size = (area / (4.0 * std::f64::consts::PI)).sqrt();
+        let mut own_built = false;
         let (report, x_new) = if let (Some((sk, reference)), false) = (&self.skalak, inextensible) {
             solve_capsule(
                 engine,
@@ -926,63 +1142,19 @@ impl VesicleStepper {
                 }
                 _ => None,
             };
-            let with_jacobian = std::sync::atomic::AtomicBool::new(false);
             // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X] (plus −τ S J X
-            // once `with_jacobian` is set).
-            let (work, sht) = (&engine.work, &engine.sht);
-            let failure: Mutex<Option<crate::vesicle::VesicleError>> = Mutex::new(None);
-            let op = FnOperator::new(4 * n, |z: &[f64], y: &mut [f64]| {
-                let (x, sigma) = z.split_at(3 * n);
-                let mut guard = work.lock().expect("operator lock");
-                let OperatorWork {
-                    membrane,
-                    fb,
-                    ft,
-                    products,
-                    elastic,
-                } = &mut *guard;
-                let r = membrane
-                    .bending_linear(kappa, x, fb)
-                    .and_then(|_| membrane.tension_force(sigma, ft))
-                    .and_then(|_| membrane.surface_divergence(x, &mut y[3 * n..]))
-                    .and_then(|_| {
-                        for (a, t) in fb.iter_mut().zip(ft.iter()) {
-                            *a += t;
-                        }
-                        if let (Some(par), Some(el), true) = (
-                            &jacobian,
-                            elastic.as_mut(),
-                            with_jacobian.load(std::sync::atomic::Ordering::Relaxed),
-                        ) {
-                            add_elastic_jacobian(
-                                el,
-                                sht,
-                                &mut products.ws,
-                                par,
-                                &xstar,
-                                size,
-                                x,
-                                fb,
-                            )?;
-                        }
-                        for (yi, xi) in y[..3 * n].iter_mut().zip(x) {
-                            *yi = a_id * xi;
-                        }
-                        apply_operators(
-                            storage,
-                            sht,
-                            products,
-                            &xstar,
-                            (s_op, fb, -tau),
-                            d_op.map(|d| (d, x, -c_d)),
-                            &mut y[..3 * n],
-                        )
-                    });
-                if let Err(e) = r {
-                    *failure.lock().expect("failure lock") = Some(e);
-                    y.fill(f64::NAN);
-                }
-            });
+            // once the Jacobian is enabled).
+            let op = InextensibleOperator::new(
+                n,
+                &engine.work,
+                &engine.sht,
+                storage,
+                &xstar,
+                (s_op, d_op),
+                [a_id, c_d, tau, kappa],
+                jacobian,
+                size,
+            );
             // Initial guess: X* (the extrapolation for BDF2, Xⁿ for Euler) and the last tension.
             let mut z0 = vec![0.0; 4 * n];
             z0[..3 * n].copy_from_slice(&xs_grid);
@@ -998,11 +1170,45 @@ impl VesicleStepper {
                     *bi -= si;
                 }
                 z0[..3 * n].fill(0.0);
-                with_jacobian.store(true, std::sync::atomic::Ordering::Relaxed);
+                op.enable_jacobian();
             }
+            // The cell's own preconditioner, (re)built now if `prepare_own` found it stale.
+            if build_own {
+                let inverse = match CellPreconditioner::build(&op, &engine.sht, a_id) {
+                    Ok(pc) => OwnInverse::Built(pc),
+                    Err(TimestepError::SingularBlock { .. }) => OwnInverse::Singular,
+                    Err(e) => return Err(op.take_failure().map_or(e, TimestepError::from)),
+                };
+                self.own = Some(OwnPreconditioner {
+                    record: PreconditionerRecord {
+                        surface: xstar.clone(),
+                        tau,
+                        jacobian_reference: jacobian
+                            .and(self.skalak.as_ref())
+                            .map(|(_, r)| r.clone()),
+                        last_iterations: 0,
+                    },
+                    inverse,
+                });
+                self.own_preconditioner_builds += 1;
+                own_built = true;
+            }
+            let own_pc = match self.own.as_ref().map(|o| &o.inverse) {
+                Some(OwnInverse::Built(pc)) => Some(pc),
+                _ => None,
+            };
             let mut z = vec![0.0; 4 * n];
-            let report = match pc_index {
-                Some(i) => gmres(
+            let report = match (pc_index, own_pc) {
+                (Some(_), Some(pc)) => gmres(
+                    &op,
+                    &CellPreconditionerOp::new(pc, &engine.sht),
+                    &b,
+                    Some(&z0),
+                    &mut z,
+                    &self.params.gmres,
+                    &mut engine.gmres_ws,
+                ),
+                (Some(i), None) => gmres(
                     &op,
                     &RotatedPreconditioner::new(&self.preconditioners[i], rotation, n),
                     &b,
@@ -1011,7 +1217,7 @@ impl VesicleStepper {
                     &self.params.gmres,
                     &mut engine.gmres_ws,
                 ),
-                None => gmres(
+                (None, _) => gmres(
                     &op,
                     &Identity::new(4 * n),
                     &b,
@@ -1021,7 +1227,7 @@ impl VesicleStepper {
                     &mut engine.gmres_ws,
                 ),
             };
-            if let Some(e) = failure.into_inner().expect("failure lock") {
+            if let Some(e) = op.take_failure() {
                 return Err(e.into());
             }
             // A (nearly) spherical cell makes the system singular: a constant tension gives the
@@ -1031,6 +1237,9 @@ impl VesicleStepper {
             // the least-squares answer carries an arbitrary, possibly huge mean tension, and the
             // explicit coupling would spread it to the other cells.
             let report = report?;
+            if let Some(o) = &mut self.own {
+                o.record.last_iterations = report.iterations;
+            }
             self.sigma.copy_from_slice(&z[3 * n..]);
             z.truncate(3 * n);
             if jacobian.is_some() {
@@ -1078,7 +1287,7 @@ impl VesicleStepper {
         Ok(StepReport {
             gmres: report,
             scheme,
-            preconditioner_built,
+            preconditioner_built: preconditioner_built || own_built,
             area_volume_error,
         })
     }
@@ -1211,40 +1420,6 @@ fn correct_shape(
     Ok(())
 }
 
-/// `f ← f + J x`: the directional derivative of the elastic force at the surface `xstar`
-/// (coefficients) along the grid vector `x` (`3n`), by a central difference with `ε|x|` a
-/// [`JACOBIAN_STEP`] fraction of `size` (the engine `el` holds the reference surface).
-#[allow(clippy::too_many_arguments)] // the pieces of a lent engine, borrowed separately
-fn add_elastic_jacobian(
-    el: &mut ElasticWork,
-    sht: &ShTransform,
-    ws: &mut ShWorkspace,
-    par: &SkalakParams,
-    xstar: &[f64],
-    size: f64,
-    x: &[f64],
-    f: &mut [f64],
-) -> Result<(), crate::vesicle::VesicleError> {
-    sht.forward(x, &mut el.dir, ws)?;
-    let norm = el.dir.iter().map(|v| v * v).sum::<f64>().sqrt();
-    if norm == 0.0 {
-        return Ok(());
-    }
-    let eps = JACOBIAN_STEP * size / norm;
-    for sign in [1.0, -1.0] {
-        for ((d, s), v) in el.dc.iter_mut().zip(xstar).zip(&el.dir) {
-            *d = s + sign * eps * v;
-        }
-        el.membrane.set_geometry(&el.dc)?;
-        el.membrane.skalak_force(par, &mut el.fp)?;
-        let w = sign / (2.0 * eps);
-        for (fi, p) in f.iter_mut().zip(&el.fp) {
-            *fi += w * p;
-        }
-    }
-    Ok(())
-}
-
 /// The engine of the elastic Jacobian in `work` (made at its first use), with `reference` set.
 fn elastic_work<'a>(
     elastic: &'a mut Option<ElasticWork>,
@@ -1263,10 +1438,6 @@ fn elastic_work<'a>(
     el.membrane.set_reference(reference)?;
     Ok(el)
 }
-
-/// The central-difference step of a capsule's elastic Jacobian, relative to the cell's size:
-/// truncation `~10⁻¹⁰` and round-off `~10⁻¹¹` relative to `J x`.
-const JACOBIAN_STEP: f64 = 1e-5;
 
 /// The linear system of a capsule's step (see "Capsules" in the module docs): operators at
 /// `X*`, grid vectors `3n`.
@@ -1420,67 +1591,6 @@ fn assemble_operator(
             engine.compressor.compress(&engine.grid_op, out)?;
         }
         OperatorStorage::MatrixFree => *out = Vec::new(),
-    }
-    Ok(())
-}
-
-/// An operator of a step: stored dense (as the storage says), or its kernel (matrix-free).
-#[derive(Clone, Copy)]
-enum StepOperator<'a> {
-    Dense(&'a [f64]),
-    Kernel(LayerKernel),
-}
-
-/// One term `β K x` of a product: the operator, the input (a grid vector, `3n`) and `β`.
-type Term<'a> = (StepOperator<'a>, &'a [f64], f64);
-
-/// `y ← y + β_S S x_S + β_D D x_D` (the double-layer term optional; grid vectors, `3n` each):
-/// a GEMV each on the grid, `y ← y + I (Σ β K F x)` in coefficient space, or matrix-free
-/// products on the surface `surface` (coefficients).
-fn apply_operators(
-    storage: OperatorStorage,
-    sht: &ShTransform,
-    work: &mut ProductWork,
-    surface: &[f64],
-    single: Term<'_>,
-    double: Option<Term<'_>>,
-    y: &mut [f64],
-) -> Result<(), crate::vesicle::VesicleError> {
-    let ProductWork {
-        layer,
-        ws,
-        xc,
-        yc,
-        yg,
-    } = work;
-    let terms = std::iter::once(single).chain(double);
-    match storage {
-        OperatorStorage::Coefficients => {
-            yc.fill(0.0);
-            for (k, x, beta) in terms {
-                if let StepOperator::Dense(k) = k {
-                    sht.forward(x, xc, ws)?;
-                    add_product(k, xc, yc, beta);
-                }
-            }
-            sht.inverse(yc, yg, ws)?;
-            for (a, b) in y.iter_mut().zip(yg.iter()) {
-                *a += b;
-            }
-        }
-        OperatorStorage::Grid | OperatorStorage::MatrixFree => {
-            for (k, x, beta) in terms {
-                match k {
-                    StepOperator::Dense(k) => add_product(k, x, y, beta),
-                    StepOperator::Kernel(kernel) => {
-                        layer.apply(kernel, surface, x, yg)?;
-                        for (a, b) in y.iter_mut().zip(yg.iter()) {
-                            *a += beta * b;
-                        }
-                    }
-                }
-            }
-        }
     }
     Ok(())
 }

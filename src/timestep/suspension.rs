@@ -37,7 +37,7 @@ use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
 use super::semi_implicit::{
-    ExplicitTerms, OperatorStorage, StepReport, VesicleParams, VesicleStepper,
+    ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams, VesicleStepper,
 };
 use super::TimestepError;
 use crate::comm::{text_words, words_text, Communicator, SerialComm};
@@ -122,6 +122,9 @@ pub struct Suspension {
     /// (`None`: the stepper's default).
     storage: Option<OperatorStorage>,
     far_side: Option<FarSideParams>,
+    /// Preconditioner of every cell, also of cells inserted later (`None`: the stepper's
+    /// default).
+    preconditioning: Option<Preconditioning>,
     /// Seconds in this rank's per-cell work (tractions and solves), without waiting for other
     /// ranks (cumulative).
     solve_s: f64,
@@ -174,6 +177,7 @@ impl Suspension {
             contrast,
             storage: None,
             far_side: None,
+            preconditioning: None,
             solve_s: 0.0,
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
@@ -218,6 +222,9 @@ impl Suspension {
         }
         if let Some(storage) = self.storage {
             st.set_operator_storage(storage);
+        }
+        if let Some(pc) = self.preconditioning {
+            st.set_preconditioning(pc);
         }
         if let Some(far_side) = self.far_side {
             st.set_far_side_params(far_side).map_err(err)?;
@@ -269,6 +276,7 @@ impl Suspension {
             velocity: opt(&self.velocities[i]),
             previous_velocity: opt(&self.previous_velocities[i]),
             iterations: self.iterations[i],
+            preconditioner: st.own_preconditioner_record().cloned(),
         }
     }
 
@@ -303,6 +311,7 @@ impl Suspension {
         self.velocities[i] = state.velocity.clone().unwrap_or_default();
         self.previous_velocities[i] = state.previous_velocity.clone().unwrap_or_default();
         self.iterations[i] = state.iterations;
+        self.steppers[i].set_own_preconditioner_record(state.preconditioner.as_ref());
         Ok(())
     }
 
@@ -312,6 +321,23 @@ impl Suspension {
         for s in &mut self.steppers {
             s.set_operator_storage(storage);
         }
+    }
+
+    /// The preconditioner of every cell (also of cells inserted later).
+    pub fn set_preconditioning(&mut self, preconditioning: Preconditioning) {
+        self.preconditioning = Some(preconditioning);
+        for s in &mut self.steppers {
+            s.set_preconditioning(preconditioning);
+        }
+    }
+
+    /// Own preconditioners built by this rank's cells so far (see
+    /// [`super::semi_implicit::Preconditioning::Cell`]).
+    pub fn own_preconditioner_builds(&self) -> usize {
+        self.steppers
+            .iter()
+            .map(|s| s.own_preconditioner_builds)
+            .sum()
     }
 
     /// Far-side settings of every cell (also of cells inserted later).

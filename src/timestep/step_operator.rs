@@ -1,0 +1,388 @@
+//! The linear operators of a step: the dense (or matrix-free) single and double layers as
+//! products, the elastic Jacobian by central differences, and the inextensible step operator
+//! `[X; σ] ↦ [a X − c_D D X − τ S (B X + T σ + J X); Div X]` of [`super::semi_implicit`] as a
+//! [`LinearOperator`] whose batched product ([`LinearOperator::apply_batch`]) applies the
+//! dense layers to all columns as one matrix product (what building a cell's own
+//! preconditioner, [`super::cell_preconditioner`], costs: one GEMM instead of `4n_c` GEMVs).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Mutex;
+
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
+
+use super::semi_implicit::OperatorStorage;
+use super::step_engine::{ElasticWork, OperatorWork, ProductWork};
+use super::LinearOperator;
+use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::vesicle::coefficient_operator::add_product;
+use crate::vesicle::layer::LayerKernel;
+use crate::vesicle::skalak::SkalakParams;
+use crate::vesicle::VesicleError;
+
+/// An operator of a step: stored dense (as the storage says), or its kernel (matrix-free).
+#[derive(Clone, Copy)]
+pub(crate) enum StepOperator<'a> {
+    /// Stored dense (grid or coefficient space, as the storage says).
+    Dense(&'a [f64]),
+    /// Applied matrix-free.
+    Kernel(LayerKernel),
+}
+
+/// One term `β K x` of a product: the operator, the input (a grid vector, `3n`) and `β`.
+pub(crate) type Term<'a> = (StepOperator<'a>, &'a [f64], f64);
+
+/// `y ← y + β_S S x_S + β_D D x_D` (the double-layer term optional; grid vectors, `3n` each):
+/// a GEMV each on the grid, `y ← y + I (Σ β K F x)` in coefficient space, or matrix-free
+/// products on the surface `surface` (coefficients).
+pub(crate) fn apply_operators(
+    storage: OperatorStorage,
+    sht: &ShTransform,
+    work: &mut ProductWork,
+    surface: &[f64],
+    single: Term<'_>,
+    double: Option<Term<'_>>,
+    y: &mut [f64],
+) -> Result<(), VesicleError> {
+    let ProductWork {
+        layer,
+        ws,
+        xc,
+        yc,
+        yg,
+    } = work;
+    let terms = std::iter::once(single).chain(double);
+    match storage {
+        OperatorStorage::Coefficients => {
+            yc.fill(0.0);
+            for (k, x, beta) in terms {
+                if let StepOperator::Dense(k) = k {
+                    sht.forward(x, xc, ws)?;
+                    add_product(k, xc, yc, beta);
+                }
+            }
+            sht.inverse(yc, yg, ws)?;
+            for (a, b) in y.iter_mut().zip(yg.iter()) {
+                *a += b;
+            }
+        }
+        OperatorStorage::Grid | OperatorStorage::MatrixFree => {
+            for (k, x, beta) in terms {
+                match k {
+                    StepOperator::Dense(k) => add_product(k, x, y, beta),
+                    StepOperator::Kernel(kernel) => {
+                        layer.apply(kernel, surface, x, yg)?;
+                        for (a, b) in y.iter_mut().zip(yg.iter()) {
+                            *a += beta * b;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `f ← f + J x`: the directional derivative of the elastic force at the surface `xstar`
+/// (coefficients) along the grid vector `x` (`3n`), by a central difference with `ε|x|` a
+/// [`JACOBIAN_STEP`] fraction of `size` (the engine `el` holds the reference surface).
+#[allow(clippy::too_many_arguments)] // the pieces of a lent engine, borrowed separately
+pub(crate) fn add_elastic_jacobian(
+    el: &mut ElasticWork,
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    par: &SkalakParams,
+    xstar: &[f64],
+    size: f64,
+    x: &[f64],
+    f: &mut [f64],
+) -> Result<(), VesicleError> {
+    sht.forward(x, &mut el.dir, ws)?;
+    let norm = el.dir.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if norm == 0.0 {
+        return Ok(());
+    }
+    let eps = JACOBIAN_STEP * size / norm;
+    for sign in [1.0, -1.0] {
+        for ((d, s), v) in el.dc.iter_mut().zip(xstar).zip(&el.dir) {
+            *d = s + sign * eps * v;
+        }
+        el.membrane.set_geometry(&el.dc)?;
+        el.membrane.skalak_force(par, &mut el.fp)?;
+        let w = sign / (2.0 * eps);
+        for (fi, p) in f.iter_mut().zip(&el.fp) {
+            *fi += w * p;
+        }
+    }
+    Ok(())
+}
+
+/// The central-difference step of a capsule's elastic Jacobian, relative to the cell's size:
+/// truncation `~10⁻¹⁰` and round-off `~10⁻¹¹` relative to `J x`.
+pub(crate) const JACOBIAN_STEP: f64 = 1e-5;
+
+/// The step operator of an inextensible cell on `z = [X; σ]` (grid vectors, `3n` positions
+/// component-major then `n` tensions):
+///
+/// ```text
+///     A z = [ a X − c_D D X − τ S (B X + T σ + J X) ;  Div X ]
+/// ```
+///
+/// with the operators frozen at `X*` (`xstar`, coefficients) and `J` (the linearised shear
+/// elasticity) only once [`InextensibleOperator::enable_jacobian`] is called. A failure of the
+/// membrane operators writes NaN into the output and is kept for
+/// [`InextensibleOperator::take_failure`].
+pub(crate) struct InextensibleOperator<'a> {
+    pub n: usize,
+    pub work: &'a Mutex<OperatorWork>,
+    pub sht: &'a ShTransform,
+    pub storage: OperatorStorage,
+    pub xstar: &'a [f64],
+    pub s_op: StepOperator<'a>,
+    pub d_op: Option<StepOperator<'a>>,
+    /// `a = (1+λ)/2`, `c_D = 1 − λ`, `τ`, `κ_b`.
+    pub a_id: f64,
+    pub c_d: f64,
+    pub tau: f64,
+    pub kappa: f64,
+    /// The shear elasticity of the Jacobian (its engine made and its reference set).
+    pub jacobian: Option<SkalakParams>,
+    /// The cell's size, the scale of the Jacobian's difference step.
+    pub size: f64,
+    with_jacobian: AtomicBool,
+    failure: Mutex<Option<VesicleError>>,
+}
+
+impl<'a> InextensibleOperator<'a> {
+    /// The operator without the Jacobian (see the type's docs for the fields).
+    #[allow(clippy::too_many_arguments)] // the pieces of a lent engine and the step's scalars
+    pub fn new(
+        n: usize,
+        work: &'a Mutex<OperatorWork>,
+        sht: &'a ShTransform,
+        storage: OperatorStorage,
+        xstar: &'a [f64],
+        (s_op, d_op): (StepOperator<'a>, Option<StepOperator<'a>>),
+        [a_id, c_d, tau, kappa]: [f64; 4],
+        jacobian: Option<SkalakParams>,
+        size: f64,
+    ) -> Self {
+        InextensibleOperator {
+            n,
+            work,
+            sht,
+            storage,
+            xstar,
+            s_op,
+            d_op,
+            a_id,
+            c_d,
+            tau,
+            kappa,
+            jacobian,
+            size,
+            with_jacobian: AtomicBool::new(false),
+            failure: Mutex::new(None),
+        }
+    }
+
+    /// Add `−τ S J X` to every later product.
+    pub fn enable_jacobian(&self) {
+        self.with_jacobian.store(true, Ordering::Relaxed);
+    }
+
+    /// The first failure of the membrane operators, if any (taken).
+    pub fn take_failure(&self) -> Option<VesicleError> {
+        self.failure
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take()
+    }
+
+    fn fail(&self, e: VesicleError) {
+        let mut f = self.failure.lock().unwrap_or_else(|e| e.into_inner());
+        if f.is_none() {
+            *f = Some(e);
+        }
+    }
+
+    /// The local part of one column: `f = B X + T σ (+ J X)`, `y_X = a X`, `y_σ = Div X`.
+    fn local(
+        &self,
+        w: &mut OperatorWork,
+        z: &[f64],
+        f: &mut [f64],
+        y: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        let n3 = 3 * self.n;
+        let (x, sigma) = z.split_at(n3);
+        let OperatorWork {
+            membrane,
+            ft,
+            products,
+            elastic,
+            ..
+        } = w;
+        membrane.bending_linear(self.kappa, x, f)?;
+        membrane.tension_force(sigma, ft)?;
+        membrane.surface_divergence(x, &mut y[n3..])?;
+        for (a, t) in f.iter_mut().zip(ft.iter()) {
+            *a += t;
+        }
+        if let (Some(par), Some(el), true) = (
+            &self.jacobian,
+            elastic.as_mut(),
+            self.with_jacobian.load(Ordering::Relaxed),
+        ) {
+            add_elastic_jacobian(
+                el,
+                self.sht,
+                &mut products.ws,
+                par,
+                self.xstar,
+                self.size,
+                x,
+                f,
+            )?;
+        }
+        for (yi, xi) in y[..n3].iter_mut().zip(x) {
+            *yi = self.a_id * xi;
+        }
+        Ok(())
+    }
+
+    fn apply_one(&self, z: &[f64], y: &mut [f64]) -> Result<(), VesicleError> {
+        let n3 = 3 * self.n;
+        let mut guard = self.work.lock().unwrap_or_else(|e| e.into_inner());
+        let w = &mut *guard;
+        let mut f = std::mem::take(&mut w.fb);
+        let r = self.local(w, z, &mut f, y).and_then(|_| {
+            apply_operators(
+                self.storage,
+                self.sht,
+                &mut w.products,
+                self.xstar,
+                (self.s_op, &f, -self.tau),
+                self.d_op.map(|d| (d, &z[..n3], -self.c_d)),
+                &mut y[..n3],
+            )
+        });
+        w.fb = f;
+        r
+    }
+
+    /// `k` columns with the dense layers as one matrix product each.
+    fn apply_dense_batch(&self, z: &[f64], y: &mut [f64], k: usize) -> Result<(), VesicleError> {
+        let (n3, n4) = (3 * self.n, 4 * self.n);
+        let mut guard = self.work.lock().unwrap_or_else(|e| e.into_inner());
+        let w = &mut *guard;
+        let mut forces = vec![0.0; n3 * k];
+        for ((zc, yc), f) in z
+            .chunks_exact(n4)
+            .zip(y.chunks_exact_mut(n4))
+            .zip(forces.chunks_exact_mut(n3))
+        {
+            self.local(w, zc, f, yc)?;
+        }
+        fn dense<'b>(op: StepOperator<'b>) -> Option<&'b [f64]> {
+            match op {
+                StepOperator::Dense(m) => Some(m),
+                StepOperator::Kernel(_) => None,
+            }
+        }
+        let s = dense(self.s_op).expect("dense storage");
+        let d = self.d_op.and_then(dense);
+        match self.storage {
+            OperatorStorage::Grid => {
+                let gemm = |op: &[f64], rhs: MatRef<'_, f64>, y: &mut [f64], beta: f64| {
+                    matmul(
+                        MatMut::from_column_major_slice_with_stride_mut(y, n3, k, n4),
+                        Accum::Add,
+                        MatRef::from_column_major_slice(op, n3, n3),
+                        rhs,
+                        beta,
+                        Par::Seq,
+                    );
+                };
+                let fm = MatRef::from_column_major_slice(&forces, n3, k);
+                gemm(s, fm, y, -self.tau);
+                if let Some(d) = d {
+                    let xm = MatRef::from_column_major_slice_with_stride(z, n3, k, n4);
+                    gemm(d, xm, y, -self.c_d);
+                }
+            }
+            OperatorStorage::Coefficients => {
+                let nc = self.sht.n_coefs();
+                let ws = &mut w.products.ws;
+                let mut fc = vec![0.0; 3 * nc * k];
+                self.sht.forward(&forces, &mut fc, ws)?;
+                let mut yc = vec![0.0; 3 * nc * k];
+                let gemm = |op: &[f64], rhs: MatRef<'_, f64>, yc: &mut [f64], beta: f64| {
+                    matmul(
+                        MatMut::from_column_major_slice_mut(yc, 3 * nc, k),
+                        Accum::Add,
+                        MatRef::from_column_major_slice(op, 3 * nc, 3 * nc),
+                        rhs,
+                        beta,
+                        Par::Seq,
+                    );
+                };
+                gemm(
+                    s,
+                    MatRef::from_column_major_slice(&fc, 3 * nc, k),
+                    &mut yc,
+                    -self.tau,
+                );
+                if let Some(d) = d {
+                    // F X of every column: the first three of its four fields.
+                    let mut xc = vec![0.0; 4 * nc * k];
+                    self.sht.forward(z, &mut xc, ws)?;
+                    let xm = MatRef::from_column_major_slice_with_stride(&xc, 3 * nc, k, 4 * nc);
+                    gemm(d, xm, &mut yc, -self.c_d);
+                }
+                self.sht.inverse(&yc, &mut forces, ws)?;
+                for (yc, g) in y.chunks_exact_mut(n4).zip(forces.chunks_exact(n3)) {
+                    for (a, b) in yc[..n3].iter_mut().zip(g) {
+                        *a += b;
+                    }
+                }
+            }
+            OperatorStorage::MatrixFree => unreachable!("dense storage only"),
+        }
+        Ok(())
+    }
+}
+
+impl LinearOperator for InextensibleOperator<'_> {
+    fn nrows(&self) -> usize {
+        4 * self.n
+    }
+
+    fn apply(&self, x: &[f64], y: &mut [f64]) {
+        if let Err(e) = self.apply_one(x, y) {
+            self.fail(e);
+            y.fill(f64::NAN);
+        }
+    }
+
+    fn apply_batch(&self, x: &[f64], y: &mut [f64], k: usize) {
+        let dense = matches!(self.s_op, StepOperator::Dense(_))
+            && matches!(
+                self.storage,
+                OperatorStorage::Grid | OperatorStorage::Coefficients
+            );
+        if !dense {
+            for (xc, yc) in x
+                .chunks_exact(4 * self.n)
+                .zip(y.chunks_exact_mut(4 * self.n))
+            {
+                self.apply(xc, yc);
+            }
+            return;
+        }
+        if let Err(e) = self.apply_dense_batch(x, y, k) {
+            self.fail(e);
+            y.fill(f64::NAN);
+        }
+    }
+}
