@@ -115,9 +115,13 @@ fn scene_text(p: usize, cells: usize) -> String {
             m = -h
         )
     };
+    // STEP_BENCH_PRECONDITIONER: "sphere" (the default) or "cell" ([numerics] preconditioner).
+    let preconditioner =
+        std::env::var("STEP_BENCH_PRECONDITIONER").unwrap_or_else(|_| "sphere".into());
     format!(
         "[flow]\nkind = \"shear\"\nrate = 1.0\n\n{cells_section}\n[numerics]\norder = {p}\n\
-         upsample = 2\nfmm_digits = 6\ngmres_tol = 1e-8\ndt = 0.05\n"
+         upsample = 2\nfmm_digits = 6\ngmres_tol = 1e-8\ndt = 0.05\n\
+         preconditioner = \"{preconditioner}\"\n"
     )
 }
 

@@ -7,7 +7,7 @@
 //! over the next STEPS, as a Markdown table.
 //!
 //! `PRECONDITIONER=cell:K` uses each cell's own operator instead of the sphere's, rebuilt after a
-//! step of more than `K` iterations (`cell` alone: `K` = 6); the table then also gives the builds.
+//! step of more than `K` iterations (`cell` alone: `K` = 8); the table then also gives the builds.
 //!
 //! ```text
 //! cargo run --release --example gmres_by_shape [-- ORDERS STEPS]      (defaults: 6,8,12,16 20)

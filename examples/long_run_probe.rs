@@ -8,9 +8,13 @@
 //! with SHAPE one of `v0.85` (prolate of that reduced volume), `rbc` (biconcave, Skalak from
 //! `MOBO_SHEAR_MODULUS`, default 0), and the environment:
 //! `MOBO_FLOW` = `shear` (default) | `ext`, `MOBO_KAPPA` (default 0.05), `MOBO_TILT` (degrees
-//! about x, default 0), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`, `MOBO_TOL` (GMRES).
+//! about x, default 0), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`, `MOBO_TOL` (GMRES),
+//! `MOBO_PRECONDITIONER` = `cell` (each cell's own operator inverted, as `mobo run` does by
+//! default) | `sphere` (the default here: the library stepper's).
 use mobo::sph_harmonics::CoefLayout;
-use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{
+    Preconditioning, TimeScheme, VesicleParams, VesicleStepper,
+};
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::ReparamParams;
@@ -102,6 +106,9 @@ fn main() {
         elastic_stepping: None,
     };
     let mut stepper = VesicleStepper::new(p, params).unwrap();
+    if std::env::var("MOBO_PRECONDITIONER").is_ok_and(|v| v == "cell") {
+        stepper.set_preconditioning(Preconditioning::CELL);
+    }
     let mut coefs = s.coefs().to_vec();
     if gs > 0.0 {
         stepper

@@ -6,7 +6,8 @@
 #   scripts/bench_step.sh [CONFIG ...]     # CONFIG = ORDERxCELLS, default 6x1 6x100 6x1000 12x1 12x100
 #
 # Environment: RAYON_NUM_THREADS (default 1: rate per core), STEP_BENCH_STEPS (timed steps per
-# configuration; default as many as fit ~20 s of one thread), CARGO_TARGET_DIR as usual.
+# configuration; default as many as fit ~20 s of one thread), STEP_BENCH_PRECONDITIONER
+# ("sphere", the default, or "cell": [numerics] preconditioner), CARGO_TARGET_DIR as usual.
 # 12x1000 is left out by default: the dense per-cell operators need ~46 MB per cell at p = 12
 # (~46 GB for 1000 cells), more than a 24 GiB machine has (see benches/RESULTS.md).
 # The table goes to stdout and, with the raw JSON lines of each configuration, to

@@ -48,9 +48,10 @@
 //! adaptive_dt = false             # true: dt from the area/volume error (dt is the first step)
 //! far_side_split = true           # split off the own far side in the singular quadrature
 //! operator_storage = "auto"       # self-interaction: "auto" | "grid" | "coefficients" | "matrix_free"
-//! preconditioner = "sphere"       # GMRES: "sphere" (the sphere's inverse, turned with the grid) |
-//! #                               # "cell" (the cell's own operator inverted, rebuilt when stale)
-//! # preconditioner_rebuild_after = 6  # "cell": a step of more iterations rebuilds it
+//! preconditioner = "cell"         # GMRES: "cell" (each cell's own step operator inverted, turned
+//! #                               # with its grid, rebuilt when stale) | "sphere" (the inverse for
+//! #                               # the sphere of the cell's area, turned with the grid)
+//! # preconditioner_rebuild_after = 8  # "cell": a step of more iterations rebuilds it
 //! # dt_tolerance = 1e-3           # adaptive: relative area/volume error allowed over the run
 //! # dt_min = 1e-5, dt_max = 0.1   # adaptive: bounds of dt (defaults dt/1000, max(dt, t_end/10))
 //! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
@@ -369,8 +370,8 @@ pub struct Numerics {
     /// ([`crate::timestep::semi_implicit::OperatorStorage`]); `None` ("auto", the default): the
     /// fastest whose operators for all cells fit in 60 % of the memory available at the start.
     pub operator_storage: Option<OperatorStorage>,
-    /// GMRES preconditioner of every inextensible cell (default: the sphere's; see
-    /// [`crate::timestep::semi_implicit::Preconditioning`]).
+    /// GMRES preconditioner of every inextensible cell (default: each cell's own,
+    /// [`Preconditioning::CELL`]; see [`crate::timestep::semi_implicit::Preconditioning`]).
     pub preconditioning: Preconditioning,
     /// Adaptive `dt`: relative area/volume error allowed over the run (default `1e-3`).
     pub dt_tolerance: f64,
@@ -869,7 +870,7 @@ fn preconditioning(
         },
     };
     match kind.map(|k| (k, k.get_ref().as_str())) {
-        None | Some((_, "sphere")) => {
+        Some((_, "sphere")) => {
             if let Some(r) = rebuild {
                 return Err(at(
                     r.span(),
@@ -880,7 +881,7 @@ fn preconditioning(
             }
             Ok(Preconditioning::Sphere)
         }
-        Some((_, "cell")) => Ok(Preconditioning::Cell { rebuild_after }),
+        None | Some((_, "cell")) => Ok(Preconditioning::Cell { rebuild_after }),
         Some((k, other)) => Err(at(
             k.span(),
             format!("[numerics] preconditioner: unknown preconditioner \"{other}\" (sphere, cell)"),

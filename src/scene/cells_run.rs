@@ -43,9 +43,10 @@ use crate::comm::{spread, CommError, Communicator, SerialComm};
 use crate::io::frames::{CellFrame, FrameFormats, FrameWriter};
 use crate::io::{write_atomic, IoError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::timestep::cell_preconditioner;
 use crate::timestep::cell_state::{CellState, CellStateError};
 use crate::timestep::coupling::CouplingParams;
-use crate::timestep::semi_implicit::{OperatorStorage, TimeScheme, VesicleParams};
+use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
 use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
 use crate::timestep::{GmresParams, TimestepError};
 use crate::vesicle::far_side::FarSideParams;
@@ -387,7 +388,13 @@ pub fn build_part(
     // Chosen for all cells alike (the memory of the whole scene), so that the split between
     // ranks does not change how a cell is stepped.
     let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
-        let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+        let mut budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+        // The cells' own preconditioners take their share first (not kept with matrix-free
+        // operators, which this may then choose).
+        if let Preconditioning::Cell { .. } = scene.numerics.preconditioning {
+            let own = cell_preconditioner::bytes_per_cell(p) as u64;
+            budget = budget.saturating_sub(setups.len() as u64 * own);
+        }
         OperatorStorage::for_budget(setups.len(), p, 1 + usize::from(contrast), budget)
     });
     susp.set_operator_storage(storage);

@@ -284,9 +284,9 @@ pub enum StorageKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum PreconditionerKind {
-    /// The inverse step operator of the cell's area-equivalent sphere (the default).
+    /// The inverse step operator of the cell's area-equivalent sphere.
     Sphere,
-    /// The inverse of the cell's own step operator, rebuilt when stale.
+    /// The inverse of the cell's own step operator, rebuilt when stale (the default).
     Cell,
 }
 

@@ -33,8 +33,11 @@
 //! At the step it was built for, `A M⁻¹ = I + N` with `N` mapping into the complement and
 //! `N² = 0` (the single layer of a band-limited density has content above degree `p`), so GMRES
 //! needs at most two iterations. At later steps the cell has moved on and `A M⁻¹ = I + E` with
-//! `E` of the size of the change of the operator since the build; the stepper rebuilds when the
-//! iterations say it has gone stale ([`super::semi_implicit::Preconditioning::Cell`]).
+//! `E` of the size of the change of the operator since the build. The part of that change that
+//! is a rotation of the cell with its grid (a tumbling cell, a grid carried round by the
+//! membrane) is removed by turning the preconditioner with the grid, as the sphere's is
+//! ([`super::grid_frame`]); the stepper rebuilds when the iterations say it has gone stale
+//! ([`super::semi_implicit::Preconditioning::Cell`]).
 //!
 //! **Cost.** Build: `4n_c` applications of the step operator (the work of `4n_c` GMRES
 //! iterations), two batched transforms of `16 n_c` fields and one LU of order `4n_c`
@@ -91,6 +94,12 @@ impl CellPreconditionerScratch {
             pv: vec![0.0; 4 * sht.n_points()],
         }
     }
+}
+
+/// Bytes of the dense inverse of a cell of order `p`, `(4n_c)²` doubles.
+pub fn bytes_per_cell(p: usize) -> usize {
+    let nc = (p + 1) * (p + 1) - 1;
+    8 * 16 * nc * nc
 }
 
 impl CellPreconditioner {

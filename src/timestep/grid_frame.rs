@@ -44,6 +44,18 @@ pub fn grid_rotation(geom: &Geometry, directions: &[[f64; 3]]) -> Rotation {
     polar_rotation(h).unwrap_or(IDENTITY)
 }
 
+/// `R Sᵀ`: the turn from the frame `s` to the frame `r` (a preconditioner built when the grid's
+/// frame was `s`, used when it is `r`).
+pub fn relative_rotation(r: &Rotation, s: &Rotation) -> Rotation {
+    let mut out = [[0.0; 3]; 3];
+    for (a, row) in out.iter_mut().enumerate() {
+        for (b, v) in row.iter_mut().enumerate() {
+            *v = (0..3).map(|k| r[a][k] * s[b][k]).sum();
+        }
+    }
+    out
+}
+
 /// The orthogonal polar factor `H (HᵀH)^{−1/2}` of `h`, if `h` is well conditioned and its
 /// determinant positive.
 pub fn polar_rotation(h: [[f64; 3]; 3]) -> Option<Rotation> {

@@ -102,6 +102,20 @@
 //! vesicle of reduced volume 0.85 in shear at p = 12: 19 → 326 iterations per step from t = 0.4
 //! to t = 6, then no convergence; turned: 16–19 for t ≤ 40).
 //!
+//! The sphere's error grows with the cell's distance from the sphere (p = 12: 9 iterations per
+//! step for a sphere, 18 for a prolate of reduced volume 0.85, 22 for an RBC, and more with
+//! `p`). [`Preconditioning::Cell`] ([`VesicleStepper::set_preconditioning`], scene
+//! `[numerics] preconditioner = "cell"`) uses the exact inverse of the cell's own step
+//! operator instead ([`super::cell_preconditioner`]): built at a step from that step's operator
+//! (GMRES then takes at most two iterations), turned with the grid at later steps like the
+//! sphere's (by the rotation from the grid's frame at the build to the current one), and rebuilt
+//! when a step takes more than `rebuild_after` iterations or `τ` changes by more than 10 %
+//! (an adaptive `Δt`, BDF2 after its first step). It is rebuilt bit for
+//! bit from its [`PreconditionerRecord`] (the surface, `τ` and Skalak reference it was built
+//! from), which travels with the cell's state, so runs with it resume and migrate exactly.
+//! Not with matrix-free operators (the build would apply them `4n_c` times): those keep the
+//! sphere's.
+//!
 //! ## After the step
 //!
 //! Optionally the grid is reparametrised (tank-treading carries grid points along the membrane
@@ -117,7 +131,9 @@ use std::sync::{Arc, Mutex};
 
 use super::cell_preconditioner::{CellPreconditioner, CellPreconditionerOp};
 use super::cell_state::PreconditionerRecord;
-use super::grid_frame::{grid_rotation, RotatedPreconditioner, IDENTITY};
+use super::grid_frame::{
+    grid_rotation, relative_rotation, RotatedPreconditioner, Rotation, IDENTITY,
+};
 use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
 use super::step_engine::{ElasticWork, EngineLease, EnginePool, OperatorWork, StepEngine};
 use super::step_operator::{
@@ -168,7 +184,7 @@ pub enum Preconditioning {
     Sphere,
     /// The inverse of the cell's own step operator ([`super::cell_preconditioner`]), built at a
     /// step and reused until a step takes more than `rebuild_after` GMRES iterations (or `τ`
-    /// changes): then the next step rebuilds it. A cell too close to a sphere to invert its
+    /// changes by more than 10 %): then the next step rebuilds it. A cell too close to a sphere to invert its
     /// own operator uses the sphere's.
     Cell {
         /// Iterations of a step above which the next step rebuilds the preconditioner.
@@ -177,14 +193,17 @@ pub enum Preconditioning {
 }
 
 impl Preconditioning {
-    /// The cell's own operator, rebuilt after a step of more than 6 iterations.
-    pub const CELL: Preconditioning = Preconditioning::Cell { rebuild_after: 6 };
+    /// The cell's own operator, rebuilt after a step of more than 8 iterations.
+    pub const CELL: Preconditioning = Preconditioning::Cell { rebuild_after: 8 };
 }
 
 /// A cell's own preconditioner: what it was built from, and the inverse.
 struct OwnPreconditioner {
     record: PreconditionerRecord,
     inverse: OwnInverse,
+    /// The grid's frame at the build ([`super::grid_frame`]): later steps turn the
+    /// preconditioner by how far the grid has turned since.
+    frame: Rotation,
 }
 
 enum OwnInverse {
@@ -195,6 +214,10 @@ enum OwnInverse {
     /// To be rebuilt from the record before its next use (a restored state).
     Pending,
 }
+
+/// Relative change of `τ` (an adaptive or BDF2 step) beyond which the cell's own
+/// preconditioner is rebuilt; within it the iterations decide.
+const OWN_TAU_RTOL: f64 = 0.1;
 
 /// A singular own operator is tried again only after a step of more than this many times
 /// `rebuild_after` iterations with the sphere's preconditioner (a cell near a sphere, which
@@ -514,6 +537,7 @@ impl VesicleStepper {
                 self.own = Some(OwnPreconditioner {
                     record: r.clone(),
                     inverse: OwnInverse::Pending,
+                    frame: IDENTITY,
                 })
             }
         }
@@ -818,7 +842,7 @@ impl VesicleStepper {
                 OwnInverse::Singular => SINGULAR_RETRY_FACTOR * rebuild_after,
                 _ => rebuild_after,
             };
-            o.record.tau != coef.tau
+            (o.record.tau - coef.tau).abs() > OWN_TAU_RTOL * o.record.tau
                 || o.record.jacobian_reference.is_some() != with_jacobian
                 || (with_jacobian && self.skalak.is_none())
                 || o.record.last_iterations > limit
@@ -830,6 +854,8 @@ impl VesicleStepper {
         if let Some(mut o) = self.own.take() {
             if matches!(o.inverse, OwnInverse::Pending) {
                 o.inverse = self.rebuild_from_record(engine, &o.record)?;
+                let g = engine.calc.geometry(&o.record.surface)?;
+                o.frame = grid_rotation(&g, &engine.sht.grid().unit_points());
                 self.own_preconditioner_builds += 1;
             }
             self.own = Some(o);
@@ -1189,19 +1215,28 @@ impl VesicleStepper {
                         last_iterations: 0,
                     },
                     inverse,
+                    frame: rotation,
                 });
                 self.own_preconditioner_builds += 1;
                 own_built = true;
             }
-            let own_pc = match self.own.as_ref().map(|o| &o.inverse) {
-                Some(OwnInverse::Built(pc)) => Some(pc),
+            let own_pc = match self.own.as_ref() {
+                Some(OwnPreconditioner {
+                    inverse: OwnInverse::Built(pc),
+                    frame,
+                    ..
+                }) => Some((pc, relative_rotation(&rotation, frame))),
                 _ => None,
             };
             let mut z = vec![0.0; 4 * n];
             let report = match (pc_index, own_pc) {
-                (Some(_), Some(pc)) => gmres(
+                (Some(_), Some((pc, turn))) => gmres(
                     &op,
-                    &CellPreconditionerOp::new(pc, &engine.sht),
+                    &RotatedPreconditioner::new(
+                        &CellPreconditionerOp::new(pc, &engine.sht),
+                        turn,
+                        n,
+                    ),
                     &b,
                     Some(&z0),
                     &mut z,

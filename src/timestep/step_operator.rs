@@ -223,16 +223,27 @@ impl<'a> InextensibleOperator<'a> {
             elastic,
             ..
         } = w;
-        membrane.bending_linear(self.kappa, x, f)?;
-        membrane.tension_force(sigma, ft)?;
-        membrane.surface_divergence(x, &mut y[n3..])?;
-        for (a, t) in f.iter_mut().zip(ft.iter()) {
-            *a += t;
+        // A zero field contributes nothing (the unit columns of a preconditioner build are
+        // zero in all but one field): skip its operators.
+        let x_zero = x.iter().all(|v| *v == 0.0);
+        if x_zero {
+            f.fill(0.0);
+            y[n3..].fill(0.0);
+        } else {
+            membrane.bending_linear(self.kappa, x, f)?;
+            membrane.surface_divergence(x, &mut y[n3..])?;
         }
-        if let (Some(par), Some(el), true) = (
+        if sigma.iter().any(|v| *v != 0.0) {
+            membrane.tension_force(sigma, ft)?;
+            for (a, t) in f.iter_mut().zip(ft.iter()) {
+                *a += t;
+            }
+        }
+        if let (Some(par), Some(el), true, false) = (
             &self.jacobian,
             elastic.as_mut(),
             self.with_jacobian.load(Ordering::Relaxed),
+            x_zero,
         ) {
             add_elastic_jacobian(
                 el,
