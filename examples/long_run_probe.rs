@@ -12,9 +12,7 @@
 //! `MOBO_PRECONDITIONER` = `cell` (each cell's own operator inverted, as `mobo run` does by
 //! default) | `sphere` (the default here: the library stepper's).
 use mobo::sph_harmonics::CoefLayout;
-use mobo::timestep::semi_implicit::{
-    Preconditioning, TimeScheme, VesicleParams, VesicleStepper,
-};
+use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams, VesicleStepper};
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::ReparamParams;
