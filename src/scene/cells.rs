@@ -844,7 +844,6 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
 type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
 type Check<'a> = dyn Fn(&Spanned<f64>, &str) -> Result<f64, SceneError> + 'a;
 
-/// The cells of `[[cells]]` entry `k`; random placement keeps clear of the `earlier` entries' cells.
 /// `[numerics] preconditioner` and `preconditioner_rebuild_after`.
 fn preconditioning(
     n: Option<&NumericsSection>,
@@ -855,19 +854,18 @@ fn preconditioning(
     let rebuild_after = match rebuild {
         Some(r) => {
             let v = *r.get_ref();
-            if v == 0 {
+            if !(1..=1_000_000).contains(&v) {
                 return Err(at(
                     r.span(),
-                    "[numerics] preconditioner_rebuild_after must be at least 1 (iterations)"
-                        .into(),
+                    format!(
+                        "[numerics] preconditioner_rebuild_after must be from 1 to 1000000 \
+                         (iterations), got {v}"
+                    ),
                 ));
             }
-            usize::try_from(v).unwrap_or(usize::MAX)
+            v as usize
         }
-        None => match Preconditioning::CELL {
-            Preconditioning::Cell { rebuild_after } => rebuild_after,
-            Preconditioning::Sphere => unreachable!("CELL is a cell preconditioner"),
-        },
+        None => Preconditioning::DEFAULT_REBUILD_AFTER,
     };
     match kind.map(|k| (k, k.get_ref().as_str())) {
         Some((_, "sphere")) => {
@@ -889,6 +887,7 @@ fn preconditioning(
     }
 }
 
+/// The cells of `[[cells]]` entry `k`; random placement keeps clear of the `earlier` entries' cells.
 fn cell_specs(
     c: &CellSection,
     k: usize,

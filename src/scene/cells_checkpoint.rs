@@ -324,7 +324,9 @@ pub(crate) fn load(
     for (i, (surface, steps)) in pc_surfaces.into_iter().zip(&pc_steps).enumerate() {
         records.push(match (surface, steps) {
             (None, None) => None,
-            (Some(surface), Some(st)) if st[1] >= 0.0 && st[1].fract() == 0.0 => {
+            (Some(surface), Some(st))
+                if st[0] > 0.0 && st[0].is_finite() && st[1] >= 0.0 && st[1].fract() == 0.0 =>
+            {
                 Some(PreconditionerRecord {
                     surface,
                     tau: st[0],
@@ -336,7 +338,8 @@ pub(crate) fn load(
                 return Err(checkpoint_error(
                     out,
                     format!(
-                        "the preconditioner record of cell {} is incomplete or not a count",
+                        "the preconditioner record of cell {} is incomplete, or its τ is not \
+                         positive, or its iterations not a count",
                         i + 1
                     ),
                 ))

@@ -388,14 +388,20 @@ pub fn build_part(
     // Chosen for all cells alike (the memory of the whole scene), so that the split between
     // ranks does not change how a cell is stepped.
     let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
-        let mut budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
-        // The cells' own preconditioners take their share first (not kept with matrix-free
-        // operators, which this may then choose).
+        let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+        let (cells, operators) = (setups.len(), 1 + usize::from(contrast));
+        // The cells' own preconditioners take their share first. If what is left fits only
+        // matrix-free operators, which keep the sphere's preconditioner, the whole budget is
+        // theirs.
         if let Preconditioning::Cell { .. } = scene.numerics.preconditioning {
-            let own = cell_preconditioner::bytes_per_cell(p) as u64;
-            budget = budget.saturating_sub(setups.len() as u64 * own);
+            let own = cells as u64 * cell_preconditioner::bytes_per_cell(p) as u64;
+            let storage =
+                OperatorStorage::for_budget(cells, p, operators, budget.saturating_sub(own));
+            if storage != OperatorStorage::MatrixFree {
+                return storage;
+            }
         }
-        OperatorStorage::for_budget(setups.len(), p, 1 + usize::from(contrast), budget)
+        OperatorStorage::for_budget(cells, p, operators, budget)
     });
     susp.set_operator_storage(storage);
     susp.set_preconditioning(scene.numerics.preconditioning);

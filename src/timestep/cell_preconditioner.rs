@@ -40,8 +40,8 @@
 //! ([`super::semi_implicit::Preconditioning::Cell`]).
 //!
 //! **Cost.** Build: `4n_c` applications of the step operator (the work of `4n_c` GMRES
-//! iterations), two batched transforms of `16 n_c` fields and one LU of order `4n_c`
-//! (`p = 12`: 672, 0.2 GFLOP). Memory: the dense inverse, `(4n_c)²` doubles (3.6 MB at
+//! iterations), two batched transforms of `16 n_c` fields, and one LU of order `4n_c` and its
+//! inverse (`p = 12`: order 672, about 0.6 GFLOP together). Memory: the dense inverse, `(4n_c)²` doubles (3.6 MB at
 //! `p = 12`, 0.3 MB at `p = 6`). One application: three transforms of four fields and one
 //! product with the inverse (`2 (4n_c)²` flops).
 //!
@@ -98,7 +98,7 @@ impl CellPreconditionerScratch {
 
 /// Bytes of the dense inverse of a cell of order `p`, `(4n_c)²` doubles.
 pub fn bytes_per_cell(p: usize) -> usize {
-    let nc = (p + 1) * (p + 1) - 1;
+    let nc = crate::sph_harmonics::CoefLayout::new(p).len();
     8 * 16 * nc * nc
 }
 

@@ -183,9 +183,10 @@ pub enum Preconditioning {
     #[default]
     Sphere,
     /// The inverse of the cell's own step operator ([`super::cell_preconditioner`]), built at a
-    /// step and reused until a step takes more than `rebuild_after` GMRES iterations (or `τ`
-    /// changes by more than 10 %): then the next step rebuilds it. A cell too close to a sphere to invert its
-    /// own operator uses the sphere's.
+    /// step, turned with the grid at later steps, and rebuilt by the step after one of more
+    /// than `rebuild_after` GMRES iterations (or by a step whose `τ` differs by more than 10 %,
+    /// or whose other coefficients differ). A cell too close to a sphere to invert its own
+    /// operator uses the sphere's.
     Cell {
         /// Iterations of a step above which the next step rebuilds the preconditioner.
         rebuild_after: usize,
@@ -193,13 +194,20 @@ pub enum Preconditioning {
 }
 
 impl Preconditioning {
+    /// The default of [`Preconditioning::Cell`]'s `rebuild_after`.
+    pub const DEFAULT_REBUILD_AFTER: usize = 8;
     /// The cell's own operator, rebuilt after a step of more than 8 iterations.
-    pub const CELL: Preconditioning = Preconditioning::Cell { rebuild_after: 8 };
+    pub const CELL: Preconditioning = Preconditioning::Cell {
+        rebuild_after: Self::DEFAULT_REBUILD_AFTER,
+    };
 }
 
 /// A cell's own preconditioner: what it was built from, and the inverse.
 struct OwnPreconditioner {
     record: PreconditionerRecord,
+    /// The operator's coefficients (`τ` is the record's; the rest are the stepper's at the
+    /// build, compared so that a changed parameter rebuilds it).
+    coefs: StepCoefficients,
     inverse: OwnInverse,
     /// The grid's frame at the build ([`super::grid_frame`]): later steps turn the
     /// preconditioner by how far the grid has turned since.
@@ -213,6 +221,21 @@ enum OwnInverse {
     Singular,
     /// To be rebuilt from the record before its next use (a restored state).
     Pending,
+}
+
+/// The inverse of `op` (the step's operator, identity coefficient `a_id`), or `Singular`
+/// when the cell is too close to a sphere; a failure of the membrane operators is reported
+/// as such.
+fn own_inverse(
+    op: &InextensibleOperator<'_>,
+    sht: &ShTransform,
+    a_id: f64,
+) -> Result<OwnInverse, TimestepError> {
+    match CellPreconditioner::build(op, sht, a_id) {
+        Ok(pc) => Ok(OwnInverse::Built(pc)),
+        Err(TimestepError::SingularBlock { .. }) => Ok(OwnInverse::Singular),
+        Err(e) => Err(op.take_failure().map_or(e, TimestepError::from)),
+    }
 }
 
 /// Relative change of `τ` (an adaptive or BDF2 step) beyond which the cell's own
@@ -469,6 +492,11 @@ impl VesicleStepper {
             .expect("operator lock")
             .membrane
             .set_reference(reference)?;
+        // Other elastic parameters change the Jacobian in the cell's own preconditioner (a
+        // relabelled reference does not: the record keeps the one it was built with).
+        if self.skalak.as_ref().is_none_or(|(p, _)| *p != params) {
+            self.own = None;
+        }
         self.skalak = Some((params, reference.to_vec()));
         Ok(())
     }
@@ -521,12 +549,17 @@ impl VesicleStepper {
     /// for bit the one the record came from (a resumed run, a cell moved here, a repeated
     /// step).
     pub fn set_own_preconditioner_record(&mut self, record: Option<&PreconditionerRecord>) {
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        let bits = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
         let same = |a: &PreconditionerRecord, b: &PreconditionerRecord| {
-            bits(&a.surface) == bits(&b.surface)
+            bits(&a.surface, &b.surface)
                 && a.tau.to_bits() == b.tau.to_bits()
-                && a.jacobian_reference.as_deref().map(bits)
-                    == b.jacobian_reference.as_deref().map(bits)
+                && match (&a.jacobian_reference, &b.jacobian_reference) {
+                    (Some(x), Some(y)) => bits(x, y),
+                    (None, None) => true,
+                    _ => false,
+                }
         };
         match (record, &mut self.own) {
             (None, _) => self.own = None,
@@ -536,6 +569,12 @@ impl VesicleStepper {
             (Some(r), _) => {
                 self.own = Some(OwnPreconditioner {
                     record: r.clone(),
+                    coefs: StepCoefficients::new(
+                        self.params.viscosity_ratio,
+                        r.tau,
+                        self.params.bending_modulus,
+                        self.params.viscosity,
+                    ),
                     inverse: OwnInverse::Pending,
                     frame: IDENTITY,
                 })
@@ -554,6 +593,7 @@ impl VesicleStepper {
         if storage != self.storage {
             self.s_op = Vec::new();
             self.d_op = Vec::new();
+            self.own = None;
         }
         self.storage = storage;
     }
@@ -717,6 +757,9 @@ impl VesicleStepper {
             .products
             .layer
             .set_far_side_params(params)?;
+        if params != self.far_side {
+            self.own = None;
+        }
         self.far_side = params;
         Ok(())
     }
@@ -820,53 +863,64 @@ impl VesicleStepper {
 
     /// Get the cell's own preconditioner ready for a step with coefficients `coef` (and the
     /// elastic Jacobian if `with_jacobian`): dropped when stale, rebuilt from its record when
-    /// pending. Returns whether the step must build a new one (from its own operator).
+    /// pending. Returns whether the step must build a new one (from its own operator) and
+    /// whether one was rebuilt from a record.
     fn prepare_own(
         &mut self,
         engine: &mut StepEngine,
         coef: &StepCoefficients,
         with_jacobian: bool,
         precondition: bool,
-    ) -> Result<bool, TimestepError> {
+    ) -> Result<(bool, bool), TimestepError> {
         let Preconditioning::Cell { rebuild_after } = self.preconditioning else {
             self.own = None;
-            return Ok(false);
+            return Ok((false, false));
         };
         // Matrix-free storage would apply a matrix-free product per column of the build.
         if !precondition || self.storage == OperatorStorage::MatrixFree {
             self.own = None;
-            return Ok(false);
+            return Ok((false, false));
         }
+        let retry = SINGULAR_RETRY_FACTOR.saturating_mul(rebuild_after);
+        // Stale whatever its inverse: built for another operator, or iterations beyond even a
+        // singular one's limit.
         let stale = self.own.as_ref().is_none_or(|o| {
-            let limit = match o.inverse {
-                OwnInverse::Singular => SINGULAR_RETRY_FACTOR * rebuild_after,
-                _ => rebuild_after,
-            };
-            (o.record.tau - coef.tau).abs() > OWN_TAU_RTOL * o.record.tau
+            !o.coefs.same_operator(coef)
+                || (o.record.tau - coef.tau).abs() > OWN_TAU_RTOL * o.record.tau
                 || o.record.jacobian_reference.is_some() != with_jacobian
-                || (with_jacobian && self.skalak.is_none())
-                || o.record.last_iterations > limit
+                || o.record.last_iterations > retry
         });
         if stale {
             self.own = None;
-            return Ok(true);
+            return Ok((true, false));
         }
+        // A pending inverse is rebuilt first: whether it is singular decides its limit, as in
+        // the run the record came from.
+        let mut rebuilt = false;
         if let Some(mut o) = self.own.take() {
             if matches!(o.inverse, OwnInverse::Pending) {
                 o.inverse = self.rebuild_from_record(engine, &o.record)?;
                 let g = engine.calc.geometry(&o.record.surface)?;
                 o.frame = grid_rotation(&g, &engine.sht.grid().unit_points());
                 self.own_preconditioner_builds += 1;
+                rebuilt = true;
+            }
+            let limit = match o.inverse {
+                OwnInverse::Singular => retry,
+                _ => rebuild_after,
+            };
+            if o.record.last_iterations > limit {
+                return Ok((true, rebuilt));
             }
             self.own = Some(o);
         }
-        Ok(false)
+        Ok((false, rebuilt))
     }
 
     /// The own preconditioner of `record`, built as the step that made the record built it:
     /// the operators assembled at its surface, with its `τ` and Jacobian.
     fn rebuild_from_record(
-        &self,
+        &mut self,
         engine: &mut StepEngine,
         record: &PreconditionerRecord,
     ) -> Result<OwnInverse, TimestepError> {
@@ -889,6 +943,7 @@ impl VesicleStepper {
         if c_d != 0.0 {
             let double = LayerKernel::DoubleLayer;
             assemble_operator(engine, self.storage, double, &record.surface, &mut d_op)?;
+            self.double_layer_assemblies += 1;
         }
         let jacobian = match (&record.jacobian_reference, &self.skalak) {
             (Some(reference), Some((sk, _))) => {
@@ -917,11 +972,7 @@ impl VesicleStepper {
         if jacobian.is_some() {
             op.enable_jacobian();
         }
-        match CellPreconditioner::build(&op, &engine.sht, a_id) {
-            Ok(pc) => Ok(OwnInverse::Built(pc)),
-            Err(TimestepError::SingularBlock { .. }) => Ok(OwnInverse::Singular),
-            Err(e) => Err(op.take_failure().map_or(e, TimestepError::from)),
-        }
+        own_inverse(&op, &engine.sht, a_id)
     }
 
     /// One step with explicit terms (the velocity induced by other cells, extra tractions).
@@ -1026,7 +1077,7 @@ impl VesicleStepper {
         } else {
             (None, false)
         };
-        let build_own = self.prepare_own(
+        let (build_own, own_rebuilt) = self.prepare_own(
             engine,
             &coef,
             precondition && implicit_elastic,
@@ -1114,7 +1165,7 @@ impl VesicleStepper {
         }
         // The cell's size (area-equivalent radius), the scale of the Jacobian's difference step.
         let size = (area / (4.0 * std::f64::consts::PI)).sqrt();
-        let mut own_built = false;
+        let mut own_built = own_rebuilt;
         let (report, x_new) = if let (Some((sk, reference)), false) = (&self.skalak, inextensible) {
             solve_capsule(
                 engine,
@@ -1200,11 +1251,7 @@ impl VesicleStepper {
             }
             // The cell's own preconditioner, (re)built now if `prepare_own` found it stale.
             if build_own {
-                let inverse = match CellPreconditioner::build(&op, &engine.sht, a_id) {
-                    Ok(pc) => OwnInverse::Built(pc),
-                    Err(TimestepError::SingularBlock { .. }) => OwnInverse::Singular,
-                    Err(e) => return Err(op.take_failure().map_or(e, TimestepError::from)),
-                };
+                let inverse = own_inverse(&op, &engine.sht, a_id)?;
                 self.own = Some(OwnPreconditioner {
                     record: PreconditionerRecord {
                         surface: xstar.clone(),
@@ -1214,6 +1261,7 @@ impl VesicleStepper {
                             .map(|(_, r)| r.clone()),
                         last_iterations: 0,
                     },
+                    coefs: coef,
                     inverse,
                     frame: rotation,
                 });

@@ -101,6 +101,15 @@ pub struct StepCoefficients {
 }
 
 impl StepCoefficients {
+    /// Whether `other` has the same operator coefficients apart from `τ` (the identity and
+    /// double-layer coefficients, the bending modulus and the viscosity).
+    pub fn same_operator(&self, other: &StepCoefficients) -> bool {
+        self.identity == other.identity
+            && self.double_layer == other.double_layer
+            && self.bending_modulus == other.bending_modulus
+            && self.viscosity == other.viscosity
+    }
+
     /// For viscosity ratio `λ`, time factor `τ`, bending modulus `κ` and viscosity `μ`.
     pub fn new(viscosity_ratio: f64, tau: f64, bending_modulus: f64, viscosity: f64) -> Self {
         Self {

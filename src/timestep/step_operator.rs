@@ -382,11 +382,9 @@ impl LinearOperator for InextensibleOperator<'_> {
                 self.storage,
                 OperatorStorage::Grid | OperatorStorage::Coefficients
             );
-        if !dense {
-            for (xc, yc) in x
-                .chunks_exact(4 * self.n)
-                .zip(y.chunks_exact_mut(4 * self.n))
-            {
+        let n4 = 4 * self.n;
+        if !dense || x.len() != k * n4 || y.len() != k * n4 {
+            for (xc, yc) in x.chunks_exact(n4).zip(y.chunks_exact_mut(n4)).take(k) {
                 self.apply(xc, yc);
             }
             return;

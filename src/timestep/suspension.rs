@@ -450,8 +450,9 @@ impl Suspension {
         }
     }
 
-    /// Go back to a [`Suspension::snapshot`] (a rejected step). The preconditioners are not
-    /// part of the state: they depend only on the drift targets and `dt`.
+    /// Go back to a [`Suspension::snapshot`] (a rejected step). The sphere preconditioners are
+    /// not part of the state (they depend only on the drift targets and `dt`); a cell's own
+    /// preconditioner is, as the record it is rebuilt from (kept when it is the one held).
     pub fn restore(&mut self, state: &SuspensionState) -> Result<(), CellStepError> {
         for (i, c) in state.cells.iter().enumerate() {
             self.set_cell_state(i, c)?;
