@@ -494,7 +494,10 @@ fn moved_cell_continues_bit_for_bit(surface: &[f64], p: usize, before: usize, af
         a.step(&shear).unwrap();
     }
     let snap = a.snapshot();
-    assert!(a.cell_state(0).preconditioner.is_some(), "a record to carry");
+    assert!(
+        a.cell_state(0).preconditioner.is_some(),
+        "a record to carry"
+    );
     let mut b = fresh();
     b.restore(&snap).unwrap();
     for k in 0..after {
