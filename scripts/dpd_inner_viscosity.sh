@@ -44,7 +44,12 @@ bins = 20
 save_every = $STEPS
 TOML
   t0=$(date +%s)
-  "$work/mobo" dpd "$work/g$g.toml" --out "$work/out$g" --quiet >&2
+  if ! "$work/mobo" dpd "$work/g$g.toml" --out "$work/out$g" --quiet 2> "$work/err$g"; then
+    t1=$(date +%s)
+    why=$(tr '\n' ' ' < "$work/err$g" | sed 's/|/\\|/g' | cut -c1-160)
+    rows+="$g $f fail $why"$'\n'
+    continue
+  fi
   t1=$(date +%s)
   read -r eta se kbt < <(python3 - "$work/out$g/summary.json" <<'PY'
 import json, sys
@@ -71,6 +76,10 @@ done
   echo "|---|---|---|---|---|---|---|"
   while read -r g f eta se kbt secs; do
     [ -z "$g" ] && continue
+    if [ "$eta" = fail ]; then
+      echo "| $g | $((g - GAMMA_OUT)) | $f | – | – | – | failed: $se $kbt $secs |"
+      continue
+    fi
     python3 -c "
 g, f, eta, se, kbt, secs, eo, go = $g, $f, $eta, $se, '$kbt', $secs, float('${eta_out:-nan}'), $GAMMA_OUT
 lam = eta / eo

@@ -382,7 +382,8 @@ pub struct VesicleStepper {
     targets: Option<(f64, f64)>,
     /// Shear elasticity (explicit) and its stress-free reference surface (coefficients).
     skalak: Option<(SkalakParams, Vec<f64>)>,
-    /// Double-layer operators assembled so far (0 for `λ = 1`: only what is called for).
+    /// Double-layer operators assembled by the steps so far (0 for `λ = 1`: only what is called
+    /// for; a preconditioner rebuilt from its record assembles again, not counted here).
     pub double_layer_assemblies: usize,
     /// `Xⁿ⁻¹` (coefficients) for BDF2.
     previous: Option<Vec<f64>>,
@@ -942,8 +943,9 @@ impl VesicleStepper {
         assemble_operator(engine, self.storage, single, &record.surface, &mut s_op)?;
         if c_d != 0.0 {
             let double = LayerKernel::DoubleLayer;
+            // Not counted in `double_layer_assemblies` (the steps' own): this one belongs to the
+            // rebuild, counted in `own_preconditioner_builds`.
             assemble_operator(engine, self.storage, double, &record.surface, &mut d_op)?;
-            self.double_layer_assemblies += 1;
         }
         let jacobian = match (&record.jacobian_reference, &self.skalak) {
             (Some(reference), Some((sk, _))) => {
