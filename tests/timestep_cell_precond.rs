@@ -322,7 +322,8 @@ fn a_run_with_own_preconditioners_resumes_bit_for_bit() {
     let its = s["gmres_iterations_mean"].as_f64().unwrap();
     assert!(its < 6.0, "mean iterations {its}");
     let want = frame_bits(&full, true);
-    // Stopped at steps that do not coincide with a build of both cells, then resumed.
+    // Stopped at two steps, then resumed: the cells hold preconditioners built earlier, which
+    // the resumed run rebuilds from their records (the test fails without them: checked).
     for stop in [4, 7] {
         let part = dir.join(format!("part{stop}"));
         stop_and_resume(&scene, &part, stop);
