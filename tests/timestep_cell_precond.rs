@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{frame_bits, mobo, ok, stop_and_resume, summary, tmpdir, write};
+use common::{frame_bits, mobo, ok, rotation, stop_and_resume, summary, tmpdir, write};
 use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::cell_preconditioner::{CellPreconditioner, CellPreconditionerScratch};
 use mobo::timestep::coupling::CouplingParams;
@@ -381,26 +381,8 @@ fn an_unknown_preconditioner_is_a_located_error() {
 #[test]
 fn the_relative_rotation_turns_the_build_frame_into_the_current_one() {
     let rot = |axis: [f64; 3], deg: f64| {
-        let (s, c) = deg.to_radians().sin_cos();
         let n = norm(&axis);
-        let [x, y, z] = axis.map(|v| v / n);
-        [
-            [
-                c + x * x * (1.0 - c),
-                x * y * (1.0 - c) - z * s,
-                x * z * (1.0 - c) + y * s,
-            ],
-            [
-                y * x * (1.0 - c) + z * s,
-                c + y * y * (1.0 - c),
-                y * z * (1.0 - c) - x * s,
-            ],
-            [
-                z * x * (1.0 - c) - y * s,
-                z * y * (1.0 - c) + x * s,
-                c + z * z * (1.0 - c),
-            ],
-        ]
+        rotation(axis.map(|v| v / n), deg.to_radians())
     };
     let (r, s) = (rot([1.0, 2.0, -0.5], 37.0), rot([0.3, -1.0, 0.8], -64.0));
     let t = relative_rotation(&r, &s);
@@ -416,18 +398,6 @@ fn the_relative_rotation_turns_the_build_frame_into_the_current_one() {
     }
 }
 
-/// `coefs` (x, y, z blocks) turned rigidly by `r`, with the same parametrisation.
-fn turned(coefs: &[f64], r: &[[f64; 3]; 3]) -> Vec<f64> {
-    let nc = coefs.len() / 3;
-    let mut out = vec![0.0; coefs.len()];
-    for a in 0..3 {
-        for k in 0..nc {
-            out[a * nc + k] = (0..3).map(|b| r[a][b] * coefs[b * nc + k]).sum();
-        }
-    }
-    out
-}
-
 #[test]
 fn a_cell_turned_with_its_grid_keeps_its_preconditioner_exact() {
     // Built for an RBC whose shape and grid are turned by A (so the grid's frame at the build is
@@ -436,19 +406,12 @@ fn a_cell_turned_with_its_grid_keeps_its_preconditioner_exact() {
     // inverts it (up to the content above degree p): at most three iterations. Turned the
     // other way round (R_buildᵀ R_now = Aᵀ T A), or not at all, it would not be.
     let p = 8;
-    let c = |deg: f64| deg.to_radians().cos();
-    let s = |deg: f64| deg.to_radians().sin();
-    let a = [
-        [1.0, 0.0, 0.0],
-        [0.0, c(50.0), -s(50.0)],
-        [0.0, s(50.0), c(50.0)],
-    ];
-    let t = [
-        [c(35.0), -s(35.0), 0.0],
-        [s(35.0), c(35.0), 0.0],
-        [0.0, 0.0, 1.0],
-    ];
-    let x0 = turned(shapes::rbc(p).unwrap().coefs(), &a);
+    let a = rotation([1.0, 0.0, 0.0], 50f64.to_radians());
+    let t = rotation([0.0, 0.0, 1.0], 35f64.to_radians());
+    let mut built = shapes::rbc(p).unwrap();
+    built.rotate(a).unwrap();
+    let mut again = built.clone();
+    again.rotate(t).unwrap();
     let frozen = VesicleParams {
         correct_drift: false,
         reparametrize: None,
@@ -457,10 +420,10 @@ fn a_cell_turned_with_its_grid_keeps_its_preconditioner_exact() {
     let mut st = VesicleStepper::new(p, frozen).unwrap();
     st.set_preconditioning(Preconditioning::CELL);
     let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
-    let mut c1 = x0.clone();
+    let mut c1 = built.coefs().to_vec();
     let first = st.step(&mut c1, &shear).unwrap();
     assert!(first.preconditioner_built && first.gmres.iterations <= 2);
-    let mut c2 = turned(&x0, &t);
+    let mut c2 = again.coefs().to_vec();
     let second = st.step(&mut c2, &shear).unwrap();
     assert!(!second.preconditioner_built, "not rebuilt: it was fresh");
     assert!(
@@ -470,7 +433,7 @@ fn a_cell_turned_with_its_grid_keeps_its_preconditioner_exact() {
     );
     // Control: the sphere's preconditioner needs many more for this cell.
     let mut sp = VesicleStepper::new(p, frozen).unwrap();
-    let mut c3 = turned(&x0, &t);
+    let mut c3 = again.coefs().to_vec();
     let sphere = sp.step(&mut c3, &shear).unwrap().gmres.iterations;
     assert!(sphere >= 3 * second.gmres.iterations, "sphere {sphere}");
 }

@@ -13,7 +13,7 @@
 //! * a solve that stagnates fails early, naming step, cell and residual history.
 
 mod common;
-use common::{frame_bits, mobo, stop_and_resume, tmpdir, write};
+use common::{frame_bits, mobo, rotation, stop_and_resume, tmpdir, write};
 
 use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::grid_frame::{grid_rotation, polar_rotation};
@@ -24,29 +24,6 @@ use mobo::vesicle::reparam::{ReparamParams, Reparametrizer};
 use mobo::vesicle::shapes::{self, Spheroid, Surface};
 use mobo::vesicle::skalak::SkalakParams;
 use mobo::vesicle::Membrane;
-
-/// The rotation by `angle` about the unit `axis` (Rodrigues).
-fn rotation(axis: [f64; 3], angle: f64) -> [[f64; 3]; 3] {
-    let (s, c) = angle.sin_cos();
-    let [x, y, z] = axis;
-    [
-        [
-            c + x * x * (1.0 - c),
-            x * y * (1.0 - c) - z * s,
-            x * z * (1.0 - c) + y * s,
-        ],
-        [
-            y * x * (1.0 - c) + z * s,
-            c + y * y * (1.0 - c),
-            y * z * (1.0 - c) - x * s,
-        ],
-        [
-            z * x * (1.0 - c) - y * s,
-            z * y * (1.0 - c) + x * s,
-            c + z * z * (1.0 - c),
-        ],
-    ]
-}
 
 fn max_diff(a: [[f64; 3]; 3], b: [[f64; 3]; 3]) -> f64 {
     (0..9)

@@ -55,6 +55,7 @@ use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::DenseSolveCore;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 
+use super::sphere_preconditioner::add_grid_complement;
 use super::{LinearOperator, Preconditioner, TimestepError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::VesicleError;
@@ -240,13 +241,7 @@ impl CellPreconditioner {
             Par::Seq,
         );
         sht.inverse(y, z, ws).map_err(VesicleError::from)?;
-        let ainv = 1.0 / self.identity;
-        for i in 0..3 * n {
-            z[i] += (v[i] - pv[i]) * ainv;
-        }
-        for i in 3 * n..4 * n {
-            z[i] += v[i] - pv[i];
-        }
+        add_grid_complement(v, pv, self.identity, z);
         Ok(())
     }
 }

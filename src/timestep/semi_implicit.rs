@@ -570,12 +570,7 @@ impl VesicleStepper {
             (Some(r), _) => {
                 self.own = Some(OwnPreconditioner {
                     record: r.clone(),
-                    coefs: StepCoefficients::new(
-                        self.params.viscosity_ratio,
-                        r.tau,
-                        self.params.bending_modulus,
-                        self.params.viscosity,
-                    ),
+                    coefs: self.step_coefficients(r.tau),
                     inverse: OwnInverse::Pending,
                     frame: IDENTITY,
                 })
@@ -862,6 +857,12 @@ impl VesicleStepper {
         Ok((self.preconditioners.len() - 1, true))
     }
 
+    /// The step operator's coefficients for time factor `tau` with this cell's parameters.
+    fn step_coefficients(&self, tau: f64) -> StepCoefficients {
+        let p = &self.params;
+        StepCoefficients::new(p.viscosity_ratio, tau, p.bending_modulus, p.viscosity)
+    }
+
     /// Get the cell's own preconditioner ready for a step with coefficients `coef` (and the
     /// elastic Jacobian if `with_jacobian`): dropped when stale, rebuilt from its record when
     /// pending. Returns whether the step must build a new one (from its own operator) and
@@ -925,12 +926,7 @@ impl VesicleStepper {
         engine: &mut StepEngine,
         record: &PreconditionerRecord,
     ) -> Result<OwnInverse, TimestepError> {
-        let coef = StepCoefficients::new(
-            self.params.viscosity_ratio,
-            record.tau,
-            self.params.bending_modulus,
-            self.params.viscosity,
-        );
+        let coef = self.step_coefficients(record.tau);
         let (a_id, c_d) = (coef.identity, coef.double_layer);
         let size = {
             let w = engine.work.get_mut().expect("operator lock");
@@ -1005,7 +1001,6 @@ impl VesicleStepper {
         }
         let mut lease = self.lease()?;
         let engine: &mut StepEngine = &mut lease;
-        let lambda = self.params.viscosity_ratio;
         let kappa = self.params.bending_modulus;
         let omega = self.extrapolation_ratio();
         let bdf2 = omega.is_some();
@@ -1024,7 +1019,7 @@ impl VesicleStepper {
         } else {
             self.params.dt
         };
-        let coef = StepCoefficients::new(lambda, tau, kappa, self.params.viscosity);
+        let coef = self.step_coefficients(tau);
         let (a_id, c_d) = (coef.identity, coef.double_layer);
         let (area0, volume0) = {
             let g = engine.calc.geometry(coefs)?;

@@ -424,8 +424,6 @@ impl Preconditioner for SpherePreconditioner {
     }
 
     fn apply(&self, v: &[f64], z: &mut [f64]) {
-        let n = self.sht.n_points();
-        let n3 = 3 * n;
         let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
         let Scratch {
             ws,
@@ -463,13 +461,21 @@ impl Preconditioner for SpherePreconditioner {
             z.fill(f64::NAN);
             return;
         }
-        let ainv = 1.0 / self.coefs.identity;
-        for i in 0..n3 {
-            z[i] += (v[i] - pv[i]) * ainv;
-        }
-        for i in n3..4 * n {
-            z[i] += v[i] - pv[i];
-        }
+        add_grid_complement(v, pv, self.coefs.identity, z);
+    }
+}
+
+/// `z ← z + [(v_X − F⁻¹F v_X)/a ; v_σ − F⁻¹F v_σ]`: the inverse step operator on the grid
+/// complement `ker F` (`a` on positions, zero on tensions; module docs), with `pv = F⁻¹F v`
+/// (`4n` values: `3n` positions, then `n` tensions). Shared with the cell's own preconditioner.
+pub(crate) fn add_grid_complement(v: &[f64], pv: &[f64], identity: f64, z: &mut [f64]) {
+    let n3 = 3 * (v.len() / 4);
+    let ainv = 1.0 / identity;
+    for i in 0..n3 {
+        z[i] += (v[i] - pv[i]) * ainv;
+    }
+    for i in n3..v.len() {
+        z[i] += v[i] - pv[i];
     }
 }
 

@@ -133,22 +133,22 @@ pub(crate) const JACOBIAN_STEP: f64 = 1e-5;
 /// membrane operators writes NaN into the output and is kept for
 /// [`InextensibleOperator::take_failure`].
 pub(crate) struct InextensibleOperator<'a> {
-    pub n: usize,
-    pub work: &'a Mutex<OperatorWork>,
-    pub sht: &'a ShTransform,
-    pub storage: OperatorStorage,
-    pub xstar: &'a [f64],
-    pub s_op: StepOperator<'a>,
-    pub d_op: Option<StepOperator<'a>>,
+    n: usize,
+    work: &'a Mutex<OperatorWork>,
+    sht: &'a ShTransform,
+    storage: OperatorStorage,
+    xstar: &'a [f64],
+    s_op: StepOperator<'a>,
+    d_op: Option<StepOperator<'a>>,
     /// `a = (1+λ)/2`, `c_D = 1 − λ`, `τ`, `κ_b`.
-    pub a_id: f64,
-    pub c_d: f64,
-    pub tau: f64,
-    pub kappa: f64,
+    a_id: f64,
+    c_d: f64,
+    tau: f64,
+    kappa: f64,
     /// The shear elasticity of the Jacobian (its engine made and its reference set).
-    pub jacobian: Option<SkalakParams>,
+    jacobian: Option<SkalakParams>,
     /// The cell's size, the scale of the Jacobian's difference step.
-    pub size: f64,
+    size: f64,
     with_jacobian: AtomicBool,
     failure: Mutex<Option<VesicleError>>,
 }

@@ -118,6 +118,29 @@ pub fn frame_bits(out: &std::path::Path, tension: bool) -> Vec<Vec<u64>> {
 
 pub mod quadrature;
 
+/// The rotation by `angle` about the unit `axis` (Rodrigues).
+pub fn rotation(axis: [f64; 3], angle: f64) -> [[f64; 3]; 3] {
+    let (s, c) = angle.sin_cos();
+    let [x, y, z] = axis;
+    [
+        [
+            c + x * x * (1.0 - c),
+            x * y * (1.0 - c) - z * s,
+            x * z * (1.0 - c) + y * s,
+        ],
+        [
+            y * x * (1.0 - c) + z * s,
+            c + y * y * (1.0 - c),
+            y * z * (1.0 - c) - x * s,
+        ],
+        [
+            z * x * (1.0 - c) - y * s,
+            z * y * (1.0 - c) + x * s,
+            c + z * z * (1.0 - c),
+        ],
+    ]
+}
+
 /// The particle arrays of a `mobo dpd` checkpoint (positions, velocities, forces, ids).
 pub const DPD_PARTICLE_ARRAYS: [&str; 10] =
     ["x", "y", "z", "vx", "vy", "vz", "fx", "fy", "fz", "id"];
