@@ -44,6 +44,8 @@
 
 pub mod cell_list;
 pub mod crossing;
+#[cfg(feature = "gpu")]
+pub mod gpu_fluid;
 pub mod membrane;
 pub mod pair_force;
 pub mod poiseuille;
@@ -89,6 +91,9 @@ pub enum DpdError {
         /// Its position.
         position: [f64; 3],
     },
+    /// The GPU path failed (no adapter, a size it cannot take, a failed submission).
+    #[error("DPD on the GPU: {0}")]
+    Gpu(#[from] crate::gpu::GpuError),
 }
 
 /// Check a parameter: `Ok` when `ok`, else a [`DpdError::Parameter`].

@@ -17,12 +17,13 @@ pub fn mix64(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The constant the seed is mixed with in [`step_key`].
+pub const SEED_MIX: u64 = 0x6a09_e667_f3bc_c909;
+
 /// The key of one step: computed once per step, then combined with each pair's word.
 #[inline]
 pub fn step_key(seed: u64, step: u64) -> u64 {
-    mix64(
-        mix64(seed ^ 0x6a09_e667_f3bc_c909).wrapping_add(step.wrapping_mul(0x9e37_79b9_7f4a_7c15)),
-    )
+    mix64(mix64(seed ^ SEED_MIX).wrapping_add(step.wrapping_mul(0x9e37_79b9_7f4a_7c15)))
 }
 
 /// The word of the unordered pair `{i, j}` (ids below 2³²).

@@ -266,6 +266,26 @@ impl DpdSystem {
         Ok(sys)
     }
 
+    /// Replace the particles, their forces, the step count and the virial with a state
+    /// computed elsewhere (the GPU path): the particles are sorted by cell again and the forces
+    /// follow them, so CPU steps can continue from the state.
+    pub(crate) fn load_state(
+        &mut self,
+        particles: Particles,
+        forces: [Vec<f64>; 3],
+        step: u64,
+        virial: f64,
+    ) {
+        self.particles = particles;
+        self.sort();
+        let [gx, gy, gz] = forces;
+        self.fx = self.perm.iter().map(|&o| gx[o as usize]).collect();
+        self.fy = self.perm.iter().map(|&o| gy[o as usize]).collect();
+        self.fz = self.perm.iter().map(|&o| gz[o as usize]).collect();
+        self.step = step;
+        self.virial = virial;
+    }
+
     /// Number of particles.
     pub fn len(&self) -> usize {
         self.particles.len()

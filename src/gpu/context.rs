@@ -112,6 +112,27 @@ impl Gpu {
         pipeline
     }
 
+    /// Wait until the device has finished everything submitted.
+    pub(crate) fn wait(&self) -> Result<(), GpuError> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map(|_| ())
+            .map_err(|e| GpuError::Execution(e.to_string()))
+    }
+
+    /// Map `slice` of a read-back buffer (filled by a submitted copy) and wait until it is
+    /// readable.
+    pub(crate) fn map_read(&self, slice: &wgpu::BufferSlice) -> Result<(), GpuError> {
+        let (tx, rx) = std::sync::mpsc::channel();
+        slice.map_async(wgpu::MapMode::Read, move |r| {
+            let _ = tx.send(r);
+        });
+        self.wait()?;
+        rx.recv()
+            .map_err(|e| GpuError::Execution(e.to_string()))?
+            .map_err(|e| GpuError::Execution(e.to_string()))
+    }
+
     /// Whether `f64` shaders are available.
     pub fn has_f64(&self) -> bool {
         self.f64

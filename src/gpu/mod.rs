@@ -28,6 +28,10 @@
 #[cfg(feature = "gpu")]
 mod context;
 #[cfg(feature = "gpu")]
+pub mod dpd;
+#[cfg(feature = "gpu")]
+mod dpd_shader;
+#[cfg(feature = "gpu")]
 pub mod p2p;
 #[cfg(feature = "gpu")]
 mod shader;

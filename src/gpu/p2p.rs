@@ -394,14 +394,6 @@ impl PairSum {
         }
     }
 
-    fn wait(&self) -> Result<(), GpuError> {
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map(|_| ())
-            .map_err(|e| GpuError::Execution(e.to_string()))
-    }
-
     /// Add `scale · Σ K q` to `out` (`output_dim` values per target): `q` holds the density
     /// components, one slice per component (`density_dim` of them), in source order.
     pub fn evaluate(&self, q: &[&[f64]], out: &mut [f64]) -> Result<(), GpuError> {
@@ -438,14 +430,7 @@ impl PairSum {
         encoder.copy_buffer_to_buffer(&self.out, 0, &self.staging, 0, None);
         queue.submit([encoder.finish()]);
         let slice = self.staging.slice(..);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.wait()?;
-        rx.recv()
-            .map_err(|e| GpuError::Execution(e.to_string()))?
-            .map_err(|e| GpuError::Execution(e.to_string()))?;
+        self.gpu.map_read(&slice)?;
         {
             let view = slice
                 .get_mapped_range()
@@ -485,12 +470,12 @@ impl PairSum {
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
         self.dispatch(&mut encoder, 1);
         self.gpu.queue.submit([encoder.finish()]);
-        self.wait()?;
+        self.gpu.wait()?;
         let t = std::time::Instant::now();
         let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
         self.dispatch(&mut encoder, reps.max(1));
         self.gpu.queue.submit([encoder.finish()]);
-        self.wait()?;
+        self.gpu.wait()?;
         Ok(t.elapsed().as_secs_f64() / reps.max(1) as f64)
     }
 }

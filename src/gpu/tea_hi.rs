@@ -380,17 +380,7 @@ impl GpuTeaHi {
         encoder.copy_buffer_to_buffer(&self.out, 0, &self.staging, 0, bytes);
         self.gpu.queue.submit([encoder.finish()]);
         let slice = self.staging.slice(..bytes);
-        let (tx, rx) = std::sync::mpsc::channel();
-        slice.map_async(wgpu::MapMode::Read, move |r| {
-            let _ = tx.send(r);
-        });
-        self.gpu
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Execution(e.to_string()))?;
-        rx.recv()
-            .map_err(|e| GpuError::Execution(e.to_string()))?
-            .map_err(|e| GpuError::Execution(e.to_string()))?;
+        self.gpu.map_read(&slice)?;
         {
             let view = slice
                 .get_mapped_range()

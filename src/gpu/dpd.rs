@@ -1,0 +1,527 @@
+//! The DPD fluid's whole step on the GPU: particles resident on the device, cell lists rebuilt
+//! there every step, many steps per submission.
+//!
+//! This is the GPU path of the periodic DPD fluid of `crate::dpd::system` (no walls, no
+//! cells): the same velocity-Verlet step, the same pair force
+//! `F_ij = [a w − γ w_R² (v_ij·e) + σ w_R ξ_ij/√dt] e`, the same counter-based noise. The passes
+//! are listed in `dpd_shader`; between steps nothing moves to or from the host. The cell list is
+//! a counting sort (atomic counts, a two-level scan, a scatter); each cell's slots are then
+//! sorted by particle id, so the order of every sum is fixed and a run is reproducible bit for
+//! bit on one device. Each particle sums its pairs over its 27 neighbour cells (every pair is
+//! computed from both sides: no atomics; `F_ji = −F_ij` holds to rounding, since both sides see
+//! the same noise and the same distance).
+//!
+//! **Precision.** `f64` (with `SHADER_F64`) computes what the CPU computes, in another order:
+//! one force evaluation agrees with `crate::dpd::pair_force::cell_forces` to rounding. `f32` is
+//! the precision of GPU DPD codes (Mirheo): positions in the box as plain `f32` (at `L = 64`, an
+//! ulp of `4·10⁻⁶`), the noise from 24 random bits.
+
+use std::sync::Arc;
+
+use wgpu::util::DeviceExt;
+
+use super::dpd_shader::{self, rpar, IPAR_LEN, SCAN_BLOCK, WG};
+use super::{Gpu, GpuError, GpuPrecision};
+
+/// The fluid's parameters as the GPU pass takes them (`crate::dpd` fills them).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DpdFluidSpec {
+    /// Box side lengths.
+    pub box_len: [f64; 3],
+    /// Cells per axis (each at least 3, sides at least `r_c`).
+    pub dims: [u32; 3],
+    /// Conservative amplitude `a`.
+    pub a: f64,
+    /// Dissipative coefficient `γ`.
+    pub gamma: f64,
+    /// Noise amplitude `σ = √(2γ k_BT)`.
+    pub sigma: f64,
+    /// Cut-off radius.
+    pub rc: f64,
+    /// Kernel exponent `k`.
+    pub power: f64,
+    /// Time step.
+    pub dt: f64,
+    /// Particle mass.
+    pub mass: f64,
+    /// `mix64(seed ^ C)`, the seed's half of `crate::dpd::rng::step_key`.
+    pub key0: u64,
+    /// Constant body force per particle.
+    pub body: [f64; 3],
+    /// Reverse-Poiseuille force magnitude along `x` (`+` below `L_z/2`, `−` above; 0: none).
+    pub reverse_poiseuille: f64,
+}
+
+/// Particle state in cell order, as read back from the device.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct DpdFluidState {
+    /// Positions.
+    pub x: Vec<[f64; 3]>,
+    /// Velocities.
+    pub v: Vec<[f64; 3]>,
+    /// Forces of the last evaluation (pair and body).
+    pub f: Vec<[f64; 3]>,
+    /// Each particle's half of the virial `Σ_j r_ij·F^C_ij / 2`.
+    pub virial: Vec<f64>,
+    /// Permanent ids.
+    pub id: Vec<u32>,
+    /// Steps done.
+    pub step: u64,
+    /// The smallest id of a particle that left the box by more than a box length or became
+    /// non-finite since the pass was made (`None`: none did).
+    pub unstable: Option<u32>,
+}
+
+struct Pass {
+    name: &'static str,
+    pipeline: wgpu::ComputePipeline,
+    bind_group: wgpu::BindGroup,
+    groups: (u32, u32),
+}
+
+/// The DPD fluid resident on the GPU.
+pub struct DpdFluidPass {
+    gpu: Arc<Gpu>,
+    precision: GpuPrecision,
+    n: usize,
+    passes: Vec<Pass>,
+    pos: wgpu::Buffer,
+    vel: wgpu::Buffer,
+    frc: wgpu::Buffer,
+    ids: wgpu::Buffer,
+    ctl: wgpu::Buffer,
+}
+
+/// Steps per command buffer (one submission).
+pub const STEPS_PER_SUBMIT: u64 = 50;
+
+fn bytes<T: bytemuck::Pod>(v: &[T]) -> &[u8] {
+    bytemuck::cast_slice(v)
+}
+
+fn pack4(p: &[[f64; 3]], w: Option<&[f64]>, prec: GpuPrecision) -> Vec<u8> {
+    let wv = |i: usize| w.map_or(0.0, |w| w[i]);
+    match prec {
+        GpuPrecision::F64 => {
+            let v: Vec<f64> = p
+                .iter()
+                .enumerate()
+                .flat_map(|(i, x)| [x[0], x[1], x[2], wv(i)])
+                .collect();
+            bytes(&v).to_vec()
+        }
+        GpuPrecision::F32 => {
+            let v: Vec<f32> = p
+                .iter()
+                .enumerate()
+                .flat_map(|(i, x)| [x[0] as f32, x[1] as f32, x[2] as f32, wv(i) as f32])
+                .collect();
+            bytes(&v).to_vec()
+        }
+    }
+}
+
+fn unpack4(b: &[u8], prec: GpuPrecision) -> (Vec<[f64; 3]>, Vec<f64>) {
+    let v: Vec<f64> = match prec {
+        GpuPrecision::F64 => bytemuck::cast_slice::<u8, f64>(b).to_vec(),
+        GpuPrecision::F32 => bytemuck::cast_slice::<u8, f32>(b)
+            .iter()
+            .map(|&c| c as f64)
+            .collect(),
+    };
+    v.chunks_exact(4)
+        .map(|c| ([c[0], c[1], c[2]], c[3]))
+        .unzip()
+}
+
+/// Split `items` threads of `WG` into a 2-D grid within the device's per-dimension limit.
+fn grid(items: usize, max_groups: u32) -> Result<(u32, u32), GpuError> {
+    let groups = items.div_ceil(WG as usize).max(1);
+    let gx = groups.min(max_groups as usize);
+    let gy = groups.div_ceil(gx);
+    if gy > max_groups as usize {
+        return Err(GpuError::TooLarge {
+            what: format!("{items} threads"),
+            bytes: 0,
+            limit: 0,
+        });
+    }
+    Ok((gx as u32, gy as u32))
+}
+
+impl DpdFluidPass {
+    /// Upload a fluid: positions inside the box, velocities, the forces of the current
+    /// positions (the first half kick uses them), ids below 2³², and the steps done.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        gpu: Arc<Gpu>,
+        precision: GpuPrecision,
+        spec: &DpdFluidSpec,
+        x: &[[f64; 3]],
+        v: &[[f64; 3]],
+        f: &[[f64; 3]],
+        id: &[u32],
+        step: u64,
+    ) -> Result<Self, GpuError> {
+        if precision == GpuPrecision::F64 && !gpu.has_f64() {
+            return Err(GpuError::NoF64(gpu.describe()));
+        }
+        let n = x.len();
+        if v.len() != n || f.len() != n || id.len() != n {
+            return Err(GpuError::Shape(
+                "positions, velocities, forces and ids must have one entry per particle".into(),
+            ));
+        }
+        if n == 0 || n >= (u32::MAX / 2) as usize {
+            return Err(GpuError::Shape(format!("{n} particles (1 to 2³¹)")));
+        }
+        if spec.dims.iter().any(|&d| d < 3) {
+            return Err(GpuError::Shape(format!(
+                "cell grid {:?}: at least 3 cells per axis",
+                spec.dims
+            )));
+        }
+        for (k, &l) in spec.box_len.iter().enumerate() {
+            if !(l.is_finite() && l / spec.dims[k] as f64 >= spec.rc) {
+                return Err(GpuError::Shape(format!(
+                    "box length {l} on axis {k} with {} cells: the cells must be at least r_c = {} wide",
+                    spec.dims[k], spec.rc
+                )));
+            }
+        }
+        if let Some(bad) = x
+            .iter()
+            .position(|p| (0..3).any(|k| !(p[k] >= 0.0 && p[k] < spec.box_len[k])))
+        {
+            return Err(GpuError::Shape(format!(
+                "particle {bad} at {:?} is outside the box",
+                x[bad]
+            )));
+        }
+        let ncells = spec.dims.iter().map(|&d| d as u64).product::<u64>();
+        if ncells >= (u32::MAX / 2) as u64 {
+            return Err(GpuError::Shape(format!("{ncells} cells (below 2³¹)")));
+        }
+        let ncells = ncells as usize;
+        let Some(sources) = dpd_shader::sources(precision, spec.power) else {
+            return Err(GpuError::Shape(format!(
+                "kernel exponent k = {} in {}: the f64 shaders take k = 1, 1/2 and 1/4 only \
+                 (WGSL has no f64 pow); use f32",
+                spec.power,
+                precision.name()
+            )));
+        };
+        let real = match precision {
+            GpuPrecision::F32 => 4usize,
+            GpuPrecision::F64 => 8,
+        };
+        let vec4 = n * 4 * real;
+        if vec4 as u64 > gpu.max_binding {
+            return Err(GpuError::TooLarge {
+                what: format!("{n} particles' positions"),
+                bytes: vec4 as u64,
+                limit: gpu.max_binding,
+            });
+        }
+        let nblocks = ncells.div_ceil(SCAN_BLOCK as usize);
+        if nblocks as u32 > gpu.max_groups {
+            return Err(GpuError::TooLarge {
+                what: format!("{ncells} cells"),
+                bytes: 0,
+                limit: 0,
+            });
+        }
+        let gn = grid(n, gpu.max_groups)?;
+        let gc = grid(ncells, gpu.max_groups)?;
+
+        let dev = &gpu.device;
+        let storage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST;
+        let init = |label: &str, contents: &[u8]| {
+            dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage: storage,
+            })
+        };
+        let zeroed = |label: &str, size: usize| {
+            dev.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(label),
+                size: size.max(16) as u64,
+                usage: storage,
+                mapped_at_creation: false,
+            })
+        };
+        let pos = init("dpd positions", &pack4(x, None, precision));
+        let vel = init("dpd velocities", &pack4(v, None, precision));
+        let frc = init("dpd forces", &pack4(f, None, precision));
+        let ids = init("dpd ids", bytes(id));
+        let pos2 = zeroed("dpd positions (drifted)", vec4);
+        let vel2 = zeroed("dpd velocities (drifted)", vec4);
+        let ids2 = zeroed("dpd ids (drifted)", n * 4);
+        let cell = zeroed("dpd cell of particle", n * 4);
+        let arrival = zeroed("dpd arrival in cell", n * 4);
+        let order = zeroed("dpd order", n * 4);
+        let count = zeroed("dpd cell counts", ncells * 4);
+        let start = zeroed("dpd cell starts", (ncells + 1) * 4);
+        let blocks = zeroed("dpd scan blocks", nblocks * 4);
+        let ctl = init(
+            "dpd control",
+            bytes(&[step as u32, (step >> 32) as u32, 0u32, u32::MAX]),
+        );
+        let mut ipar = [0u32; IPAR_LEN];
+        ipar[..10].copy_from_slice(&[
+            n as u32,
+            ncells as u32,
+            spec.dims[0],
+            spec.dims[1],
+            spec.dims[2],
+            nblocks as u32,
+            spec.key0 as u32,
+            (spec.key0 >> 32) as u32,
+            gn.0,
+            gc.0,
+        ]);
+        let ipar = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("dpd integer parameters"),
+            contents: bytes(&ipar),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let mut r = [0.0f64; rpar::LEN];
+        for k in 0..3 {
+            r[rpar::BOX + k] = spec.box_len[k];
+            r[rpar::INV_CELL + k] = spec.dims[k] as f64 / spec.box_len[k];
+            r[rpar::BODY + k] = spec.body[k];
+        }
+        r[rpar::A] = spec.a;
+        r[rpar::GAMMA] = spec.gamma;
+        r[rpar::SIGMA] = spec.sigma;
+        r[rpar::RC] = spec.rc;
+        r[rpar::DT] = spec.dt;
+        r[rpar::HALF_DT_OVER_M] = 0.5 * spec.dt / spec.mass;
+        r[rpar::INV_SQRT_DT] = 1.0 / spec.dt.sqrt();
+        r[rpar::REVERSE] = spec.reverse_poiseuille;
+        r[rpar::HALF_LZ] = 0.5 * spec.box_len[2];
+        let rpar_bytes = match precision {
+            GpuPrecision::F64 => bytes(&r).to_vec(),
+            GpuPrecision::F32 => bytes(&r.map(|c| c as f32)).to_vec(),
+        };
+        let rparb = init("dpd real parameters", &rpar_bytes);
+
+        // Each pass's bindings (the pipeline's layout is derived from its shader, so each bind
+        // group names exactly the bindings that pass declares).
+        let bindings = |name: &str| -> Vec<(u32, &wgpu::Buffer)> {
+            match name {
+                "drift" => vec![
+                    (0, &pos),
+                    (1, &vel),
+                    (2, &frc),
+                    (3, &ids),
+                    (4, &pos2),
+                    (5, &vel2),
+                    (6, &ids2),
+                    (7, &cell),
+                    (8, &arrival),
+                    (9, &count),
+                    (10, &ctl),
+                    (11, &ipar),
+                    (12, &rparb),
+                ],
+                "scan_local" => vec![(0, &count), (1, &start), (2, &blocks), (11, &ipar)],
+                "scan_blocks" => vec![(0, &blocks), (1, &start), (2, &ctl), (11, &ipar)],
+                "scan_add" => vec![(0, &start), (1, &blocks), (11, &ipar)],
+                "scatter" => vec![
+                    (0, &start),
+                    (1, &cell),
+                    (2, &arrival),
+                    (3, &order),
+                    (11, &ipar),
+                ],
+                "sort_cells" => vec![(0, &start), (1, &ids2), (2, &order), (11, &ipar)],
+                "gather" => vec![
+                    (0, &pos),
+                    (1, &vel),
+                    (3, &ids),
+                    (4, &pos2),
+                    (5, &vel2),
+                    (6, &ids2),
+                    (7, &order),
+                    (11, &ipar),
+                ],
+                "forces" => vec![
+                    (0, &pos),
+                    (1, &vel),
+                    (2, &frc),
+                    (3, &ids),
+                    (4, &start),
+                    (10, &ctl),
+                    (11, &ipar),
+                    (12, &rparb),
+                ],
+                "kick" => vec![(1, &vel), (2, &frc), (11, &ipar), (12, &rparb)],
+                _ => unreachable!("a pass without bindings"),
+            }
+        };
+        let mut passes = Vec::new();
+        for (name, source) in &sources {
+            // SAFETY: every index the passes form is in bounds: particle and cell indices are
+            // checked against `n` and `ncells` (the dispatch grids cover at least that many
+            // threads); cell coordinates are clamped to the grid; `start` has `ncells + 1`
+            // entries, its values are prefix sums of the counts (at most `n`), and
+            // `start[c] + arrival` is below `start[c + 1]` because the arrivals of cell `c`
+            // are `0..count[c]`; `blocks` has one entry per 1024 cells (`c / 1024 < nblocks`).
+            let pipeline = unsafe { gpu.trusted_pipeline(&format!("dpd {name}"), source) };
+            let entries: Vec<wgpu::BindGroupEntry> = bindings(name)
+                .into_iter()
+                .map(|(binding, b)| wgpu::BindGroupEntry {
+                    binding,
+                    resource: b.as_entire_binding(),
+                })
+                .collect();
+            let bind_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
+                label: Some(name),
+                layout: &pipeline.get_bind_group_layout(0),
+                entries: &entries,
+            });
+            let groups = match *name {
+                "scan_local" => (nblocks as u32, 1),
+                "scan_blocks" => (1, 1),
+                "scan_add" | "sort_cells" => gc,
+                _ => gn,
+            };
+            passes.push(Pass {
+                name,
+                pipeline,
+                bind_group,
+                groups,
+            });
+        }
+        Ok(DpdFluidPass {
+            gpu,
+            precision,
+            n,
+            passes,
+            pos,
+            vel,
+            frc,
+            ids,
+            ctl,
+        })
+    }
+
+    /// Particles.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// Whether there are none (never: a pass holds at least one particle).
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// The precision of the passes.
+    pub fn precision(&self) -> GpuPrecision {
+        self.precision
+    }
+
+    /// The device.
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// Queue and run `steps` velocity-Verlet steps, and wait for them. Steps go in batches of
+    /// [`STEPS_PER_SUBMIT`], at most two batches in flight: the next is encoded while the
+    /// device runs the last.
+    pub fn advance(&mut self, steps: u64) -> Result<(), GpuError> {
+        self.run(steps, |_| true)
+    }
+
+    /// The force pass alone, `reps` times over the current state (which it leaves as it is):
+    /// for timing the pass against the whole step.
+    pub fn forces_only(&mut self, reps: u64) -> Result<(), GpuError> {
+        self.run(reps, |name| name == "forces")
+    }
+
+    fn run(&self, steps: u64, take: impl Fn(&str) -> bool) -> Result<(), GpuError> {
+        let (dev, queue) = (&self.gpu.device, &self.gpu.queue);
+        let mut left = steps;
+        let mut previous = None;
+        while left > 0 {
+            let batch = left.min(STEPS_PER_SUBMIT);
+            let mut encoder = dev.create_command_encoder(&Default::default());
+            {
+                let mut cp = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                    label: Some("dpd steps"),
+                    timestamp_writes: None,
+                });
+                for _ in 0..batch {
+                    for p in self.passes.iter().filter(|p| take(p.name)) {
+                        cp.set_pipeline(&p.pipeline);
+                        cp.set_bind_group(0, &p.bind_group, &[]);
+                        cp.dispatch_workgroups(p.groups.0, p.groups.1, 1);
+                    }
+                }
+            }
+            let index = queue.submit([encoder.finish()]);
+            left -= batch;
+            if let Some(prev) = previous.replace(index) {
+                dev.poll(wgpu::PollType::Wait {
+                    submission_index: Some(prev),
+                    timeout: None,
+                })
+                .map_err(|e| GpuError::Execution(e.to_string()))?;
+            }
+        }
+        self.gpu.wait()
+    }
+
+    /// Read the state back (positions, velocities, forces, ids in the device's cell order).
+    pub fn read(&self) -> Result<DpdFluidState, GpuError> {
+        let dev = &self.gpu.device;
+        let bufs = [&self.pos, &self.vel, &self.frc, &self.ids, &self.ctl];
+        let sizes: Vec<u64> = bufs.iter().map(|b| b.size()).collect();
+        let total: u64 = sizes.iter().sum();
+        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dpd read-back"),
+            size: total,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut encoder = dev.create_command_encoder(&Default::default());
+        let mut at = 0;
+        for (b, &s) in bufs.iter().zip(&sizes) {
+            encoder.copy_buffer_to_buffer(b, 0, &staging, at, s);
+            at += s;
+        }
+        self.gpu.queue.submit([encoder.finish()]);
+        let slice = staging.slice(..);
+        self.gpu.map_read(&slice)?;
+        let view = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Execution(e.to_string()))?;
+        let mut parts = Vec::new();
+        let mut at = 0usize;
+        for &s in &sizes {
+            parts.push(&view[at..at + s as usize]);
+            at += s as usize;
+        }
+        let (x, _) = unpack4(parts[0], self.precision);
+        let (v, _) = unpack4(parts[1], self.precision);
+        let (f, virial) = unpack4(parts[2], self.precision);
+        let id: Vec<u32> = bytemuck::cast_slice::<u8, u32>(parts[3])[..self.n].to_vec();
+        let ctl: &[u32] = bytemuck::cast_slice(parts[4]);
+        let state = DpdFluidState {
+            x,
+            v,
+            f,
+            virial,
+            id,
+            step: ctl[0] as u64 | ((ctl[1] as u64) << 32),
+            unstable: (ctl[2] != 0).then_some(ctl[3]),
+        };
+        drop(view);
+        staging.unmap();
+        Ok(state)
+    }
+}
