@@ -33,6 +33,27 @@ fn err_of(text: &str) -> String {
 #[test]
 fn bad_scenes_name_the_file_the_line_and_the_problem() {
     assert!(parse(Path::new("s.toml"), BASE).is_ok());
+    let e = err_of(&format!("{BASE}gpu = \"maybe\"\n"));
+    assert!(
+        e.starts_with("s.toml:17:") && e.contains("\"auto\", true or false"),
+        "{e}"
+    );
+    let e = err_of(&format!("{BASE}gpu_precision = \"f16\"\n"));
+    assert!(
+        e.starts_with("s.toml:17:") && e.contains("\"f32\" or \"f64\""),
+        "{e}"
+    );
+    let e = err_of(&format!("{BASE}power = 0.3\ngpu_precision = \"f64\"\n"));
+    assert!(e.contains("gpu_precision") && e.contains("0.3"), "{e}");
+    let walled = BASE
+        .replace("flow = \"periodic_poiseuille\"", "flow = \"poiseuille\"")
+        .replace(
+            "seed = 3",
+            "seed = 3\nwalls = { kind = \"planes\", gap = 5.0 }",
+        );
+    assert!(parse(Path::new("s.toml"), &walled).is_ok());
+    let e = err_of(&format!("{walled}gpu = true\n"));
+    assert!(e.contains("gpu") && e.contains("walls"), "{e}");
     let e = err_of(&BASE.replace("gamma = 4.5", "gamma = -1.0"));
     assert!(e.starts_with("s.toml:5:") && e.contains("gamma"), "{e}");
     let e = err_of(&BASE.replace("seed = 3", "seed = 3\nviscosity = 2.0"));

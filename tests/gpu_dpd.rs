@@ -6,6 +6,8 @@
 //! exists they skip with a message, except in CI (`CI=true`), where that is a failure.
 #![cfg(feature = "gpu")]
 
+mod common;
+
 use std::collections::HashMap;
 use std::sync::Arc;
 
@@ -14,6 +16,8 @@ use mobo::dpd::pair_force::PairParams;
 use mobo::dpd::system::{BodyForce, DpdParams, DpdSystem};
 use mobo::dpd::DpdError;
 use mobo::gpu::{Gpu, GpuPrecision};
+
+use common::{checkpoint_bits, mobo, ok, summary, tmpdir, write, DPD_PARTICLE_ARRAYS};
 
 fn gpu() -> Option<Arc<Gpu>> {
     match Gpu::shared() {
@@ -260,4 +264,122 @@ fn an_unstable_run_is_reported_and_refusals_are_clear() {
         .err()
         .expect("walls refused");
     assert!(e.to_string().contains("walls"), "{e}");
+}
+
+/// A small periodic-Poiseuille scene (864 particles).
+const SCENE: &str = r#"[dpd]
+box = [6.0, 6.0, 8.0]
+density = 3.0
+a = 25.0
+gamma = 4.5
+kbt = 1.0
+dt = 0.01
+steps = 100
+seed = 3
+flow = "periodic_poiseuille"
+force = 0.2
+equilibrate = 20
+sample_every = 5
+blocks = 4
+bins = 16
+save_every = 40
+"#;
+
+fn observables(dir: &std::path::Path) -> Vec<Vec<f64>> {
+    std::fs::read_to_string(dir.join("observables.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.trim().parse().unwrap()).collect())
+        .collect()
+}
+
+#[test]
+fn mobo_dpd_on_the_gpu_in_f64_follows_the_cpu_run() {
+    let Some(g) = gpu() else { return };
+    if !g.has_f64() {
+        return;
+    }
+    let dir = tmpdir("gpu-dpd-scene");
+    let run = |name: &str, extra: &str| {
+        let scene = write(&dir, &format!("{name}.toml"), &format!("{SCENE}{extra}"));
+        let out = dir.join(name);
+        ok(
+            &mobo(&["dpd", &scene, "--out", out.to_str().unwrap(), "--quiet"]),
+            name,
+        );
+        out
+    };
+    let cpu = run("cpu", "gpu = false\n");
+    let dev = run("gpu", "gpu = true\ngpu_precision = \"f64\"\n");
+    let (sc, sg) = (summary(&cpu), summary(&dev));
+    assert_eq!(sc["fluid_step"]["device"], "cpu");
+    assert_eq!(sg["fluid_step"]["device"], "gpu", "{}", sg["fluid_step"]);
+    assert_eq!(sg["fluid_step"]["precision"], "f64");
+    assert_eq!(sg["steps"], 100);
+    // Observables rows (step, t, k_BT, pressure, momentum): the same run to rounding grown
+    // over 100 steps of chaotic dynamics.
+    let (oc, og) = (observables(&cpu), observables(&dev));
+    assert_eq!(oc.len(), og.len());
+    for (a, b) in oc.iter().zip(&og) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-8 * (1.0 + x.abs()), "{a:?} vs {b:?}");
+        }
+    }
+    // The profile sampled every 5 steps between syncs, and the viscosity fitted to it.
+    let (vc, vg) = (
+        sc["viscosity"]["value"].as_f64().unwrap(),
+        sg["viscosity"]["value"].as_f64().unwrap(),
+    );
+    assert!((vc - vg).abs() < 1e-8 * vc, "viscosity {vc} vs {vg}");
+}
+
+#[test]
+fn mobo_dpd_on_the_gpu_resumes_bit_for_bit_and_auto_says_why() {
+    let Some(_g) = gpu() else { return };
+    let dir = tmpdir("gpu-dpd-resume");
+    let scene = write(&dir, "s.toml", &format!("{SCENE}gpu = true\n"));
+    let whole = dir.join("whole");
+    ok(
+        &mobo(&["dpd", &scene, "--out", whole.to_str().unwrap(), "--quiet"]),
+        "whole",
+    );
+    let part = dir.join("part");
+    ok(
+        &mobo(&[
+            "dpd",
+            &scene,
+            "--out",
+            part.to_str().unwrap(),
+            "--quiet",
+            "--max-steps",
+            "53",
+        ]),
+        "first part",
+    );
+    assert_eq!(summary(&part)["steps"], 53);
+    ok(
+        &mobo(&["dpd", "--resume", part.to_str().unwrap(), "--quiet"]),
+        "resume",
+    );
+    assert_eq!(summary(&part)["fluid_step"]["precision"], "f32");
+    assert_eq!(
+        checkpoint_bits(&whole, &DPD_PARTICLE_ARRAYS),
+        checkpoint_bits(&part, &DPD_PARTICLE_ARRAYS),
+        "the resumed GPU run differs from the whole one"
+    );
+    // auto: 864 particles stay on the CPU, with the reason.
+    let auto = write(&dir, "auto.toml", SCENE);
+    let out = dir.join("auto");
+    ok(
+        &mobo(&["dpd", &auto, "--out", out.to_str().unwrap(), "--quiet"]),
+        "auto",
+    );
+    let s = summary(&out);
+    assert_eq!(s["fluid_step"]["device"], "cpu");
+    let why = s["fluid_step"]["reason"].as_str().unwrap();
+    assert!(
+        why.contains("not a hardware GPU") || why.contains("below the"),
+        "{why}"
+    );
 }

@@ -269,6 +269,7 @@ impl DpdSystem {
     /// Replace the particles, their forces, the step count and the virial with a state
     /// computed elsewhere (the GPU path): the particles are sorted by cell again and the forces
     /// follow them, so CPU steps can continue from the state.
+    #[cfg(feature = "gpu")]
     pub(crate) fn load_state(
         &mut self,
         particles: Particles,

@@ -20,7 +20,13 @@
 //! blocks = 10                # blocks for the standard error (default 10)
 //! bins = 20                  # profile bins along z (default 20, rounded up to even)
 //! save_every = 1000          # steps between observables rows and checkpoints (default 1000)
+//! gpu = "auto"               # the fluid's step on a GPU: "auto" | true | false (feature gpu)
+//! gpu_precision = "f32"      # "f32" (default, as GPU DPD codes) | "f64" (k = 1, 1/2, 1/4 only)
 //! ```
+//!
+//! The GPU steps a periodic fluid without walls or cells (`crate::dpd::gpu_fluid`); `auto`
+//! takes a hardware GPU for at least `AUTO_MIN_PARTICLES` (in `scene::dpd_run`) particles, `true`
+//! any adapter, and fails where there is none or where walls or cells ask for the CPU.
 //!
 //! Walls (frozen particles and bounce-back, [`crate::dpd::walls`]):
 //!
@@ -71,6 +77,7 @@ use crate::dpd::pair_force::PairParams;
 use crate::dpd::suspension::{CellSpec, CouplingParams};
 use crate::dpd::system::{BodyForce, DpdParams};
 use crate::dpd::walls::Wall;
+use crate::gpu::{GpuChoice, GpuPrecision};
 use crate::vesicle::{shapes, CellMesh};
 
 #[derive(Debug, Deserialize)]
@@ -126,6 +133,16 @@ struct DpdSection {
     #[serde(default)]
     cells: Vec<CellSection>,
     coupling: Option<CouplingSection>,
+    gpu: Option<GpuFlag>,
+    gpu_precision: Option<String>,
+}
+
+/// `gpu`: `"auto"`, or a boolean.
+#[derive(Debug, Deserialize)]
+#[serde(untagged)]
+enum GpuFlag {
+    Flag(bool),
+    Word(String),
 }
 
 /// One `[[dpd.cells]]` entry.
@@ -245,6 +262,10 @@ pub struct DpdScene {
     pub cells: Vec<DpdCell>,
     /// Their coupling to the solvent (`[dpd.coupling]`).
     pub coupling: CouplingParams,
+    /// The fluid's step on a GPU (`gpu`, default `"auto"`).
+    pub gpu: GpuChoice,
+    /// The GPU's precision (`gpu_precision`, default `f32`).
+    pub gpu_precision: GpuPrecision,
 }
 
 impl DpdScene {
@@ -488,6 +509,48 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         .validate()
         .map_err(|e| SceneError::new(file, format!("[dpd]: {e}")))?;
     let coupling = coupling_params(file, text, d.coupling.as_ref())?;
+    let gpu = match &d.gpu {
+        None => GpuChoice::Auto,
+        Some(GpuFlag::Flag(true)) => GpuChoice::On,
+        Some(GpuFlag::Flag(false)) => GpuChoice::Off,
+        Some(GpuFlag::Word(w)) if w == "auto" => GpuChoice::Auto,
+        Some(GpuFlag::Word(w)) => {
+            return Err(located(
+                "gpu",
+                format!("must be \"auto\", true or false, got \"{w}\""),
+            ))
+        }
+    };
+    if gpu == GpuChoice::On && (wall.is_some() || !d.cells.is_empty()) {
+        return Err(located(
+            "gpu",
+            format!(
+                "the GPU steps a periodic fluid only; this scene has {} (set gpu = false or \"auto\")",
+                if wall.is_some() { "walls" } else { "cells" }
+            ),
+        ));
+    }
+    let gpu_precision = match d.gpu_precision.as_deref() {
+        None | Some("f32") => GpuPrecision::F32,
+        Some("f64") => {
+            if ![1.0, 0.5, 0.25].contains(&d.power) {
+                return Err(located(
+                    "gpu_precision",
+                    format!(
+                        "f64 on the GPU takes power = 1, 0.5 or 0.25 (WGSL has no f64 pow), got {}",
+                        d.power
+                    ),
+                ));
+            }
+            GpuPrecision::F64
+        }
+        Some(other) => {
+            return Err(located(
+                "gpu_precision",
+                format!("must be \"f32\" or \"f64\", got \"{other}\""),
+            ))
+        }
+    };
     let mut cells: Vec<DpdCell> = Vec::with_capacity(d.cells.len());
     for (k, c) in d.cells.iter().enumerate() {
         let built = cell(file, text, k, c, &params, wall.as_ref())?;
@@ -525,6 +588,8 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         wall_speed,
         cells,
         coupling,
+        gpu,
+        gpu_precision,
     })
 }
 

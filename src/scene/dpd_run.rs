@@ -36,6 +36,7 @@ use crate::dpd::suspension::{CellState, CouplingParams, DpdSuspension, Suspensio
 use crate::dpd::system::{BodyForce, DpdSystem, DpdTimings};
 use crate::dpd::walls::Wall;
 use crate::dpd::DpdError;
+use crate::gpu::{GpuChoice, GpuDecision, GpuError};
 use crate::io::checkpoint::Checkpoint;
 use crate::io::vtk::{write_polydata, write_pvd, DataArray, DataValues, PolyMesh, PvdEntry};
 use crate::io::{write_atomic, IoError};
@@ -142,6 +143,9 @@ pub struct DpdSummary {
     pub flow: BodyForce,
     /// The effects built and why ([`effects`]).
     pub effects: Vec<Effect>,
+    /// Where the fluid's steps ran and why (`[dpd] gpu`): `{"device": "cpu" | "gpu", "adapter",
+    /// "precision", "reason"}`.
+    pub fluid_step: GpuDecision,
     /// Wall seconds of the steps (all invocations of a resumed run).
     pub wall_s: f64,
     /// Wall milliseconds per step in this invocation (NaN when it took no step).
@@ -264,10 +268,14 @@ pub struct CellSummary {
     pub volume_change: f64,
 }
 
-/// What a run steps: the fluid alone, or cells in it.
+/// What a run steps: the fluid alone, or cells in it, or the fluid on the GPU.
 enum Model {
     Fluid(Box<DpdSystem>),
     Cells(Box<DpdSuspension>),
+    /// The fluid stepped on the GPU; the host system holds the state as last synced (at every
+    /// step where the run samples, saves or stops).
+    #[cfg(feature = "gpu")]
+    Gpu(Box<DpdSystem>, Box<crate::dpd::gpu_fluid::GpuFluid>),
 }
 
 impl Model {
@@ -275,30 +283,163 @@ impl Model {
         match self {
             Model::Fluid(f) => f,
             Model::Cells(s) => &s.fluid,
+            #[cfg(feature = "gpu")]
+            Model::Gpu(f, _) => f,
         }
     }
 
-    fn step(&mut self) -> Result<(), DpdError> {
+    /// `steps` steps; on the GPU, the state is synced to the host after them.
+    fn advance(&mut self, steps: u64) -> Result<(), DpdError> {
         match self {
-            Model::Fluid(f) => f.step(),
-            Model::Cells(s) => s.step(),
+            Model::Fluid(f) => (0..steps).try_for_each(|_| f.step()),
+            Model::Cells(s) => (0..steps).try_for_each(|_| s.step()),
+            #[cfg(feature = "gpu")]
+            Model::Gpu(f, dev) => {
+                dev.advance(steps)?;
+                dev.sync(f)
+            }
+        }
+    }
+
+    /// Whether steps go in batches up to the next step the host must see (the GPU), rather
+    /// than one at a time.
+    fn batches(&self) -> bool {
+        match self {
+            Model::Fluid(_) | Model::Cells(_) => false,
+            #[cfg(feature = "gpu")]
+            Model::Gpu(..) => true,
         }
     }
 
     /// Total momentum (solvent and vertices).
     fn momentum(&self) -> [f64; 3] {
         match self {
-            Model::Fluid(f) => f.momentum(),
             Model::Cells(s) => s.momentum(),
+            _ => self.fluid().momentum(),
         }
     }
 
     fn cells(&self) -> Option<&DpdSuspension> {
         match self {
-            Model::Fluid(_) => None,
             Model::Cells(s) => Some(s),
+            _ => None,
         }
     }
+}
+
+/// Smallest fluid `gpu = "auto"` steps on the GPU. At 10⁵ particles the H200 took 0.09 ms per
+/// step against 5.5 ms on 16 CPU threads (benches/RESULTS.md); below about 2·10⁴ the launches
+/// and the read-backs at every sample (every 10 steps by default) are a large share of a step.
+pub const AUTO_MIN_PARTICLES: usize = 20_000;
+
+/// Where the fluid's steps run (`[dpd] gpu`), and why: the model as built, or its fluid moved
+/// onto the GPU.
+fn place_fluid(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdRunError> {
+    if scene.gpu == GpuChoice::Off {
+        return Ok((model, GpuDecision::cpu(None, "GPU not asked for".into())));
+    }
+    open_gpu(scene, model)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdRunError> {
+    match scene.gpu {
+        GpuChoice::On => Err(DpdError::Gpu(GpuError::NotBuilt).into()),
+        _ => Ok((
+            model,
+            GpuDecision::cpu(None, "built without the gpu feature".into()),
+        )),
+    }
+}
+
+#[cfg(feature = "gpu")]
+fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdRunError> {
+    use crate::dpd::gpu_fluid::{unsupported, GpuFluid};
+    use crate::gpu::{Gpu, GpuPrecision};
+    let auto = scene.gpu == GpuChoice::Auto;
+    let cpu = |model: Model, adapter: Option<String>, why: String| {
+        Ok((model, GpuDecision::cpu(adapter, why)))
+    };
+    let refuse = |why: String| -> Result<(Model, GpuDecision), DpdRunError> {
+        Err(DpdError::Gpu(GpuError::Shape(why)).into())
+    };
+    let sys = match model {
+        Model::Fluid(sys) => sys,
+        other if auto => return cpu(other, None, "cells are stepped on the CPU only".into()),
+        _ => return refuse("cells are stepped on the CPU only".into()),
+    };
+    if let Some(why) = unsupported(&sys) {
+        return if auto {
+            cpu(Model::Fluid(sys), None, why.into())
+        } else {
+            refuse(why.into())
+        };
+    }
+    let gpu = match Gpu::shared() {
+        Ok(g) => g,
+        Err(e) if auto => return cpu(Model::Fluid(sys), None, e.to_string()),
+        Err(e) => return Err(DpdError::Gpu(e).into()),
+    };
+    let adapter = Some(gpu.describe());
+    if auto && !gpu.is_hardware() {
+        let why = "the adapter is not a hardware GPU (a CPU rasteriser would only compete with the CPU loops)";
+        return cpu(Model::Fluid(sys), adapter, why.into());
+    }
+    if auto && sys.len() < AUTO_MIN_PARTICLES {
+        let why = format!(
+            "{} particles, below the {AUTO_MIN_PARTICLES} where the GPU gains",
+            sys.len()
+        );
+        return cpu(Model::Fluid(sys), adapter, why);
+    }
+    let prec = scene.gpu_precision;
+    if prec == GpuPrecision::F64 && !gpu.has_f64() {
+        if auto {
+            let why = "f64 asked for and the adapter has no f64 shaders".to_string();
+            return cpu(Model::Fluid(sys), adapter, why);
+        }
+        return Err(DpdError::Gpu(GpuError::NoF64(gpu.describe())).into());
+    }
+    let dev = GpuFluid::new(gpu, &sys, prec)?;
+    let reason = match scene.gpu {
+        GpuChoice::On => "gpu = true".to_string(),
+        _ => format!(
+            "a hardware GPU and {} particles (auto takes at least {AUTO_MIN_PARTICLES})",
+            sys.len()
+        ),
+    };
+    Ok((
+        Model::Gpu(sys, Box::new(dev)),
+        GpuDecision {
+            device: "gpu".into(),
+            adapter,
+            precision: Some(prec),
+            reason,
+        },
+    ))
+}
+
+/// Steps from `s` to the next step at which the host must see the state: a profile sample, an
+/// observables row and checkpoint, the scene's end, or this invocation's `limit`.
+fn steps_to_next_event(scene: &DpdScene, s: u64, sample_end: u64, limit: Option<u64>) -> u64 {
+    let mut next = scene
+        .steps
+        .min((s / scene.save_every + 1) * scene.save_every);
+    if let Some(l) = limit.filter(|&l| l > s) {
+        next = next.min(l);
+    }
+    if s < sample_end {
+        let (e, every) = (scene.equilibrate, scene.sample_every);
+        let t = if s < e + every {
+            e + every
+        } else {
+            s + every - (s - e) % every
+        };
+        if t <= sample_end {
+            next = next.min(t);
+        }
+    }
+    next.saturating_sub(s).max(1)
 }
 
 /// The fluid of a new run, with the scene's cells put into it.
@@ -532,7 +673,7 @@ pub fn run(
     opts: &DpdRunOptions,
 ) -> Result<DpdSummary, DpdRunError> {
     let ckpt_path = out.join(CHECKPOINT);
-    let (mut model, mut sampler, mut rows, mut wall_before, p0) = if opts.resume {
+    let (model, mut sampler, mut rows, mut wall_before, p0) = if opts.resume {
         restore(scene, &ckpt_path)?
     } else {
         write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
@@ -551,6 +692,7 @@ pub fn run(
         push_row(&mut rows, &model);
         (model, sampler, rows, 0.0, p0)
     };
+    let (mut model, fluid_step) = place_fluid(scene, model)?;
     let bar = if opts.quiet {
         ProgressBar::hidden()
     } else {
@@ -581,7 +723,13 @@ pub fn run(
             completed = false;
             break;
         }
-        model.step()?;
+        let chunk = if model.batches() {
+            let limit = opts.max_steps.map(|m| first + m);
+            steps_to_next_event(scene, model.fluid().step, sample_end, limit)
+        } else {
+            1
+        };
+        model.advance(chunk)?;
         let s = model.fluid().step;
         if s > scene.equilibrate
             && s <= sample_end
@@ -619,6 +767,7 @@ pub fn run(
     let summary = summarise(
         scene,
         &model,
+        fluid_step,
         shear,
         fit.as_ref(),
         flow_kt,
@@ -660,6 +809,7 @@ fn push_row(rows: &mut Vec<f64>, model: &Model) {
 fn summarise(
     scene: &DpdScene,
     model: &Model,
+    fluid_step: GpuDecision,
     shear: Option<ShearRate>,
     fit: Option<&ViscosityFit>,
     flow_kt: Option<f64>,
@@ -732,6 +882,7 @@ fn summarise(
         seed: prm.seed,
         flow: scene.body,
         effects: effects(scene),
+        fluid_step,
         wall_s: wall,
         ms_per_step: per_step * 1e3,
         particle_steps_per_second: n as f64 / per_step,
