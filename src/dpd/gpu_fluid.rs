@@ -35,6 +35,7 @@ use std::sync::Arc;
 
 use super::cell_list::CellGrid;
 use super::pair_force::Particles;
+use super::poiseuille::ProfileSampler;
 use super::rng::mix64;
 use super::system::{BodyForce, DpdSystem};
 use super::DpdError;
@@ -45,6 +46,7 @@ use crate::gpu::{Gpu, GpuError, GpuPrecision};
 pub struct GpuFluid {
     pass: DpdFluidPass,
     moves: usize,
+    step: u64,
 }
 
 /// Why a fluid cannot be stepped on the GPU (`None`: it can).
@@ -106,6 +108,7 @@ impl GpuFluid {
         Ok(GpuFluid {
             pass,
             moves: p.len(),
+            step: sys.step,
         })
     }
 
@@ -131,7 +134,29 @@ impl GpuFluid {
 
     /// Run `steps` steps on the device.
     pub fn advance(&mut self, steps: u64) -> Result<(), DpdError> {
-        Ok(self.pass.advance(steps)?)
+        self.pass.advance(steps)?;
+        self.step += steps;
+        Ok(())
+    }
+
+    /// Steps done (on the device; the host system has the count of the last sync).
+    pub fn step(&self) -> u64 {
+        self.step
+    }
+
+    /// Add the device's current state to a velocity-profile sampler, reading back only the
+    /// columns it needs (`y`, `z`, `v_x`).
+    pub fn sample_profile(&self, sampler: &mut ProfileSampler) -> Result<(), DpdError> {
+        let (y, z, vx, unstable) = self.pass.read_profile_columns()?;
+        if let Some(id) = unstable {
+            return Err(DpdError::Unstable {
+                step: self.step,
+                particle: id as usize,
+                position: [f64::NAN; 3],
+            });
+        }
+        sampler.sample_columns(&y, &z, &vx);
+        Ok(())
     }
 
     /// The force pass alone, `reps` times over the current state, which stays as it is (for

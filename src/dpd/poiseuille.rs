@@ -174,20 +174,29 @@ impl ProfileSampler {
     /// Add the current state.
     pub fn sample(&mut self, sys: &DpdSystem) {
         let p = &sys.particles;
+        let moving = (0..p.len()).filter(|&i| p.moves[i] != 0.0);
+        let geometry = self.geometry;
+        self.add_sample(moving.map(|i| (coordinate(geometry, p.y[i], p.z[i]), p.vx[i])));
+    }
+
+    /// Add a state given as columns `y`, `z`, `v_x` of moving particles (the GPU path's
+    /// read-back, in the device's order).
+    pub fn sample_columns(&mut self, y: &[f64], z: &[f64], vx: &[f64]) {
+        let geometry = self.geometry;
+        self.add_sample(
+            y.iter()
+                .zip(z)
+                .zip(vx)
+                .map(|((&y, &z), &v)| (coordinate(geometry, y, z), v)),
+        );
+    }
+
+    /// Add one sample: the binned coordinate and `v_x` of each particle.
+    fn add_sample(&mut self, points: impl Iterator<Item = (f64, f64)>) {
         let scale = self.bins as f64 / self.lz;
-        for i in 0..p.len() {
-            if p.moves[i] == 0.0 {
-                continue;
-            }
-            let coord = match self.geometry {
-                FlowGeometry::Pipe { center, .. } => {
-                    let (dy, dz) = (p.y[i] - center[0], p.z[i] - center[1]);
-                    (dy * dy + dz * dz).sqrt()
-                }
-                _ => p.z[i],
-            };
+        for (coord, vx) in points {
             let b = ((coord * scale) as usize).min(self.bins - 1);
-            self.sum_v[b] += p.vx[i];
+            self.sum_v[b] += vx;
             self.count[b] += 1;
         }
         self.samples += 1;
@@ -452,6 +461,18 @@ pub fn fit_line(pts: &[(f64, f64, f64)]) -> (f64, f64) {
     let sxy: f64 = pts.iter().map(|p| p.2 * (p.0 - mx) * (p.1 - my)).sum();
     let c = sxy / sxx;
     (my - c * mx, c)
+}
+
+/// The coordinate a profile is binned along: `z`, or the distance from a pipe's axis.
+#[inline]
+fn coordinate(geometry: FlowGeometry, y: f64, z: f64) -> f64 {
+    match geometry {
+        FlowGeometry::Pipe { center, .. } => {
+            let (dy, dz) = (y - center[0], z - center[1]);
+            (dy * dy + dz * dz).sqrt()
+        }
+        _ => z,
+    }
 }
 
 #[cfg(test)]

@@ -90,6 +90,8 @@ pub struct DpdFluidPass {
     frc: wgpu::Buffer,
     ids: wgpu::Buffer,
     ctl: wgpu::Buffer,
+    /// Read-back buffer for everything [`Self::read`] copies (reused by every read).
+    staging: wgpu::Buffer,
 }
 
 /// Steps per command buffer (one submission).
@@ -397,7 +399,17 @@ impl DpdFluidPass {
                 groups,
             });
         }
+        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("dpd read-back"),
+            size: [&pos, &vel, &frc, &ids, &ctl]
+                .iter()
+                .map(|b| b.size())
+                .sum(),
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
         Ok(DpdFluidPass {
+            staging,
             gpu,
             precision,
             n,
@@ -476,52 +488,91 @@ impl DpdFluidPass {
         self.gpu.wait()
     }
 
-    /// Read the state back (positions, velocities, forces, ids in the device's cell order).
-    pub fn read(&self) -> Result<DpdFluidState, GpuError> {
+    /// Copy `bufs` into the read-back buffer one after the other, map them and hand their
+    /// bytes to `decode`.
+    fn read_buffers<T>(
+        &self,
+        bufs: &[&wgpu::Buffer],
+        decode: impl FnOnce(&[&[u8]]) -> T,
+    ) -> Result<T, GpuError> {
         let dev = &self.gpu.device;
-        let bufs = [&self.pos, &self.vel, &self.frc, &self.ids, &self.ctl];
         let sizes: Vec<u64> = bufs.iter().map(|b| b.size()).collect();
         let total: u64 = sizes.iter().sum();
-        let staging = dev.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("dpd read-back"),
-            size: total,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
         let mut encoder = dev.create_command_encoder(&Default::default());
         let mut at = 0;
         for (b, &s) in bufs.iter().zip(&sizes) {
-            encoder.copy_buffer_to_buffer(b, 0, &staging, at, s);
+            encoder.copy_buffer_to_buffer(b, 0, &self.staging, at, s);
             at += s;
         }
         self.gpu.queue.submit([encoder.finish()]);
-        let slice = staging.slice(..);
+        let slice = self.staging.slice(..total);
         self.gpu.map_read(&slice)?;
-        let view = slice
-            .get_mapped_range()
-            .map_err(|e| GpuError::Execution(e.to_string()))?;
-        let mut parts = Vec::new();
-        let mut at = 0usize;
-        for &s in &sizes {
-            parts.push(&view[at..at + s as usize]);
-            at += s as usize;
-        }
-        let (x, _) = unpack4(parts[0], self.precision);
-        let (v, _) = unpack4(parts[1], self.precision);
-        let (f, virial) = unpack4(parts[2], self.precision);
-        let id: Vec<u32> = bytemuck::cast_slice::<u8, u32>(parts[3])[..self.n].to_vec();
-        let ctl: &[u32] = bytemuck::cast_slice(parts[4]);
-        let state = DpdFluidState {
-            x,
-            v,
-            f,
-            virial,
-            id,
-            step: ctl[0] as u64 | ((ctl[1] as u64) << 32),
-            unstable: (ctl[2] != 0).then_some(ctl[3]),
+        let out = {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Execution(e.to_string()))?;
+            let mut parts = Vec::new();
+            let mut at = 0usize;
+            for &s in &sizes {
+                parts.push(&view[at..at + s as usize]);
+                at += s as usize;
+            }
+            decode(&parts)
         };
-        drop(view);
-        staging.unmap();
-        Ok(state)
+        self.staging.unmap();
+        Ok(out)
+    }
+
+    /// Read the state back (positions, velocities, forces, ids in the device's cell order).
+    pub fn read(&self) -> Result<DpdFluidState, GpuError> {
+        let (prec, n) = (self.precision, self.n);
+        let bufs = [&self.pos, &self.vel, &self.frc, &self.ids, &self.ctl];
+        self.read_buffers(&bufs, |parts| {
+            let (x, _) = unpack4(parts[0], prec);
+            let (v, _) = unpack4(parts[1], prec);
+            let (f, virial) = unpack4(parts[2], prec);
+            let id: Vec<u32> = bytemuck::cast_slice::<u8, u32>(parts[3])[..n].to_vec();
+            let ctl: &[u32] = bytemuck::cast_slice(parts[4]);
+            DpdFluidState {
+                x,
+                v,
+                f,
+                virial,
+                id,
+                step: ctl[0] as u64 | ((ctl[1] as u64) << 32),
+                unstable: (ctl[2] != 0).then_some(ctl[3]),
+            }
+        })
+    }
+
+    /// The columns `y`, `z` and `v_x` of every particle (device order), and the id of a
+    /// particle that went unstable, if any: what a velocity profile needs, without the rest
+    /// of the state.
+    #[allow(clippy::type_complexity)]
+    pub fn read_profile_columns(
+        &self,
+    ) -> Result<(Vec<f64>, Vec<f64>, Vec<f64>, Option<u32>), GpuError> {
+        let prec = self.precision;
+        self.read_buffers(&[&self.pos, &self.vel, &self.ctl], |parts| {
+            let column = |b: &[u8], c: usize| -> Vec<f64> {
+                match prec {
+                    GpuPrecision::F64 => bytemuck::cast_slice::<u8, f64>(b)
+                        .chunks_exact(4)
+                        .map(|q| q[c])
+                        .collect(),
+                    GpuPrecision::F32 => bytemuck::cast_slice::<u8, f32>(b)
+                        .chunks_exact(4)
+                        .map(|q| q[c] as f64)
+                        .collect(),
+                }
+            };
+            let ctl: &[u32] = bytemuck::cast_slice(parts[2]);
+            (
+                column(parts[0], 1),
+                column(parts[0], 2),
+                column(parts[1], 0),
+                (ctl[2] != 0).then_some(ctl[3]),
+            )
+        })
     }
 }

@@ -273,7 +273,8 @@ enum Model {
     Fluid(Box<DpdSystem>),
     Cells(Box<DpdSuspension>),
     /// The fluid stepped on the GPU; the host system holds the state as last synced (at every
-    /// step where the run samples, saves or stops).
+    /// observables row and checkpoint, and at the end); a profile sample reads back only the
+    /// columns it needs.
     #[cfg(feature = "gpu")]
     Gpu(Box<DpdSystem>, Box<crate::dpd::gpu_fluid::GpuFluid>),
 }
@@ -288,15 +289,42 @@ impl Model {
         }
     }
 
-    /// `steps` steps; on the GPU, the state is synced to the host after them.
+    /// `steps` steps (on the GPU, the host's copy is brought up to date by [`Self::sync`]).
     fn advance(&mut self, steps: u64) -> Result<(), DpdError> {
         match self {
             Model::Fluid(f) => (0..steps).try_for_each(|_| f.step()),
             Model::Cells(s) => (0..steps).try_for_each(|_| s.step()),
             #[cfg(feature = "gpu")]
-            Model::Gpu(f, dev) => {
-                dev.advance(steps)?;
-                dev.sync(f)
+            Model::Gpu(_, dev) => dev.advance(steps),
+        }
+    }
+
+    /// Steps done.
+    fn step_count(&self) -> u64 {
+        match self {
+            #[cfg(feature = "gpu")]
+            Model::Gpu(_, dev) => dev.step(),
+            _ => self.fluid().step,
+        }
+    }
+
+    /// Bring the host's copy of the state up to date (the GPU's fluid; a no-op otherwise).
+    fn sync(&mut self) -> Result<(), DpdError> {
+        match self {
+            #[cfg(feature = "gpu")]
+            Model::Gpu(f, dev) if f.step != dev.step() => dev.sync(f),
+            _ => Ok(()),
+        }
+    }
+
+    /// Add the current velocity profile to `sampler` (on the GPU, from the columns it needs).
+    fn sample(&self, sampler: &mut ProfileSampler) -> Result<(), DpdError> {
+        match self {
+            #[cfg(feature = "gpu")]
+            Model::Gpu(_, dev) => dev.sample_profile(sampler),
+            _ => {
+                sampler.sample(self.fluid());
+                Ok(())
             }
         }
     }
@@ -711,10 +739,10 @@ pub fn run(
     let start = Instant::now();
     let first = model.fluid().step;
     let mut completed = true;
-    while model.fluid().step < scene.steps {
+    while model.step_count() < scene.steps {
         if opts
             .max_steps
-            .is_some_and(|m| model.fluid().step - first >= m)
+            .is_some_and(|m| model.step_count() - first >= m)
             || opts
                 .stop
                 .as_ref()
@@ -725,19 +753,20 @@ pub fn run(
         }
         let chunk = if model.batches() {
             let limit = opts.max_steps.map(|m| first + m);
-            steps_to_next_event(scene, model.fluid().step, sample_end, limit)
+            steps_to_next_event(scene, model.step_count(), sample_end, limit)
         } else {
             1
         };
         model.advance(chunk)?;
-        let s = model.fluid().step;
+        let s = model.step_count();
         if s > scene.equilibrate
             && s <= sample_end
             && (s - scene.equilibrate).is_multiple_of(scene.sample_every)
         {
-            sampler.sample(model.fluid());
+            model.sample(&mut sampler)?;
         }
         if s % scene.save_every == 0 || s == scene.steps {
+            model.sync()?;
             push_row(&mut rows, &model);
             bar.set_position(s);
             bar.set_message(format!("k_BT = {:.4}", model.fluid().kinetic_temperature()));
@@ -751,6 +780,7 @@ pub fn run(
         }
     }
     bar.finish_and_clear();
+    model.sync()?;
     let done = model.fluid().step - first;
     let this_wall = start.elapsed().as_secs_f64();
     wall_before += this_wall;
