@@ -8,7 +8,9 @@
 //! ```sh
 //! cargo run --release --features gpu --example dpd_gpu_validation > docs/dpd_gpu_validation.md
 //! ```
-//! `REPEAT=k` makes the Poiseuille runs `k` times longer (the standard error falls as `1/√k`).
+//! `REPEAT=k` makes the Poiseuille runs `k` times longer (the standard error falls as `1/√k`);
+//! `CASES=i,j` runs only those rows of the table (0-based); `SEEDS=s` runs each case with `s`
+//! seeds (rows per seed, then the mean over seeds with its standard error).
 
 use mobo::dpd::gpu_fluid::GpuFluid;
 use mobo::dpd::pair_force::PairParams;
@@ -72,50 +74,64 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!();
     println!("| a | γ | ρ | k | k_BT | precision | measured k_BT | pressure | published p | η (GPU) | η (CPU) | Δ/σ | η / η_kin |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let only: Option<Vec<usize>> = std::env::var("CASES")
+        .ok()
+        .map(|v| v.split(',').filter_map(|c| c.trim().parse().ok()).collect());
+    let seeds: u64 = std::env::var("SEEDS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1)
+        .max(1);
     let mut failures = Vec::new();
+    let mut means = Vec::new();
     for (m, c) in CASES.iter().enumerate() {
+        if only.as_ref().is_some_and(|o| !o.contains(&m)) {
+            continue;
+        }
         for prec in [GpuPrecision::F32, GpuPrecision::F64] {
             if prec == GpuPrecision::F64 && !gpu.has_f64() {
                 continue;
             }
-            let mut eq = DpdSystem::random_fluid(
-                params(c, [10.0; 3], 300 + m as u64),
-                c.2,
-                BodyForce::None,
-            )?;
-            let mut dev = GpuFluid::new(gpu.clone(), &eq, prec)?;
-            dev.advance(1000)?;
-            let (mut t, mut p, mut n) = (0.0, 0.0, 0.0);
-            for _ in 0..400 {
-                dev.advance(10)?;
-                dev.sync(&mut eq)?;
-                t += eq.kinetic_temperature();
-                p += eq.pressure();
-                n += 1.0;
-            }
-            let (t, p) = (t / n, p / n);
-            let lz = 20.0;
-            let kin = kinetic_theory_viscosity(c.2, c.1, c.4, 1.0, c.3, 1.0).total;
-            let g = 2.0 * kin * 0.4 * c.4.sqrt() / (c.2 * (lz / 4.0) * (lz / 4.0));
-            let mut sys = DpdSystem::random_fluid(
-                params(c, [10.0, 10.0, lz], 400 + m as u64),
-                c.2,
-                BodyForce::ReversePoiseuille { force: g },
-            )?;
-            let mut dev = GpuFluid::new(gpu.clone(), &sys, prec)?;
-            dev.advance(4000)?;
-            let mut sampler = ProfileSampler::new(lz, 20, 160 * repeat as usize);
-            for _ in 0..1600 * repeat {
-                dev.advance(10)?;
-                dev.sample_profile(&mut sampler)?;
-            }
-            dev.sync(&mut sys)?;
-            let fit = sampler
-                .viscosity(sys.density(), g)
-                .ok_or("no viscosity fit")?;
-            let (cpu, cpu_err) = c.6;
-            let sigmas = (fit.value - cpu) / (fit.stderr.powi(2) + cpu_err.powi(2)).sqrt();
-            println!(
+            let mut etas = Vec::new();
+            for seed in 0..seeds {
+                let mut eq = DpdSystem::random_fluid(
+                    params(c, [10.0; 3], 300 + m as u64 + 1000 * seed),
+                    c.2,
+                    BodyForce::None,
+                )?;
+                let mut dev = GpuFluid::new(gpu.clone(), &eq, prec)?;
+                dev.advance(1000)?;
+                let (mut t, mut p, mut n) = (0.0, 0.0, 0.0);
+                for _ in 0..400 {
+                    dev.advance(10)?;
+                    dev.sync(&mut eq)?;
+                    t += eq.kinetic_temperature();
+                    p += eq.pressure();
+                    n += 1.0;
+                }
+                let (t, p) = (t / n, p / n);
+                let lz = 20.0;
+                let kin = kinetic_theory_viscosity(c.2, c.1, c.4, 1.0, c.3, 1.0).total;
+                let g = 2.0 * kin * 0.4 * c.4.sqrt() / (c.2 * (lz / 4.0) * (lz / 4.0));
+                let mut sys = DpdSystem::random_fluid(
+                    params(c, [10.0, 10.0, lz], 400 + m as u64 + 1000 * seed),
+                    c.2,
+                    BodyForce::ReversePoiseuille { force: g },
+                )?;
+                let mut dev = GpuFluid::new(gpu.clone(), &sys, prec)?;
+                dev.advance(4000)?;
+                let mut sampler = ProfileSampler::new(lz, 20, 160 * repeat as usize);
+                for _ in 0..1600 * repeat {
+                    dev.advance(10)?;
+                    dev.sample_profile(&mut sampler)?;
+                }
+                dev.sync(&mut sys)?;
+                let fit = sampler
+                    .viscosity(sys.density(), g)
+                    .ok_or("no viscosity fit")?;
+                let (cpu, cpu_err) = c.6;
+                let sigmas = (fit.value - cpu) / (fit.stderr.powi(2) + cpu_err.powi(2)).sqrt();
+                println!(
                 "| {} | {} | {} | {} | {} | {} | {:.4} | {:.3} | {} | {:.3} ± {:.3} | {cpu:.3} ± {cpu_err:.3} | {sigmas:+.1} | {:.2} |",
                 c.0,
                 c.1,
@@ -130,22 +146,46 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 fit.stderr,
                 fit.value / kin
             );
-            if (t / c.4 - 1.0).abs() > 0.01 {
-                failures.push(format!("case {m} {}: k_BT {t}", prec.name()));
-            }
-            if let Some(pp) = c.5 {
-                if (p / pp - 1.0).abs() > 0.01 {
-                    failures.push(format!("case {m} {}: pressure {p} vs {pp}", prec.name()));
+                if (t / c.4 - 1.0).abs() > 0.01 {
+                    failures.push(format!("case {m} {}: k_BT {t}", prec.name()));
                 }
+                if let Some(pp) = c.5 {
+                    if (p / pp - 1.0).abs() > 0.01 {
+                        failures.push(format!("case {m} {}: pressure {p} vs {pp}", prec.name()));
+                    }
+                }
+                if sigmas.abs() > 3.0 || fit.stderr > 0.08 * fit.value {
+                    failures.push(format!(
+                        "case {m} {}: η {} ± {} vs CPU {cpu} ± {cpu_err}",
+                        prec.name(),
+                        fit.value,
+                        fit.stderr
+                    ));
+                }
+                etas.push(fit.value);
             }
-            if sigmas.abs() > 3.0 || fit.stderr > 0.08 * fit.value {
-                failures.push(format!(
-                    "case {m} {}: η {} ± {} vs CPU {cpu} ± {cpu_err}",
+            if seeds > 1 {
+                let k = etas.len() as f64;
+                let mean = etas.iter().sum::<f64>() / k;
+                let sd = (etas.iter().map(|e| (e - mean).powi(2)).sum::<f64>() / (k - 1.0)).sqrt();
+                means.push(format!(
+                    "| {m} | {} | {seeds} | {mean:.3} ± {:.3} | {:.3} ± {:.3} |",
                     prec.name(),
-                    fit.value,
-                    fit.stderr
+                    sd / k.sqrt(),
+                    c.6 .0,
+                    c.6 .1
                 ));
             }
+        }
+    }
+    if !means.is_empty() {
+        println!();
+        println!("Means over seeds (standard error from the spread of the seeds):");
+        println!();
+        println!("| case | precision | seeds | η (GPU) | η (CPU) |");
+        println!("|---|---|---|---|---|");
+        for l in &means {
+            println!("{l}");
         }
     }
     println!();
