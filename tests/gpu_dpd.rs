@@ -338,7 +338,10 @@ fn mobo_dpd_on_the_gpu_in_f64_follows_the_cpu_run() {
 fn mobo_dpd_on_the_gpu_resumes_bit_for_bit_and_auto_says_why() {
     let Some(_g) = gpu() else { return };
     let dir = tmpdir("gpu-dpd-resume");
-    let scene = write(&dir, "s.toml", &format!("{SCENE}gpu = true\n"));
+    // A box height that f32 cannot hold (8.3 rounds up to 8.3000002 in f32): the device's box
+    // is the f32 below, so no synced position lands in [L, L_f32) for the host to re-wrap.
+    let odd = SCENE.replace("box = [6.0, 6.0, 8.0]", "box = [6.0, 6.0, 8.3]");
+    let scene = write(&dir, "s.toml", &format!("{odd}gpu = true\n"));
     let whole = dir.join("whole");
     ok(
         &mobo(&["dpd", &scene, "--out", whole.to_str().unwrap(), "--quiet"]),
@@ -368,6 +371,32 @@ fn mobo_dpd_on_the_gpu_resumes_bit_for_bit_and_auto_says_why() {
         checkpoint_bits(&part, &DPD_PARTICLE_ARRAYS),
         "the resumed GPU run differs from the whole one"
     );
+    // A run started on the CPU and resumed on the GPU says so.
+    let cpu_scene = write(&dir, "c.toml", &format!("{SCENE}gpu = false\n"));
+    let moved = dir.join("moved");
+    ok(
+        &mobo(&[
+            "dpd",
+            &cpu_scene,
+            "--out",
+            moved.to_str().unwrap(),
+            "--quiet",
+            "--max-steps",
+            "30",
+        ]),
+        "CPU part",
+    );
+    let copy = moved.join("scene.toml");
+    let text = std::fs::read_to_string(&copy).unwrap();
+    std::fs::write(&copy, text.replace("gpu = false", "gpu = true")).unwrap();
+    ok(
+        &mobo(&["dpd", "--resume", moved.to_str().unwrap(), "--quiet"]),
+        "resume on the GPU",
+    );
+    let s = summary(&moved);
+    assert_eq!(s["fluid_step"]["device"], "gpu");
+    let why = s["fluid_step"]["reason"].as_str().unwrap();
+    assert!(why.contains("before the resume ran on cpu"), "{why}");
     // auto: 864 particles stay on the CPU, with the reason.
     let auto = write(&dir, "auto.toml", SCENE);
     let out = dir.join("auto");

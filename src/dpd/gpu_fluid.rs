@@ -64,7 +64,7 @@ impl GpuFluid {
     /// Upload `sys` (its particles, their current forces and the step count).
     pub fn new(gpu: Arc<Gpu>, sys: &DpdSystem, precision: GpuPrecision) -> Result<Self, DpdError> {
         if let Some(why) = unsupported(sys) {
-            return Err(DpdError::Gpu(GpuError::Shape(why.into())));
+            return Err(DpdError::Gpu(GpuError::Unsupported(why.into())));
         }
         let prm = &sys.params;
         let grid = CellGrid::new(prm.box_len, prm.pair.rc)?;
@@ -147,8 +147,8 @@ impl GpuFluid {
     /// Add the device's current state to a velocity-profile sampler, reading back only the
     /// columns it needs (`y`, `z`, `v_x`).
     pub fn sample_profile(&self, sampler: &mut ProfileSampler) -> Result<(), DpdError> {
-        let (y, z, vx, unstable) = self.pass.read_profile_columns()?;
-        if let Some(id) = unstable {
+        let (y, z, vx, bad) = self.pass.read_profile_columns()?;
+        if let Some(id) = bad {
             return Err(DpdError::Unstable {
                 step: self.step,
                 particle: id as usize,
@@ -159,25 +159,23 @@ impl GpuFluid {
         Ok(())
     }
 
-    /// The force pass alone, `reps` times over the current state, which stays as it is (for
-    /// timing the pass against the whole step).
+    /// The force pass alone, `reps` times over the current state, for timing the pass against
+    /// the whole step: positions and velocities stay, the forces are overwritten (with those
+    /// of the end-of-step velocities), so do not step on after it.
     pub fn forces_only(&mut self, reps: u64) -> Result<(), DpdError> {
         Ok(self.pass.forces_only(reps)?)
     }
 
     /// Write the device's state into `sys` (the system this fluid was made from): particles,
-    /// forces, step count and virial. An error if a particle left the box by more than a box
-    /// length in one step or became non-finite ([`DpdError::Unstable`], the step being the
-    /// last one synced or later).
+    /// forces, step count and virial (the virial of the device's last force evaluation: 0
+    /// before its first step). An error if a particle left the box by more than a box length
+    /// in one step or became non-finite ([`DpdError::Unstable`]: `step` is the device's step
+    /// count at the sync, at or after the step it happened; the position is the particle's at
+    /// the last sync).
     pub fn sync(&self, sys: &mut DpdSystem) -> Result<(), DpdError> {
         let st = self.pass.read()?;
         if let Some(id) = st.unstable {
-            let at = st.id.iter().position(|&i| i == id).unwrap_or(0);
-            return Err(DpdError::Unstable {
-                step: st.step,
-                particle: id as usize,
-                position: st.x[at],
-            });
+            return Err(unstable(sys, st.step, id));
         }
         let n = st.x.len();
         let col = |v: &[[f64; 3]], k: usize| v.iter().map(|c| c[k]).collect::<Vec<f64>>();
@@ -199,5 +197,20 @@ impl GpuFluid {
             virial,
         );
         Ok(())
+    }
+}
+
+/// The instability of particle `id` found at device step `step`, with its position at the
+/// host's last sync (the device has already set the bad coordinates to 0).
+fn unstable(sys: &DpdSystem, step: u64, id: u32) -> DpdError {
+    let p = &sys.particles;
+    let position =
+        p.id.iter()
+            .position(|&i| i == id)
+            .map_or([f64::NAN; 3], |k| [p.x[k], p.y[k], p.z[k]]);
+    DpdError::Unstable {
+        step,
+        particle: id as usize,
+        position,
     }
 }

@@ -13,6 +13,8 @@ pub struct Gpu {
     f64: bool,
     /// Largest storage-buffer binding, bytes.
     pub(crate) max_binding: u64,
+    /// Largest buffer, bytes.
+    pub(crate) max_buffer: u64,
     /// Largest workgroup count per dispatch dimension.
     pub(crate) max_groups: u32,
     /// Largest workgroup: invocations, and bytes of workgroup memory.
@@ -65,6 +67,7 @@ impl Gpu {
             f64,
             max_binding: (limits.max_storage_buffer_binding_size as u64)
                 .min(limits.max_buffer_size),
+            max_buffer: limits.max_buffer_size,
             max_groups: limits.max_compute_workgroups_per_dimension,
             max_invocations: limits
                 .max_compute_invocations_per_workgroup

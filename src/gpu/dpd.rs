@@ -136,16 +136,25 @@ fn unpack4(b: &[u8], prec: GpuPrecision) -> (Vec<[f64; 3]>, Vec<f64>) {
         .unzip()
 }
 
+/// The largest `f32` not above `x` (positive `x`).
+fn f32_not_above(x: f64) -> f32 {
+    let f = x as f32;
+    if f as f64 > x {
+        f.next_down()
+    } else {
+        f
+    }
+}
+
 /// Split `items` threads of `WG` into a 2-D grid within the device's per-dimension limit.
 fn grid(items: usize, max_groups: u32) -> Result<(u32, u32), GpuError> {
     let groups = items.div_ceil(WG as usize).max(1);
     let gx = groups.min(max_groups as usize);
     let gy = groups.div_ceil(gx);
     if gy > max_groups as usize {
-        return Err(GpuError::TooLarge {
+        return Err(GpuError::TooManyGroups {
             what: format!("{items} threads"),
-            bytes: 0,
-            limit: 0,
+            limit: max_groups,
         });
     }
     Ok((gx as u32, gy as u32))
@@ -206,7 +215,7 @@ impl DpdFluidPass {
         }
         let ncells = ncells as usize;
         let Some(sources) = dpd_shader::sources(precision, spec.power) else {
-            return Err(GpuError::Shape(format!(
+            return Err(GpuError::Unsupported(format!(
                 "kernel exponent k = {} in {}: the f64 shaders take k = 1, 1/2 and 1/4 only \
                  (WGSL has no f64 pow); use f32",
                 spec.power,
@@ -218,19 +227,34 @@ impl DpdFluidPass {
             GpuPrecision::F64 => 8,
         };
         let vec4 = n * 4 * real;
-        if vec4 as u64 > gpu.max_binding {
-            return Err(GpuError::TooLarge {
-                what: format!("{n} particles' positions"),
-                bytes: vec4 as u64,
-                limit: gpu.max_binding,
-            });
-        }
+        let too_large = |what: String, bytes: usize, limit: u64| {
+            if bytes as u64 > limit {
+                Err(GpuError::TooLarge {
+                    what,
+                    bytes: bytes as u64,
+                    limit,
+                })
+            } else {
+                Ok(())
+            }
+        };
+        too_large(format!("{n} particles' positions"), vec4, gpu.max_binding)?;
+        too_large(
+            format!("{ncells} cells' starts"),
+            (ncells + 1) * 4,
+            gpu.max_binding,
+        )?;
+        // The read-back buffer holds positions, velocities, forces, ids and the control words.
+        too_large(
+            "the read-back buffer".into(),
+            3 * vec4 + 4 * n + 16,
+            gpu.max_buffer,
+        )?;
         let nblocks = ncells.div_ceil(SCAN_BLOCK as usize);
-        if nblocks as u32 > gpu.max_groups {
-            return Err(GpuError::TooLarge {
-                what: format!("{ncells} cells"),
-                bytes: 0,
-                limit: 0,
+        if nblocks > gpu.max_groups as usize {
+            return Err(GpuError::TooManyGroups {
+                what: format!("the scan of {ncells} cells"),
+                limit: gpu.max_groups,
             });
         }
         let gn = grid(n, gpu.max_groups)?;
@@ -292,7 +316,13 @@ impl DpdFluidPass {
         });
         let mut r = [0.0f64; rpar::LEN];
         for k in 0..3 {
-            r[rpar::BOX + k] = spec.box_len[k];
+            // In f32 the box is the largest f32 not above L: positions the device wraps into
+            // [0, L_f32) are then inside [0, L) on the host too (a resumed run continues bit for
+            // bit, and the host never re-wraps them).
+            r[rpar::BOX + k] = match precision {
+                GpuPrecision::F64 => spec.box_len[k],
+                GpuPrecision::F32 => f32_not_above(spec.box_len[k]) as f64,
+            };
             r[rpar::INV_CELL + k] = spec.dims[k] as f64 / spec.box_len[k];
             r[rpar::BODY + k] = spec.body[k];
         }
@@ -449,8 +479,9 @@ impl DpdFluidPass {
         self.run(steps, |_| true)
     }
 
-    /// The force pass alone, `reps` times over the current state (which it leaves as it is):
-    /// for timing the pass against the whole step.
+    /// The force pass alone, `reps` times over the current state, for timing the pass against
+    /// the whole step. Positions and velocities stay; the forces are overwritten with those of
+    /// the current (end-of-step) velocities, so a pass timed this way is not stepped further.
     pub fn forces_only(&mut self, reps: u64) -> Result<(), GpuError> {
         self.run(reps, |name| name == "forces")
     }

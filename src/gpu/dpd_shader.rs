@@ -16,8 +16,9 @@
 //!
 //! The pair noise is the CPU's ([`crate::dpd::rng`]): SplitMix64 on 64-bit words, done here on
 //! pairs of `u32` (WGSL has no 64-bit integers), so a pair draws the same 64 bits on the GPU as
-//! on the CPU. In `f64` the unit-variance number is the CPU's to the last bit; in `f32` it is
-//! built from the top 24 bits.
+//! on the CPU. In `f64` the unit-variance number is the CPU's formula on the same 53 bits (the
+//! final multiply-add may be fused, a last-bit difference); in `f32` it is built from the top 24
+//! bits.
 
 use super::GpuPrecision;
 
@@ -134,7 +135,7 @@ fn mix64(z0: vec2<u32>) -> vec2<u32> {
 /// The pair's unit-variance number from its 64 random bits `b`.
 fn unit_variance(p: GpuPrecision) -> &'static str {
     match p {
-        // (b >> 11) as f64 · 2√3/2^53 − √3, as the CPU (53 bits, exact in f64).
+        // (b >> 11) as f64 · 2√3/2^53 − √3, as the CPU (the 53 bits are exact in f64).
         GpuPrecision::F64 => {
             r#"fn unit_variance(b: vec2<u32>) -> R {
     let hi = R(b.y >> 11u);
@@ -408,36 +409,57 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     let rc = rpar[9];
     var f = vec3<R>(R(0.0));
     var vir = R(0.0);
+    let rc2 = rc * rc;
+    // Nine rows of three cells (dy, dz); a row whose three cells do not wrap in x is one
+    // contiguous range of particles (cells are numbered x fastest), else three ranges.
+    let whole_row = cc.x >= 1u && cc.x + 1u < dims.x;
     for (var dz = 0u; dz < 3u; dz++) {{
       for (var dy = 0u; dy < 3u; dy++) {{
-        for (var dx = 0u; dx < 3u; dx++) {{
-            var nc = vec3<u32>(0u);
-            var shift = vec3<R>(R(0.0));
-            let dd = vec3<u32>(dx, dy, dz);
-            for (var k = 0u; k < 3u; k++) {{
-                let t = cc[k] + dd[k];
-                if (t == 0u) {{ nc[k] = dims[k] - 1u; shift[k] = -l[k]; }}
-                else if (t == dims[k] + 1u) {{ nc[k] = 0u; shift[k] = l[k]; }}
-                else {{ nc[k] = t - 1u; }}
+        var shift = vec3<R>(R(0.0));
+        var nc = vec3<u32>(0u);
+        let dd = vec3<u32>(0u, dy, dz);
+        for (var k = 1u; k < 3u; k++) {{
+            let t = cc[k] + dd[k];
+            if (t == 0u) {{ nc[k] = dims[k] - 1u; shift[k] = -l[k]; }}
+            else if (t == dims[k] + 1u) {{ nc[k] = 0u; shift[k] = l[k]; }}
+            else {{ nc[k] = t - 1u; }}
+        }}
+        let row = (nc.z * ipar.ny + nc.y) * ipar.nx;
+        let segments = select(3u, 1u, whole_row);
+        for (var g = 0u; g < segments; g++) {{
+            var lo = 0u;
+            var hi = 0u;
+            shift.x = R(0.0);
+            if (whole_row) {{
+                lo = start[row + cc.x - 1u];
+                hi = start[row + cc.x + 2u];
+            }} else {{
+                let t = cc.x + g;
+                var cx = t - 1u;
+                if (t == 0u) {{ cx = dims.x - 1u; shift.x = -l.x; }}
+                else if (t == dims.x + 1u) {{ cx = 0u; shift.x = l.x; }}
+                lo = start[row + cx];
+                hi = start[row + cx + 1u];
             }}
-            let c = cell_index(nc);
-            let hi = start[c + 1u];
-            for (var j = start[c]; j < hi; j++) {{
-                if (j == s) {{ continue; }}
+            for (var j = lo; j < hi; j++) {{
                 let d = xi - (pos[j].xyz + shift);
-                let r = sqrt(dot(d, d));
-                if (r < rc && r > R(0.0)) {{
-                    let e = d / r;
-                    let w = R(1.0) - r / rc;
-                    let wr = weight_r(w);
-                    let ve = dot(vi - vel[j].xyz, e);
-                    let idj = ids[j];
-                    let word = vec2<u32>(max(idi, idj), min(idi, idj));
-                    let xr = unit_variance(mix64(key ^ word));
-                    let fc = a * w;
-                    let fs = fc - gamma * wr * wr * ve + sig * wr * xr;
-                    f += fs * e;
-                    vir += R(0.5) * fc * r;
+                let r2 = dot(d, d);
+                // j == s has r2 = 0 (and so has a coincident particle: no direction, no force).
+                if (r2 < rc2 && r2 > R(0.0)) {{
+                    let r = sqrt(r2);
+                    if (r < rc) {{
+                        let e = d / r;
+                        let w = R(1.0) - r / rc;
+                        let wr = weight_r(w);
+                        let ve = dot(vi - vel[j].xyz, e);
+                        let idj = ids[j];
+                        let word = vec2<u32>(max(idi, idj), min(idi, idj));
+                        let xr = unit_variance(mix64(key ^ word));
+                        let fc = a * w;
+                        let fs = fc - gamma * wr * wr * ve + sig * wr * xr;
+                        f += fs * e;
+                        vir += R(0.5) * fc * r;
+                    }}
                 }}
             }}
         }}

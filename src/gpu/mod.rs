@@ -88,8 +88,19 @@ pub enum GpuError {
     #[error("GPU execution: {0}")]
     Execution(String),
     /// Inputs whose sizes do not fit.
-    #[error("GPU pair sum: {0}")]
+    #[error("GPU input: {0}")]
     Shape(String),
+    /// A problem the GPU path does not take (the CPU does).
+    #[error("not on the GPU: {0}")]
+    Unsupported(String),
+    /// More workgroups than a dispatch may have.
+    #[error("{what} need more than the device's {limit} workgroups per dispatch dimension")]
+    TooManyGroups {
+        /// What is dispatched, in words.
+        what: String,
+        /// The device's limit per dimension.
+        limit: u32,
+    },
 }
 
 /// Floating-point precision of the GPU kernels.

@@ -154,7 +154,8 @@ pub struct DpdSummary {
     pub particle_steps_per_second: f64,
     /// Threads of the rayon pool.
     pub threads: usize,
-    /// Seconds per phase (this invocation).
+    /// Seconds per phase (this invocation; the CPU path's phases: all zero when the fluid ran
+    /// on the GPU, whose time is in `wall_s`).
     pub timings: DpdTimings,
     /// Mean kinetic temperature over the observables rows after equilibration (includes the
     /// mean flow's kinetic energy in a driven flow).
@@ -389,7 +390,7 @@ fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdR
         Ok((model, GpuDecision::cpu(adapter, why)))
     };
     let refuse = |why: String| -> Result<(Model, GpuDecision), DpdRunError> {
-        Err(DpdError::Gpu(GpuError::Shape(why)).into())
+        Err(DpdError::Gpu(GpuError::Unsupported(why)).into())
     };
     let sys = match model {
         Model::Fluid(sys) => sys,
@@ -447,27 +448,59 @@ fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdR
     ))
 }
 
-/// Steps from `s` to the next step at which the host must see the state: a profile sample, an
-/// observables row and checkpoint, the scene's end, or this invocation's `limit`.
-fn steps_to_next_event(scene: &DpdScene, s: u64, sample_end: u64, limit: Option<u64>) -> u64 {
-    let mut next = scene
-        .steps
-        .min((s / scene.save_every + 1) * scene.save_every);
-    if let Some(l) = limit.filter(|&l| l > s) {
-        next = next.min(l);
+/// Most steps the GPU runs between looks at the stop flag (Ctrl-C, a scheduler's SIGTERM):
+/// under a second at 10⁶ particles on an H200.
+const MAX_BATCH_STEPS: u64 = 500;
+
+/// When a run's host must see the state: profile samples at `equilibrate + k·sample_every`
+/// up to `sample_end`, rows and checkpoints at multiples of `save_every`, the end at `steps`,
+/// and this invocation's stop at `limit`.
+#[derive(Clone, Copy, Debug)]
+struct Events {
+    steps: u64,
+    save_every: u64,
+    equilibrate: u64,
+    sample_every: u64,
+    sample_end: u64,
+    limit: Option<u64>,
+}
+
+impl Events {
+    /// Whether the profile is sampled after step `t`.
+    fn samples_at(&self, t: u64) -> bool {
+        t > self.equilibrate
+            && t <= self.sample_end
+            && (t - self.equilibrate).is_multiple_of(self.sample_every)
     }
-    if s < sample_end {
-        let (e, every) = (scene.equilibrate, scene.sample_every);
-        let t = if s < e + every {
-            e + every
-        } else {
-            s + every - (s - e) % every
-        };
-        if t <= sample_end {
-            next = next.min(t);
+
+    /// Whether an observables row (and a checkpoint, or the end) comes after step `t`.
+    fn saves_at(&self, t: u64) -> bool {
+        t.is_multiple_of(self.save_every) || t == self.steps
+    }
+
+    /// Steps from `s` to the next step at which the host needs the state (a sample, a save, or
+    /// the `limit`), at most [`MAX_BATCH_STEPS`].
+    fn steps_to_next(&self, s: u64) -> u64 {
+        let mut next = self
+            .steps
+            .min((s / self.save_every + 1) * self.save_every)
+            .min(s + MAX_BATCH_STEPS);
+        if let Some(l) = self.limit.filter(|&l| l > s) {
+            next = next.min(l);
         }
+        if s < self.sample_end {
+            let (e, every) = (self.equilibrate, self.sample_every);
+            let t = if s < e + every {
+                e + every
+            } else {
+                s + every - (s - e) % every
+            };
+            if t <= self.sample_end {
+                next = next.min(t);
+            }
+        }
+        next.saturating_sub(s).max(1)
     }
-    next.saturating_sub(s).max(1)
 }
 
 /// The fluid of a new run, with the scene's cells put into it.
@@ -701,7 +734,7 @@ pub fn run(
     opts: &DpdRunOptions,
 ) -> Result<DpdSummary, DpdRunError> {
     let ckpt_path = out.join(CHECKPOINT);
-    let (model, mut sampler, mut rows, mut wall_before, p0) = if opts.resume {
+    let (model, mut sampler, mut rows, mut wall_before, p0, earlier) = if opts.resume {
         restore(scene, &ckpt_path)?
     } else {
         write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
@@ -718,9 +751,24 @@ pub fn run(
         let p0 = model.momentum();
         let mut rows = Vec::new();
         push_row(&mut rows, &model);
-        (model, sampler, rows, 0.0, p0)
+        (model, sampler, rows, 0.0, p0, None)
     };
-    let (mut model, fluid_step) = place_fluid(scene, model)?;
+    let (mut model, mut fluid_step) = place_fluid(scene, model)?;
+    // Where this invocation steps the fluid, as the checkpoint records it; a resumed run that
+    // moves between CPU and GPU, or changes precision, says so in the summary's reason.
+    let placed = format!(
+        "{}{}",
+        fluid_step.device,
+        fluid_step
+            .precision
+            .map_or(String::new(), |p| format!(" {}", p.name()))
+    );
+    if let Some(before) = earlier.filter(|b| *b != placed) {
+        fluid_step.reason = format!(
+            "{} (this invocation; the steps before the resume ran on {before})",
+            fluid_step.reason
+        );
+    }
     let bar = if opts.quiet {
         ProgressBar::hidden()
     } else {
@@ -735,9 +783,16 @@ pub fn run(
         b.set_position(model.fluid().step);
         b
     };
-    let sample_end = scene.equilibrate + scene.block_samples() * scene.blocks * scene.sample_every;
-    let start = Instant::now();
     let first = model.fluid().step;
+    let events = Events {
+        steps: scene.steps,
+        save_every: scene.save_every,
+        equilibrate: scene.equilibrate,
+        sample_every: scene.sample_every,
+        sample_end: scene.equilibrate + scene.block_samples() * scene.blocks * scene.sample_every,
+        limit: opts.max_steps.map(|m| first + m),
+    };
+    let start = Instant::now();
     let mut completed = true;
     while model.step_count() < scene.steps {
         if opts
@@ -752,20 +807,16 @@ pub fn run(
             break;
         }
         let chunk = if model.batches() {
-            let limit = opts.max_steps.map(|m| first + m);
-            steps_to_next_event(scene, model.step_count(), sample_end, limit)
+            events.steps_to_next(model.step_count())
         } else {
             1
         };
         model.advance(chunk)?;
         let s = model.step_count();
-        if s > scene.equilibrate
-            && s <= sample_end
-            && (s - scene.equilibrate).is_multiple_of(scene.sample_every)
-        {
+        if events.samples_at(s) {
             model.sample(&mut sampler)?;
         }
-        if s % scene.save_every == 0 || s == scene.steps {
+        if events.saves_at(s) {
             model.sync()?;
             push_row(&mut rows, &model);
             bar.set_position(s);
@@ -775,7 +826,7 @@ pub fn run(
             }
             if s < scene.steps {
                 let wall = wall_before + start.elapsed().as_secs_f64();
-                checkpoint(&model, &sampler, &rows, wall, p0).write(&ckpt_path)?;
+                checkpoint(&model, &sampler, &rows, wall, p0, &placed).write(&ckpt_path)?;
             }
         }
     }
@@ -787,7 +838,7 @@ pub fn run(
     if !completed {
         push_row(&mut rows, &model);
     }
-    checkpoint(&model, &sampler, &rows, wall_before, p0).write(&ckpt_path)?;
+    checkpoint(&model, &sampler, &rows, wall_before, p0, &placed).write(&ckpt_path)?;
     // With cells in the flow the profile is not the fluid's alone: no viscosity is fitted.
     let fit = driving_force(scene)
         .filter(|_| scene.cells.is_empty())
@@ -979,6 +1030,7 @@ fn checkpoint(
     rows: &[f64],
     wall: f64,
     p0: [f64; 3],
+    placed: &str,
 ) -> Checkpoint {
     let sys = model.fluid();
     let n = sys.len();
@@ -987,6 +1039,7 @@ fn checkpoint(
         "step": sys.step,
         "particles": n,
         "bins": sampler.bins,
+        "fluid_step": placed,
     }));
     let p = &sys.particles;
     for (name, v) in [
@@ -1043,7 +1096,16 @@ fn checkpoint(
     c
 }
 
-type Restored = (Model, ProfileSampler, Vec<f64>, f64, [f64; 3]);
+/// A restored run: the model, the sampler, the observables rows, the wall time so far, the
+/// initial momentum, and where the earlier invocations stepped the fluid (`None`: not recorded).
+type Restored = (
+    Model,
+    ProfileSampler,
+    Vec<f64>,
+    f64,
+    [f64; 3],
+    Option<String>,
+);
 
 fn restore(scene: &DpdScene, path: &Path) -> Result<Restored, DpdRunError> {
     let c = Checkpoint::read(path)?;
@@ -1163,5 +1225,53 @@ fn restore(scene: &DpdScene, path: &Path) -> Result<Restored, DpdRunError> {
                 .map_err(|e| bad(format!("does not fit the scene: {e}")))?,
         ))
     };
-    Ok((model, sampler, rows, wall, [p0[0], p0[1], p0[2]]))
+    let earlier = c
+        .meta
+        .get("fluid_step")
+        .and_then(|v| v.as_str())
+        .map(str::to_string);
+    Ok((model, sampler, rows, wall, [p0[0], p0[1], p0[2]], earlier))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The batches end exactly at the next step the per-step loop would act on (or after
+    /// `MAX_BATCH_STEPS`): checked against a step-by-step scan over many schedules.
+    #[test]
+    fn batches_end_at_the_next_event() {
+        let mut checked = 0;
+        for steps in [1u64, 7, 100, 1234] {
+            for save_every in [1u64, 10, 33, 1000] {
+                for (equilibrate, sample_every) in [(0u64, 1u64), (5, 3), (20, 10), (0, 7)] {
+                    for blocks_end in [0u64, 50, 2000] {
+                        let sample_end = blocks_end.min(steps);
+                        for limit in [None, Some(9), Some(600)] {
+                            let ev = Events {
+                                steps,
+                                save_every,
+                                equilibrate,
+                                sample_every,
+                                sample_end,
+                                limit,
+                            };
+                            for s in 0..steps {
+                                let at = |t: u64| {
+                                    ev.samples_at(t) || ev.saves_at(t) || Some(t) == ev.limit
+                                };
+                                let naive = (s + 1..=steps)
+                                    .find(|&t| at(t))
+                                    .map_or(steps - s, |t| t - s)
+                                    .min(MAX_BATCH_STEPS);
+                                assert_eq!(ev.steps_to_next(s), naive, "{ev:?} at {s}");
+                                checked += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(checked > 100_000);
+    }
 }
