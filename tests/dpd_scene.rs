@@ -51,9 +51,14 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
             "seed = 3",
             "seed = 3\nwalls = { kind = \"planes\", gap = 5.0 }",
         );
-    assert!(parse(Path::new("s.toml"), &walled).is_ok());
-    let e = err_of(&format!("{walled}gpu = true\n"));
-    assert!(e.contains("gpu") && e.contains("walls"), "{e}");
+    assert!(parse(Path::new("s.toml"), &format!("{walled}gpu = true\n")).is_ok());
+    let with_cell = format!(
+        "{BASE}gpu = true\n[[dpd.cells]]\nshape = \"sphere\"\nradius = 1.5\n\
+         center = [2.5, 2.5, 4.0]\nsubdivisions = 1\nshear_modulus = 10.0\n\
+         bending_rigidity = 5.0\n"
+    );
+    let e = err_of(&with_cell);
+    assert!(e.contains("gpu") && e.contains("cells"), "{e}");
     let e = err_of(&BASE.replace("gamma = 4.5", "gamma = -1.0"));
     assert!(e.starts_with("s.toml:5:") && e.contains("gamma"), "{e}");
     let e = err_of(&BASE.replace("seed = 3", "seed = 3\nviscosity = 2.0"));

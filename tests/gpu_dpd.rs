@@ -144,6 +144,73 @@ fn f64_steps_match_the_cpu_to_rounding() {
 }
 
 #[test]
+fn f64_steps_with_walls_match_the_cpu_to_rounding() {
+    let Some(g) = gpu() else { return };
+    if !g.has_f64() {
+        eprintln!("no f64 shaders on {}: skipped", g.describe());
+        return;
+    }
+    use mobo::dpd::walls::Wall;
+    let base = fluid([6.0, 8.0, 8.0], 1.0, BodyForce::None, 4).params;
+    // A channel driven by a body force, a sliding channel (Couette), and a pipe.
+    let cases: [(&str, Wall, BodyForce, f64); 3] = [
+        (
+            "channel",
+            Wall::channel(5.0, 8.0, 1.0).unwrap(),
+            BodyForce::Constant([0.5, 0.0, 0.0]),
+            0.0,
+        ),
+        (
+            "couette",
+            Wall::channel(5.0, 8.0, 1.0).unwrap(),
+            BodyForce::None,
+            1.5,
+        ),
+        (
+            "pipe",
+            Wall::pipe(2.5, 8.0, 8.0, 1.0).unwrap(),
+            BodyForce::Constant([0.5, 0.0, 0.0]),
+            0.0,
+        ),
+    ];
+    for (name, wall, body, speed) in cases {
+        let mut cpu = DpdSystem::with_wall(base, 3.0, body, wall, 20).unwrap();
+        if speed != 0.0 {
+            cpu.start_couette(speed).unwrap();
+        }
+        let frozen = cpu.particles.moves.iter().filter(|&&m| m == 0.0).count();
+        assert!(frozen > 0, "{name}: frozen wall particles");
+        let mut host = cpu.clone();
+        let mut dev = GpuFluid::new(g.clone(), &host, GpuPrecision::F64).unwrap();
+        for steps in [1u64, 20] {
+            for _ in 0..steps {
+                cpu.step().unwrap();
+            }
+            dev.advance(steps).unwrap();
+            dev.sync(&mut host).unwrap();
+            let d = max_diff(&cpu, &host);
+            eprintln!(
+                "{name}: {} steps, {} bounces (CPU {}), max differences x {:.1e} v {:.1e} F {:.1e}",
+                cpu.step, host.bounces, cpu.bounces, d[0], d[1], d[2]
+            );
+            assert!(d[0] < 1e-9 && d[1] < 1e-7 && d[2] < 1e-6, "{name}: {d:?}");
+            assert_eq!(host.bounces, cpu.bounces, "{name}: bounce-backs");
+            assert_eq!((host.leaked, cpu.leaked), (0, 0), "{name}: leaks");
+            assert_eq!(host.n_moving(), cpu.n_moving());
+        }
+        // The frozen particles have not moved, and in Couette flow keep their wall's speed.
+        let (a, b) = (by_id(&cpu), by_id(&host));
+        for (i, m) in cpu.particles.id.iter().zip(&cpu.particles.moves) {
+            if *m == 0.0 {
+                assert_eq!(a[i][0], b[i][0], "{name}: frozen particle {i} moved");
+                assert_eq!(a[i][1], b[i][1], "{name}: frozen particle {i}'s velocity");
+            }
+        }
+        assert!(cpu.bounces > 0, "{name}: the test must bounce particles");
+    }
+}
+
+#[test]
 fn runs_are_reproducible_and_conserve_momentum() {
     let Some(g) = gpu() else { return };
     let mut precs = vec![GpuPrecision::F32];
@@ -251,19 +318,6 @@ fn an_unstable_run_is_reported_and_refusals_are_clear() {
         // f32 takes it.
         assert!(GpuFluid::new(g.clone(), &s, GpuPrecision::F32).is_ok());
     }
-    // Walls stay on the CPU.
-    let w = DpdSystem::with_wall(
-        fluid([5.0; 3], 1.0, BodyForce::None, 1).params,
-        3.0,
-        BodyForce::None,
-        mobo::dpd::walls::Wall::Planes { lo: 1.0, hi: 4.0 },
-        0,
-    )
-    .unwrap();
-    let e = GpuFluid::new(g, &w, GpuPrecision::F32)
-        .err()
-        .expect("walls refused");
-    assert!(e.to_string().contains("walls"), "{e}");
 }
 
 /// A small periodic-Poiseuille scene (864 particles).
@@ -301,37 +355,63 @@ fn mobo_dpd_on_the_gpu_in_f64_follows_the_cpu_run() {
         return;
     }
     let dir = tmpdir("gpu-dpd-scene");
-    let run = |name: &str, extra: &str| {
-        let scene = write(&dir, &format!("{name}.toml"), &format!("{SCENE}{extra}"));
-        let out = dir.join(name);
-        ok(
-            &mobo(&["dpd", &scene, "--out", out.to_str().unwrap(), "--quiet"]),
-            name,
+    // The periodic scene, and a channel between frozen walls driven by a body force.
+    let channel = SCENE
+        .replace("flow = \"periodic_poiseuille\"", "flow = \"poiseuille\"")
+        .replace(
+            "seed = 3",
+            "seed = 3\nwalls = { kind = \"planes\", gap = 6.0 }\nwall_warmup = 20",
         );
-        out
-    };
-    let cpu = run("cpu", "gpu = false\n");
-    let dev = run("gpu", "gpu = true\ngpu_precision = \"f64\"\n");
-    let (sc, sg) = (summary(&cpu), summary(&dev));
-    assert_eq!(sc["fluid_step"]["device"], "cpu");
-    assert_eq!(sg["fluid_step"]["device"], "gpu", "{}", sg["fluid_step"]);
-    assert_eq!(sg["fluid_step"]["precision"], "f64");
-    assert_eq!(sg["steps"], 100);
-    // Observables rows (step, t, k_BT, pressure, momentum): the same run to rounding grown
-    // over 100 steps of chaotic dynamics.
-    let (oc, og) = (observables(&cpu), observables(&dev));
-    assert_eq!(oc.len(), og.len());
-    for (a, b) in oc.iter().zip(&og) {
-        for (x, y) in a.iter().zip(b) {
-            assert!((x - y).abs() <= 1e-8 * (1.0 + x.abs()), "{a:?} vs {b:?}");
+    for (kind, text) in [("periodic", SCENE.to_string()), ("channel", channel)] {
+        let run = |name: &str, extra: &str| {
+            let scene = write(
+                &dir,
+                &format!("{kind}-{name}.toml"),
+                &format!("{text}{extra}"),
+            );
+            let out = dir.join(format!("{kind}-{name}"));
+            ok(
+                &mobo(&["dpd", &scene, "--out", out.to_str().unwrap(), "--quiet"]),
+                name,
+            );
+            out
+        };
+        let cpu = run("cpu", "gpu = false\n");
+        let dev = run("gpu", "gpu = true\ngpu_precision = \"f64\"\n");
+        let (sc, sg) = (summary(&cpu), summary(&dev));
+        assert_eq!(sc["fluid_step"]["device"], "cpu");
+        assert_eq!(sg["fluid_step"]["device"], "gpu", "{}", sg["fluid_step"]);
+        assert_eq!(sg["fluid_step"]["precision"], "f64");
+        assert_eq!(sg["steps"], 100);
+        // Observables rows (step, t, k_BT, pressure, momentum): the same run to rounding grown
+        // over 100 steps of chaotic dynamics.
+        let (oc, og) = (observables(&cpu), observables(&dev));
+        assert_eq!(oc.len(), og.len());
+        for (a, b) in oc.iter().zip(&og) {
+            for (x, y) in a.iter().zip(b) {
+                assert!(
+                    (x - y).abs() <= 1e-8 * (1.0 + x.abs()),
+                    "{kind}: {a:?} vs {b:?}"
+                );
+            }
+        }
+        // The profile sampled every 5 steps between syncs (moving particles only), and the
+        // viscosity fitted to it; the walls' bounce-backs.
+        let (vc, vg) = (
+            sc["viscosity"]["value"].as_f64().unwrap(),
+            sg["viscosity"]["value"].as_f64().unwrap(),
+        );
+        assert!(
+            (vc - vg).abs() < 1e-8 * vc.abs(),
+            "{kind}: viscosity {vc} vs {vg}"
+        );
+        assert_eq!(sc["bounces"], sg["bounces"], "{kind}");
+        assert_eq!(sc["fluid_particles"], sg["fluid_particles"], "{kind}");
+        if kind == "channel" {
+            assert!(sg["bounces"].as_u64().unwrap() > 0);
+            assert_eq!(sg["leaked_particles"], 0);
         }
     }
-    // The profile sampled every 5 steps between syncs, and the viscosity fitted to it.
-    let (vc, vg) = (
-        sc["viscosity"]["value"].as_f64().unwrap(),
-        sg["viscosity"]["value"].as_f64().unwrap(),
-    );
-    assert!((vc - vg).abs() < 1e-8 * vc, "viscosity {vc} vs {vg}");
 }
 
 #[test]

@@ -1,10 +1,13 @@
 //! The periodic DPD fluid stepped on the GPU (feature `gpu`).
 //!
-//! [`GpuFluid`] takes a [`DpdSystem`] without walls or cells, uploads it, and advances it on the
-//! device with the same step as [`DpdSystem::step`] (see `crate::gpu::dpd` for the passes):
+//! [`GpuFluid`] takes a [`DpdSystem`] (periodic, or with a plane or cylinder wall of frozen
+//! particles, resting or sliding; cells in the fluid stay on the CPU), uploads it, and
+//! advances it on the device with the same step as [`DpdSystem::step`] (see `crate::gpu::dpd`
+//! for the passes):
 //! velocity-Verlet, cell lists rebuilt every step, the pair force
 //! `F_ij = [a w − γ w_R² (v_ij·e) + σ w_R ξ_ij/√dt] e` with the same counter-based noise
-//! `ξ_ij(seed, step, min id, max id)`, the same body forces. [`GpuFluid::sync`] writes the
+//! `ξ_ij(seed, step, min id, max id)`, the same body forces, the same bounce-back off the wall
+//! (bisection for the crossing, velocity reversed relative to the wall). [`GpuFluid::sync`] writes the
 //! device's state back into the host system, for observables, sampling and checkpoints; CPU
 //! steps can continue from it.
 //!
@@ -38,34 +41,25 @@ use super::pair_force::Particles;
 use super::poiseuille::ProfileSampler;
 use super::rng::mix64;
 use super::system::{BodyForce, DpdSystem};
+use super::walls::Wall;
 use super::DpdError;
-use crate::gpu::dpd::{DpdFluidPass, DpdFluidSpec};
-use crate::gpu::{Gpu, GpuError, GpuPrecision};
+use crate::gpu::dpd::{DpdFluidPass, DpdFluidSpec, WallSpec};
+use crate::gpu::{Gpu, GpuPrecision};
 
 /// A DPD fluid resident on the GPU.
 pub struct GpuFluid {
     pass: DpdFluidPass,
-    moves: usize,
+    n: usize,
     step: u64,
-}
-
-/// Why a fluid cannot be stepped on the GPU (`None`: it can).
-pub fn unsupported(sys: &DpdSystem) -> Option<&'static str> {
-    if sys.wall.is_some() {
-        Some("walls are stepped on the CPU only")
-    } else if sys.particles.moves.iter().any(|&m| m != 1.0) {
-        Some("frozen particles are stepped on the CPU only")
-    } else {
-        None
-    }
+    /// The host system's bounce and leak counts when the fluid was uploaded.
+    bounces0: u64,
+    leaked0: u64,
 }
 
 impl GpuFluid {
-    /// Upload `sys` (its particles, their current forces and the step count).
+    /// Upload `sys` (its particles, their current forces, the wall and its speed, and the step
+    /// count).
     pub fn new(gpu: Arc<Gpu>, sys: &DpdSystem, precision: GpuPrecision) -> Result<Self, DpdError> {
-        if let Some(why) = unsupported(sys) {
-            return Err(DpdError::Gpu(GpuError::Unsupported(why.into())));
-        }
         let prm = &sys.params;
         let grid = CellGrid::new(prm.box_len, prm.pair.rc)?;
         let (reverse, body) = match sys.body {
@@ -86,6 +80,11 @@ impl GpuFluid {
             key0: mix64(prm.seed ^ super::rng::SEED_MIX),
             body,
             reverse_poiseuille: reverse,
+            wall: sys.wall.map(|w| match w {
+                Wall::Planes { lo, hi } => WallSpec::Planes { lo, hi },
+                Wall::Cylinder { radius, center } => WallSpec::Cylinder { radius, center },
+            }),
+            wall_speed: sys.wall_speed,
         };
         let p = &sys.particles;
         let zip3 = |a: &[f64], b: &[f64], c: &[f64]| -> Vec<[f64; 3]> {
@@ -103,23 +102,26 @@ impl GpuFluid {
             &zip3(&p.vx, &p.vy, &p.vz),
             &zip3(&sys.fx, &sys.fy, &sys.fz),
             &p.id,
+            &p.moves,
             sys.step,
         )?;
         Ok(GpuFluid {
             pass,
-            moves: p.len(),
+            n: p.len(),
             step: sys.step,
+            bounces0: sys.bounces,
+            leaked0: sys.leaked,
         })
     }
 
     /// Particles.
     pub fn len(&self) -> usize {
-        self.moves
+        self.n
     }
 
     /// Whether there are none (never).
     pub fn is_empty(&self) -> bool {
-        self.moves == 0
+        self.n == 0
     }
 
     /// The precision the device computes in.
@@ -177,7 +179,6 @@ impl GpuFluid {
         if let Some(id) = st.unstable {
             return Err(unstable(sys, st.step, id));
         }
-        let n = st.x.len();
         let col = |v: &[[f64; 3]], k: usize| v.iter().map(|c| c[k]).collect::<Vec<f64>>();
         let particles = Particles {
             x: col(&st.x, 0),
@@ -187,9 +188,11 @@ impl GpuFluid {
             vy: col(&st.v, 1),
             vz: col(&st.v, 2),
             id: st.id,
-            moves: vec![1.0; n],
+            moves: st.moves,
         };
         let virial = st.virial.iter().sum();
+        sys.bounces = self.bounces0 + st.bounces;
+        sys.leaked = self.leaked0 + st.leaked;
         sys.load_state(
             particles,
             [col(&st.f, 0), col(&st.f, 1), col(&st.f, 2)],

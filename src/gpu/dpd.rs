@@ -1,9 +1,11 @@
 //! The DPD fluid's whole step on the GPU: particles resident on the device, cell lists rebuilt
 //! there every step, many steps per submission.
 //!
-//! This is the GPU path of the periodic DPD fluid of `crate::dpd::system` (no walls, no
-//! cells): the same velocity-Verlet step, the same pair force
-//! `F_ij = [a w − γ w_R² (v_ij·e) + σ w_R ξ_ij/√dt] e`, the same counter-based noise. The passes
+//! This is the GPU path of the DPD fluid of `crate::dpd::system` (periodic, or bounded by a
+//! plane or cylinder wall of frozen particles, resting or sliding; cells stay on the CPU): the
+//! same velocity-Verlet step, the same pair force
+//! `F_ij = [a w − γ w_R² (v_ij·e) + σ w_R ξ_ij/√dt] e`, the same counter-based noise, the same
+//! bounce-back off the wall. The passes
 //! are listed in `dpd_shader`; between steps nothing moves to or from the host. The cell list is
 //! a counting sort (atomic counts, a two-level scan, a scatter); each cell's slots are then
 //! sorted by particle id, so the order of every sum is fixed and a run is reproducible bit for
@@ -20,7 +22,9 @@ use std::sync::Arc;
 
 use wgpu::util::DeviceExt;
 
-use super::dpd_shader::{self, rpar, IPAR_LEN, SCAN_BLOCK, WG};
+use super::dpd_shader::{
+    self, rpar, CTL_LEN, IPAR_LEN, SCAN_BLOCK, WALL_CYLINDER, WALL_NONE, WALL_PLANES, WG,
+};
 use super::{Gpu, GpuError, GpuPrecision};
 
 /// The fluid's parameters as the GPU pass takes them (`crate::dpd` fills them).
@@ -50,6 +54,30 @@ pub struct DpdFluidSpec {
     pub body: [f64; 3],
     /// Reverse-Poiseuille force magnitude along `x` (`+` below `L_z/2`, `−` above; 0: none).
     pub reverse_poiseuille: f64,
+    /// The wall moving particles bounce back from (`crate::dpd::walls::Wall`).
+    pub wall: Option<WallSpec>,
+    /// Speed of sliding plane walls along `x` (`+` above the channel's middle; 0: resting).
+    pub wall_speed: f64,
+}
+
+/// A wall as the GPU pass takes it (`crate::dpd::walls::Wall`; the fluid where the signed
+/// distance is negative).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum WallSpec {
+    /// Planes `z = lo` and `z = hi`.
+    Planes {
+        /// The lower plane.
+        lo: f64,
+        /// The upper plane.
+        hi: f64,
+    },
+    /// A cylinder along `x`.
+    Cylinder {
+        /// Its radius.
+        radius: f64,
+        /// Its axis's `(y, z)`.
+        center: [f64; 2],
+    },
 }
 
 /// Particle state in cell order, as read back from the device.
@@ -65,6 +93,12 @@ pub struct DpdFluidState {
     pub virial: Vec<f64>,
     /// Permanent ids.
     pub id: Vec<u32>,
+    /// 1 for moving particles, 0 for frozen wall particles.
+    pub moves: Vec<f64>,
+    /// Bounce-backs off the wall since the pass was made.
+    pub bounces: u64,
+    /// Moving particles found inside the wall after their bounce-back since the pass was made.
+    pub leaked: u64,
     /// Steps done.
     pub step: u64,
     /// The smallest id of a particle that left the box by more than a box length or became
@@ -162,7 +196,8 @@ fn grid(items: usize, max_groups: u32) -> Result<(u32, u32), GpuError> {
 
 impl DpdFluidPass {
     /// Upload a fluid: positions inside the box, velocities, the forces of the current
-    /// positions (the first half kick uses them), ids below 2³², and the steps done.
+    /// positions (the first half kick uses them), ids below 2³², whether each particle moves
+    /// (1) or is a frozen wall particle (0), and the steps done.
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         gpu: Arc<Gpu>,
@@ -172,16 +207,21 @@ impl DpdFluidPass {
         v: &[[f64; 3]],
         f: &[[f64; 3]],
         id: &[u32],
+        moves: &[f64],
         step: u64,
     ) -> Result<Self, GpuError> {
         if precision == GpuPrecision::F64 && !gpu.has_f64() {
             return Err(GpuError::NoF64(gpu.describe()));
         }
         let n = x.len();
-        if v.len() != n || f.len() != n || id.len() != n {
+        if v.len() != n || f.len() != n || id.len() != n || moves.len() != n {
             return Err(GpuError::Shape(
-                "positions, velocities, forces and ids must have one entry per particle".into(),
+                "positions, velocities, forces, ids and moves must have one entry per particle"
+                    .into(),
             ));
+        }
+        if moves.iter().any(|&m| m != 0.0 && m != 1.0) {
+            return Err(GpuError::Shape("moves must be 0 or 1".into()));
         }
         if n == 0 || n >= (u32::MAX / 2) as usize {
             return Err(GpuError::Shape(format!("{n} particles (1 to 2³¹)")));
@@ -247,7 +287,7 @@ impl DpdFluidPass {
         // The read-back buffer holds positions, velocities, forces, ids and the control words.
         too_large(
             "the read-back buffer".into(),
-            3 * vec4 + 4 * n + 16,
+            3 * vec4 + 4 * n + 4 * CTL_LEN,
             gpu.max_buffer,
         )?;
         let nblocks = ncells.div_ceil(SCAN_BLOCK as usize);
@@ -279,7 +319,7 @@ impl DpdFluidPass {
                 mapped_at_creation: false,
             })
         };
-        let pos = init("dpd positions", &pack4(x, None, precision));
+        let pos = init("dpd positions", &pack4(x, Some(moves), precision));
         let vel = init("dpd velocities", &pack4(v, None, precision));
         let frc = init("dpd forces", &pack4(f, None, precision));
         let ids = init("dpd ids", bytes(id));
@@ -292,10 +332,9 @@ impl DpdFluidPass {
         let count = zeroed("dpd cell counts", ncells * 4);
         let start = zeroed("dpd cell starts", (ncells + 1) * 4);
         let blocks = zeroed("dpd scan blocks", nblocks * 4);
-        let ctl = init(
-            "dpd control",
-            bytes(&[step as u32, (step >> 32) as u32, 0u32, u32::MAX]),
-        );
+        let mut control = [0u32; CTL_LEN];
+        control[..4].copy_from_slice(&[step as u32, (step >> 32) as u32, 0, u32::MAX]);
+        let ctl = init("dpd control", bytes(&control));
         let mut ipar = [0u32; IPAR_LEN];
         ipar[..10].copy_from_slice(&[
             n as u32,
@@ -309,6 +348,11 @@ impl DpdFluidPass {
             gn.0,
             gc.0,
         ]);
+        ipar[10] = match spec.wall {
+            None => WALL_NONE,
+            Some(WallSpec::Planes { .. }) => WALL_PLANES,
+            Some(WallSpec::Cylinder { .. }) => WALL_CYLINDER,
+        };
         let ipar = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("dpd integer parameters"),
             contents: bytes(&ipar),
@@ -335,6 +379,13 @@ impl DpdFluidPass {
         r[rpar::INV_SQRT_DT] = 1.0 / spec.dt.sqrt();
         r[rpar::REVERSE] = spec.reverse_poiseuille;
         r[rpar::HALF_LZ] = 0.5 * spec.box_len[2];
+        let w = match spec.wall {
+            None => [0.0; 3],
+            Some(WallSpec::Planes { lo, hi }) => [lo, hi, 0.0],
+            Some(WallSpec::Cylinder { radius, center }) => [radius, center[0], center[1]],
+        };
+        r[rpar::WALL..rpar::WALL + 3].copy_from_slice(&w);
+        r[rpar::WALL_SPEED] = spec.wall_speed;
         let rpar_bytes = match precision {
             GpuPrecision::F64 => bytes(&r).to_vec(),
             GpuPrecision::F32 => bytes(&r.map(|c| c as f32)).to_vec(),
@@ -391,7 +442,7 @@ impl DpdFluidPass {
                     (11, &ipar),
                     (12, &rparb),
                 ],
-                "kick" => vec![(1, &vel), (2, &frc), (11, &ipar), (12, &rparb)],
+                "kick" => vec![(0, &pos), (1, &vel), (2, &frc), (11, &ipar), (12, &rparb)],
                 _ => unreachable!("a pass without bindings"),
             }
         };
@@ -559,7 +610,7 @@ impl DpdFluidPass {
         let (prec, n) = (self.precision, self.n);
         let bufs = [&self.pos, &self.vel, &self.frc, &self.ids, &self.ctl];
         self.read_buffers(&bufs, |parts| {
-            let (x, _) = unpack4(parts[0], prec);
+            let (x, moves) = unpack4(parts[0], prec);
             let (v, _) = unpack4(parts[1], prec);
             let (f, virial) = unpack4(parts[2], prec);
             let id: Vec<u32> = bytemuck::cast_slice::<u8, u32>(parts[3])[..n].to_vec();
@@ -570,13 +621,16 @@ impl DpdFluidPass {
                 f,
                 virial,
                 id,
+                moves,
+                bounces: ctl[4] as u64 | ((ctl[5] as u64) << 32),
+                leaked: ctl[6] as u64 | ((ctl[7] as u64) << 32),
                 step: ctl[0] as u64 | ((ctl[1] as u64) << 32),
                 unstable: (ctl[2] != 0).then_some(ctl[3]),
             }
         })
     }
 
-    /// The columns `y`, `z` and `v_x` of every particle (device order), and the id of a
+    /// The columns `y`, `z` and `v_x` of the moving particles (device order), and the id of a
     /// particle that went unstable, if any: what a velocity profile needs, without the rest
     /// of the state.
     #[allow(clippy::type_complexity)]
@@ -598,10 +652,17 @@ impl DpdFluidPass {
                 }
             };
             let ctl: &[u32] = bytemuck::cast_slice(parts[2]);
+            let moving: Vec<bool> = column(parts[0], 3).iter().map(|&m| m != 0.0).collect();
+            let keep = |c: Vec<f64>| -> Vec<f64> {
+                c.into_iter()
+                    .zip(&moving)
+                    .filter_map(|(v, &m)| m.then_some(v))
+                    .collect()
+            };
             (
-                column(parts[0], 1),
-                column(parts[0], 2),
-                column(parts[1], 0),
+                keep(column(parts[0], 1)),
+                keep(column(parts[0], 2)),
+                keep(column(parts[1], 0)),
                 (ctl[2] != 0).then_some(ctl[3]),
             )
         })

@@ -4,7 +4,7 @@
 //!
 //! | pass | one thread per | does |
 //! |---|---|---|
-//! | `drift` | particle | `v += (dt/2m) F`, `x += dt v`, wrap into the box, bin: `arrival = count[c]++` |
+//! | `drift` | particle | `v += (dt/2m) F`, `x += dt v` (moving particles), bounce-back off the wall, wrap into the box, bin: `arrival = count[c]++` |
 //! | `scan_local` | 4 cells | exclusive prefix of the counts within blocks of 1024 cells; counts reset |
 //! | `scan_blocks` | block (one workgroup) | exclusive prefix of the block totals; the step counter `+1` |
 //! | `scan_add` | cell | `start[c] += blocks[c / 1024]` |
@@ -12,7 +12,7 @@
 //! | `sort_cells` | cell | the cell's slots sorted by particle id (a deterministic order) |
 //! | `gather` | slot | positions, velocities and ids permuted into cell order |
 //! | `forces` | particle | pair forces over the 27 neighbour cells, body force, virial share |
-//! | `kick` | particle | `v += (dt/2m) F` |
+//! | `kick` | particle | `v += (dt/2m) F` (moving particles) |
 //!
 //! The pair noise is the CPU's ([`crate::dpd::rng`]): SplitMix64 on 64-bit words, done here on
 //! pairs of `u32` (WGSL has no 64-bit integers), so a pair draws the same 64 bits on the GPU as
@@ -59,8 +59,12 @@ pub mod rpar {
     pub const REVERSE: usize = 16;
     /// Half the box height (the reverse-Poiseuille split).
     pub const HALF_LZ: usize = 17;
+    /// The wall's parameters (3): planes `lo, hi, –`; cylinder `radius, y_c, z_c`.
+    pub const WALL: usize = 18;
+    /// Speed of sliding plane walls (Couette flow).
+    pub const WALL_SPEED: usize = 21;
     /// Number of values.
-    pub const LEN: usize = 18;
+    pub const LEN: usize = 22;
 }
 
 /// The integer parameters (`ipar`, a uniform block of 12 `u32`).
@@ -76,13 +80,24 @@ pub fn ipar_struct() -> &'static str {
     key0_hi: u32,
     groups_n: u32,
     groups_c: u32,
-    pad0: u32,
+    wall: u32,
     pad1: u32,
 }"#
 }
 
 /// Number of `u32` in `IPar`.
 pub const IPAR_LEN: usize = 12;
+
+/// `IPar::wall`: no wall.
+pub const WALL_NONE: u32 = 0;
+/// `IPar::wall`: planes `z = lo`, `z = hi`.
+pub const WALL_PLANES: u32 = 1;
+/// `IPar::wall`: a cylinder along `x`.
+pub const WALL_CYLINDER: u32 = 2;
+
+/// Words of the control buffer: step (2), unstable flag, smallest unstable id, bounces (2),
+/// particles left inside the wall after a bounce (2).
+pub const CTL_LEN: usize = 8;
 
 fn prelude(p: GpuPrecision) -> String {
     format!(
@@ -129,6 +144,23 @@ fn mix64(z0: vec2<u32>) -> vec2<u32> {
     var z = mul64(xorshr64(z0, 30u), vec2<u32>(0x1ce4e5b9u, 0xbf58476du));
     z = mul64(xorshr64(z, 27u), vec2<u32>(0x133111ebu, 0x94d049bbu));
     return xorshr64(z, 31u);
+}
+"#;
+
+/// The wall (`crate::dpd::walls::Wall`): signed distance, bounce-back, sliding speed; and the
+/// 64-bit counters of the control buffer.
+const WALL_FNS: &str = r#"fn sdf(p: vec3<R>) -> R {
+    if (ipar.wall == 1u) { return max(rpar[18] - p.z, p.z - rpar[19]); }
+    let dy = p.y - rpar[19];
+    let dz = p.z - rpar[20];
+    return sqrt(dy * dy + dz * dz) - rpar[18];
+}
+fn path_at(x: vec3<R>, v: vec3<R>, t: R) -> vec3<R> {
+    return x - ((R(1.0) - t) * rpar[10]) * v;
+}
+fn count_up(k: u32) {
+    let old = atomicAdd(&ctl[k], 1u);
+    if (old == 0xffffffffu) { atomicAdd(&ctl[k + 1u], 1u); }
 }
 "#;
 
@@ -192,13 +224,41 @@ pub fn sources(p: GpuPrecision, power: f64) -> Option<Vec<(&'static str, String)
 @group(0) @binding(8) var<storage, read_write> arrival: array<u32>;
 @group(0) @binding(9) var<storage, read_write> count: array<atomic<u32>>;
 @group(0) @binding(10) var<storage, read_write> ctl: array<atomic<u32>>;
-{ip}{rp}{CELL_OF}
+{ip}{rp}{CELL_OF}{WALL_FNS}
 @compute @workgroup_size({WG})
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {{
     let i = gid(wid, li, ipar.groups_n);
     if (i >= ipar.n) {{ return; }}
-    let v = vel[i].xyz + rpar[11] * frc[i].xyz;
-    var x = pos[i].xyz + rpar[10] * v;
+    // pos.w = 1 for particles that move, 0 for frozen wall particles (never kicked or drifted).
+    let p = pos[i];
+    let m = p.w;
+    var v = vel[i].xyz + rpar[11] * frc[i].xyz * m;
+    var x = p.xyz + rpar[10] * v * m;
+    if (ipar.wall != 0u && m != R(0.0) && sdf(x) >= R(0.0)) {{
+        // Bounce-back as Wall::bounce: the crossing by bisection, back along −v for the rest
+        // of the step; off a sliding wall the velocity relative to it is reversed.
+        if (sdf(path_at(x, v, R(0.0))) >= R(0.0)) {{
+            x = path_at(x, v, R(0.0));
+        }} else {{
+            var lo = R(0.0);
+            var hi = R(1.0);
+            for (var it = 0u; it < 40u; it++) {{
+                let mid = R(0.5) * (lo + hi);
+                if (sdf(path_at(x, v, mid)) < R(0.0)) {{ lo = mid; }} else {{ hi = mid; }}
+            }}
+            let rest = R(1.0) - lo;
+            let hit = path_at(x, v, lo);
+            let back = hit - rest * rpar[10] * v;
+            x = select(hit, back, sdf(back) < R(0.0));
+        }}
+        v = -v;
+        let uw = rpar[21];
+        if (ipar.wall == 1u && uw != R(0.0)) {{
+            v.x += R(2.0) * select(-uw, uw, x.z > R(0.5) * (rpar[18] + rpar[19]));
+        }}
+        count_up(4u);
+        if (sdf(x) >= R(0.0)) {{ count_up(6u); }}
+    }}
     var bad = false;
     for (var k = 0u; k < 3u; k++) {{
         let l = rpar[k];
@@ -212,7 +272,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         atomicMin(&ctl[3], ids[i]);
     }}
     let c = cell_index(cell_coords(x));
-    pos2[i] = vec4<R>(x, R(0.0));
+    pos2[i] = vec4<R>(x, m);
     vel2[i] = vec4<R>(v, R(0.0));
     ids2[i] = ids[i];
     cell[i] = c;
@@ -474,6 +534,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
     );
     let kick = format!(
         r#"{pre}{GID}
+@group(0) @binding(0) var<storage, read> pos: array<vec4<R>>;
 @group(0) @binding(1) var<storage, read_write> vel: array<vec4<R>>;
 @group(0) @binding(2) var<storage, read> frc: array<vec4<R>>;
 {ip}{rp}
@@ -481,7 +542,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) li: u32) {{
     let s = gid(wid, li, ipar.groups_n);
     if (s >= ipar.n) {{ return; }}
-    vel[s] = vec4<R>(vel[s].xyz + rpar[11] * frc[s].xyz, R(0.0));
+    vel[s] = vec4<R>(vel[s].xyz + rpar[11] * frc[s].xyz * pos[s].w, R(0.0));
 }}
 "#
     );

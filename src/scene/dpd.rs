@@ -24,9 +24,9 @@
 //! gpu_precision = "f32"      # "f32" (default, as GPU DPD codes) | "f64" (k = 1, 1/2, 1/4 only)
 //! ```
 //!
-//! The GPU steps a periodic fluid without walls or cells (`crate::dpd::gpu_fluid`); `auto`
-//! takes a hardware GPU for at least `AUTO_MIN_PARTICLES` (in `scene::dpd_run`) particles, `true`
-//! any adapter, and fails where there is none or where walls or cells ask for the CPU.
+//! The GPU steps the fluid, walls included (`crate::dpd::gpu_fluid`); cells stay on the CPU.
+//! `auto` takes a hardware GPU for at least `AUTO_MIN_PARTICLES` (in `scene::dpd_run`)
+//! particles, `true` any adapter, and fails where there is none or where cells ask for the CPU.
 //!
 //! Walls (frozen particles and bounce-back, [`crate::dpd::walls`]):
 //!
@@ -521,13 +521,10 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
             ))
         }
     };
-    if gpu == GpuChoice::On && (wall.is_some() || !d.cells.is_empty()) {
+    if gpu == GpuChoice::On && !d.cells.is_empty() {
         return Err(located(
             "gpu",
-            format!(
-                "the GPU steps a periodic fluid only; this scene has {} (set gpu = false or \"auto\")",
-                if wall.is_some() { "walls" } else { "cells" }
-            ),
+            "cells in the fluid are stepped on the CPU only (set gpu = false or \"auto\")".into(),
         ));
     }
     let gpu_precision = match d.gpu_precision.as_deref() {

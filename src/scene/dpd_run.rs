@@ -383,7 +383,7 @@ fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdR
 
 #[cfg(feature = "gpu")]
 fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdRunError> {
-    use crate::dpd::gpu_fluid::{unsupported, GpuFluid};
+    use crate::dpd::gpu_fluid::GpuFluid;
     use crate::gpu::{Gpu, GpuPrecision};
     let auto = scene.gpu == GpuChoice::Auto;
     let cpu = |model: Model, adapter: Option<String>, why: String| {
@@ -397,13 +397,6 @@ fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdR
         other if auto => return cpu(other, None, "cells are stepped on the CPU only".into()),
         _ => return refuse("cells are stepped on the CPU only".into()),
     };
-    if let Some(why) = unsupported(&sys) {
-        return if auto {
-            cpu(Model::Fluid(sys), None, why.into())
-        } else {
-            refuse(why.into())
-        };
-    }
     let gpu = match Gpu::shared() {
         Ok(g) => g,
         Err(e) if auto => return cpu(Model::Fluid(sys), None, e.to_string()),
