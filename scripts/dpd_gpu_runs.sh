@@ -13,7 +13,8 @@
 #
 # Environment: GPU_STEPS (steps of the 64³ GPU runs, default 3000), CPU_STEPS (of the CPU run,
 # default 300), WALL_STEPS and WALL_EQ (steps and discarded steps of the gap-12 and radius-6
-# runs, default 30000 and 10000), SKIP_VALIDATION=1, SKIP_WALLS=1.
+# runs, default 30000 and 10000), SKIP_VALIDATION=1, SKIP_PERIODIC=1 (the 64³ periodic runs),
+# SKIP_WALLS=1.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 out="${1:?usage: scripts/dpd_gpu_runs.sh OUTDIR}"

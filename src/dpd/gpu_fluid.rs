@@ -1,4 +1,4 @@
-//! The periodic DPD fluid stepped on the GPU (feature `gpu`).
+//! The DPD fluid stepped on the GPU (feature `gpu`).
 //!
 //! [`GpuFluid`] takes a [`DpdSystem`] (periodic, or with a plane or cylinder wall of frozen
 //! particles, resting or sliding; cells in the fluid stay on the CPU), uploads it, and
@@ -14,7 +14,9 @@
 //! In `f64` one step agrees with the CPU's to rounding (the sums run in another order), and
 //! trajectories stay together until the chaos of the many-body dynamics amplifies that rounding.
 //! In `f32` (the precision of GPU DPD codes such as Mirheo) the statistics agree: temperature,
-//! pressure, viscosity. Runs on one device are reproducible bit for bit (each cell's particles
+//! pressure, viscosity (docs/dpd_gpu_validation.md). With walls in `f32`, a particle within about
+//! `10⁻⁶` of the wall surface can round into it on upload; its next drift then counts it as a
+//! leak (`leaked`), which the runs so far never showed. Runs on one device are reproducible bit for bit (each cell's particles
 //! are ordered by id, so every sum has a fixed order).
 //!
 //! # Example

@@ -453,7 +453,9 @@ impl DpdFluidPass {
             // threads); cell coordinates are clamped to the grid; `start` has `ncells + 1`
             // entries, its values are prefix sums of the counts (at most `n`), and
             // `start[c] + arrival` is below `start[c + 1]` because the arrivals of cell `c`
-            // are `0..count[c]`; `blocks` has one entry per 1024 cells (`c / 1024 < nblocks`).
+            // are `0..count[c]`; `blocks` has one entry per 1024 cells (`c / 1024 < nblocks`);
+            // the fixed indices are below the buffers' lengths: `rpar` up to 21 of `rpar::LEN`
+            // = 22, `ctl` up to 7 of `CTL_LEN` = 8 (pinned by a const assert in `dpd_shader`).
             let pipeline = unsafe { gpu.trusted_pipeline(&format!("dpd {name}"), source) };
             let entries: Vec<wgpu::BindGroupEntry> = bindings(name)
                 .into_iter()

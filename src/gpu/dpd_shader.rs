@@ -67,6 +67,28 @@ pub mod rpar {
     pub const LEN: usize = 22;
 }
 
+// The shaders index `rpar` and compare `IPar::wall` with these numbers written out; the
+// pipelines have no runtime bounds checks, so the layout is pinned here.
+const _: () = assert!(
+    rpar::BOX == 0
+        && rpar::INV_CELL == 3
+        && rpar::A == 6
+        && rpar::GAMMA == 7
+        && rpar::SIGMA == 8
+        && rpar::RC == 9
+        && rpar::DT == 10
+        && rpar::HALF_DT_OVER_M == 11
+        && rpar::INV_SQRT_DT == 12
+        && rpar::BODY == 13
+        && rpar::REVERSE == 16
+        && rpar::HALF_LZ == 17
+        && rpar::WALL == 18
+        && rpar::WALL_SPEED == 21
+        && rpar::LEN == 22
+        && WALL_PLANES == 1
+        && CTL_LEN == 8
+);
+
 /// The integer parameters (`ipar`, a uniform block of 12 `u32`).
 pub fn ipar_struct() -> &'static str {
     r#"struct IPar {
