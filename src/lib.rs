@@ -24,7 +24,8 @@
 //! * [`linalg3`]: the eigen-decomposition of symmetric 3 × 3 matrices.
 //! * [`comm`]: the communicator the distributed algorithms are written against (one rank, or
 //!   MPI ranks with the `mpi` feature).
-//! * [`gpu`]: one wgpu device per process and batched pair sums on it (`gpu` feature).
+//! * [`gpu`]: one wgpu device per process, batched pair sums on it, and the DPD fluid's whole
+//!   step (`gpu` feature).
 //! * [`sph_harmonics`]: the Gauss–Legendre × uniform grid, batched transforms and
 //!   derivatives, resampling, rotations and singular quadrature weights.
 //! * [`fmm`]: N-body sums of Laplace, Stokes and RPY kernels, direct and by the KIFMM, on one

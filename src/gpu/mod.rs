@@ -1,4 +1,5 @@
-//! The GPU through wgpu (feature `gpu`): one device per process, and batched pair sums on it.
+//! The GPU through wgpu (feature `gpu`): one device per process, batched pair sums on it, and
+//! the DPD fluid's whole step ([`dpd`], driven by `crate::dpd::gpu_fluid`).
 //!
 //! [`Gpu::shared`] opens the first adapter wgpu offers (set `WGPU_BACKEND=vulkan` to skip the
 //! others; on a machine without a GPU, Mesa's lavapipe is a Vulkan adapter on the CPU) once per
