@@ -51,7 +51,6 @@ use crate::gpu::{Gpu, GpuPrecision};
 /// A DPD fluid resident on the GPU.
 pub struct GpuFluid {
     pass: DpdFluidPass,
-    n: usize,
     step: u64,
     /// The host system's bounce and leak counts when the fluid was uploaded.
     bounces0: u64,
@@ -109,7 +108,6 @@ impl GpuFluid {
         )?;
         Ok(GpuFluid {
             pass,
-            n: p.len(),
             step: sys.step,
             bounces0: sys.bounces,
             leaked0: sys.leaked,
@@ -118,12 +116,12 @@ impl GpuFluid {
 
     /// Particles.
     pub fn len(&self) -> usize {
-        self.n
+        self.pass.len()
     }
 
     /// Whether there are none (never).
     pub fn is_empty(&self) -> bool {
-        self.n == 0
+        self.pass.is_empty()
     }
 
     /// The precision the device computes in.

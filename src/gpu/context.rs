@@ -115,6 +115,28 @@ impl Gpu {
         pipeline
     }
 
+    /// The bind group of `pipeline`'s group 0 from `(binding, buffer)` pairs (the layout is
+    /// derived from the shader, so the pairs must name exactly the bindings it declares).
+    pub(crate) fn bind_group(
+        &self,
+        label: &str,
+        pipeline: &wgpu::ComputePipeline,
+        buffers: &[(u32, &wgpu::Buffer)],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .map(|&(binding, b)| wgpu::BindGroupEntry {
+                binding,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        self.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(label),
+            layout: &pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        })
+    }
+
     /// Wait until the device has finished everything submitted.
     pub(crate) fn wait(&self) -> Result<(), GpuError> {
         self.device

@@ -457,18 +457,7 @@ impl DpdFluidPass {
             // the fixed indices are below the buffers' lengths: `rpar` up to 21 of `rpar::LEN`
             // = 22, `ctl` up to 7 of `CTL_LEN` = 8 (pinned by a const assert in `dpd_shader`).
             let pipeline = unsafe { gpu.trusted_pipeline(&format!("dpd {name}"), source) };
-            let entries: Vec<wgpu::BindGroupEntry> = bindings(name)
-                .into_iter()
-                .map(|(binding, b)| wgpu::BindGroupEntry {
-                    binding,
-                    resource: b.as_entire_binding(),
-                })
-                .collect();
-            let bind_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
-                label: Some(name),
-                layout: &pipeline.get_bind_group_layout(0),
-                entries: &entries,
-            });
+            let bind_group = gpu.bind_group(name, &pipeline, &bindings(name));
             let groups = match *name {
                 "scan_local" => (nblocks as u32, 1),
                 "scan_blocks" => (1, 1),

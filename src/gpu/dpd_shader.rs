@@ -211,17 +211,18 @@ fn unit_variance(p: GpuPrecision) -> &'static str {
 
 /// `w_R = w^k` for the kernel exponent `k` (`None` where this precision cannot take `k`).
 fn weight_r(power: f64, p: GpuPrecision) -> Option<String> {
+    if !p.takes_kernel_exponent(power) {
+        return None;
+    }
     let body = if power == 1.0 {
         "w".to_string()
     } else if power == 0.5 {
         "sqrt(w)".to_string()
     } else if power == 0.25 {
         "sqrt(sqrt(w))".to_string()
-    } else if p == GpuPrecision::F32 {
-        format!("pow(w, R({power:?}))")
     } else {
-        // WGSL offers no transcendental functions on f64.
-        return None;
+        // f32 only (takes_kernel_exponent): WGSL offers no transcendental functions on f64.
+        format!("pow(w, R({power:?}))")
     };
     Some(format!("fn weight_r(w: R) -> R {{ return {body}; }}\n"))
 }

@@ -126,6 +126,12 @@ impl GpuPrecision {
         }
     }
 
+    /// Whether the DPD shaders take kernel exponent `k` in this precision: any `k` in `f32`
+    /// (`pow`); 1, 1/2 and 1/4 in `f64`, by square roots (WGSL has no `f64` transcendentals).
+    pub fn takes_kernel_exponent(self, k: f64) -> bool {
+        self == GpuPrecision::F32 || [1.0, 0.5, 0.25].contains(&k)
+    }
+
     /// `"f32"` or `"f64"`.
     pub fn name(self) -> &'static str {
         match self {

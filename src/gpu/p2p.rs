@@ -317,18 +317,7 @@ impl PairSum {
         if let Some(b) = &consts_buf {
             entries.push((6, b));
         }
-        let entries: Vec<wgpu::BindGroupEntry> = entries
-            .into_iter()
-            .map(|(binding, b)| wgpu::BindGroupEntry {
-                binding,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some(kernel.name()),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        });
+        let bind_group = gpu.bind_group(kernel.name(), &pipeline, &entries);
         Ok(PairSum {
             gpu,
             kernel,

@@ -213,19 +213,11 @@ impl GpuTeaHi {
         let staging = buf("read-back", out_bytes, U::MAP_READ | U::COPY_DST);
         let params = buf("params", 16, U::UNIFORM | U::COPY_DST);
         let consts = buf("radius", 2 * rb, U::STORAGE | U::COPY_DST);
-        let entries: Vec<wgpu::BindGroupEntry> = [&pos, &fx, &out, &consts, &params]
-            .iter()
-            .enumerate()
-            .map(|(k, b)| wgpu::BindGroupEntry {
-                binding: k as u32,
-                resource: b.as_entire_binding(),
-            })
-            .collect();
-        let bind_group = dev.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("tea-hi"),
-            layout: &pipeline.get_bind_group_layout(0),
-            entries: &entries,
-        });
+        let bind_group = gpu.bind_group(
+            "tea-hi",
+            &pipeline,
+            &[(0, &pos), (1, &fx), (2, &out), (3, &consts), (4, &params)],
+        );
         Ok(GpuTeaHi {
             gpu,
             precision,

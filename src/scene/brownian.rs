@@ -36,7 +36,7 @@ use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 use serde::Deserialize;
 
-use super::{parse_toml, read_scene_file, SceneError};
+use super::{parse_toml, read_scene_file, GpuFlag, SceneError};
 use crate::brownian::{BrownianParams, ForceField, NoiseModel, SubcellularElement};
 use crate::gpu::GpuChoice;
 
@@ -67,14 +67,6 @@ struct BrownianSection {
     sce: Option<SubcellularElement>,
     /// The TEA-HI pass on a GPU: "auto" (default), true or false.
     gpu: Option<GpuFlag>,
-}
-
-/// `gpu`: `"auto"`, or a boolean.
-#[derive(Debug, Deserialize)]
-#[serde(untagged)]
-enum GpuFlag {
-    Flag(bool),
-    Word(String),
 }
 
 fn default_noise() -> String {
@@ -149,15 +141,7 @@ pub fn parse(file: &Path, text: &str) -> Result<BrownianScene, SceneError> {
     }
     let gpu = match &b.gpu {
         None => GpuChoice::Auto,
-        Some(GpuFlag::Flag(true)) => GpuChoice::On,
-        Some(GpuFlag::Flag(false)) => GpuChoice::Off,
-        Some(GpuFlag::Word(w)) if w == "auto" => GpuChoice::Auto,
-        Some(GpuFlag::Word(w)) => {
-            return Err(bad(
-                "gpu",
-                &format!("must be \"auto\", true or false, got \"{w}\""),
-            ))
-        }
+        Some(flag) => flag.choice().map_err(|why| bad("gpu", &why))?,
     };
     let noise = match b.noise.as_str() {
         "tea-hi" => NoiseModel::TeaHi,

@@ -76,7 +76,7 @@ use rand::{Rng, SeedableRng};
 use serde::Deserialize;
 use toml::Spanned;
 
-use super::{line_col, parse_toml, read_scene_file, SceneError};
+use super::{line_col, parse_toml, read_scene_file, GpuFlag, SceneError};
 use crate::gpu::GpuChoice;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
@@ -154,15 +154,7 @@ struct NumericsSection {
     repulsion_strength: Option<Spanned<f64>>,
     rebalance_every: Option<Spanned<u64>>,
     max_imbalance: Option<Spanned<f64>>,
-    gpu: Option<Spanned<GpuSetting>>,
-}
-
-/// `[numerics] gpu`: `"auto"`, or a boolean.
-#[derive(Debug, Deserialize)]
-#[serde(untagged)]
-enum GpuSetting {
-    Flag(bool),
-    Word(String),
+    gpu: Option<Spanned<GpuFlag>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -725,17 +717,10 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         },
         gpu: match n.and_then(|n| n.gpu.as_ref()) {
             None => GpuChoice::Auto,
-            Some(g) => match g.get_ref() {
-                GpuSetting::Flag(true) => GpuChoice::On,
-                GpuSetting::Flag(false) => GpuChoice::Off,
-                GpuSetting::Word(w) if w == "auto" => GpuChoice::Auto,
-                GpuSetting::Word(w) => {
-                    return Err(at(
-                        g.span(),
-                        format!("[numerics] gpu must be \"auto\", true or false, got \"{w}\""),
-                    ))
-                }
-            },
+            Some(g) => g
+                .get_ref()
+                .choice()
+                .map_err(|why| at(g.span(), format!("[numerics] gpu {why}")))?,
         },
     };
     let mut numerics = numerics;

@@ -71,7 +71,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-use super::{parse_toml, read_scene_file, SceneError};
+use super::{parse_toml, read_scene_file, GpuFlag, SceneError};
 use crate::dpd::membrane::{BendingModel, MembraneParams, Moduli};
 use crate::dpd::pair_force::PairParams;
 use crate::dpd::suspension::{CellSpec, CouplingParams};
@@ -135,14 +135,6 @@ struct DpdSection {
     coupling: Option<CouplingSection>,
     gpu: Option<GpuFlag>,
     gpu_precision: Option<String>,
-}
-
-/// `gpu`: `"auto"`, or a boolean.
-#[derive(Debug, Deserialize)]
-#[serde(untagged)]
-enum GpuFlag {
-    Flag(bool),
-    Word(String),
 }
 
 /// One `[[dpd.cells]]` entry.
@@ -511,15 +503,7 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
     let coupling = coupling_params(file, text, d.coupling.as_ref())?;
     let gpu = match &d.gpu {
         None => GpuChoice::Auto,
-        Some(GpuFlag::Flag(true)) => GpuChoice::On,
-        Some(GpuFlag::Flag(false)) => GpuChoice::Off,
-        Some(GpuFlag::Word(w)) if w == "auto" => GpuChoice::Auto,
-        Some(GpuFlag::Word(w)) => {
-            return Err(located(
-                "gpu",
-                format!("must be \"auto\", true or false, got \"{w}\""),
-            ))
-        }
+        Some(flag) => flag.choice().map_err(|why| located("gpu", why))?,
     };
     if gpu == GpuChoice::On && !d.cells.is_empty() {
         return Err(located(
@@ -530,7 +514,7 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
     let gpu_precision = match d.gpu_precision.as_deref() {
         None | Some("f32") => GpuPrecision::F32,
         Some("f64") => {
-            if ![1.0, 0.5, 0.25].contains(&d.power) {
+            if !GpuPrecision::F64.takes_kernel_exponent(d.power) {
                 return Err(located(
                     "gpu_precision",
                     format!(

@@ -70,3 +70,24 @@ pub fn line_col(text: &str, offset: usize) -> (usize, usize) {
 pub fn read_scene_file(file: &Path) -> Result<String, SceneError> {
     std::fs::read_to_string(file).map_err(|e| SceneError::new(file, format!("cannot read: {e}")))
 }
+
+/// A scene's `gpu` key (`[numerics]`, `[brownian]`, `[dpd]`): `"auto"`, or a boolean.
+#[derive(Debug, serde::Deserialize)]
+#[serde(untagged)]
+pub(crate) enum GpuFlag {
+    Flag(bool),
+    Word(String),
+}
+
+impl GpuFlag {
+    /// The choice it names, or what is wrong with it.
+    pub(crate) fn choice(&self) -> Result<crate::gpu::GpuChoice, String> {
+        use crate::gpu::GpuChoice;
+        match self {
+            GpuFlag::Flag(true) => Ok(GpuChoice::On),
+            GpuFlag::Flag(false) => Ok(GpuChoice::Off),
+            GpuFlag::Word(w) if w == "auto" => Ok(GpuChoice::Auto),
+            GpuFlag::Word(w) => Err(format!("must be \"auto\", true or false, got \"{w}\"")),
+        }
+    }
+}
