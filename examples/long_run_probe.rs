@@ -7,7 +7,8 @@
 //! `cargo run --release --example long_run_probe -- SHAPE P DT STEPS [EVERY]`
 //! with SHAPE one of `v0.85` (prolate of that reduced volume), `rbc` (biconcave, Skalak from
 //! `MOBO_SHEAR_MODULUS`, default 0), and the environment:
-//! `MOBO_FLOW` = `shear` (default) | `ext`, `MOBO_KAPPA` (default 0.05), `MOBO_TILT` (degrees
+//! `MOBO_FLOW` = `shear` (default) | `ext`, `MOBO_KAPPA` (default 0.05), `MOBO_NO_AREA_RELAX`
+//! (no local area relaxation of a Skalak cell), `MOBO_TILT` (degrees
 //! about x, default 0), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`, `MOBO_TOL` (GMRES),
 //! `MOBO_PRECONDITIONER` = `cell` (each cell's own operator inverted, as `mobo run` does by
 //! default) | `sphere` (the default here: the library stepper's).
@@ -107,6 +108,9 @@ fn main() {
     if std::env::var("MOBO_PRECONDITIONER").is_ok_and(|v| v == "cell") {
         stepper.set_preconditioning(Preconditioning::CELL);
     }
+    if std::env::var("MOBO_NO_AREA_RELAX").is_ok() {
+        stepper.set_local_area_relaxation(false);
+    }
     let mut coefs = s.coefs().to_vec();
     if gs > 0.0 {
         stepper
@@ -135,7 +139,7 @@ fn main() {
     let sht = mobo::sph_harmonics::ShTransform::new(p).unwrap();
     let mut ws = sht.workspace();
     let mut sig_c = vec![0.0; lay.len()];
-    println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s  |u_n|_rms |u_t|_rms  |dX/dt|_rms");
+    println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s  |u_n|_rms |u_t|_rms  |dX/dt|_rms  [Skalak: ref_area_drift ref_volume_drift ref_hi max_I1 max|J-1|]");
     let (mut sum, mut max) = (0usize, 0usize);
     let start = std::time::Instant::now();
     // Summary: iterations per window of 100 steps against the first window, drifts, grid.
@@ -233,8 +237,35 @@ fn main() {
                 un2 /= n as f64;
                 ut2 /= n as f64;
             }
+            // The Skalak reference is the first surface relabelled: its area and volume are
+            // invariants, its high-degree share should stay that of the first shape, and the
+            // strain invariants I1 = A^ij a_ij - 2 and J = sqrt(det a / det A) measure the
+            // membrane's stretch against it at the same grid points.
+            let skalak_cols = match stepper.skalak_reference() {
+                Some(r) => {
+                    let gr = calc.geometry(r).unwrap();
+                    let (mut i1max, mut jdev) = (0.0f64, 0.0f64);
+                    for j in 0..gr.e.len() {
+                        let (ea, fa, ga) = (gr.e[j], gr.f[j], gr.g[j]);
+                        let det_ref = ea * ga - fa * fa;
+                        let det = g.e[j] * g.g[j] - g.f[j] * g.f[j];
+                        let i1 = (ga * g.e[j] - 2.0 * fa * g.f[j] + ea * g.g[j]) / det_ref - 2.0;
+                        i1max = i1max.max(i1);
+                        jdev = jdev.max(((det / det_ref).sqrt() - 1.0).abs());
+                    }
+                    format!(
+                        " {:10.2e} {:10.2e} {:9.2e} {:9.3e} {:9.2e}",
+                        (gr.area() - a0) / a0,
+                        (gr.volume() - v0) / v0,
+                        high_share(&lay, r),
+                        i1max,
+                        jdev
+                    )
+                }
+                None => String::new(),
+            };
             println!(
-                "{:8.3} {:7.1} {:5} {:10.2e} {:10.2e} {:8.3} {:6.3} {:9.2e} {:9.2e} {:9.3e} {:7.1} {:9.2e} {:9.2e} {:9.2e}",
+                "{:8.3} {:7.1} {:5} {:10.2e} {:10.2e} {:8.3} {:6.3} {:9.2e} {:9.2e} {:9.3e} {:7.1} {:9.2e} {:9.2e} {:9.2e}{skalak_cols}",
                 k as f64 * dt,
                 sum as f64 / every as f64,
                 max,
