@@ -437,10 +437,22 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
             worst = worst.max(largest_area_strain(&mut calc, &coefs, &reference));
         }
         let tension = st.sigma.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        (worst, tension)
+        // The reference is the first surface, whatever its labels: its area is an invariant.
+        let reference = st.skalak_reference().unwrap().to_vec();
+        let (a_ref, a0) = (
+            calc.geometry(&reference).unwrap().area(),
+            calc.geometry(s.coefs()).unwrap().area(),
+        );
+        (worst, tension, (a_ref - a0).abs() / a0)
     };
-    let (drift_off, tension_off) = run(false);
-    let (drift_on, tension_on) = run(true);
+    let (drift_off, tension_off, _) = run(false);
+    let (drift_on, tension_on, reference_area) = run(true);
+    // Composed from its material labels the reference's area changes by one re-fit of the
+    // composition (measured 2.1e-3 here at p = 6; 7e-5 at p = 12 over 100 steps) and does not
+    // accumulate; relabelled itself, as before, it drifted by 9.6e-3 over these 100 steps at
+    // p = 6 (and by 1.6e-3 at p = 12 over 100 steps, 2.4e-2 over 3800).
+    println!("reference area drift {reference_area:.1e}");
+    assert!(reference_area < 4e-3, "{reference_area:.1e}");
     println!(
         "largest |J - 1| over {steps} steps: {drift_off:.3} without the relaxation, \
          {drift_on:.3} with; largest tension at the end {tension_off:.3} / {tension_on:.3}"

@@ -11,7 +11,8 @@
 //! the run's `start_observables`, `frame_times`, `clocks`, `time_steps`; each cell's own
 //! preconditioner as what it was built from, `preconditioner_surfaces`,
 //! `preconditioner_steps` (`τ`, iterations of its last step) and `preconditioner_references`
-//! (the Skalak reference of its Jacobian). Checkpoints written before `iterations`, `owners`
+//! (the Skalak reference of its Jacobian); `skalak_originals` and `skalak_label_maps` (the
+//! material labels the Skalak reference is composed from). Checkpoints written before `iterations`, `owners`
 //! or the preconditioner records existed are read (iterations 0, a fresh split, no own
 //! preconditioners).
 
@@ -20,6 +21,7 @@ use std::path::Path;
 use super::cells_run::{CellRunError, CHECKPOINT};
 use crate::io::checkpoint::Checkpoint;
 use crate::timestep::cell_state::{CellState, PreconditionerRecord};
+use crate::vesicle::material_labels::MaterialLabels;
 
 /// Everything a run carries from step to step besides the cells' own state.
 #[derive(Clone, Debug, Default)]
@@ -230,6 +232,19 @@ pub(crate) fn save(
             .collect(),
         ncoef,
     );
+    let labels: Vec<_> = states.iter().map(|s| s.material_labels.as_ref()).collect();
+    optional_rows(
+        &mut ck,
+        "skalak_originals",
+        labels.iter().map(|l| l.map(|l| &l.original[..])).collect(),
+        ncoef,
+    );
+    optional_rows(
+        &mut ck,
+        "skalak_label_maps",
+        labels.iter().map(|l| l.map(|l| &l.map[..])).collect(),
+        ncoef,
+    );
     ck.write(&out.join(CHECKPOINT))?;
     Ok(())
 }
@@ -320,6 +335,10 @@ pub(crate) fn load(
     let pc_surfaces = optional("preconditioner_surfaces", ncoef)?;
     let pc_steps = optional("preconditioner_steps", 2)?;
     let pc_references = optional("preconditioner_references", ncoef)?;
+    // Absent from checkpoints written before the material labels: the labels then start
+    // afresh from the relabelled reference.
+    let originals = optional("skalak_originals", ncoef)?;
+    let label_maps = optional("skalak_label_maps", ncoef)?;
     let mut records = Vec::with_capacity(nc);
     for (i, (surface, steps)) in pc_surfaces.into_iter().zip(&pc_steps).enumerate() {
         records.push(match (surface, steps) {
@@ -369,6 +388,23 @@ pub(crate) fn load(
             previous_dt: previous_dt[i].is_finite().then_some(previous_dt[i]),
             membrane_velocity: membrane[i].clone(),
             skalak_reference: references[i].clone(),
+            material_labels: match (&originals[i], &label_maps[i]) {
+                (Some(original), Some(map)) => Some(MaterialLabels {
+                    original: original.clone(),
+                    map: map.clone(),
+                }),
+                (None, None) => None,
+                _ => {
+                    return Err(checkpoint_error(
+                        out,
+                        format!(
+                            "cell {} has a Skalak reference's first surface without its label \
+                             map, or a map without the surface",
+                            i + 1
+                        ),
+                    ))
+                }
+            },
             velocity: velocity[i].clone(),
             previous_velocity: previous_velocity[i].clone(),
             iterations: its as usize,

@@ -20,6 +20,8 @@
 //! [`CellState::encoded_len`] values and a buffer of many cells is sliced without a header.
 //! Values travel as their bits: the decoded state is bit-identical.
 
+use crate::vesicle::material_labels::MaterialLabels;
+
 /// What a cell's own preconditioner
 /// ([`super::semi_implicit::Preconditioning::Cell`]) was built from: a stepper given it
 /// rebuilds the very same preconditioner (bit for bit), so it travels with the state instead of
@@ -54,6 +56,9 @@ pub struct CellState {
     pub membrane_velocity: Option<Vec<f64>>,
     /// Skalak reference surface, relabelled by the reparametrisations so far.
     pub skalak_reference: Option<Vec<f64>>,
+    /// The Skalak reference's first surface and the grid's material labels it is composed
+    /// from ([`crate::vesicle::material_labels`]).
+    pub material_labels: Option<MaterialLabels>,
     /// Inter-cell velocity of the last step (`3n`).
     pub velocity: Option<Vec<f64>>,
     /// Inter-cell velocity of the step before (BDF2 extrapolation).
@@ -80,14 +85,28 @@ const VELOCITY: u64 = 32;
 const PREVIOUS_VELOCITY: u64 = 64;
 const PRECONDITIONER: u64 = 128;
 const PRECONDITIONER_JACOBIAN: u64 = 256;
+const LABELS: u64 = 512;
 
 impl CellState {
     /// Values one state takes in the flat codec for `ncoef` coefficients and `n` grid points.
     pub fn encoded_len(ncoef: usize, n: usize) -> usize {
         // presence, iterations, coefs, sigma, targets (2), previous, previous dt,
         // membrane velocity, Skalak reference, velocity, previous velocity, preconditioner
-        // (surface, τ, last iterations, Jacobian reference).
-        2 + ncoef + n + 2 + ncoef + 1 + 3 * n + ncoef + 3 * n + 3 * n + ncoef + 2 + ncoef
+        // (surface, τ, last iterations, Jacobian reference), material labels (first
+        // reference, label map).
+        2 + ncoef
+            + n
+            + 2
+            + ncoef
+            + 1
+            + 3 * n
+            + ncoef
+            + 3 * n
+            + 3 * n
+            + ncoef
+            + 2
+            + ncoef
+            + 2 * ncoef
     }
 
     /// Append the state (see the module docs); `ncoef` and `n` are taken from `coefs` and
@@ -110,6 +129,7 @@ impl CellState {
                     .is_some_and(|r| r.jacobian_reference.is_some()),
                 PRECONDITIONER_JACOBIAN,
             ),
+            (self.material_labels.is_some(), LABELS),
         ] {
             if present {
                 flags |= bit;
@@ -136,6 +156,9 @@ impl CellState {
         out.push(rec.map_or(0.0, |r| r.tau));
         out.push(rec.map_or(0.0, |r| r.last_iterations as f64));
         field(out, &rec.and_then(|r| r.jacobian_reference.clone()), ncoef);
+        let labels = self.material_labels.as_ref();
+        field(out, &labels.map(|l| l.original.clone()), ncoef);
+        field(out, &labels.map(|l| l.map.clone()), ncoef);
     }
 
     /// Read one state of a cell with `ncoef` coefficients and `n` grid points from the start
@@ -156,7 +179,7 @@ impl CellState {
             }
         };
         let flags = word(buf[0], "presence word")?;
-        if flags >= 512 {
+        if flags >= 1024 {
             return Err(CellStateError(format!(
                 "presence word {flags} has unknown bits"
             )));
@@ -185,6 +208,9 @@ impl CellState {
         let last = take(1)[0];
         let jacobian_reference =
             Some(take(ncoef).to_vec()).filter(|_| has(PRECONDITIONER_JACOBIAN));
+        let original = take(ncoef).to_vec();
+        let map = take(ncoef).to_vec();
+        let material_labels = has(LABELS).then_some(MaterialLabels { original, map });
         let preconditioner = if has(PRECONDITIONER) {
             Some(PreconditionerRecord {
                 surface,
@@ -203,6 +229,7 @@ impl CellState {
             previous_dt,
             membrane_velocity,
             skalak_reference,
+            material_labels,
             velocity,
             previous_velocity,
             iterations,
@@ -232,7 +259,11 @@ mod tests {
             previous_coefs: full.then(|| v(ncoef)),
             previous_dt: full.then_some(0.05),
             membrane_velocity: full.then(|| v(3 * n)),
-            skalak_reference: None,
+            skalak_reference: full.then(|| v(ncoef)),
+            material_labels: full.then(|| MaterialLabels {
+                original: v(ncoef),
+                map: v(ncoef),
+            }),
             velocity: Some(v(3 * n)),
             previous_velocity: full.then(|| v(3 * n)),
             iterations: 17,
@@ -277,6 +308,8 @@ mod tests {
         buf[0] = 0.5;
         assert!(CellState::decode(&buf, 48, 24).is_err());
         buf[0] = 1024.0;
+        assert!(CellState::decode(&buf, 48, 24).is_err());
+        buf[0] = 2048.0;
         assert!(CellState::decode(&buf, 48, 24).is_err());
     }
 }

@@ -166,6 +166,7 @@ use super::{gmres, FnOperator, GmresParams, GmresReport, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
+use crate::vesicle::material_labels::MaterialLabels;
 use crate::vesicle::membrane::Membrane;
 use crate::vesicle::reparam::{ReparamParams, Reparametrizer};
 use crate::vesicle::shapes::Surface;
@@ -404,6 +405,9 @@ pub struct VesicleStepper {
     targets: Option<(f64, f64)>,
     /// Shear elasticity (explicit) and its stress-free reference surface (coefficients).
     skalak: Option<(SkalakParams, Vec<f64>)>,
+    /// The Skalak reference as its first surface and the grid's material labels (the reference
+    /// above is composed from them after every reparametrisation).
+    labels: Option<MaterialLabels>,
     /// Double-layer operators assembled by the steps so far (0 for `λ = 1`: only what is called
     /// for; a preconditioner rebuilt from its record assembles again, not counted here).
     pub double_layer_assemblies: usize,
@@ -473,6 +477,7 @@ impl VesicleStepper {
             sigma: vec![0.0; n],
             targets: None,
             skalak: None,
+            labels: None,
             double_layer_assemblies: 0,
             previous: None,
             previous_dt: None,
@@ -525,6 +530,44 @@ impl VesicleStepper {
             self.own = None;
         }
         self.skalak = Some((params, reference.to_vec()));
+        let mut engine = self.lease()?;
+        let StepEngine { sht, ws, .. } = &mut *engine;
+        let labels = MaterialLabels::identity(sht, ws, reference)?;
+        drop(engine);
+        self.labels = Some(labels);
+        Ok(())
+    }
+
+    /// The Skalak reference's first surface and the grid's material labels
+    /// ([`crate::vesicle::material_labels`]); `None` without shear elasticity.
+    pub fn material_labels(&self) -> Option<&MaterialLabels> {
+        self.labels.as_ref()
+    }
+
+    /// Restore the material labels (a restarted run or a repeated step), after
+    /// [`VesicleStepper::set_skalak_reference`] (which starts the labels afresh from the
+    /// reference it is given).
+    ///
+    /// # Errors
+    /// [`TimestepError::InvalidParameter`] for a cell without shear elasticity or labels of
+    /// the wrong size.
+    pub fn set_material_labels(&mut self, labels: MaterialLabels) -> Result<(), TimestepError> {
+        let expected = 3 * self.nc;
+        if self.skalak.is_none()
+            || labels.original.len() != expected
+            || labels.map.len() != expected
+        {
+            return Err(TimestepError::InvalidParameter {
+                name: "material labels",
+                value: format!(
+                    "{} + {} coefficients",
+                    labels.original.len(),
+                    labels.map.len()
+                ),
+                reason: "need a cell with shear elasticity and 3 n_c coefficients each",
+            });
+        }
+        self.labels = Some(labels);
         Ok(())
     }
 
@@ -1488,8 +1531,12 @@ impl VesicleStepper {
             if let Some(v) = velocity_c.as_mut() {
                 passengers.push(&mut v[..]);
             }
-            if let Some((_, reference)) = self.skalak.as_mut() {
-                passengers.push(&mut reference[..]);
+            // The Skalak reference moves with the grid through its labels (composed below);
+            // relabelled itself, its re-fits would change its shape.
+            match (self.labels.as_mut(), self.skalak.as_mut()) {
+                (Some(l), _) => passengers.push(&mut l.map[..]),
+                (None, Some((_, reference))) => passengers.push(&mut reference[..]),
+                (None, None) => {}
             }
             if let Some(prev) = self.previous.as_mut() {
                 passengers.push(&mut prev[..]);
@@ -1501,6 +1548,9 @@ impl VesicleStepper {
                 .run_with(&mut surf, rp, &mut passengers)?;
         }
         coefs.copy_from_slice(surf.coefs());
+        if let (Some(l), Some((_, reference))) = (&self.labels, self.skalak.as_mut()) {
+            l.compose(&engine.sht, &mut engine.ws, reference)?;
+        }
         engine
             .sht
             .inverse(&sigma_c[..nc], &mut self.sigma, &mut engine.ws)

@@ -273,6 +273,7 @@ impl Suspension {
             previous_dt: st.previous_dt(),
             membrane_velocity: st.velocity().map(|v| v.to_vec()),
             skalak_reference: st.skalak_reference().map(|r| r.to_vec()),
+            material_labels: st.material_labels().cloned(),
             velocity: opt(&self.velocities[i]),
             previous_velocity: opt(&self.previous_velocities[i]),
             iterations: self.iterations[i],
@@ -306,6 +307,11 @@ impl Suspension {
         if let Some(r) = &state.skalak_reference {
             if st.skalak_reference().is_some() {
                 st.set_skalak_reference(r).map_err(err)?;
+                // Without labels (a checkpoint written before them) the labels start afresh
+                // from the relabelled reference.
+                if let Some(l) = &state.material_labels {
+                    st.set_material_labels(l.clone()).map_err(err)?;
+                }
             }
         }
         self.velocities[i] = state.velocity.clone().unwrap_or_default();

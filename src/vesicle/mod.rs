@@ -77,6 +77,7 @@ pub mod coefficient_operator;
 pub mod far_side;
 pub mod geometry;
 pub mod layer;
+pub mod material_labels;
 pub mod membrane;
 pub mod mesh;
 pub mod near;
