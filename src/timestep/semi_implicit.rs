@@ -119,20 +119,22 @@
 //! ## Local area
 //!
 //! The linearised constraint `Div (X − X̂) = 0` keeps each material point's area element `W`
-//! only to first order: over many steps `W` drifts from its start (by 7–12 % over t = 2 for an
-//! RBC in shear at p = 12, Δt = 0.02). A vesicle does not notice, but with shear elasticity
-//! and a large area-dilation ratio `C` the drift is an area strain `J = W/W_ref ≠ 1` whose
-//! Skalak stress `~ G_s C (J² − 1)` the tension must balance, and it grows until the step's
-//! system breaks down (the RBC with Skalak, `G_s = 0.2`, `C = 10`, in shear: its largest tension
-//! grew from 1.3 at t = 40 to 13 at t = 70 and GMRES stagnated at t = 76). For an inextensible
-//! cell with a Skalak reference the constraint therefore carries the source
+//! only to first order, and over many steps `W` drifts from its start. A vesicle does not
+//! notice, but with shear elasticity and a large area-dilation ratio `C` the drift is an area
+//! strain `J = W/W_ref ≠ 1` whose Skalak stress `~ G_s C (J² − 1)` the tension must balance.
+//! (An RBC with Skalak, `G_s = 0.2`, `C = 10`, in shear at p = 12: the largest `|J − 1|` grew
+//! 0.07 → 0.5 → 2.0 over t = 2, 56, 74, with the reference itself drifting, until GMRES
+//! stagnated at t = 76; docs/long_runs_cause.md.) For an inextensible cell with a Skalak
+//! reference the constraint therefore carries the source
 //!
 //! ```text
-//!     Div (X − X̂) = (τ/Δt) (W_ref / Wⁿ − 1)
+//!     Div (X − X̂) = (τ/Δt) (W_ref (A/A_ref) / Wⁿ − 1)
 //! ```
 //!
-//! which brings `W` back to the reference's area element at the same material point (the
-//! reference is relabelled with the grid, so that `W_ref` is at the same point) in one step:
+//! (filtered as `Div` is, so that it lies in its range), which brings `W` back to the
+//! reference's area element at the same material point (the reference moves with the grid, so
+//! that `W_ref` is at the same point), scaled to the area `A` the drift correction restores, in
+//! one step:
 //! `Wⁿ⁺¹ ≈ Wⁿ (1 + (Δt/τ) Div (X − X̂))`: a correction toward the constraint's manifold,
 //! zero when `W = W_ref` and of the size of the linearisation's error (`O(Δt²)` per step)
 //! otherwise, so the step keeps its order.
@@ -145,6 +147,9 @@
 //! points then move along the surface, and everything the cell keeps per membrane point moves
 //! with them (relabelled by the same parameter map): the Skalak reference (otherwise the move
 //! reads as a strain), the tension, the membrane velocity and the BDF2 history `Xⁿ⁻¹`. The
+//! reference moves through its material labels and is composed afresh from its first surface
+//! ([`crate::vesicle::material_labels`]): relabelled itself, its re-fits at every move added up
+//! to a change of its shape. The
 //! linearised constraint keeps the area only approximately; with `correct_drift` each step ends
 //! with a normal displacement `(α + β H) n` whose `α, β` restore the area and volume of the first
 //! step (Newton on `δV = ∫ φ dA`, `δA = −2 ∫ H φ dA` for `φ = α + β H`).
