@@ -616,7 +616,10 @@ impl VesicleStepper {
     /// Switch the local area relaxation of an inextensible cell with shear elasticity (on by
     /// default; module docs, "Local area"). Off, the constraint is `∇ₛ·u = 0` alone and the
     /// local area element drifts from the reference's by the linearisation's error, which the
-    /// tension then has to balance against the elastic area-dilation stress.
+    /// tension then has to balance against the elastic area-dilation stress. On, the
+    /// membrane's local area follows the reference's: a reference whose area elements differ
+    /// from the initial surface's (scenes always start on their reference) is reached within
+    /// the first step.
     pub fn set_local_area_relaxation(&mut self, on: bool) {
         self.local_area_relaxation = on;
     }
