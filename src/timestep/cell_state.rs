@@ -54,7 +54,8 @@ pub struct CellState {
     pub previous_dt: Option<f64>,
     /// Membrane velocity of the last solve (`3n`): the explicit double-layer density.
     pub membrane_velocity: Option<Vec<f64>>,
-    /// Skalak reference surface, relabelled by the reparametrisations so far.
+    /// Skalak reference surface in the current parametrisation (composed from the material
+    /// labels after the reparametrisations so far).
     pub skalak_reference: Option<Vec<f64>>,
     /// The Skalak reference's first surface and the grid's material labels it is composed
     /// from ([`crate::vesicle::material_labels`]).

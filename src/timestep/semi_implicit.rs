@@ -128,14 +128,15 @@
 //! reference the constraint therefore carries the source
 //!
 //! ```text
-//!     Div (X − X̂) = (τ/Δt) (W_ref (A/A_ref) / Wⁿ − 1)
+//!     Div (X − X̂) = W_ref (A/A_ref) / Ŵ − 1       (Ŵ the area element of X̂)
 //! ```
 //!
 //! (filtered as `Div` is, so that it lies in its range), which brings `W` back to the
 //! reference's area element at the same material point (the reference moves with the grid, so
 //! that `W_ref` is at the same point), scaled to the area `A` the drift correction restores, in
-//! one step:
-//! `Wⁿ⁺¹ ≈ Wⁿ (1 + (Δt/τ) Div (X − X̂))`: a correction toward the constraint's manifold,
+//! one step: the constraint linearised about `X̂` is `Wⁿ⁺¹ ≈ Ŵ (1 + Div (X − X̂))` (for Euler
+//! `X̂ = Xⁿ`; for BDF2 `Ŵ ≈ (4Wⁿ − Wⁿ⁻¹)/3`, the history of `dW/dt = 0`). A correction toward the
+//! constraint's manifold,
 //! zero when `W = W_ref` and of the size of the linearisation's error (`O(Δt²)` per step)
 //! otherwise, so the step keeps its order.
 //! [`VesicleStepper::set_local_area_relaxation`] switches it off.
@@ -531,14 +532,15 @@ impl VesicleStepper {
             .set_reference(reference)?;
         // Other elastic parameters change the Jacobian in the cell's own preconditioner (a
         // relabelled reference does not: the record keeps the one it was built with).
+        let labels = {
+            let mut engine = self.pool.lease()?;
+            let StepEngine { sht, ws, .. } = &mut *engine;
+            MaterialLabels::identity(sht, ws, reference)?
+        };
         if self.skalak.as_ref().is_none_or(|(p, _)| *p != params) {
             self.own = None;
         }
         self.skalak = Some((params, reference.to_vec()));
-        let mut engine = self.lease()?;
-        let StepEngine { sht, ws, .. } = &mut *engine;
-        let labels = MaterialLabels::identity(sht, ws, reference)?;
-        drop(engine);
         self.labels = Some(labels);
         Ok(())
     }
@@ -576,14 +578,16 @@ impl VesicleStepper {
         Ok(())
     }
 
-    /// The stress-free reference of the Skalak elasticity (coefficients), relabelled with the
-    /// grid by every reparametrisation; `None` without shear elasticity.
+    /// The stress-free reference of the Skalak elasticity (coefficients) in the current
+    /// parametrisation, composed from the material labels after every reparametrisation
+    /// ([`VesicleStepper::material_labels`]); `None` without shear elasticity.
     pub fn skalak_reference(&self) -> Option<&[f64]> {
         self.skalak.as_ref().map(|(_, r)| &r[..])
     }
 
     /// Replace the (relabelled) Skalak reference (a restarted run or a repeated step restores
-    /// it).
+    /// it). The material labels start afresh from it (the identity map): a caller that kept
+    /// them restores them next with [`VesicleStepper::set_material_labels`].
     ///
     /// # Errors
     /// [`TimestepError::InvalidParameter`] for a cell without shear elasticity; the checks of
@@ -687,7 +691,11 @@ impl VesicleStepper {
             + self.sigma.capacity()
             + self.previous.as_ref().map_or(0, |v| v.capacity())
             + self.velocity.as_ref().map_or(0, |v| v.capacity())
-            + self.skalak.as_ref().map_or(0, |(_, r)| r.capacity());
+            + self.skalak.as_ref().map_or(0, |(_, r)| r.capacity())
+            + self
+                .labels
+                .as_ref()
+                .map_or(0, |l| l.original.capacity() + l.map.capacity());
         8 * vecs
             + self
                 .preconditioners
@@ -1113,7 +1121,6 @@ impl VesicleStepper {
         if self.targets.is_none() {
             self.targets = Some((area0, volume0));
         }
-        let area_source = self.local_area_source(engine, coefs, tau)?;
         // X* (geometry of the operators) and X̂ (the history term), as coefficients.
         let (xstar, xhat): (Vec<f64>, Vec<f64>) = match (&self.previous, bdf2) {
             (Some(prev), true) => (
@@ -1130,6 +1137,7 @@ impl VesicleStepper {
             ),
             _ => (coefs.to_vec(), coefs.to_vec()),
         };
+        let area_source = self.local_area_source(engine, &xhat)?;
         let inextensible = self.params.inextensible;
         if !inextensible && self.skalak.is_none() {
             return Err(TimestepError::InvalidParameter {
@@ -1469,34 +1477,32 @@ impl VesicleStepper {
         })
     }
 
-    /// The source `r = (τ/Δt)(W_ref/Wⁿ − 1)` of the constraint `Div (X − X̂) = r` that brings
-    /// the area element `W` of every material point back to the reference's in one step
-    /// (module docs, "Local area"); `None` without a Skalak reference, for a capsule, or when
-    /// switched off.
+    /// The source `r = W_ref (A/A_ref) / Ŵ − 1` of the constraint `Div (X − X̂) = r` that
+    /// brings the area element `W` of every material point back to the reference's in one
+    /// step (module docs, "Local area"), `Ŵ` that of `xhat`; `None` without a Skalak
+    /// reference, for a capsule, or when switched off.
     fn local_area_source(
         &self,
         engine: &mut StepEngine,
-        coefs: &[f64],
-        tau: f64,
+        xhat: &[f64],
     ) -> Result<Option<Vec<f64>>, TimestepError> {
         let reference = match &self.skalak {
             Some((_, r)) if self.params.inextensible && self.local_area_relaxation => r,
             _ => return Ok(None),
         };
-        let g_now = engine.calc.geometry(coefs)?;
+        let g_now = engine.calc.geometry(xhat)?;
         let g_ref = engine.calc.geometry(reference)?;
         // The reference's area element scaled to the area the drift correction restores (the
         // relabelled reference's own area is off by the relabellings' error, ~1e-3): both
         // corrections then ask for the same total area instead of undoing each other.
         let target = self.targets.map_or(g_now.area(), |(a, _)| a);
         let ratio = target / g_ref.area();
-        let scale = tau / self.params.dt;
         Ok(Some(
             g_now
                 .w
                 .iter()
                 .zip(&g_ref.w)
-                .map(|(w, r)| scale * (ratio * r / w - 1.0))
+                .map(|(w, r)| ratio * r / w - 1.0)
                 .collect(),
         ))
     }

@@ -304,6 +304,13 @@ impl Suspension {
         st.set_previous_dt(state.previous_dt).map_err(err)?;
         st.set_velocity(state.membrane_velocity.as_deref())
             .map_err(err)?;
+        if state.material_labels.is_some() && state.skalak_reference.is_none() {
+            return Err(err(TimestepError::InvalidParameter {
+                name: "material labels",
+                value: "present".into(),
+                reason: "a cell state with material labels needs its Skalak reference",
+            }));
+        }
         if let Some(r) = &state.skalak_reference {
             if st.skalak_reference().is_some() {
                 st.set_skalak_reference(r).map_err(err)?;

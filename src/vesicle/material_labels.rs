@@ -90,7 +90,7 @@ impl MaterialLabels {
                     reason: "must be a nonzero direction",
                 });
             }
-            let (theta, phi) = ((z / r).clamp(-1.0, 1.0).acos(), y.atan2(x));
+            let (theta, phi) = ((x * x + y * y).sqrt().atan2(z), y.atan2(x));
             let at = pe.eval(lay, &self.original, theta, phi);
             for c in 0..3 {
                 grid[c * n + j] = at.x[c];
