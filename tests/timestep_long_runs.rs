@@ -454,7 +454,7 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
     };
     let (drift_off, tension_off, _) = run(false, TimeScheme::Euler);
     let (drift_on, tension_on, reference_area) = run(true, TimeScheme::Euler);
-    // BDF2 relaxes against the area element of its history term X̂ (module docs).
+    // BDF2 closes the share τ/Δt of the gap per step (module docs, "Local area").
     let (drift_bdf2, _, _) = run(true, TimeScheme::Bdf2);
     println!("BDF2 with the relaxation: largest |J - 1| {drift_bdf2:.3}");
     assert!(drift_bdf2 < 0.05, "{drift_bdf2:.3}");
