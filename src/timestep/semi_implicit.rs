@@ -526,21 +526,19 @@ impl VesicleStepper {
         params: SkalakParams,
         reference: &[f64],
     ) -> Result<(), TimestepError> {
-        // Checked here (length, a proper surface), set on each engine lent to this cell.
-        self.pool
-            .lease()?
-            .work
-            .get_mut()
-            .expect("operator lock")
-            .membrane
-            .set_reference(reference)?;
-        // Other elastic parameters change the Jacobian in the cell's own preconditioner (a
-        // relabelled reference does not: the record keeps the one it was built with).
+        // Checked here (length, a proper surface), set on each engine lent to this cell; the
+        // labels start as the identity.
         let labels = {
             let mut engine = self.pool.lease()?;
-            let StepEngine { sht, ws, .. } = &mut *engine;
+            let StepEngine { sht, ws, work, .. } = &mut *engine;
+            work.get_mut()
+                .expect("operator lock")
+                .membrane
+                .set_reference(reference)?;
             MaterialLabels::identity(sht, ws, reference)?
         };
+        // Other elastic parameters change the Jacobian in the cell's own preconditioner (a
+        // relabelled reference does not: the record keeps the one it was built with).
         if self.skalak.as_ref().is_none_or(|(p, _)| *p != params) {
             self.own = None;
         }
@@ -1118,10 +1116,10 @@ impl VesicleStepper {
         };
         let coef = self.step_coefficients(tau);
         let (a_id, c_d) = (coef.identity, coef.double_layer);
-        let (area0, volume0) = {
-            let g = engine.calc.geometry(coefs)?;
-            (g.area(), g.volume())
-        };
+        // The geometry of Xⁿ: its area and volume, and its area element for the local area
+        // source.
+        let g_now = engine.calc.geometry(coefs)?;
+        let (area0, volume0) = (g_now.area(), g_now.volume());
         if self.targets.is_none() {
             self.targets = Some((area0, volume0));
         }
@@ -1141,7 +1139,8 @@ impl VesicleStepper {
             ),
             _ => (coefs.to_vec(), coefs.to_vec()),
         };
-        let area_source = self.local_area_source(engine, coefs, tau)?;
+        let area_source = self.local_area_source(engine, &g_now.w, tau)?;
+        drop(g_now);
         let inextensible = self.params.inextensible;
         if !inextensible && self.skalak.is_none() {
             return Err(TimestepError::InvalidParameter {
@@ -1483,29 +1482,27 @@ impl VesicleStepper {
 
     /// The source `r = (τ/Δt)(W_ref (A/A_ref) / Wⁿ − 1)` of the constraint `Div (X − X̂) = r`
     /// that brings the area element `W` of every material point back toward the reference's
-    /// (module docs, "Local area"), `Wⁿ` that of `coefs`; `None` without a Skalak reference,
-    /// for a capsule, or when switched off.
+    /// (module docs, "Local area"), `w_now` the area element `Wⁿ` on the grid; `None` without
+    /// a Skalak reference, for a capsule, or when switched off. Needs the drift targets set.
     fn local_area_source(
         &self,
         engine: &mut StepEngine,
-        coefs: &[f64],
+        w_now: &[f64],
         tau: f64,
     ) -> Result<Option<Vec<f64>>, TimestepError> {
         let reference = match &self.skalak {
             Some((_, r)) if self.params.inextensible && self.local_area_relaxation => r,
             _ => return Ok(None),
         };
-        let g_now = engine.calc.geometry(coefs)?;
         let g_ref = engine.calc.geometry(reference)?;
         // The reference's area element scaled to the area the drift correction restores (the
-        // relabelled reference's own area is off by the relabellings' error, ~1e-3): both
+        // reference composed from its labels differs from its first area by one re-fit): both
         // corrections then ask for the same total area instead of undoing each other.
-        let target = self.targets.map_or(g_now.area(), |(a, _)| a);
+        let (target, _) = self.targets.expect("set by the step before this call");
         let ratio = target / g_ref.area();
         let scale = tau / self.params.dt;
         Ok(Some(
-            g_now
-                .w
+            w_now
                 .iter()
                 .zip(&g_ref.w)
                 .map(|(w, r)| scale * (ratio * r / w - 1.0))
@@ -1551,12 +1548,11 @@ impl VesicleStepper {
             if let Some(v) = velocity_c.as_mut() {
                 passengers.push(&mut v[..]);
             }
-            // The Skalak reference moves with the grid through its labels (composed below);
-            // relabelled itself, its re-fits would change its shape.
-            match (self.labels.as_mut(), self.skalak.as_mut()) {
-                (Some(l), _) => passengers.push(&mut l.map[..]),
-                (None, Some((_, reference))) => passengers.push(&mut reference[..]),
-                (None, None) => {}
+            // The Skalak reference moves with the grid through its labels (composed below;
+            // `set_skalak` gives every Skalak cell labels): relabelled itself, its re-fits
+            // would change its shape.
+            if let Some(l) = self.labels.as_mut() {
+                passengers.push(&mut l.map[..]);
             }
             if let Some(prev) = self.previous.as_mut() {
                 passengers.push(&mut prev[..]);
