@@ -9,7 +9,7 @@
 //! `MOBO_SHEAR_MODULUS`, default 0), and the environment:
 //! `MOBO_FLOW` = `shear` (default) | `ext`, `MOBO_KAPPA` (default 0.05), `MOBO_NO_AREA_RELAX`
 //! (no local area relaxation of a Skalak cell), `MOBO_TILT` (degrees
-//! about x, default 0), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`, `MOBO_TOL` (GMRES),
+//! about x, default 0), `MOBO_SEED_ASYM` (an asymmetric seed `x → x + ε x²`), `MOBO_SCHEME` = `euler` | `bdf2`, `MOBO_NO_REPARAM`, `MOBO_RESTART`, `MOBO_TOL` (GMRES),
 //! `MOBO_PRECONDITIONER` = `cell` (each cell's own operator inverted, as `mobo run` does by
 //! default) | `sphere` (the default here: the library stepper's).
 use mobo::sph_harmonics::CoefLayout;
@@ -73,8 +73,32 @@ fn main() {
     s.rotate([[1.0, 0.0, 0.0], [0.0, ct, -st], [0.0, st, ct]])
         .unwrap();
     let mut calc = SurfaceCalculus::new(p).unwrap();
-    let g0 = calc.geometry(s.coefs()).unwrap();
+    let mut coefs = s.coefs().to_vec();
+    // `MOBO_SEED_ASYM = ε`: an asymmetric seed along the extension axis, `x → x + ε x²`
+    // (one end pushed out, the other in), to test whether a growing mode is the dumbbell's.
+    let seed = env_f64("MOBO_SEED_ASYM", 0.0);
+    if seed != 0.0 {
+        let sht = mobo::sph_harmonics::ShTransform::new(p).unwrap();
+        let mut ws = sht.workspace();
+        let mut grid = vec![0.0; sht.grid().n_points() * 3];
+        sht.inverse(&coefs, &mut grid, &mut ws).unwrap();
+        let n = grid.len() / 3;
+        for x in &mut grid[..n] {
+            *x += seed * *x * *x;
+        }
+        sht.forward(&grid, &mut coefs, &mut ws).unwrap();
+    }
+    let g0 = calc.geometry(&coefs).unwrap();
     let (a0, v0) = (g0.area(), g0.volume());
+    // The capillary number of the flow, `Ca = μ ε̇ R₀³/κ` (rate 1, viscosity 1, `R₀` the
+    // equivalent radius), and the reduced volume: the two parameters of a vesicle's shape
+    // transitions in extension.
+    println!(
+        "# R0 = {:.4}, reduced volume = {:.4}, Ca = {:.2}",
+        g0.equivalent_radius(),
+        g0.reduced_volume(),
+        g0.equivalent_radius().powi(3) / kappa
+    );
     let params = VesicleParams {
         bending_modulus: kappa,
         viscosity: 1.0,
@@ -111,7 +135,6 @@ fn main() {
     if std::env::var("MOBO_NO_AREA_RELAX").is_ok() {
         stepper.set_local_area_relaxation(false);
     }
-    let mut coefs = s.coefs().to_vec();
     if gs > 0.0 {
         stepper
             .set_skalak(SkalakParams::skalak(gs, 10.0), &coefs)
@@ -139,7 +162,7 @@ fn main() {
     let sht = mobo::sph_harmonics::ShTransform::new(p).unwrap();
     let mut ws = sht.workspace();
     let mut sig_c = vec![0.0; lay.len()];
-    println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s  |u_n|_rms |u_t|_rms  |dX/dt|_rms  [Skalak: ref_area_drift ref_volume_drift ref_hi max_I1 max|J-1|]");
+    println!("# t  iters_mean iters_max  area_drift volume_drift  J_ratio  skew  shape_hi  sigma_hi  max|sigma|  wall_s  |u_n|_rms |u_t|_rms  |dX/dt|_rms  L_long angle_x skew3  [Skalak: ref_area_drift ref_volume_drift ref_hi max_I1 max|J-1|]");
     let (mut sum, mut max) = (0usize, 0usize);
     let start = std::time::Instant::now();
     // Summary: iterations per window of 100 steps against the first window, drifts, grid.
@@ -264,8 +287,24 @@ fn main() {
                 }
                 None => String::new(),
             };
+            // The shape's long axis (of the equivalent ellipsoid): its semi-axis, its angle to
+            // x (the extension axis), and the skewness of the solid along it,
+            // `(1/V)∫(r·e)³dV / ((1/V)∫(r·e)²dV)^{3/2}` (zero for a shape symmetric about its
+            // centroid; the asymmetric "dumbbell" mode of a vesicle in extension makes it grow).
+            let shape_cols = {
+                let (semi, axes) = g.equivalent_ellipsoid();
+                let i = (0..3).max_by(|&a, &b| semi[a].total_cmp(&semi[b])).unwrap();
+                let e = axes[i];
+                let skew3 = g.axial_skewness(e);
+                format!(
+                    " {:7.4} {:7.2} {:10.3e}",
+                    semi[i],
+                    e[0].abs().min(1.0).acos().to_degrees(),
+                    skew3
+                )
+            };
             println!(
-                "{:8.3} {:7.1} {:5} {:10.2e} {:10.2e} {:8.3} {:6.3} {:9.2e} {:9.2e} {:9.3e} {:7.1} {:9.2e} {:9.2e} {:9.2e}{skalak_cols}",
+                "{:8.3} {:7.1} {:5} {:10.2e} {:10.2e} {:8.3} {:6.3} {:9.2e} {:9.2e} {:9.3e} {:7.1} {:9.2e} {:9.2e} {:9.2e}{shape_cols}{skalak_cols}",
                 k as f64 * dt,
                 sum as f64 / every as f64,
                 max,

@@ -10,14 +10,16 @@
 //!   before the fix the mean iterations per step doubled from the first 25 steps to the last);
 //! * the reparametrisation relabels the Skalak reference with the grid, so that it leaves the
 //!   elastic energy unchanged;
-//! * a solve that stagnates fails early, naming step, cell and residual history.
+//! * a solve that stagnates fails early, naming step, cell and residual history;
+//! * an RBC in planar extension above a critical capillary number grows an asymmetric mode (a
+//!   physical instability, not the step's): the last section.
 
 mod common;
 use common::{frame_bits, mobo, rotation, stop_and_resume, tmpdir, write};
 
 use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::grid_frame::{grid_rotation, polar_rotation};
-use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams, VesicleStepper};
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::{ReparamParams, Reparametrizer};
@@ -476,4 +478,94 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
         drift_on < 0.4 * drift_off,
         "{drift_on:.3} vs {drift_off:.3}"
     );
+}
+
+// ---------------------------------------------------------------------------------------------
+// A vesicle of low reduced volume in planar extension above a critical capillary number
+// `Ca = μ ε̇ R₀³/κ` has no stable stretched shape: an asymmetric ("dumbbell") mode grows, one end
+// swelling while the other thins (predicted by Narsimhan, Spann & Shaqfeh, *J. Fluid Mech.* 750,
+// 144 (2014), below reduced volume ≈ 0.74 at matched viscosities; observed by Dahl et al.,
+// *Soft Matter* 12 (2016)).
+//
+// The 10⁴-step set has an RBC without shear elasticity (reduced volume 0.644) in planar
+// extension at `Ca = 20`; it failed at t = 72.7. Measured with `examples/long_run_probe`
+// (docs/long_runs.md): the skewness of the cell along its long axis grows as `e^{σt}` with
+// `σ = 0.236–0.241` at p = 10 and 12 and dt = 0.01 and 0.02 (0.233 at p = 8), from round-off
+// or from a seed, until the neck cannot be resolved and GMRES stagnates. Below `Ca ≈ 1.7` it
+// decays. This test shows the same at p = 8 in a few hundred steps: the growth rate does not
+// depend on the time step (a numerical instability of the step would) and is close to the one
+// measured at higher orders; at `Ca = 1` the same seed does not grow.
+
+const EXT_P: usize = 8;
+/// The seed `x → x + ε x²` (one end of the cell pushed out along the extension axis, the other
+/// in).
+const EXT_SEED: f64 = 1e-2;
+
+/// The skewness of the RBC (tilted 60° about x, seeded) along its long axis at t = 2, 4, …,
+/// `t_end` in the planar extension `u = (x, −y, 0)` of rate 1 centred on its centroid.
+fn skewness_history(kappa: f64, dt: f64, t_end: usize) -> Vec<f64> {
+    let mut s = shapes::rbc(EXT_P).unwrap();
+    let (st, ct) = 60f64.to_radians().sin_cos();
+    s.rotate([[1.0, 0.0, 0.0], [0.0, ct, -st], [0.0, st, ct]])
+        .unwrap();
+    let mut coefs = s.coefs().to_vec();
+    let sht = ShTransform::new(EXT_P).unwrap();
+    let mut ws = sht.workspace();
+    let mut grid = vec![0.0; 3 * sht.n_points()];
+    sht.inverse(&coefs, &mut grid, &mut ws).unwrap();
+    for x in &mut grid[..sht.n_points()] {
+        *x += EXT_SEED * *x * *x;
+    }
+    sht.forward(&grid, &mut coefs, &mut ws).unwrap();
+    let mut stepper = VesicleStepper::new(
+        EXT_P,
+        VesicleParams {
+            bending_modulus: kappa,
+            ..params(EXT_P, dt)
+        },
+    )
+    .unwrap();
+    stepper.set_preconditioning(Preconditioning::CELL);
+    let mut calc = SurfaceCalculus::new(EXT_P).unwrap();
+    let per_record = (2.0 / dt).round() as usize;
+    let mut out = Vec::new();
+    for k in 1..=t_end / 2 * per_record {
+        let c = calc.geometry(&coefs).unwrap().centroid();
+        let flow = move |x: [f64; 3]| [x[0] - c[0], -(x[1] - c[1]), 0.0];
+        stepper.step(&mut coefs, &flow).unwrap();
+        if k % per_record == 0 {
+            let g = calc.geometry(&coefs).unwrap();
+            let (semi, axes) = g.equivalent_ellipsoid();
+            let long = (0..3).max_by(|&a, &b| semi[a].total_cmp(&semi[b])).unwrap();
+            out.push(g.axial_skewness(axes[long]));
+        }
+    }
+    out
+}
+
+/// The growth rate of `|γ|` from t = `t0` to `t1` (both even).
+fn skewness_rate(history: &[f64], t0: usize, t1: usize) -> f64 {
+    (history[t1 / 2 - 1].abs() / history[t0 / 2 - 1].abs()).ln() / (t1 - t0) as f64
+}
+
+#[test]
+fn an_rbc_in_planar_extension_above_the_critical_capillary_number_grows_an_asymmetric_mode() {
+    let (t0, t1) = (8, 16);
+    // Ca = 20 (κ = 0.05, R₀ = 1): at two time steps.
+    let coarse = skewness_history(0.05, 0.08, t1);
+    let fine = skewness_history(0.05, 0.04, t1);
+    let (rc, rf) = (skewness_rate(&coarse, t0, t1), skewness_rate(&fine, t0, t1));
+    println!("Ca = 20: growth rate {rc:.4} (dt = 0.08), {rf:.4} (dt = 0.04); skewness {fine:?}");
+    // Independent of the time step: a physical mode, not an instability of the step.
+    assert!((rc - rf).abs() < 0.03 * rf, "{rc:.4} vs {rf:.4}");
+    // Close to the rate at p = 10 and 12 (0.236–0.241) and growing well above round-off.
+    assert!((0.2..0.3).contains(&rf), "{rf:.4}");
+    // Measured with the probe at p = 8: 0.2448 (dt = 0.08), 0.2464 (0.04), 0.2480 (0.02).
+    assert!(fine[t1 / 2 - 1].abs() > 5.0 * fine[t0 / 2 - 1].abs());
+    // Ca = 1 (κ = 1): below the threshold the same seed does not grow like that (measured:
+    // 0.024 over t = 8 … 16, settling at a skewness of 9e-4; at p = 10 it decays at 0.12).
+    let below = skewness_history(1.0, 0.08, t1);
+    let rb = skewness_rate(&below, t0, t1);
+    println!("Ca = 1: growth rate {rb:.4}; skewness {below:?}");
+    assert!(rb < 0.08, "{rb:.4}");
 }
