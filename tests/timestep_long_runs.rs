@@ -484,8 +484,8 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
 // A vesicle of low reduced volume in planar extension above a critical capillary number
 // `Ca = μ ε̇ R₀³/κ` has no stable stretched shape: an asymmetric ("dumbbell") mode grows, one end
 // swelling while the other thins (predicted by Narsimhan, Spann & Shaqfeh, *J. Fluid Mech.* 750,
-// 144 (2014), below reduced volume ≈ 0.74 at matched viscosities; observed by Dahl et al.,
-// *Soft Matter* 12 (2016)).
+// 144 (2014), for uniaxial extension below reduced volume ≈ 0.74 at matched viscosities;
+// observed by Dahl et al., *Soft Matter* 12 (2016)). Here the flow is planar extension.
 //
 // The 10⁴-step set has an RBC without shear elasticity (reduced volume 0.644) in planar
 // extension at `Ca = 20`; it failed at t = 72.7. Measured with `examples/long_run_probe`
@@ -494,7 +494,7 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
 // or from a seed, until the neck cannot be resolved and GMRES stagnates. Below `Ca ≈ 1.7` it
 // decays. This test shows the same at p = 8 in a few hundred steps: the growth rate does not
 // depend on the time step (a numerical instability of the step would) and is close to the one
-// measured at higher orders; at `Ca = 1` the same seed does not grow.
+// measured at higher orders; at `Ca = 1` the same seed does not grow at that rate.
 
 const EXT_P: usize = 8;
 /// The seed `x → x + ε x²` (one end of the cell pushed out along the extension axis, the other
@@ -558,10 +558,12 @@ fn an_rbc_in_planar_extension_above_the_critical_capillary_number_grows_an_asymm
     println!("Ca = 20: growth rate {rc:.4} (dt = 0.08), {rf:.4} (dt = 0.04); skewness {fine:?}");
     // Independent of the time step: a physical mode, not an instability of the step.
     assert!((rc - rf).abs() < 0.03 * rf, "{rc:.4} vs {rf:.4}");
-    // Close to the rate at p = 10 and 12 (0.236–0.241) and growing well above round-off.
+    // Close to the rate of the steady shape at p = 10 and 12 (0.236–0.241; least-squares fits
+    // with the probe at p = 8 over the same window, which still holds the end of the stretching
+    // transient: 0.2448, 0.2464, 0.2480 at dt = 0.08, 0.04, 0.02).
     assert!((0.2..0.3).contains(&rf), "{rf:.4}");
-    // Measured with the probe at p = 8: 0.2448 (dt = 0.08), 0.2464 (0.04), 0.2480 (0.02).
-    assert!(fine[t1 / 2 - 1].abs() > 5.0 * fine[t0 / 2 - 1].abs());
+    // The mode, not round-off: the seed is already far above it where the window starts.
+    assert!(fine[t0 / 2 - 1].abs() > 1e-4, "{:.1e}", fine[t0 / 2 - 1]);
     // Ca = 1 (κ = 1): below the threshold the same seed does not grow like that (measured:
     // 0.024 over t = 8 … 16, settling at a skewness of 9e-4; at p = 10 it decays at 0.12).
     let below = skewness_history(1.0, 0.08, t1);

@@ -403,11 +403,11 @@ fn axial_skewness_of_an_egg_against_radial_quadrature() {
         &[want],
         1e-11,
     );
-    // Reversing the direction flips the sign; across the axis of symmetry it is zero; it does
-    // not depend on where the egg sits or how it is turned.
+    // Reversing the direction flips the sign (its length does not matter); across the axis of
+    // symmetry it is zero; it does not depend on where the egg sits or how it is turned.
     assert_close(
         "along -z",
-        &[g.axial_skewness([0.0, 0.0, -1.0])],
+        &[g.axial_skewness([0.0, 0.0, -2.0])],
         &[-want],
         1e-11,
     );
@@ -421,9 +421,9 @@ fn axial_skewness_of_an_egg_against_radial_quadrature() {
         &[want],
         1e-11,
     );
-    // A centred ellipsoid is symmetric along every direction.
+    // A centred ellipsoid is symmetric along every direction (given here not normalised).
     let g = geometry(&shapes::ellipsoid(8, [1.0, 0.8, 0.6]).unwrap());
-    let d = [0.6, 0.0, 0.8];
+    let d = [1.2, 0.0, 1.6];
     assert!(g.axial_skewness(d).abs() < 1e-12, "{}", g.axial_skewness(d));
 }
 

@@ -193,14 +193,17 @@ impl Geometry {
     pub fn equivalent_radius(&self) -> f64 {
         (3.0 * self.volume() / (4.0 * PI)).cbrt()
     }
-    /// Skewness of the enclosed solid along the unit direction `e` through its centroid `c`:
+    /// Skewness of the enclosed solid along the direction `e` through its centroid `c`:
     /// `γ = μ₃ / μ₂^{3/2}`, with the central moments `μ_k = (1/V) ∫_V ((r − c)·e)^k dV`, each
     /// from the divergence theorem as `∫_V s^k dV = ∫ s^{k+1}/(k+1) (e·n) dA`, `s = (r − c)·e`.
     ///
     /// Zero for a solid symmetric about its centroid's plane normal to `e`; the asymmetric
     /// "dumbbell" mode of a vesicle in extensional flow (Narsimhan, Spann & Shaqfeh, *J. Fluid
     /// Mech.* 750, 2014) makes it grow along the extension axis.
+    /// `e` need not be of unit length (it is normalised).
     pub fn axial_skewness(&self, e: [f64; 3]) -> f64 {
+        let len = dot(e, e).sqrt();
+        let e = e.map(|v| v / len);
         let c = self.centroid();
         let (mut m2, mut m3) = (0.0, 0.0);
         for j in 0..self.n_points() {
