@@ -17,7 +17,7 @@ use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams, 
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::ReparamParams;
-use mobo::vesicle::shapes::{self, Spheroid};
+use mobo::vesicle::shapes::{self, Spheroid, Surface};
 use mobo::vesicle::skalak::SkalakParams;
 
 fn env_f64(name: &str, default: f64) -> f64 {
@@ -73,21 +73,18 @@ fn main() {
     s.rotate([[1.0, 0.0, 0.0], [0.0, ct, -st], [0.0, st, ct]])
         .unwrap();
     let mut calc = SurfaceCalculus::new(p).unwrap();
-    let mut coefs = s.coefs().to_vec();
     // `MOBO_SEED_ASYM = ε`: an asymmetric seed along the extension axis, `x → x + ε x²`
     // (one end pushed out, the other in), to test whether a growing mode is the dumbbell's.
     let seed = env_f64("MOBO_SEED_ASYM", 0.0);
     if seed != 0.0 {
         let sht = mobo::sph_harmonics::ShTransform::new(p).unwrap();
-        let mut ws = sht.workspace();
-        let mut grid = vec![0.0; sht.grid().n_points() * 3];
-        sht.inverse(&coefs, &mut grid, &mut ws).unwrap();
-        let n = grid.len() / 3;
-        for x in &mut grid[..n] {
+        let mut grid = s.grid_positions(&sht).unwrap();
+        for x in &mut grid[..sht.n_points()] {
             *x += seed * *x * *x;
         }
-        sht.forward(&grid, &mut coefs, &mut ws).unwrap();
+        s = Surface::from_grid(&sht, &grid).unwrap();
     }
+    let mut coefs = s.coefs().to_vec();
     let g0 = calc.geometry(&coefs).unwrap();
     let (a0, v0) = (g0.area(), g0.volume());
     // The capillary number of the flow, `Ca = μ ε̇ R₀³/κ` (rate 1, viscosity 1, `R₀` the

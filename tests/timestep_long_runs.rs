@@ -508,15 +508,12 @@ fn skewness_history(kappa: f64, dt: f64, t_end: usize) -> Vec<f64> {
     let (st, ct) = 60f64.to_radians().sin_cos();
     s.rotate([[1.0, 0.0, 0.0], [0.0, ct, -st], [0.0, st, ct]])
         .unwrap();
-    let mut coefs = s.coefs().to_vec();
     let sht = ShTransform::new(EXT_P).unwrap();
-    let mut ws = sht.workspace();
-    let mut grid = vec![0.0; 3 * sht.n_points()];
-    sht.inverse(&coefs, &mut grid, &mut ws).unwrap();
+    let mut grid = s.grid_positions(&sht).unwrap();
     for x in &mut grid[..sht.n_points()] {
         *x += EXT_SEED * *x * *x;
     }
-    sht.forward(&grid, &mut coefs, &mut ws).unwrap();
+    let mut coefs = Surface::from_grid(&sht, &grid).unwrap().coefs().to_vec();
     let mut stepper = VesicleStepper::new(
         EXT_P,
         VesicleParams {
