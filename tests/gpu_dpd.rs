@@ -623,3 +623,102 @@ fn mobo_dpd_on_the_gpu_resumes_bit_for_bit_and_auto_says_why() {
         "{why}"
     );
 }
+
+/// The raw sums of a sampler's current block: per bin `Σ v_x` and counts
+/// (`ProfileSampler::state`'s layout).
+fn block_sums(s: &mobo::dpd::poiseuille::ProfileSampler) -> (Vec<f64>, Vec<f64>) {
+    let (v, _) = s.state();
+    let b = s.bins;
+    (v[5..5 + b].to_vec(), v[5 + b..5 + 2 * b].to_vec())
+}
+
+#[test]
+fn the_profile_binned_on_the_device_matches_the_hosts_binning() {
+    use mobo::dpd::poiseuille::{FlowGeometry, ProfileSampler};
+    use mobo::dpd::walls::Wall;
+    let Some(g) = gpu() else { return };
+    let mut precs = vec![GpuPrecision::F32];
+    if g.has_f64() {
+        precs.push(GpuPrecision::F64);
+    }
+    // 1152 + wall particles: more than one chunk of 1024, the last one partial.
+    let base = fluid([6.0, 8.0, 8.0], 1.0, BodyForce::None, 7).params;
+    let body = BodyForce::Constant([0.5, 0.0, 0.0]);
+    let cases = [
+        (
+            "periodic",
+            None,
+            FlowGeometry::Periodic,
+            BodyForce::ReversePoiseuille { force: 0.5 },
+        ),
+        (
+            "channel",
+            Some(Wall::channel(5.0, 8.0, 1.0).unwrap()),
+            FlowGeometry::Channel { lo: 1.5, hi: 6.5 },
+            body,
+        ),
+        (
+            "pipe",
+            Some(Wall::pipe(2.5, 8.0, 8.0, 1.0).unwrap()),
+            FlowGeometry::Pipe {
+                center: [4.0, 4.0],
+                radius: 2.5,
+            },
+            body,
+        ),
+    ];
+    for prec in precs {
+        for (name, wall, geometry, body) in cases {
+            let mut host = match wall {
+                None => fluid(base.box_len, 1.0, body, 7),
+                Some(w) => DpdSystem::with_wall(base, 3.0, body, w, 20).unwrap(),
+            };
+            let mut dev = GpuFluid::new(g.clone(), &host, prec).unwrap();
+            dev.advance(30).unwrap();
+            dev.sync(&mut host).unwrap();
+            let moving = host.n_moving() as f64;
+            // 10 bins; and 300, more bins than the pass has threads.
+            for bins in [10, 300] {
+                let mut on_device = ProfileSampler::with_geometry(geometry, base.box_len, bins, 9);
+                let mut on_host = on_device.clone();
+                dev.sample_profile(&mut on_device).unwrap();
+                on_host.sample(&host);
+                let ((sd, cd), (sh, ch)) = (block_sums(&on_device), block_sums(&on_host));
+                assert_eq!(cd.iter().sum::<f64>(), moving, "{name} {prec:?}: counted");
+                assert_eq!(ch.iter().sum::<f64>(), moving);
+                let misbinned: f64 = cd.iter().zip(&ch).map(|(a, b)| (a - b).abs()).sum();
+                let total = |s: &[f64]| s.iter().sum::<f64>();
+                let vmax = host.particles.vx.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                eprintln!(
+                    "{name} {prec:?} {bins} bins: Σv device {:.9} host {:.9}, {misbinned} count differences",
+                    total(&sd),
+                    total(&sh)
+                );
+                match prec {
+                    GpuPrecision::F64 => {
+                        // The same bins; the sums to rounding.
+                        assert_eq!(cd, ch, "{name}: counts");
+                        for (a, b) in sd.iter().zip(&sh) {
+                            assert!((a - b).abs() < 1e-12 * moving * vmax, "{name}: {a} {b}");
+                        }
+                    }
+                    GpuPrecision::F32 => {
+                        // The coordinate in f32 may put a particle at a bin's edge next door
+                        // (each such particle changes two counts); the sum over all bins is
+                        // the total momentum to f32 rounding.
+                        assert!(misbinned <= 4.0, "{name}: {misbinned} count differences");
+                        assert!(
+                            (total(&sd) - total(&sh)).abs() < 1e-5 * moving * vmax,
+                            "{name}: Σ v_x"
+                        );
+                        if misbinned == 0.0 {
+                            for ((a, b), c) in sd.iter().zip(&sh).zip(&cd) {
+                                assert!((a - b).abs() < 1e-5 * c.max(1.0) * vmax, "{name}");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

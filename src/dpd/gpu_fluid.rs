@@ -40,13 +40,14 @@ use std::sync::Arc;
 
 use super::cell_list::CellGrid;
 use super::pair_force::Particles;
-use super::poiseuille::ProfileSampler;
+use super::poiseuille::{FlowGeometry, ProfileSampler};
 use super::rng::mix64;
 use super::system::{BodyForce, DpdSystem};
 use super::walls::Wall;
 use super::DpdError;
 use crate::gpu::dpd::{DpdFluidPass, DpdFluidSpec, WallSpec};
-use crate::gpu::{Gpu, GpuPrecision};
+use crate::gpu::dpd_profile::ProfileSpec;
+use crate::gpu::{Gpu, GpuError, GpuPrecision};
 
 /// A DPD fluid resident on the GPU.
 pub struct GpuFluid {
@@ -146,18 +147,31 @@ impl GpuFluid {
         self.step
     }
 
-    /// Add the device's current state to a velocity-profile sampler, reading back only the
-    /// columns it needs (`y`, `z`, `v_x`).
-    pub fn sample_profile(&self, sampler: &mut ProfileSampler) -> Result<(), DpdError> {
-        let (y, z, vx, bad) = self.pass.read_profile_columns()?;
-        if let Some(id) = bad {
+    /// Add the device's current state to a velocity-profile sampler. The particles are binned
+    /// on the device (`crate::gpu::dpd_profile`); only each bin's `Σ v_x` and count per chunk
+    /// of 1024 particles come back.
+    pub fn sample_profile(&mut self, sampler: &mut ProfileSampler) -> Result<(), DpdError> {
+        let spec = ProfileSpec {
+            bins: u32::try_from(sampler.bins).map_err(|_| {
+                DpdError::Gpu(GpuError::Shape(format!("{} profile bins", sampler.bins)))
+            })?,
+            scale: sampler.bin_scale(),
+            radial_center: match sampler.geometry {
+                FlowGeometry::Pipe { center, .. } => Some(center),
+                _ => None,
+            },
+        };
+        let sums = self.pass.profile_sums(&spec)?;
+        if let Some(id) = sums.unstable {
             return Err(DpdError::Unstable {
                 step: self.step,
                 particle: id as usize,
                 position: [f64::NAN; 3],
             });
         }
-        sampler.sample_columns(&y, &z, &vx);
+        sampler
+            .add_binned(&sums.sum_v, &sums.count)
+            .expect("the spec has the sampler's bins");
         Ok(())
     }
 

@@ -179,26 +179,41 @@ impl ProfileSampler {
         self.add_sample(moving.map(|i| (coordinate(geometry, p.y[i], p.z[i]), p.vx[i])));
     }
 
-    /// Add a state given as columns `y`, `z`, `v_x` of moving particles (the GPU path's
-    /// read-back, in the device's order).
-    pub fn sample_columns(&mut self, y: &[f64], z: &[f64], vx: &[f64]) {
-        let geometry = self.geometry;
-        self.add_sample(
-            y.iter()
-                .zip(z)
-                .zip(vx)
-                .map(|((&y, &z), &v)| (coordinate(geometry, y, z), v)),
-        );
+    /// Add a sample binned elsewhere (the GPU's, `crate::gpu::dpd_profile`): per bin `Σ v_x`
+    /// and the count of moving particles, binned as [`Self::sample`] bins, with
+    /// [`Self::bin_scale`] bins per unit of the coordinate. `None` (nothing added) if the
+    /// lengths are not [`Self::bins`].
+    pub fn add_binned(&mut self, sum_v: &[f64], count: &[u64]) -> Option<()> {
+        if sum_v.len() != self.bins || count.len() != self.bins {
+            return None;
+        }
+        for b in 0..self.bins {
+            self.sum_v[b] += sum_v[b];
+            self.count[b] += count[b];
+        }
+        self.end_sample();
+        Some(())
+    }
+
+    /// Bins per unit of the binned coordinate (`z`, or the radius in a pipe): a particle at
+    /// `c` falls in bin `min(⌊c · bin_scale⌋, bins − 1)`.
+    pub fn bin_scale(&self) -> f64 {
+        self.bins as f64 / self.lz
     }
 
     /// Add one sample: the binned coordinate and `v_x` of each particle.
     fn add_sample(&mut self, points: impl Iterator<Item = (f64, f64)>) {
-        let scale = self.bins as f64 / self.lz;
+        let scale = self.bin_scale();
         for (coord, vx) in points {
             let b = ((coord * scale) as usize).min(self.bins - 1);
             self.sum_v[b] += vx;
             self.count[b] += 1;
         }
+        self.end_sample();
+    }
+
+    /// Count a sample, and close the block when it is full.
+    fn end_sample(&mut self) {
         self.samples += 1;
         self.samples_in_block += 1;
         if self.samples_in_block == self.block_samples {

@@ -318,8 +318,8 @@ impl Model {
         }
     }
 
-    /// Add the current velocity profile to `sampler` (on the GPU, from the columns it needs).
-    fn sample(&self, sampler: &mut ProfileSampler) -> Result<(), DpdError> {
+    /// Add the current velocity profile to `sampler` (on the GPU, binned there).
+    fn sample(&mut self, sampler: &mut ProfileSampler) -> Result<(), DpdError> {
         match self {
             #[cfg(feature = "gpu")]
             Model::Gpu(_, dev) => dev.sample_profile(sampler),
