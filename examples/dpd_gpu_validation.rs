@@ -61,7 +61,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         gpu.describe()
     );
     println!(
-        "with every step on the GPU (`GpuFluid`; each sample reads the state back): equilibrium 10³ box, 1000 steps"
+        "with every step on the GPU (`GpuFluid`; temperature and pressure from the state read back, the profile binned on the device): equilibrium 10³ box, 1000 steps"
     );
     println!(
         "discarded, 4000 sampled every 10 steps; periodic Poiseuille 10×10×20, 4000 discarded, {} averaged (profile",

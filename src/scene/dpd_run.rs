@@ -358,7 +358,7 @@ impl Model {
 
 /// Smallest fluid `gpu = "auto"` steps on the GPU. At 10⁵ particles the H200 took 0.09 ms per
 /// step against 5.5 ms on 16 CPU threads (benches/RESULTS.md); below about 2·10⁴ the launches
-/// and the read-backs at every sample (every 10 steps by default) are a large share of a step.
+/// and the read-back at every sample (every 10 steps by default) are a large share of a step.
 pub const AUTO_MIN_PARTICLES: usize = 20_000;
 
 /// Where the fluid's steps run (`[dpd] gpu`), and why: the model as built, or its fluid moved
