@@ -79,24 +79,35 @@ fn a_full_scene_parses_with_its_values_and_effects() {
         .all(|c| c.operator_storage() == OperatorStorage::Grid));
     let default = parse(file(), "[[cells]]\nshape = \"rbc\"\n").unwrap();
     assert_eq!(default.numerics.operator_storage, None);
-    // "auto": the fastest storage whose operators fit the budget. 10⁴ RBCs at p = 12 need
-    // 70 GB on the grid and 20 GB in coefficient space.
+    // "auto": the fastest storage whose operators fit the budget. On the grid a cell keeps no
+    // operator (the threads hold one each, 7.0 MB at p = 12): 10⁴ RBCs at p = 12 fit in any
+    // budget that holds the threads' operators; coefficient space keeps 2.0 MB per cell.
     let gib = 1u64 << 30;
+    let mib = 1u64 << 20;
     assert_eq!(
-        OperatorStorage::for_budget(100, 12, 1, 14 * gib),
+        OperatorStorage::for_budget(100, 2, 12, 1, 14 * gib),
         OperatorStorage::Grid
     );
     assert_eq!(
-        OperatorStorage::for_budget(10_000, 12, 1, 24 * gib),
-        OperatorStorage::Coefficients
+        OperatorStorage::for_budget(10_000, 16, 12, 2, 24 * gib),
+        OperatorStorage::Grid
     );
+    // 13 MiB: too little for two threads' grid operators (14.0 MB), or for 30 cells in
+    // coefficient space (61 MB) beside them; with a viscosity contrast one thread's two grid
+    // operators (14.0 MB) do not fit either, but one cell's two compressed ones (4.1 MB) and
+    // the grid operator it is compressed from (7.0 MB) do.
     assert_eq!(
-        OperatorStorage::for_budget(10_000, 12, 2, 24 * gib),
+        OperatorStorage::for_budget(30, 2, 12, 1, 13 * mib),
         OperatorStorage::MatrixFree
     );
     assert_eq!(
-        OperatorStorage::Grid.bytes_per_cell(12, 1),
-        9 * 312 * 312 * 8
+        OperatorStorage::for_budget(1, 1, 12, 2, 13 * mib),
+        OperatorStorage::Coefficients
+    );
+    assert_eq!(OperatorStorage::Grid.bytes_per_cell(12, 1), 0);
+    assert_eq!(
+        OperatorStorage::Grid.bytes_per_thread(12, 2),
+        2 * 9 * 312 * 312 * 8
     );
     assert_eq!(
         OperatorStorage::Coefficients.bytes_per_cell(12, 1),

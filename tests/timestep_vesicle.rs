@@ -389,12 +389,72 @@ fn coefficient_and_grid_operator_storage_take_the_same_steps() {
     // GMRES stops at a relative residual of 1e-11 in both; the difference is of that order.
     assert!(ec < 1e-9, "surface differs by {ec:.1e}");
     assert!(es < 1e-7, "tension differs by {es:.1e}");
-    // Two dense operators per cell: (n_c/n)² of the entries in coefficient space.
-    assert!((mc as f64) < 0.5 * mg as f64, "{mc} vs {mg} bytes");
+    // Coefficient space keeps two compressed operators per cell; the grid's live in the step
+    // engine (one set per thread), so the cell keeps none.
+    let kept = OperatorStorage::Coefficients.bytes_per_cell(p, 2);
+    assert!(
+        (mg as f64) <= mc as f64 - 0.9 * kept as f64,
+        "{mg} vs {mc} bytes"
+    );
     // Matrix-free: the grid operator's products, applied per iteration; no dense operator.
     let (em, esm) = (rel(&cm, &cg), rel(&sm, &sg));
     println!("matrix-free vs grid: surface {em:.1e}, tension {esm:.1e}; GMRES {im:?}; {mm} bytes");
     assert!(em < 1e-9, "surface differs by {em:.1e}");
     assert!(esm < 1e-7, "tension differs by {esm:.1e}");
     assert!((mm as f64) < 0.1 * mc as f64, "{mm} vs {mc} bytes");
+}
+
+/// Grid storage lends each step the step engine's operator buffers (one set per thread): two
+/// cells stepped in turn on one thread, each step assembling into the buffers the other cell's
+/// step filled (one with a viscosity contrast, so a double layer too), take bit for bit the
+/// steps each takes alone, and a cell keeps no operator between its steps.
+#[test]
+fn grid_operators_lent_per_step_leave_nothing_between_cells() {
+    use mobo::timestep::semi_implicit::{OperatorStorage, TimeScheme};
+    let p = 6;
+    let prolate = shapes::reduced_volume_spheroid(p, 0.85, Spheroid::Prolate, 1.0).unwrap();
+    let oblate = shapes::reduced_volume_spheroid(p, 0.9, Spheroid::Oblate, 1.2).unwrap();
+    let stepper = |ratio: f64| {
+        let mut prm = params(p, [0.0, 0.0, -0.5], 0.05);
+        prm.viscosity_ratio = ratio;
+        prm.scheme = TimeScheme::Bdf2;
+        prm.correct_drift = true;
+        let mut st = VesicleStepper::new(p, prm).unwrap();
+        st.set_operator_storage(OperatorStorage::Grid);
+        st
+    };
+    let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
+    let alone = |ratio: f64, c0: &[f64]| {
+        let mut st = stepper(ratio);
+        let mut c = c0.to_vec();
+        for _ in 0..3 {
+            st.step(&mut c, &shear).unwrap();
+        }
+        (c, st.sigma.clone())
+    };
+    let (a_alone, b_alone) = (alone(4.0, prolate.coefs()), alone(1.0, oblate.coefs()));
+    let (mut sa, mut sb) = (stepper(4.0), stepper(1.0));
+    let (mut ca, mut cb) = (prolate.coefs().to_vec(), oblate.coefs().to_vec());
+    for _ in 0..3 {
+        sa.step(&mut ca, &shear).unwrap();
+        sb.step(&mut cb, &shear).unwrap();
+    }
+    assert_eq!((&ca, &sa.sigma), (&a_alone.0, &a_alone.1), "contrast cell");
+    assert_eq!(
+        (&cb, &sb.sigma),
+        (&b_alone.0, &b_alone.1),
+        "cell without contrast"
+    );
+    let one = OperatorStorage::Grid.bytes_per_thread(p, 1);
+    for (name, st) in [("contrast", &sa), ("no contrast", &sb)] {
+        println!(
+            "{name}: cell state {} bytes, one grid operator {one}",
+            st.memory_bytes()
+        );
+        assert!(
+            st.memory_bytes() < one,
+            "{name}: {} bytes",
+            st.memory_bytes()
+        );
+    }
 }

@@ -360,7 +360,8 @@ pub struct Numerics {
     pub far_side_split: bool,
     /// How each cell keeps its self-interaction operators
     /// ([`crate::timestep::semi_implicit::OperatorStorage`]); `None` ("auto", the default): the
-    /// fastest whose operators for all cells fit in 60 % of the memory available at the start.
+    /// fastest whose operators for all cells and threads fit in 60 % of the memory available at
+    /// the start (the grid, unless a thread cannot hold its operators).
     pub operator_storage: Option<OperatorStorage>,
     /// GMRES preconditioner of every inextensible cell (default: each cell's own,
     /// [`Preconditioning::CELL`]; see [`crate::timestep::semi_implicit::Preconditioning`]).
@@ -390,7 +391,8 @@ pub struct Numerics {
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Effect {
     /// What is built: `"fmm"`, `"double_layer"`, `"inter_cell_double_layer"`, `"skalak"`,
-    /// `"background_flow"`, `"body_force"` or `"adaptive_dt"`.
+    /// `"background_flow"`, `"body_force"`, `"adaptive_dt"`, or (in a run's summary, where
+    /// memory left them out) `"cell_preconditioner"`.
     pub name: &'static str,
     /// Whether it is built.
     pub enabled: bool,

@@ -387,24 +387,9 @@ pub fn build_part(
     .map_err(|e| step_error(0, 0.0, e))?;
     // Chosen for all cells alike (the memory of the whole scene), so that the split between
     // ranks does not change how a cell is stepped.
-    let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
-        let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
-        let (cells, operators) = (setups.len(), 1 + usize::from(contrast));
-        // The cells' own preconditioners take their share first. If what is left fits only
-        // matrix-free operators, which keep the sphere's preconditioner, the whole budget is
-        // theirs.
-        if let Preconditioning::Cell { .. } = scene.numerics.preconditioning {
-            let own = cells as u64 * cell_preconditioner::bytes_per_cell(p) as u64;
-            let storage =
-                OperatorStorage::for_budget(cells, p, operators, budget.saturating_sub(own));
-            if storage != OperatorStorage::MatrixFree {
-                return storage;
-            }
-        }
-        OperatorStorage::for_budget(cells, p, operators, budget)
-    });
+    let (storage, preconditioning) = memory_plan(scene, setups.len(), contrast);
     susp.set_operator_storage(storage);
-    susp.set_preconditioning(scene.numerics.preconditioning);
+    susp.set_preconditioning(preconditioning);
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,
@@ -414,6 +399,57 @@ pub fn build_part(
             .map_err(|e| step_error(0, 0.0, e))?;
     }
     Ok(susp)
+}
+
+/// The scene's effects, and the cells' own preconditioners where [`memory_plan`] left them
+/// out.
+fn run_effects(scene: &CellScene, susp: &Suspension) -> Vec<Effect> {
+    let mut effects = scene.effects.clone();
+    if let (Preconditioning::Cell { .. }, Some(Preconditioning::Sphere)) =
+        (scene.numerics.preconditioning, susp.preconditioning())
+    {
+        let (cells, p) = (scene.cells.len(), scene.numerics.order);
+        let bytes = cells as f64 * cell_preconditioner::bytes_per_cell(p) as f64;
+        effects.push(Effect {
+            name: "cell_preconditioner",
+            enabled: false,
+            reason: format!(
+                "the own preconditioners of {cells} cells at p = {p} need {:.1} GB, more than \
+                 60 % of the available memory: every cell takes the sphere's",
+                bytes / 1e9
+            ),
+        });
+    }
+    effects
+}
+
+/// Where the cells' operators and preconditioners are kept, within 60 % of the available
+/// memory (8 GiB where it is unknown): the scene's choices, except where they do not fit.
+/// The cells' own preconditioners ((4 n_c)² doubles each, 3.6 MB at `p = 12`) are kept per
+/// cell; where those of all cells do not fit, every cell takes the sphere's (one per order;
+/// the summary says so). Then the fastest operator storage that fits what is left
+/// ([`OperatorStorage::for_budget`]: the grid wherever the threads can hold its operators).
+fn memory_plan(
+    scene: &CellScene,
+    cells: usize,
+    contrast: bool,
+) -> (OperatorStorage, Preconditioning) {
+    let p = scene.numerics.order;
+    let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+    let own = cells as u64 * cell_preconditioner::bytes_per_cell(p) as u64;
+    let preconditioning = match scene.numerics.preconditioning {
+        Preconditioning::Cell { .. } if own > budget => Preconditioning::Sphere,
+        chosen => chosen,
+    };
+    let left = match preconditioning {
+        Preconditioning::Cell { .. } => budget - own,
+        Preconditioning::Sphere => budget,
+    };
+    let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
+        let threads = rayon::current_num_threads();
+        OperatorStorage::for_budget(cells, threads, p, 1 + usize::from(contrast), left)
+    });
+    (storage, preconditioning)
 }
 
 /// [`crate::comm::agreed`] with communication failures as [`CellRunError::Comm`].
@@ -1034,7 +1070,7 @@ pub fn run_on(
         gmres_tol: scene.numerics.gmres_tol,
         fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
         near_field: susp.near_field_decision(),
-        effects: scene.effects.clone(),
+        effects: run_effects(scene, &susp),
         wall_s: prog.wall_s,
         step_s: prog.step_s,
         coupling_s: stats.setup_s + stats.fmm_s + stats.self_s + stats.exchange_s + stats.near_s,

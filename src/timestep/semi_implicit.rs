@@ -344,9 +344,13 @@ pub struct StepReport {
 }
 
 /// How a cell keeps its self-interaction operators from the assembly to the GMRES iterations
-/// of its step. All three give the same step to the GMRES tolerance; they trade memory for
-/// time (one RBC at `p = 12`, one core: 0.19 / 0.24 / 2.8 s per step, 7.2 / 2.2 / 0.19 MB of
-/// own state per cell for grid / coefficients / matrix-free; `benches/RESULTS.md`).
+/// of its step. All three give the same step to the GMRES tolerance (one RBC at `p = 12`, one
+/// core: 0.19 / 0.24 / 2.8 s per step for grid / coefficients / matrix-free;
+/// `benches/RESULTS.md`). The operators are reassembled at every step and read only within
+/// the cell's own step, so the grid's live in the step engine (one per thread that steps):
+/// it is the fastest and keeps nothing per cell. Coefficient space keeps its compressed
+/// operators per cell (2.0 MB each at `p = 12`); matrix-free keeps none and needs no
+/// `3n × 3n` buffer at all.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum OperatorStorage {
     /// In coefficient space, `A_c = F A I` (`(3n_c)²` entries, 2.0 MB per operator at
@@ -354,37 +358,59 @@ pub enum OperatorStorage {
     /// the same step (the band-limited part of the solution, hence the new surface, is the
     /// same), 3.4× less memory, for a compression per assembly and two transforms per product.
     Coefficients,
-    /// On the grid, `A` (`(3n)²` entries, 7.0 MB per operator at `p = 12`): the fast path.
+    /// On the grid, `A` (`(3n)²` entries, 7.0 MB per operator at `p = 12`), in the buffers of
+    /// the step engine the cell's step holds: the fast path, one operator (two with a viscosity
+    /// contrast) per thread, none per cell.
     #[default]
     Grid,
     /// Not stored: every GMRES iteration applies `A` matrix-free, batched per latitude
     /// ([`SelfInteraction::apply`]): memory linear in the points per cell, each product
-    /// costing about half an assembly (the mode for scenes whose dense operators do not fit in
-    /// memory, such as 10⁴ cells at `p = 12` in 24 GiB).
+    /// costing about half an assembly (for a thread that cannot hold one dense operator).
     MatrixFree,
 }
 
 impl OperatorStorage {
-    /// Bytes of the stored operators of one cell of order `p` (`operators`: 1, or 2 with a
-    /// viscosity contrast).
+    /// Bytes of the operators one cell of order `p` keeps (`operators`: 1, or 2 with a
+    /// viscosity contrast): none on the grid, whose operators the step engines hold (one set
+    /// per thread, [`Self::bytes_per_thread`]).
     pub fn bytes_per_cell(self, p: usize, operators: usize) -> usize {
-        let n = 2 * p * (p + 1);
         let nc = (p + 1) * (p + 1) - 1;
         operators
             * 8
             * match self {
-                OperatorStorage::Grid => 9 * n * n,
+                OperatorStorage::Grid | OperatorStorage::MatrixFree => 0,
                 OperatorStorage::Coefficients => 9 * nc * nc,
-                OperatorStorage::MatrixFree => 0,
             }
     }
 
-    /// The fastest storage whose operators for `cells` cells fit in `budget` bytes (`operators`
-    /// per cell): the grid, else coefficient space, else matrix-free.
-    pub fn for_budget(cells: usize, p: usize, operators: usize, budget: u64) -> Self {
+    /// Bytes of the operators a thread that steps cells holds: the grid operators, also
+    /// assembled there before the compression to coefficient space.
+    pub fn bytes_per_thread(self, p: usize, operators: usize) -> usize {
+        let n = 2 * p * (p + 1);
+        match self {
+            OperatorStorage::Grid => operators * 8 * 9 * n * n,
+            OperatorStorage::Coefficients => 8 * 9 * n * n,
+            OperatorStorage::MatrixFree => 0,
+        }
+    }
+
+    /// The fastest storage whose operators for `cells` cells stepped by `threads` threads fit
+    /// in `budget` bytes (`operators` per cell): the grid (which keeps none per cell, one set
+    /// per thread), else coefficient space, else matrix-free.
+    pub fn for_budget(
+        cells: usize,
+        threads: usize,
+        p: usize,
+        operators: usize,
+        budget: u64,
+    ) -> Self {
         [OperatorStorage::Grid, OperatorStorage::Coefficients]
             .into_iter()
-            .find(|s| (cells as u64) * (s.bytes_per_cell(p, operators) as u64) <= budget)
+            .find(|s| {
+                (cells as u64) * (s.bytes_per_cell(p, operators) as u64)
+                    + (threads as u64) * (s.bytes_per_thread(p, operators) as u64)
+                    <= budget
+            })
             .unwrap_or(OperatorStorage::MatrixFree)
     }
 }
@@ -1096,6 +1122,30 @@ impl VesicleStepper {
         }
         let mut lease = self.lease()?;
         let engine: &mut StepEngine = &mut lease;
+        // Grid storage: the operators live in the engine (one pair per thread), lent to this
+        // cell for its step and handed back whatever the step's outcome.
+        let lent = self.storage == OperatorStorage::Grid;
+        if lent {
+            std::mem::swap(&mut self.s_op, &mut engine.grid_single);
+            std::mem::swap(&mut self.d_op, &mut engine.grid_double);
+        }
+        let report = self.step_on(engine, coefs, u_inf, extra);
+        if lent {
+            std::mem::swap(&mut self.s_op, &mut engine.grid_single);
+            std::mem::swap(&mut self.d_op, &mut engine.grid_double);
+        }
+        report
+    }
+
+    /// [`Self::step_with`] on a leased engine, the sizes checked.
+    fn step_on(
+        &mut self,
+        engine: &mut StepEngine,
+        coefs: &mut [f64],
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        extra: ExplicitTerms<'_>,
+    ) -> Result<StepReport, TimestepError> {
+        let (n, nc) = (self.n, self.nc);
         let kappa = self.params.bending_modulus;
         let omega = self.extrapolation_ratio();
         let bdf2 = omega.is_some();

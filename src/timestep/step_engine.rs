@@ -7,8 +7,7 @@
 //! either a plan that depends only on `(p, q)` or scratch that a call fills before it reads it.
 //! A suspension therefore holds as many engines as cells step at once (the threads), not one
 //! per cell: at `p = 12` an engine is several MB (plans and workspaces at `q = 24`, the `3n × 3n`
-//! grid operator that is compressed to coefficient space), which per cell would rule out 10⁴
-//! cells in 24 GiB.
+//! grid operators of the step, 7.0 MB each), which per cell would rule out 10⁴ cells in 24 GiB.
 //!
 //! Results do not depend on which engine a cell gets: every call sets the geometry it uses
 //! (and the cell's far-side settings and Skalak reference) before reading anything.
@@ -86,6 +85,13 @@ pub(crate) struct StepEngine {
     pub compressor: CoefficientOperator,
     /// A grid operator, `3n × 3n` (assembled here, then compressed into the cell's storage).
     pub grid_op: Vec<f64>,
+    /// The grid operators (`3n × 3n`) of the step that holds this engine, with
+    /// [`super::semi_implicit::OperatorStorage::Grid`]: the single layer, and the double layer
+    /// with a viscosity contrast. A cell's operators are assembled at its step and read only
+    /// within it, so they are lent with the engine: one pair per thread, not per cell.
+    pub grid_single: Vec<f64>,
+    /// See [`Self::grid_single`].
+    pub grid_double: Vec<f64>,
 }
 
 impl StepEngine {
@@ -112,6 +118,8 @@ impl StepEngine {
             reparametrizer: None,
             compressor: CoefficientOperator::new(&sht)?,
             grid_op: Vec::new(),
+            grid_single: Vec::new(),
+            grid_double: Vec::new(),
             sht,
         })
     }

@@ -344,6 +344,11 @@ impl Suspension {
         }
     }
 
+    /// The preconditioner set by [`Self::set_preconditioning`] (`None`: each stepper's default).
+    pub fn preconditioning(&self) -> Option<Preconditioning> {
+        self.preconditioning
+    }
+
     /// Own preconditioners built by this rank's cells so far (see
     /// [`super::semi_implicit::Preconditioning::Cell`]).
     pub fn own_preconditioner_builds(&self) -> usize {
