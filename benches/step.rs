@@ -150,10 +150,17 @@ fn run_one(p: usize, cells: usize) {
     let mut susp = build(&scene).expect("build");
     let build_s = t.elapsed().as_secs_f64();
     let rss_built = status_mb("VmRSS:");
+    // Progress on stderr (a long configuration that is stopped still tells how far it got).
+    eprintln!("p = {p}, {cells} cells: built in {build_s:.1} s, RSS {rss_built:.0} MB");
     let flow = scene.flow;
     let t = Instant::now();
     let r = susp.step(&|x| flow.velocity(x)).expect("warm-up step");
     let warm_s = t.elapsed().as_secs_f64();
+    eprintln!(
+        "warm-up step {warm_s:.1} s, RSS {:.0} MB, peak {:.0} MB",
+        status_mb("VmRSS:"),
+        status_mb("VmHWM:")
+    );
     let warm_iters: usize = r.cells.iter().map(|c| c.gmres.iterations).sum();
     let fixed: Option<usize> = std::env::var("STEP_BENCH_STEPS")
         .ok()
@@ -168,6 +175,11 @@ fn run_one(p: usize, cells: usize) {
     loop {
         let r = susp.step(&|x| flow.velocity(x)).expect("step");
         steps += 1;
+        eprintln!(
+            "step {steps}: {:.1} s wall so far, peak RSS {:.0} MB",
+            t.elapsed().as_secs_f64(),
+            status_mb("VmHWM:")
+        );
         for c in &r.cells {
             iters += c.gmres.iterations;
             iters_max = iters_max.max(c.gmres.iterations);
@@ -261,17 +273,15 @@ fn main() {
         let out = Command::new(&exe)
             .args(["--one", &p.to_string(), &cells.to_string()])
             .env("RAYON_NUM_THREADS", &threads)
+            // The child's progress and errors go straight to our stderr.
+            .stderr(std::process::Stdio::inherit())
             .output()
             .expect("child");
         let text = String::from_utf8_lossy(&out.stdout);
         let Some(line) = text.lines().find_map(|l| l.strip_prefix("RESULT ")) else {
             println!(
-                "| {p} | {cells} | failed: {} {} |",
-                out.status,
-                String::from_utf8_lossy(&out.stderr)
-                    .lines()
-                    .last()
-                    .unwrap_or("")
+                "| {p} | {cells} | failed: {} (its stderr above) |",
+                out.status
             );
             continue;
         };
