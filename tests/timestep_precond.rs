@@ -178,3 +178,58 @@ fn block_structure(p: usize) {
         assert_eq!(total, 4 * ((p + 1) * (p + 1) - 1));
     }
 }
+
+/// Cells of one sphere share one preconditioner (`sphere_preconditioner::shared`): the same
+/// key gives the same object, built once; another radius, `τ` or far-side setting gives its
+/// own. A shared preconditioner is the one a cell would build: two builds of one key apply
+/// bit for bit alike, from many threads at once (each application takes its own scratch).
+#[test]
+fn cells_of_one_sphere_share_its_preconditioner() {
+    use mobo::timestep::sphere_preconditioner::{shared, SpherePreconditioner, StepCoefficients};
+    use mobo::timestep::Preconditioner;
+    use mobo::vesicle::far_side::FarSideParams;
+    use mobo::vesicle::layer::{RotationAlgorithm, SelfInteraction};
+    use mobo::vesicle::membrane::Membrane;
+    use std::sync::Arc;
+    let p = 6;
+    let mut m = Membrane::new(p, 2 * p).unwrap();
+    let mut l = SelfInteraction::new(p, 2 * p, RotationAlgorithm::Direct).unwrap();
+    // A radius and τ no other test uses, so that this test builds the first.
+    let c = StepCoefficients::new(1.0, 0.0123, 1.0, 1.0);
+    let (a, built_a) = shared(&mut m, &mut l, 1.2345, c).unwrap();
+    let (b, built_b) = shared(&mut m, &mut l, 1.2345, c).unwrap();
+    assert!(built_a && !built_b, "built {built_a} then {built_b}");
+    assert!(Arc::ptr_eq(&a, &b));
+    let (other_radius, built) = shared(&mut m, &mut l, 1.2346, c).unwrap();
+    assert!(built && !Arc::ptr_eq(&a, &other_radius));
+    let c2 = StepCoefficients::new(1.0, 0.0124, 1.0, 1.0);
+    let (other_tau, built) = shared(&mut m, &mut l, 1.2345, c2).unwrap();
+    assert!(built && !Arc::ptr_eq(&a, &other_tau));
+    let off = FarSideParams {
+        enabled: !l.far_side_params().enabled,
+        ..l.far_side_params()
+    };
+    let mut l_off = SelfInteraction::new(p, 2 * p, RotationAlgorithm::Direct).unwrap();
+    l_off.set_far_side_params(off).unwrap();
+    let (other_split, built) = shared(&mut m, &mut l_off, 1.2345, c).unwrap();
+    assert!(built && !Arc::ptr_eq(&a, &other_split));
+    // The shared one against a private build of the same key, applied on 4 threads at once.
+    let own = SpherePreconditioner::build(&mut m, &mut l, 1.2345, c).unwrap();
+    let n = a.nrows();
+    let v: Vec<f64> = (0..n)
+        .map(|i| ((i * 7919) % 1000) as f64 / 500.0 - 1.0)
+        .collect();
+    let mut want = vec![0.0; n];
+    own.apply(&v, &mut want);
+    std::thread::scope(|s| {
+        for _ in 0..4 {
+            s.spawn(|| {
+                for _ in 0..20 {
+                    let mut z = vec![0.0; n];
+                    a.apply(&v, &mut z);
+                    assert_eq!(z, want);
+                }
+            });
+        }
+    });
+}

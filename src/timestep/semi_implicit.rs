@@ -166,7 +166,7 @@ use super::cell_state::PreconditionerRecord;
 use super::grid_frame::{
     grid_rotation, relative_rotation, RotatedPreconditioner, Rotation, IDENTITY,
 };
-use super::sphere_preconditioner::{SpherePreconditioner, StepCoefficients};
+use super::sphere_preconditioner::{self, SpherePreconditioner, StepCoefficients};
 use super::step_engine::{ElasticWork, EngineLease, EnginePool, OperatorWork, StepEngine};
 use super::step_operator::{
     add_elastic_jacobian, apply_operators, InextensibleOperator, StepOperator,
@@ -451,8 +451,9 @@ pub struct VesicleStepper {
     previous: Option<Vec<f64>>,
     /// The step `Δtⁿ⁻¹` that led from `Xⁿ⁻¹` to `Xⁿ` (variable-step BDF2).
     previous_dt: Option<f64>,
-    /// Sphere preconditioners built so far (at most two: the Euler and the BDF2 `τ`).
-    preconditioners: Vec<SpherePreconditioner>,
+    /// Sphere preconditioners in use (at most two: the Euler and the BDF2 `τ`), shared with
+    /// the other cells of the same sphere ([`sphere_preconditioner::shared`]).
+    preconditioners: Vec<Arc<SpherePreconditioner>>,
     /// Which preconditioner the steps use.
     preconditioning: Preconditioning,
     /// The cell's own preconditioner ([`Preconditioning::Cell`]), once built.
@@ -728,7 +729,8 @@ impl VesicleStepper {
             + self
                 .preconditioners
                 .iter()
-                .map(|m| m.memory_bytes())
+                // A shared preconditioner counts in equal shares to the cells holding it.
+                .map(|m| m.memory_bytes() / Arc::strong_count(m))
                 .sum::<usize>()
             + match self.own.as_ref().map(|o| &o.inverse) {
                 Some(OwnInverse::Built(pc)) => pc.memory_bytes(),
@@ -966,16 +968,16 @@ impl VesicleStepper {
         {
             return Ok((i, false));
         }
-        let built = {
+        let (kept, built) = {
             let work = engine.work.get_mut().expect("operator lock");
-            SpherePreconditioner::build(&mut work.membrane, &mut work.products.layer, radius, c)?
+            sphere_preconditioner::shared(&mut work.membrane, &mut work.products.layer, radius, c)?
         };
         // Keep at most two (Euler's and BDF2's τ); a stale radius or τ is replaced.
         if self.preconditioners.len() >= 2 {
             self.preconditioners.remove(0);
         }
-        self.preconditioners.push(built);
-        Ok((self.preconditioners.len() - 1, true))
+        self.preconditioners.push(kept);
+        Ok((self.preconditioners.len() - 1, built))
     }
 
     /// The step operator's coefficients for time factor `tau` with this cell's parameters.
@@ -1448,7 +1450,7 @@ impl VesicleStepper {
                 ),
                 (Some(i), None) => gmres(
                     &op,
-                    &RotatedPreconditioner::new(&self.preconditioners[i], rotation, n),
+                    &RotatedPreconditioner::new(&*self.preconditioners[i], rotation, n),
                     &b,
                     Some(&z0),
                     &mut z,

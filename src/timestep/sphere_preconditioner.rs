@@ -63,15 +63,16 @@
 //! every closed surface), so `A_bb` is singular in that one column; the preconditioner uses
 //! `A_bb + e eᵀ` (`e` the unit vector of the `σ₀₀` coefficient), which changes nothing else.
 //!
-//! **Cost.** Build (once per run; rebuilt only when `R`, `τ`, `κ`, `μ` or `λ` change, and the
-//! drift correction keeps the area, hence `R`, fixed): `4n_c` applications of the local
+//! **Cost.** Build (once per process for each sphere, shared by all cells of that size and
+//! coefficients through [`shared`]; rebuilt only when `R`, `τ`, `κ`, `μ` or `λ` change, and
+//! the drift correction keeps the area, hence `R`, fixed): `4n_c` applications of the local
 //! operators, one `(3n)² × 4n_c` GEMM with `S` (and one with `D` when `λ ≠ 1`), the rotation
 //! and the block LUs (`Σ_k n_k³`): p = 12 in ≈ 0.45 s. Memory: `Σ_k n_k² = O(p³)` doubles
 //! (p = 12: 87 kB; the dense inverse would be 3.6 MB). One application: three transforms of four
 //! fields at order `p` (`O(p³)`) and the block products (`2 Σ_k n_k² = O(p³)` flops), well below
 //! one product with the dense single layer (`2 (3n)² = O(p⁴)`).
 
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex, Weak};
 
 use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::DenseSolveCore;
@@ -79,6 +80,7 @@ use faer::{Accum, Mat, MatMut, MatRef, Par};
 
 use super::{Preconditioner, TimestepError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::layer::{LayerKernel, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
 use crate::vesicle::shapes;
@@ -142,6 +144,8 @@ pub struct SpherePreconditioner {
     q: usize,
     radius: f64,
     coefs: StepCoefficients,
+    /// The far-side settings of the layer it was assembled with.
+    far_side: FarSideParams,
     sht: ShTransform,
     /// The `x`/`y` coefficient pairs mixed by `Q` (see [`Self::build`]).
     pairs: Vec<[usize; 4]>,
@@ -149,7 +153,11 @@ pub struct SpherePreconditioner {
     blocks: Vec<(Vec<usize>, Mat<f64>)>,
     /// Largest entry left out of the blocks, relative to the largest entry.
     dropped: f64,
-    scratch: Mutex<Scratch>,
+    /// Scratch for the applications, one per thread applying at once (taken and put back per
+    /// application), so that one preconditioner can serve many cells on many threads.
+    scratch: Mutex<Vec<Scratch>>,
+    /// `(4n_c, largest block)`: the sizes of a new scratch.
+    scratch_sizes: (usize, usize),
 }
 
 impl SpherePreconditioner {
@@ -356,14 +364,16 @@ impl SpherePreconditioner {
             q,
             radius,
             coefs,
-            scratch: Mutex::new(Scratch {
+            far_side: layer.far_side_params(),
+            scratch: Mutex::new(vec![Scratch {
                 ws,
                 c: vec![0.0; m],
                 y: vec![0.0; m],
                 pv: vec![0.0; 4 * n],
                 bi: vec![0.0; largest],
                 bo: vec![0.0; largest],
-            }),
+            }]),
+            scratch_sizes: (m, largest),
             sht,
             pairs,
             blocks,
@@ -418,13 +428,75 @@ impl SpherePreconditioner {
     }
 }
 
+/// The sphere preconditioners made by [`shared`], while some cell holds them.
+static SHARED: Mutex<Vec<Weak<SpherePreconditioner>>> = Mutex::new(Vec::new());
+
+/// The sphere preconditioner for exactly `(p, q, radius, coefs)` and the layer's far-side
+/// settings, shared by every cell of the process that asks for it: built by the first (with
+/// `membrane` and `layer`, as [`SpherePreconditioner::build`]), then handed out while some
+/// cell holds it. The build is a function of that key alone, so a cell gets the preconditioner
+/// it would have built itself (the same steps bit for bit), and cells of one shape and size pay
+/// for one build (≈ 0.3–0.45 s at p = 12) instead of one each. Threads that ask at the same
+/// moment may each build one; the first kept serves later requests. Returns whether this call
+/// built it.
+pub fn shared(
+    membrane: &mut Membrane,
+    layer: &mut SelfInteraction,
+    radius: f64,
+    coefs: StepCoefficients,
+) -> Result<(Arc<SpherePreconditioner>, bool), TimestepError> {
+    let (p, q, far_side) = (
+        membrane.order(),
+        membrane.upsampled_order(),
+        layer.far_side_params(),
+    );
+    let same = |m: &SpherePreconditioner| {
+        m.p == p && m.q == q && m.radius == radius && m.coefs == coefs && m.far_side == far_side
+    };
+    let found = SHARED
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .iter()
+        .filter_map(Weak::upgrade)
+        .find(|m| same(m));
+    if let Some(m) = found {
+        return Ok((m, false));
+    }
+    let built = Arc::new(SpherePreconditioner::build(membrane, layer, radius, coefs)?);
+    let mut kept = SHARED.lock().unwrap_or_else(|e| e.into_inner());
+    kept.retain(|w| w.strong_count() > 0);
+    kept.push(Arc::downgrade(&built));
+    Ok((built, true))
+}
+
 impl Preconditioner for SpherePreconditioner {
     fn nrows(&self) -> usize {
         4 * self.sht.n_points()
     }
 
     fn apply(&self, v: &[f64], z: &mut [f64]) {
-        let mut guard = self.scratch.lock().unwrap_or_else(|e| e.into_inner());
+        let taken = self.scratch.lock().unwrap_or_else(|e| e.into_inner()).pop();
+        let mut scratch = taken.unwrap_or_else(|| {
+            let (m, largest) = self.scratch_sizes;
+            Scratch {
+                ws: self.sht.workspace(),
+                c: vec![0.0; m],
+                y: vec![0.0; m],
+                pv: vec![0.0; 4 * self.sht.n_points()],
+                bi: vec![0.0; largest],
+                bo: vec![0.0; largest],
+            }
+        });
+        self.apply_with(v, z, &mut scratch);
+        self.scratch
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(scratch);
+    }
+}
+
+impl SpherePreconditioner {
+    fn apply_with(&self, v: &[f64], z: &mut [f64], scratch: &mut Scratch) {
         let Scratch {
             ws,
             c,
@@ -432,7 +504,7 @@ impl Preconditioner for SpherePreconditioner {
             pv,
             bi,
             bo,
-        } = &mut *guard;
+        } = scratch;
         // Lengths are checked by the solver; the transforms cannot fail on them.
         if self.sht.forward(v, c, ws).is_err() || self.sht.inverse(c, pv, ws).is_err() {
             z.fill(f64::NAN);
