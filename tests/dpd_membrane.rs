@@ -515,18 +515,9 @@ struct Stretch {
 /// Mills et al. (2004), optical tweezers: (force pN, axial µm, transverse µm).
 const MILLS: [(f64, f64, f64); 3] = [(0.0, 7.78, 7.78), (88.0, 13.07, 4.78), (193.0, 15.29, 4.27)];
 
-/// Stretch the RBC (diameter 7.82 µm, units µm and pN) with opposite forces `±F` spread over the
-/// 2 % of vertices with the largest and smallest `x`; relax with FIRE; measure the diameters.
-///
-/// Moduli: μ0 = 6.3 µN/m = 6.3 pN/µm, κ = 2.4e-19 J = 0.24 pN·µm, k_BT = 4.087e-21 J (296 K).
-/// Fedosov's reduced `k_a = 4900, k_d = 100, k_v = 5000` are taken in units where μ0 = 100 and
-/// lengths are in µm: `k_a = 49 μ0`, `k_d = μ0`, `k_v = 50 μ0 / µm`. Kantor–Nelson bending with
-/// the spontaneous angle of a sphere of `N_v` vertices.
-///
-/// `relax`: relax the mesh ([`relaxed_rbc_mesh`]) before scaling it, and take the relaxed mesh
-/// as the reference state. Returns the rows, the vertices per patch, the mean edge length and
-/// the mesh statistics (after scaling).
 /// The model parameters of a stretching run; [`StretchModel::FEDOSOV`] is the validation's.
+/// `k_a`, `k_d` and `k_v` are Fedosov's reduced values in units of μ0 (see [`stretch`]), so they
+/// scale with `mu0`; the multipliers change them beyond that.
 #[derive(Clone, Copy, Debug)]
 struct StretchModel {
     /// μ0 in µN/m (pN/µm).
@@ -556,6 +547,17 @@ impl StretchModel {
     };
 }
 
+/// Stretch the RBC (diameter 7.82 µm, units µm and pN) with opposite forces `±F` spread over the
+/// 2 % of vertices with the largest and smallest `x`; relax with FIRE; measure the diameters.
+///
+/// Moduli: μ0 = 6.3 µN/m = 6.3 pN/µm, κ = 2.4e-19 J = 0.24 pN·µm, k_BT = 4.087e-21 J (296 K).
+/// Fedosov's reduced `k_a = 4900, k_d = 100, k_v = 5000` are taken in units where μ0 = 100 and
+/// lengths are in µm: `k_a = 49 μ0`, `k_d = μ0`, `k_v = 50 μ0 / µm`. Kantor–Nelson bending with
+/// the spontaneous angle of a sphere of `N_v` vertices.
+///
+/// `relax`: relax the mesh ([`relaxed_rbc_mesh`]) before scaling it, and take the relaxed mesh
+/// as the reference state. Returns the rows, the vertices per patch, the mean edge length and
+/// the mesh statistics (after scaling).
 fn stretch(
     subdivisions: u32,
     forces: &[f64],
@@ -822,6 +824,7 @@ fn rbc_stretching_sensitivity() {
     let f = StretchModel::FEDOSOV;
     let variants: Vec<(String, StretchModel)> = vec![
         ("as validated (Fedosov 2010)".into(), f),
+        // k_a, k_d and k_v keep their ratios to μ0 (Fedosov's reduced units).
         ("μ0 = 4.8".into(), StretchModel { mu0: 4.8, ..f }),
         (
             "μ0 = 5.3 (Mills et al.'s own fit)".into(),
@@ -864,8 +867,9 @@ fn rbc_stretching_sensitivity() {
          Written by the ignored test `rbc_stretching_sensitivity` of tests/dpd_membrane.rs \
          (`cargo test --test dpd_membrane -- --ignored rbc_stretching_sensitivity`). The \
          settings of docs/dpd_rbc_stretch.md (642 vertices; FIRE to a residual of 1e-3 pN), \
-         with one parameter changed at a time. Entries: the error of D_A / D_T against Mills \
-         et al. (2004) at 0, 88 and 193 pN; **bold** where it is above 10 %.\n\n\
+         with one parameter changed at a time (the μ0 rows keep k_a, k_d and k_v in their ratios \
+         to μ0, as Fedosov's reduced units have them). Entries: the error of D_A / D_T against \
+         Mills et al. (2004) at 0, 88 and 193 pN; **bold** where it is above 10 %.\n\n\
          | variant | mesh | 0 pN | 88 pN | 193 pN | all within 10 % |\n|---|---|---|---|---|---|\n",
     );
     for (name, model) in &variants {

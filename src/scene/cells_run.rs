@@ -410,14 +410,20 @@ fn run_effects(scene: &CellScene, susp: &Suspension) -> Vec<Effect> {
     {
         let (cells, p) = (scene.cells.len(), scene.numerics.order);
         let bytes = cells as f64 * cell_preconditioner::bytes_per_cell(p) as f64;
+        let reason = if susp.operator_storage() == Some(OperatorStorage::MatrixFree) {
+            "matrix-free operators keep the sphere's preconditioner".to_string()
+        } else {
+            format!(
+                "the own preconditioners of {cells} cells at p = {p} need {:.1} GB, more than \
+                 60 % of the available memory allows beside the operators: every cell takes \
+                 the sphere's",
+                bytes / 1e9
+            )
+        };
         effects.push(Effect {
             name: "cell_preconditioner",
             enabled: false,
-            reason: format!(
-                "the own preconditioners of {cells} cells at p = {p} need {:.1} GB, more than \
-                 60 % of the available memory: every cell takes the sphere's",
-                bytes / 1e9
-            ),
+            reason,
         });
     }
     effects
@@ -426,7 +432,8 @@ fn run_effects(scene: &CellScene, susp: &Suspension) -> Vec<Effect> {
 /// Where the cells' operators and preconditioners are kept, within 60 % of the available
 /// memory (8 GiB where it is unknown): the scene's choices, except where they do not fit.
 /// The cells' own preconditioners ((4 n_c)² doubles each, 3.6 MB at `p = 12`) are kept per
-/// cell; where those of all cells do not fit, every cell takes the sphere's (one per order;
+/// cell; where those of all cells do not fit, or leave room only for matrix-free operators
+/// (which do without them), every cell takes the sphere's (shared by the cells of one size;
 /// the summary says so). Then the fastest operator storage that fits what is left
 /// ([`OperatorStorage::for_budget`]: the grid wherever the threads can hold its operators).
 fn memory_plan(
@@ -436,20 +443,27 @@ fn memory_plan(
 ) -> (OperatorStorage, Preconditioning) {
     let p = scene.numerics.order;
     let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+    let threads = rayon::current_num_threads();
+    let auto =
+        |budget| OperatorStorage::for_budget(cells, threads, p, 1 + usize::from(contrast), budget);
     let own = cells as u64 * cell_preconditioner::bytes_per_cell(p) as u64;
-    let preconditioning = match scene.numerics.preconditioning {
-        Preconditioning::Cell { .. } if own > budget => Preconditioning::Sphere,
-        chosen => chosen,
-    };
-    let left = match preconditioning {
-        Preconditioning::Cell { .. } => budget - own,
-        Preconditioning::Sphere => budget,
-    };
-    let storage = scene.numerics.operator_storage.unwrap_or_else(|| {
-        let threads = rayon::current_num_threads();
-        OperatorStorage::for_budget(cells, threads, p, 1 + usize::from(contrast), left)
-    });
-    (storage, preconditioning)
+    if let Preconditioning::Cell { .. } = scene.numerics.preconditioning {
+        // The own preconditioners first; matrix-free operators would drop them anyway.
+        if own <= budget {
+            let storage = scene
+                .numerics
+                .operator_storage
+                .unwrap_or_else(|| auto(budget - own));
+            if storage != OperatorStorage::MatrixFree {
+                return (storage, scene.numerics.preconditioning);
+            }
+        }
+    }
+    let storage = scene
+        .numerics
+        .operator_storage
+        .unwrap_or_else(|| auto(budget));
+    (storage, Preconditioning::Sphere)
 }
 
 /// [`crate::comm::agreed`] with communication failures as [`CellRunError::Comm`].

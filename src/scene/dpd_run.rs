@@ -274,8 +274,8 @@ enum Model {
     Fluid(Box<DpdSystem>),
     Cells(Box<DpdSuspension>),
     /// The fluid stepped on the GPU; the host system holds the state as last synced (at every
-    /// observables row and checkpoint, and at the end); a profile sample reads back only the
-    /// columns it needs.
+    /// observables row and checkpoint, and at the end); a profile sample is binned on the
+    /// device and reads back only the bins' partial sums.
     #[cfg(feature = "gpu")]
     Gpu(Box<DpdSystem>, Box<crate::dpd::gpu_fluid::GpuFluid>),
 }

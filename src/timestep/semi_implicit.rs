@@ -345,8 +345,8 @@ pub struct StepReport {
 
 /// How a cell keeps its self-interaction operators from the assembly to the GMRES iterations
 /// of its step. All three give the same step to the GMRES tolerance (one RBC at `p = 12`, one
-/// core: 0.19 / 0.24 / 2.8 s per step for grid / coefficients / matrix-free;
-/// `benches/RESULTS.md`). The operators are reassembled at every step and read only within
+/// core: 0.14 / 0.14 / 2.7 s per step for grid / coefficients / matrix-free, measured on
+/// different days; `benches/RESULTS.md`). The operators are reassembled at every step and read only within
 /// the cell's own step, so the grid's live in the step engine (one per thread that steps):
 /// it is the fastest and keeps nothing per cell. Coefficient space keeps its compressed
 /// operators per cell (2.0 MB each at `p = 12`); matrix-free keeps none and needs no
@@ -1057,7 +1057,12 @@ impl VesicleStepper {
             (w.membrane.geometry()?.area() / (4.0 * std::f64::consts::PI)).sqrt()
         };
         let viscosity = self.params.viscosity;
-        let (mut s_op, mut d_op) = (Vec::new(), Vec::new());
+        // The cell's operator buffers (with grid storage, the engine's, lent for this step):
+        // the step reassembles them after this rebuild.
+        let (mut s_op, mut d_op) = (
+            std::mem::take(&mut self.s_op),
+            std::mem::take(&mut self.d_op),
+        );
         let single = LayerKernel::SingleLayer { viscosity };
         assemble_operator(engine, self.storage, single, &record.surface, &mut s_op)?;
         if c_d != 0.0 {
@@ -1093,7 +1098,10 @@ impl VesicleStepper {
         if jacobian.is_some() {
             op.enable_jacobian();
         }
-        own_inverse(&op, &engine.sht, a_id)
+        let inverse = own_inverse(&op, &engine.sht, a_id);
+        drop(op);
+        (self.s_op, self.d_op) = (s_op, d_op);
+        inverse
     }
 
     /// One step with explicit terms (the velocity induced by other cells, extra tractions).
@@ -1126,7 +1134,7 @@ impl VesicleStepper {
         let engine: &mut StepEngine = &mut lease;
         // Grid storage: the operators live in the engine (one pair per thread), lent to this
         // cell for its step and handed back whatever the step's outcome.
-        let lent = self.storage == OperatorStorage::Grid;
+        let lent = !storage_keeps_per_cell(self.storage);
         if lent {
             std::mem::swap(&mut self.s_op, &mut engine.grid_single);
             std::mem::swap(&mut self.d_op, &mut engine.grid_double);
@@ -1280,7 +1288,8 @@ impl VesicleStepper {
                 &mut self.d_op,
             )?;
             self.double_layer_assemblies += 1;
-        } else {
+        } else if storage_keeps_per_cell(self.storage) {
+            // No double layer: a kept one is freed (a lent one goes back to the engine).
             self.d_op = Vec::new();
         }
         let storage = self.storage;
@@ -1840,6 +1849,11 @@ fn solve_capsule(
         *zi += s;
     }
     Ok((report, z))
+}
+
+/// Whether `storage` keeps a cell's operators in the cell (not lent by the step engine).
+fn storage_keeps_per_cell(storage: OperatorStorage) -> bool {
+    storage != OperatorStorage::Grid
 }
 
 /// Assemble the dense operator of `kernel` at the surface `coefs` into `out`, kept as `storage`

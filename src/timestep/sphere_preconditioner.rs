@@ -63,8 +63,8 @@
 //! every closed surface), so `A_bb` is singular in that one column; the preconditioner uses
 //! `A_bb + e eᵀ` (`e` the unit vector of the `σ₀₀` coefficient), which changes nothing else.
 //!
-//! **Cost.** Build (once per process for each sphere, shared by all cells of that size and
-//! coefficients through [`shared`]; rebuilt only when `R`, `τ`, `κ`, `μ` or `λ` change, and
+//! **Cost.** Build (once per process for each sphere while cells hold it, shared by all cells
+//! of that size and coefficients through [`shared`]; rebuilt only when `R`, `τ`, `κ`, `μ` or `λ` change, and
 //! the drift correction keeps the area, hence `R`, fixed): `4n_c` applications of the local
 //! operators, one `(3n)² × 4n_c` GEMM with `S` (and one with `D` when `λ ≠ 1`), the rotation
 //! and the block LUs (`Σ_k n_k³`): p = 12 in ≈ 0.45 s. Memory: `Σ_k n_k² = O(p³)` doubles
@@ -81,7 +81,7 @@ use faer::{Accum, Mat, MatMut, MatRef, Par};
 use super::{Preconditioner, TimestepError};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::far_side::FarSideParams;
-use crate::vesicle::layer::{LayerKernel, SelfInteraction};
+use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use crate::vesicle::membrane::Membrane;
 use crate::vesicle::shapes;
 use crate::vesicle::VesicleError;
@@ -144,8 +144,8 @@ pub struct SpherePreconditioner {
     q: usize,
     radius: f64,
     coefs: StepCoefficients,
-    /// The far-side settings of the layer it was assembled with.
-    far_side: FarSideParams,
+    /// The layer it was assembled with: quadrature order, rotation, far-side settings.
+    layer_key: (usize, RotationAlgorithm, FarSideParams),
     sht: ShTransform,
     /// The `x`/`y` coefficient pairs mixed by `Q` (see [`Self::build`]).
     pairs: Vec<[usize; 4]>,
@@ -364,7 +364,7 @@ impl SpherePreconditioner {
             q,
             radius,
             coefs,
-            far_side: layer.far_side_params(),
+            layer_key: layer_key(layer),
             scratch: Mutex::new(vec![Scratch {
                 ws,
                 c: vec![0.0; m],
@@ -428,13 +428,22 @@ impl SpherePreconditioner {
     }
 }
 
+/// What of a layer its operators depend on besides the surface (see [`shared`]).
+fn layer_key(layer: &SelfInteraction) -> (usize, RotationAlgorithm, FarSideParams) {
+    (
+        layer.quadrature_order(),
+        layer.rotation_algorithm(),
+        layer.far_side_params(),
+    )
+}
+
 /// The sphere preconditioners made by [`shared`], while some cell holds them.
 static SHARED: Mutex<Vec<Weak<SpherePreconditioner>>> = Mutex::new(Vec::new());
 
-/// The sphere preconditioner for exactly `(p, q, radius, coefs)` and the layer's far-side
-/// settings, shared by every cell of the process that asks for it: built by the first (with
-/// `membrane` and `layer`, as [`SpherePreconditioner::build`]), then handed out while some
-/// cell holds it. The build is a function of that key alone, so a cell gets the preconditioner
+/// The sphere preconditioner for exactly `(p, q, radius, coefs)` and the layer's quadrature
+/// order, rotation and far-side settings, shared by every cell of the process that asks for
+/// it: built by the first (with `membrane` and `layer`, as [`SpherePreconditioner::build`]),
+/// then handed out while some cell holds it (and built again after the last one lets go). The build is a function of that key alone, so a cell gets the preconditioner
 /// it would have built itself (the same steps bit for bit), and cells of one shape and size pay
 /// for one build (≈ 0.3–0.45 s at p = 12) instead of one each. Threads that ask at the same
 /// moment may each build one; the first kept serves later requests. Returns whether this call
@@ -445,13 +454,13 @@ pub fn shared(
     radius: f64,
     coefs: StepCoefficients,
 ) -> Result<(Arc<SpherePreconditioner>, bool), TimestepError> {
-    let (p, q, far_side) = (
+    let (p, q, layer_key) = (
         membrane.order(),
         membrane.upsampled_order(),
-        layer.far_side_params(),
+        layer_key(layer),
     );
     let same = |m: &SpherePreconditioner| {
-        m.p == p && m.q == q && m.radius == radius && m.coefs == coefs && m.far_side == far_side
+        m.p == p && m.q == q && m.radius == radius && m.coefs == coefs && m.layer_key == layer_key
     };
     let found = SHARED
         .lock()

@@ -344,6 +344,11 @@ impl Suspension {
         }
     }
 
+    /// The storage set by [`Self::set_operator_storage`] (`None`: each stepper's default).
+    pub fn operator_storage(&self) -> Option<OperatorStorage> {
+        self.storage
+    }
+
     /// The preconditioner set by [`Self::set_preconditioning`] (`None`: each stepper's default).
     pub fn preconditioning(&self) -> Option<Preconditioning> {
         self.preconditioning

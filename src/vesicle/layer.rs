@@ -169,6 +169,13 @@ impl SelfInteraction {
     pub fn quadrature_order(&self) -> usize {
         self.q
     }
+    /// The rotation that carries a target to the north pole.
+    pub fn rotation_algorithm(&self) -> RotationAlgorithm {
+        match self.rot {
+            Rotator::Direct(_) => RotationAlgorithm::Direct,
+            Rotator::ViaSh(_) => RotationAlgorithm::ViaSh,
+        }
+    }
     /// Grid points at order `p`.
     pub fn n_points(&self) -> usize {
         self.sht_p.n_points()
