@@ -50,6 +50,15 @@ fn fluid(box_len: [f64; 3], power: f64, body: BodyForce, seed: u64) -> DpdSystem
     DpdSystem::random_fluid(params, 3.0, body).unwrap()
 }
 
+/// `f32`, and `f64` where the adapter has it.
+fn precisions(g: &Gpu) -> Vec<GpuPrecision> {
+    let mut precs = vec![GpuPrecision::F32];
+    if g.has_f64() {
+        precs.push(GpuPrecision::F64);
+    }
+    precs
+}
+
 /// Per-id (position, velocity, force) of a system.
 fn by_id(s: &DpdSystem) -> HashMap<u32, [[f64; 3]; 3]> {
     let p = &s.particles;
@@ -297,10 +306,7 @@ fn f32_wall_flows_keep_their_walls() {
 #[test]
 fn runs_are_reproducible_and_conserve_momentum() {
     let Some(g) = gpu() else { return };
-    let mut precs = vec![GpuPrecision::F32];
-    if g.has_f64() {
-        precs.push(GpuPrecision::F64);
-    }
+    let precs = precisions(&g);
     for prec in precs {
         let start = fluid([6.0, 6.0, 6.0], 1.0, BodyForce::None, 5);
         let p0 = start.momentum();
@@ -637,10 +643,7 @@ fn the_profile_binned_on_the_device_matches_the_hosts_binning() {
     use mobo::dpd::poiseuille::{FlowGeometry, ProfileSampler};
     use mobo::dpd::walls::Wall;
     let Some(g) = gpu() else { return };
-    let mut precs = vec![GpuPrecision::F32];
-    if g.has_f64() {
-        precs.push(GpuPrecision::F64);
-    }
+    let precs = precisions(&g);
     // 1152 + wall particles: more than one chunk of 1024, the last one partial.
     let base = fluid([6.0, 8.0, 8.0], 1.0, BodyForce::None, 7).params;
     let body = BodyForce::Constant([0.5, 0.0, 0.0]);

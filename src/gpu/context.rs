@@ -115,6 +115,22 @@ impl Gpu {
         pipeline
     }
 
+    /// An uninitialised (zeroed) buffer of `size` bytes, at least 16 (a binding may not be
+    /// empty).
+    pub(crate) fn buffer(
+        &self,
+        label: &str,
+        size: usize,
+        usage: wgpu::BufferUsages,
+    ) -> wgpu::Buffer {
+        self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size: size.max(16) as u64,
+            usage,
+            mapped_at_creation: false,
+        })
+    }
+
     /// The bind group of `pipeline`'s group 0 from `(binding, buffer)` pairs (the layout is
     /// derived from the shader, so the pairs must name exactly the bindings it declares).
     pub(crate) fn bind_group(

@@ -197,12 +197,24 @@ fn f32_not_above(x: f64) -> f32 {
 
 /// Split `items` threads of `WG` into a 2-D grid within the device's per-dimension limit.
 fn grid(items: usize, max_groups: u32) -> Result<(u32, u32), GpuError> {
-    let groups = items.div_ceil(WG as usize).max(1);
+    split_groups(items.div_ceil(WG as usize), max_groups, || {
+        format!("{items} threads")
+    })
+}
+
+/// Split `groups` workgroups (at least one) into a 2-D grid within the device's per-dimension
+/// limit; `what` names the work in the error.
+fn split_groups(
+    groups: usize,
+    max_groups: u32,
+    what: impl FnOnce() -> String,
+) -> Result<(u32, u32), GpuError> {
+    let groups = groups.max(1);
     let gx = groups.min(max_groups as usize);
     let gy = groups.div_ceil(gx);
     if gy > max_groups as usize {
         return Err(GpuError::TooManyGroups {
-            what: format!("{items} threads"),
+            what: what(),
             limit: max_groups,
         });
     }
@@ -326,14 +338,7 @@ impl DpdFluidPass {
                 usage: storage,
             })
         };
-        let zeroed = |label: &str, size: usize| {
-            dev.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size.max(16) as u64,
-                usage: storage,
-                mapped_at_creation: false,
-            })
-        };
+        let zeroed = |label: &str, size: usize| gpu.buffer(label, size, storage);
         let pos = init("dpd positions", &pack4(x, Some(moves), precision));
         let vel = init("dpd velocities", &pack4(v, None, precision));
         let frc = init("dpd forces", &pack4(f, None, precision));
@@ -708,31 +713,18 @@ impl DpdFluidPass {
                 limit: gpu.max_binding,
             });
         }
-        let gx = chunks.min(gpu.max_groups as usize).max(1);
-        let gy = chunks.div_ceil(gx).max(1);
-        if gy > gpu.max_groups as usize {
-            return Err(GpuError::TooManyGroups {
-                what: format!("the profile of {} particles", self.n),
-                limit: gpu.max_groups,
-            });
-        }
+        let (gx, gy) = split_groups(chunks, gpu.max_groups, || {
+            format!("the profile of {} particles", self.n)
+        })?;
         let dev = &gpu.device;
-        let buffer = |label: &str, size: usize, usage: wgpu::BufferUsages| {
-            dev.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size.max(16) as u64,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
         let storage = wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC;
-        let sums = buffer("dpd profile sums", sum_bytes, storage);
-        let counts = buffer("dpd profile counts", chunks * bins * 4, storage);
+        let sums = gpu.buffer("dpd profile sums", sum_bytes, storage);
+        let counts = gpu.buffer("dpd profile counts", chunks * bins * 4, storage);
         let ppar: [u32; dpd_profile::PPAR_LEN] = [
             self.n as u32,
             spec.bins,
             spec.radial_center.is_some() as u32,
-            gx as u32,
+            gx,
         ];
         let centre = spec.radial_center.unwrap_or([0.0; 2]);
         let preal = [spec.scale, centre[0], centre[1], 0.0];
@@ -750,7 +742,7 @@ impl DpdFluidPass {
             contents: &preal_bytes,
             usage: wgpu::BufferUsages::STORAGE,
         });
-        let staging = buffer(
+        let staging = gpu.buffer(
             "dpd profile read-back",
             sums.size() as usize + counts.size() as usize + self.ctl.size() as usize,
             wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
@@ -777,7 +769,7 @@ impl DpdFluidPass {
             spec: *spec,
             pipeline,
             bind_group,
-            groups: (gx as u32, gy as u32),
+            groups: (gx, gy),
             chunks,
             sums,
             counts,

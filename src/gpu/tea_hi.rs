@@ -193,19 +193,12 @@ impl GpuTeaHi {
                 });
             }
         }
-        let dev = &gpu.device;
         // SAFETY: indices are in bounds by construction: rows are clamped to `nrows`, rows and
         // sources lie in `0..n` (checked in `rows`), workgroup indices are below WG, and the
         // buffers are sized for `n` particles here.
         let pipeline = unsafe { gpu.trusted_pipeline("tea-hi", &shader(precision)) };
-        let buf = |label: &str, size: usize, usage: wgpu::BufferUsages| {
-            dev.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size.max(16) as u64,
-                usage,
-                mapped_at_creation: false,
-            })
-        };
+        let buf =
+            |label: &str, size: usize, usage: wgpu::BufferUsages| gpu.buffer(label, size, usage);
         use wgpu::BufferUsages as U;
         let pos = buf("positions", pos_bytes, U::STORAGE | U::COPY_DST);
         let fx = buf("forces and noise", 8 * n * rb, U::STORAGE | U::COPY_DST);

@@ -137,6 +137,20 @@ struct Scratch {
     bo: Vec<f64>,
 }
 
+impl Scratch {
+    /// Scratch for `m = 4n_c` coefficients and blocks of up to `largest`.
+    fn new(sht: &ShTransform, m: usize, largest: usize) -> Self {
+        Scratch {
+            ws: sht.workspace(),
+            c: vec![0.0; m],
+            y: vec![0.0; m],
+            pv: vec![0.0; 4 * sht.n_points()],
+            bi: vec![0.0; largest],
+            bo: vec![0.0; largest],
+        }
+    }
+}
+
 /// The inverse step operator of a sphere (see the module docs), a right preconditioner of the
 /// step of a cell of the same area.
 pub struct SpherePreconditioner {
@@ -365,14 +379,7 @@ impl SpherePreconditioner {
             radius,
             coefs,
             layer_key: layer_key(layer),
-            scratch: Mutex::new(vec![Scratch {
-                ws,
-                c: vec![0.0; m],
-                y: vec![0.0; m],
-                pv: vec![0.0; 4 * n],
-                bi: vec![0.0; largest],
-                bo: vec![0.0; largest],
-            }]),
+            scratch: Mutex::new(vec![Scratch::new(&sht, m, largest)]),
             scratch_sizes: (m, largest),
             sht,
             pairs,
@@ -487,14 +494,7 @@ impl Preconditioner for SpherePreconditioner {
         let taken = self.scratch.lock().unwrap_or_else(|e| e.into_inner()).pop();
         let mut scratch = taken.unwrap_or_else(|| {
             let (m, largest) = self.scratch_sizes;
-            Scratch {
-                ws: self.sht.workspace(),
-                c: vec![0.0; m],
-                y: vec![0.0; m],
-                pv: vec![0.0; 4 * self.sht.n_points()],
-                bi: vec![0.0; largest],
-                bo: vec![0.0; largest],
-            }
+            Scratch::new(&self.sht, m, largest)
         });
         self.apply_with(v, z, &mut scratch);
         self.scratch
