@@ -293,3 +293,50 @@ fn fmm_convergence_table() {
         }
     }
 }
+
+/// The M2L run as 8 × 8 sibling blocks (the default) gives the pair-by-pair M2L's values to
+/// round-off, for every kernel shape (1 × 1, 3 × 3, 3 × 4 blocks) on a uniform cloud (blocks
+/// nearly everywhere) and a cell-surface cloud (blocks and pairs mixed), and again with
+/// blocks wherever a parent pair has any pair at all.
+#[test]
+fn sibling_blocked_m2l_matches_the_pairwise_m2l() {
+    let n = 12_000;
+    for cloud in [Cloud::Uniform, Cloud::Spheres] {
+        let pts = cloud.points(n, 5);
+        let nrm = Cloud::Uniform.points(n, 6);
+        for kernel in [
+            FmmKernel::Laplace,
+            FmmKernel::Stokeslet,
+            FmmKernel::Stresslet,
+        ] {
+            let normals = (kernel == FmmKernel::Stresslet).then_some(&nrm[..]);
+            let (dd, od) = (kernel.near().density_dim(), kernel.near().output_dim());
+            let dens = Cloud::densities(n * dd, 7);
+            let mut fmm = Fmm::new(kernel, &pts, normals, &pts, 6, 80).unwrap();
+            let mut run = |dense: usize| {
+                fmm.set_m2l_blocking(dense);
+                let mut u = vec![0.0; n * od];
+                fmm.evaluate(&dens, &mut u).unwrap();
+                u
+            };
+            let (pairs, blocked, everywhere) = (run(usize::MAX), run(16), run(1));
+            let scale = pairs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (name, u) in [("default", &blocked), ("everywhere", &everywhere)] {
+                let err = u
+                    .iter()
+                    .zip(&pairs)
+                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                println!(
+                    "{kernel:?} {}: blocks {name} vs pairs {err:.1e} of {scale:.1e}",
+                    cloud.name()
+                );
+                assert!(
+                    err <= 1e-12 * scale,
+                    "{kernel:?} {} {name}: {err:e}",
+                    cloud.name()
+                );
+                assert_ne!(u, &pairs, "{kernel:?} {}: no block ran", cloud.name());
+            }
+        }
+    }
+}

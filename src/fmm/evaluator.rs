@@ -28,7 +28,8 @@ use super::fit_cache;
 use super::kernels::{
     Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, StokesletSource, Stresslet,
 };
-use super::m2l_fft::{offset_index, FftM2l};
+use super::m2l_fft::FftM2l;
+use super::m2l_plan::{M2lPlan, DENSE_PAIRS};
 use super::near_field::{CpuNearField, NearField, NearList, NearPoints};
 use super::operators::{gemm, Reflection, Translations, DOWN_EQUIV, INNER, UP_CHECK};
 use super::surface::CubeSurface;
@@ -294,6 +295,50 @@ pub struct Fmm {
     near_list: NearList,
     /// The backend that evaluates `near_list` (CPU unless [`Fmm::set_near_field`] chose another).
     near_field: Box<dyn NearField>,
+    /// The least V-list pairs of a parent pair for the M2L to run it as an 8 × 8 block.
+    m2l_dense_pairs: usize,
+}
+
+/// The M2L's source and target spectra by frequency chunk, for one downward pass.
+#[derive(Default)]
+struct M2lBuffers {
+    src: Vec<f64>,
+    tgt: Vec<f64>,
+}
+
+/// `v` with its first `n` values zero (grown if shorter, in huge pages where the system
+/// gives them: a fresh buffer of hundreds of MB costs more in 4 KiB page faults than the
+/// products that fill it).
+fn zeroed(v: &mut Vec<f64>, n: usize) {
+    if v.len() < n {
+        *v = Vec::new();
+        // Zero pages from the allocator (not touched yet), advised before the first touch.
+        *v = vec![0.0; n];
+        advise_huge_pages(v);
+    }
+    v.truncate(n);
+    v.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
+}
+
+/// Ask the kernel for transparent huge pages over the 2 MiB-aligned part of `v` (Linux; a
+/// hint: ignored where not supported).
+fn advise_huge_pages(v: &mut [f64]) {
+    #[cfg(target_os = "linux")]
+    {
+        const HUGE: usize = 2 << 20;
+        let (start, len) = (v.as_mut_ptr() as usize, std::mem::size_of_val(v));
+        let lo = start.next_multiple_of(HUGE);
+        let hi = (start + len) / HUGE * HUGE;
+        if hi > lo {
+            // SAFETY: [lo, hi) lies inside `v`'s allocation; MADV_HUGEPAGE changes only how
+            // the kernel backs those pages, never their contents.
+            unsafe {
+                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE);
+            }
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = v;
 }
 
 /// Per-thread scratch of the leaf phase.
@@ -406,7 +451,15 @@ impl Fmm {
             comm: FmmComm::default(),
             near_list,
             near_field: Box::new(CpuNearField::new(kind.near())),
+            m2l_dense_pairs: DENSE_PAIRS,
         })
+    }
+
+    /// Run the M2L's products as 8 × 8 sibling blocks where a parent pair holds at least
+    /// `dense_pairs` V-list pairs (the default, [`DENSE_PAIRS`]), or pair by pair everywhere
+    /// with `usize::MAX` (the reference the blocks are tested and measured against).
+    pub fn set_m2l_blocking(&mut self, dense_pairs: usize) {
+        self.m2l_dense_pairs = dense_pairs.max(1);
     }
 
     /// The batched near field of this rank's leaves.
@@ -746,6 +799,8 @@ impl Fmm {
         let nc = self.ops.n_check();
         let tree = &self.tree;
         let mut down = vec![0.0; tree.boxes.len() * ne];
+        // The M2L's chunked spectra, reused from level to level (freed with the pass).
+        let mut buffers = M2lBuffers::default();
         for level in 2..tree.depth() as usize {
             let sel: Vec<usize> = (tree.level_start[level]..tree.level_start[level + 1])
                 .filter(|&b| tree.computes_down(b))
@@ -754,7 +809,7 @@ impl Fmm {
                 continue;
             }
             let mut check = vec![0.0; sel.len() * nc];
-            self.m2l_level(&sel, up, &mut check, clock);
+            self.m2l_level(&sel, up, &mut check, &mut buffers, clock);
             let t = Instant::now();
             // P2L: X-list sources at the downward check surfaces.
             check.par_chunks_mut(nc).zip(&sel).for_each_init(
@@ -810,60 +865,64 @@ impl Fmm {
     }
 
     /// M2L into the check potentials of the target boxes `sel` (one level): spectra of the
-    /// V-list sources, blocked Hadamard products per frequency chunk, one inverse FFT per
-    /// target box.
-    fn m2l_level(&self, sel: &[usize], up: &[f64], check: &mut [f64], clock: &PhaseClock) {
+    /// V-list sources, blocked Hadamard products per frequency chunk (8 × 8 sibling blocks in
+    /// uniform regions, pairs elsewhere: [`M2lPlan`]), one inverse FFT per target box.
+    fn m2l_level(
+        &self,
+        sel: &[usize],
+        up: &[f64],
+        check: &mut [f64],
+        buffers: &mut M2lBuffers,
+        clock: &PhaseClock,
+    ) {
         let ne = self.ops.n_equiv();
         let de = self.ops.degrees.len();
         let dt = self.near.output_dim();
         let nc = self.ops.n_check();
         let nf2 = self.m2l.spectrum_len(1);
-        let tree = &self.tree;
         let mut t = Instant::now();
-        // Sources: the V-list boxes with sources; pairs (target, source, compact offset),
-        // sorted by offset so that each kernel block is reused from cache.
-        let mut slot: HashMap<usize, u32> = HashMap::new();
-        let mut srcs: Vec<usize> = Vec::new();
-        let mut pairs: Vec<(u32, u32, u16)> = Vec::new();
-        for (ti, &bx) in sel.iter().enumerate() {
-            let key = tree.boxes[bx].key;
-            for &v in &tree.lists.v[bx] {
-                let vn = &tree.boxes[v];
-                if vn.n_sources == 0 {
-                    continue;
-                }
-                let si = *slot.entry(v).or_insert_with(|| {
-                    srcs.push(v);
-                    (srcs.len() - 1) as u32
-                });
-                let o = self
-                    .m2l
-                    .compact_offset(offset_index(key.offset_from(&vn.key)));
-                pairs.push((ti as u32, si, o as u16));
-            }
-        }
-        if pairs.is_empty() {
+        let plan = M2lPlan::new(&self.tree, &self.m2l, sel, self.m2l_dense_pairs);
+        if plan.blocks.is_empty() && plan.pairs.is_empty() {
             return;
         }
-        pairs.sort_unstable_by_key(|&(t, _, o)| (o, t));
-        let mut spec = vec![0.0; srcs.len() * de * nf2];
-        spec.par_chunks_mut(de * nf2).zip(&srcs).for_each_init(
-            || self.m2l.scratch(),
-            |s, (dst, &bx)| self.m2l.spectrum(&up[bx * ne..(bx + 1) * ne], dst, s),
-        );
-        let nch = self.m2l.n_chunks;
-        let mut src = vec![0.0; nch * srcs.len() * FftM2l::chunk_len(de)];
-        self.m2l.to_chunks(&spec, de, &mut src);
-        drop(spec);
-        t = clock.add(2, t);
+        let (nss, nts) = (plan.n_source_slots, plan.n_target_slots);
         let (sl, tl) = (FftM2l::chunk_len(de), FftM2l::chunk_len(dt));
-        let nt = sel.len();
-        let mut tgt = vec![0.0; nch * nt * tl];
-        tgt.par_chunks_mut(nt * tl)
-            .zip(src.par_chunks(srcs.len() * sl))
+        let nch = self.m2l.n_chunks;
+        // The chunked spectra of sources and targets, in buffers kept from level to level:
+        // fresh ones of this size (hundreds of MB) cost more in page faults than the products.
+        let M2lBuffers { src, tgt } = buffers;
+        zeroed(src, nch * nss * sl);
+        zeroed(tgt, nch * nts * tl);
+        // Spectra of the sources, a batch at a time, scattered into their slots.
+        const BATCH: usize = 256;
+        let mut batch = vec![0.0; BATCH.min(plan.sources.len()) * de * nf2];
+        for part in plan.sources.chunks(BATCH) {
+            batch[..part.len() * de * nf2]
+                .par_chunks_mut(de * nf2)
+                .zip(part)
+                .for_each_init(
+                    || self.m2l.scratch(),
+                    |s, (dst, &(_, bx))| self.m2l.spectrum(&up[bx * ne..(bx + 1) * ne], dst, s),
+                );
+            let slots: Vec<u32> = part.iter().map(|&(slot, _)| slot).collect();
+            self.m2l.to_chunks(&batch, &slots, de, nss, src);
+        }
+        t = clock.add(2, t);
+        tgt.par_chunks_mut(nts * tl)
+            .zip(src.par_chunks(nss * sl))
             .enumerate()
             .for_each(|(c, (tc, sc))| {
-                for &(ti, si, o) in &pairs {
+                let tables: Vec<[&[f64]; 64]> =
+                    (0..27).map(|dp| self.m2l.sibling_blocks(c, dp)).collect();
+                for b in &plan.blocks {
+                    let (t0, s0) = (b.target as usize, b.source as usize);
+                    self.m2l.accumulate_siblings(
+                        &tables[b.dp as usize],
+                        &sc[s0 * sl..(s0 + 8) * sl],
+                        &mut tc[t0 * tl..(t0 + 8) * tl],
+                    );
+                }
+                for &(ti, si, o) in &plan.pairs {
                     let (ti, si) = (ti as usize, si as usize);
                     self.m2l.accumulate_chunk(
                         c,
@@ -873,17 +932,12 @@ impl Fmm {
                     );
                 }
             });
-        drop(src);
         t = clock.add(3, t);
-        let mut has_v = vec![false; nt];
-        for &(ti, _, _) in &pairs {
-            has_v[ti as usize] = true;
-        }
         check.par_chunks_mut(nc).enumerate().for_each_init(
             || (self.m2l.scratch(), vec![0.0; self.m2l.spectrum_len(dt)]),
             |(s, sp), (i, col)| {
-                if has_v[i] {
-                    self.m2l.from_chunks(&tgt, nt, i, dt, sp);
+                if let Some(slot) = plan.target_slot[i] {
+                    self.m2l.from_chunks(tgt, nts, slot as usize, dt, sp);
                     self.m2l.check_values(sp, col, s);
                 }
             },

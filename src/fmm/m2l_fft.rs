@@ -30,6 +30,40 @@ pub fn offset_index(d: [i32; 3]) -> usize {
     ((d[0] + 3) * 49 + (d[1] + 3) * 7 + (d[2] + 3)) as usize
 }
 
+/// Index of the parent offset `Δp ∈ [−1, 1]³` among 27 slots.
+pub fn parent_offset_index(d: [i32; 3]) -> usize {
+    ((d[0] + 1) * 9 + (d[1] + 1) * 3 + (d[2] + 1)) as usize
+}
+
+/// Position of octant `o` in its parent (x bit 2, y bit 1, z bit 0, as
+/// [`super::box_key::BoxKey::octant`]).
+fn octant_position(o: usize) -> [i32; 3] {
+    [(o >> 2) as i32 & 1, (o >> 1) as i32 & 1, o as i32 & 1]
+}
+
+/// The child offsets of every pair of octants for the 27 parent offsets: target child `i` of
+/// a parent at `Δp` from the source's parent, source child `j`, are `2Δp + c_i − c_j` apart.
+fn sibling_tables(compact: &[u16]) -> Vec<[u16; 64]> {
+    (0..27usize)
+        .map(|slot| {
+            let dp = [
+                slot as i32 / 9 - 1,
+                (slot as i32 / 3) % 3 - 1,
+                slot as i32 % 3 - 1,
+            ];
+            let mut t = [u16::MAX; 64];
+            for (ij, e) in t.iter_mut().enumerate() {
+                let (ci, cj) = (octant_position(ij / 8), octant_position(ij % 8));
+                let d = [0, 1, 2].map(|k| 2 * dp[k] + ci[k] - cj[k]);
+                if d.iter().any(|c| c.abs() >= 2) {
+                    *e = compact[offset_index(d)];
+                }
+            }
+            t
+        })
+        .collect()
+}
+
 /// Scratch buffers of one thread.
 pub struct FftScratch {
     grid: Vec<Complex64>,
@@ -49,6 +83,12 @@ pub struct FftM2l {
     kernel_chunks: Vec<f64>,
     /// Compact index (0..316) of each of the 343 offset slots.
     compact: Vec<u16>,
+    /// Per parent offset `Δp ∈ [−1, 1]³` (27 slots, [`parent_offset_index`]): the compact
+    /// child offset of target octant `i` and source octant `j` at `8 i + j`, `u16::MAX` where
+    /// the children touch (no M2L between them).
+    siblings: Vec<[u16; 64]>,
+    /// One kernel block of zeros (`dt · de · 2 · CHUNK`), standing in for touching children.
+    zeros: Vec<f64>,
     /// Number of frequency chunks.
     pub n_chunks: usize,
     lattice: Vec<[usize; 3]>,
@@ -81,6 +121,8 @@ impl FftM2l {
             de,
             kernel_chunks: Vec::new(),
             compact: vec![u16::MAX; 343],
+            siblings: Vec::new(),
+            zeros: vec![0.0; dt * de * 2 * CHUNK],
             n_chunks: nf.div_ceil(CHUNK),
             lattice: surf.lattice.clone(),
             fwd,
@@ -138,6 +180,7 @@ impl FftM2l {
         for (k, d) in offsets.iter().enumerate() {
             m2l.compact[offset_index(*d)] = k as u16;
         }
+        m2l.siblings = sibling_tables(&m2l.compact);
         // The chunked layout (chunk × offset × block × [re; CHUNK][im; CHUNK]), chunks in
         // parallel.
         let per_chunk = offsets.len() * nblk * 2 * CHUNK;
@@ -247,23 +290,30 @@ impl FftM2l {
         comps * 2 * CHUNK
     }
 
-    /// Reorder per-box spectra (`boxes × comps × [re; nf][im; nf]`) into frequency chunks
-    /// (`chunk × boxes × comps × [re; CHUNK][im; CHUNK]`, zero-padded).
-    pub fn to_chunks(&self, per_box: &[f64], comps: usize, out: &mut [f64]) {
+    /// Scatter per-box spectra (`boxes × comps × [re; nf][im; nf]`) into slots `slots[k]` of
+    /// chunked storage of `nslots` slots (`chunk × slot × comps × [re; CHUNK][im; CHUNK]`; the
+    /// padding of the last chunk and other slots are left as they are), chunks in parallel.
+    pub fn to_chunks(
+        &self,
+        per_box: &[f64],
+        slots: &[u32],
+        comps: usize,
+        nslots: usize,
+        out: &mut [f64],
+    ) {
         let nf = self.nf;
-        let nbox = per_box.len() / (comps * 2 * nf);
-        let per_chunk = nbox * comps * 2 * CHUNK;
+        let per_chunk = nslots * comps * 2 * CHUNK;
         out.par_chunks_mut(per_chunk)
             .enumerate()
             .for_each(|(c, dst)| {
                 let f0 = c * CHUNK;
                 let len = CHUNK.min(nf - f0);
-                for bx in 0..nbox {
+                for (bx, &slot) in slots.iter().enumerate() {
                     for k in 0..comps {
                         let src =
                             &per_box[(bx * comps + k) * 2 * nf..(bx * comps + k + 1) * 2 * nf];
-                        let d = &mut dst
-                            [(bx * comps + k) * 2 * CHUNK..(bx * comps + k + 1) * 2 * CHUNK];
+                        let at = (slot as usize * comps + k) * 2 * CHUNK;
+                        let d = &mut dst[at..at + 2 * CHUNK];
                         d[..len].copy_from_slice(&src[f0..f0 + len]);
                         d[CHUNK..CHUNK + len].copy_from_slice(&src[nf + f0..nf + f0 + len]);
                     }
@@ -302,6 +352,33 @@ impl FftM2l {
         let base = c * per_chunk + o * nblk * 2 * CHUNK;
         let g = &self.kernel_chunks[base..base + nblk * 2 * CHUNK];
         hadamard(g, source, target, self.dt, self.de);
+    }
+
+    /// The kernel blocks of frequency chunk `c` between the 8 children of a target box and the
+    /// 8 children of a source box at parent offset slot `dp` ([`parent_offset_index`]), at
+    /// `8 i + j` for target octant `i` and source octant `j`: zeros where the children touch.
+    pub fn sibling_blocks(&self, c: usize, dp: usize) -> [&[f64]; 64] {
+        let nblk = self.dt * self.de;
+        let per_chunk = self.kernel_chunks.len() / self.n_chunks;
+        let len = nblk * 2 * CHUNK;
+        self.siblings[dp].map(|o| {
+            if o == u16::MAX {
+                &self.zeros[..]
+            } else {
+                let base = c * per_chunk + o as usize * len;
+                &self.kernel_chunks[base..base + len]
+            }
+        })
+    }
+
+    /// Within one frequency chunk, the M2L between all children of two boxes:
+    /// `target[i] += Σ_j Ĝ_{ij} · source[j]` for the 8 target octants `i` and 8 source octants
+    /// `j` (`g` from [`FftM2l::sibling_blocks`]; `source`: `8 × de` chunk slices, zeros for
+    /// absent children; `target`: `8 × dt`). The same sums as [`FftM2l::accumulate_chunk`] over
+    /// the pairs, with each target's chunk kept in registers over its 64 partners (the products
+    /// of Malhotra & Biros 2015 blocked by siblings).
+    pub fn accumulate_siblings(&self, g: &[&[f64]; 64], source: &[f64], target: &mut [f64]) {
+        siblings(g, source, target, self.dt, self.de);
     }
 
     /// Fresh scratch buffers.
@@ -493,6 +570,123 @@ fn hadamard_generic<const DT: usize, const DE: usize>(g: &[f64], src: &[f64], tg
     hadamard_body::<DT, DE>(g, src, tgt)
 }
 
+/// `c + a·b`, fused where the caller is compiled for FMA.
+#[inline(always)]
+fn madd<const FMA: bool>(a: f64, b: f64, c: f64) -> f64 {
+    if FMA {
+        a.mul_add(b, c)
+    } else {
+        a * b + c
+    }
+}
+
+/// The `CHUNK` values of `s` from `at`.
+#[inline(always)]
+fn lane(s: &[f64], at: usize) -> &[f64; CHUNK] {
+    s[at..at + CHUNK].try_into().expect("a chunk")
+}
+
+/// `t[i][a] += Σ_j Σ_b g[8i + j][a][b] · s[j][b]` over `CHUNK` complex frequencies, for the 8
+/// target and 8 source octants of two sibling groups; each target component is summed in
+/// local arrays (registers) over its 8 · `DE` partners, then added once.
+#[inline(always)]
+fn siblings_body<const DT: usize, const DE: usize, const FMA: bool>(
+    g: &[&[f64]; 64],
+    src: &[f64],
+    tgt: &mut [f64],
+) {
+    const F: usize = CHUNK;
+    let src = &src[..8 * DE * 2 * F];
+    let tgt = &mut tgt[..8 * DT * 2 * F];
+    for (i, ti) in tgt.chunks_exact_mut(DT * 2 * F).enumerate() {
+        for a in 0..DT {
+            let (mut re, mut im) = ([0.0; F], [0.0; F]);
+            for j in 0..8 {
+                let gij = g[8 * i + j];
+                for b in 0..DE {
+                    let o = (a * DE + b) * 2 * F;
+                    let (gr, gi) = (lane(gij, o), lane(gij, o + F));
+                    let so = (j * DE + b) * 2 * F;
+                    let (sr, si) = (lane(src, so), lane(src, so + F));
+                    for f in 0..F {
+                        re[f] = madd::<FMA>(gr[f], sr[f], re[f]);
+                        re[f] = madd::<FMA>(-gi[f], si[f], re[f]);
+                        im[f] = madd::<FMA>(gr[f], si[f], im[f]);
+                        im[f] = madd::<FMA>(gi[f], sr[f], im[f]);
+                    }
+                }
+            }
+            let (tre, tim) = ti[a * 2 * F..(a + 1) * 2 * F].split_at_mut(F);
+            for f in 0..F {
+                tre[f] += re[f];
+                tim[f] += im[f];
+            }
+        }
+    }
+}
+
+fn siblings_generic<const DT: usize, const DE: usize>(
+    g: &[&[f64]; 64],
+    src: &[f64],
+    tgt: &mut [f64],
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        unsafe fn avx512<const DT: usize, const DE: usize>(
+            g: &[&[f64]; 64],
+            s: &[f64],
+            t: &mut [f64],
+        ) {
+            siblings_body::<DT, DE, true>(g, s, t)
+        }
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn avx2<const DT: usize, const DE: usize>(
+            g: &[&[f64]; 64],
+            s: &[f64],
+            t: &mut [f64],
+        ) {
+            siblings_body::<DT, DE, true>(g, s, t)
+        }
+        if std::arch::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU supports AVX-512F (checked just above; AVX2 and FMA come with
+            // every AVX-512 CPU).
+            unsafe { avx512::<DT, DE>(g, src, tgt) };
+            return;
+        }
+        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        {
+            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+            unsafe { avx2::<DT, DE>(g, src, tgt) };
+            return;
+        }
+    }
+    siblings_body::<DT, DE, false>(g, src, tgt)
+}
+
+/// [`siblings_body`] for the kernels' shapes, any other shape through the pair-by-pair sum.
+fn siblings(g: &[&[f64]; 64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize) {
+    match (dt, de) {
+        (1, 1) => siblings_generic::<1, 1>(g, src, tgt),
+        (3, 3) => siblings_generic::<3, 3>(g, src, tgt),
+        (3, 4) => siblings_generic::<3, 4>(g, src, tgt),
+        _ => {
+            let (sl, tl) = (de * 2 * CHUNK, dt * 2 * CHUNK);
+            for i in 0..8 {
+                for j in 0..8 {
+                    hadamard(
+                        g[8 * i + j],
+                        &src[j * sl..(j + 1) * sl],
+                        &mut tgt[i * tl..(i + 1) * tl],
+                        dt,
+                        de,
+                    );
+                }
+            }
+        }
+    }
+}
+
 /// `target[a] += Σ_b Ĝ[a][b] · source[b]` on one frequency chunk.
 fn hadamard(g: &[f64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize) {
     match (dt, de) {
@@ -541,6 +735,68 @@ mod tests {
                 .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
             assert_eq!(a.kernel_chunks.len(), b.kernel_chunks.len());
             assert!(err <= 1e-13 * scale, "{}: {err:e} of {scale:e}", ke.name());
+        }
+    }
+
+    /// The 8 × 8 sibling products equal the pair-by-pair products over the children that do
+    /// not touch, for every parent offset and every kernel shape.
+    #[test]
+    fn sibling_blocks_equal_the_pairwise_products() {
+        let kernels: [&dyn Kernel; 3] = [&Laplace, &Stokeslet, &StokesletSource];
+        for ke in kernels {
+            let m2l = FftM2l::new(ke, &CubeSurface::new(4));
+            let (de, dt) = (ke.density_dim(), ke.output_dim());
+            let (sl, tl) = (FftM2l::chunk_len(de), FftM2l::chunk_len(dt));
+            let mut seed = 1u64;
+            let mut next = || {
+                seed = seed
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+            };
+            let src: Vec<f64> = (0..8 * sl).map(|_| next()).collect();
+            let start: Vec<f64> = (0..8 * tl).map(|_| next()).collect();
+            for dp in (0..27).filter(|&d| d != 13) {
+                for c in [0, m2l.n_chunks - 1] {
+                    let mut blocked = start.clone();
+                    m2l.accumulate_siblings(&m2l.sibling_blocks(c, dp), &src, &mut blocked);
+                    let mut pairs = start.clone();
+                    let dpv = [
+                        dp as i32 / 9 - 1,
+                        (dp as i32 / 3) % 3 - 1,
+                        dp as i32 % 3 - 1,
+                    ];
+                    let mut n = 0;
+                    for i in 0..8 {
+                        for j in 0..8 {
+                            let (ci, cj) = (octant_position(i), octant_position(j));
+                            let d = [0, 1, 2].map(|k| 2 * dpv[k] + ci[k] - cj[k]);
+                            if d.iter().all(|x| x.abs() <= 1) {
+                                continue;
+                            }
+                            n += 1;
+                            let o = m2l.compact_offset(offset_index(d));
+                            m2l.accumulate_chunk(
+                                c,
+                                o,
+                                &src[j * sl..(j + 1) * sl],
+                                &mut pairs[i * tl..(i + 1) * tl],
+                            );
+                        }
+                    }
+                    assert!((48..=63).contains(&n), "parent offset {dpv:?}: {n} pairs");
+                    let scale = pairs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+                    let err = blocked
+                        .iter()
+                        .zip(&pairs)
+                        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                    assert!(
+                        err <= 64.0 * f64::EPSILON * scale,
+                        "{} dp {dpv:?} chunk {c}: {err:e} of {scale:e}",
+                        ke.name()
+                    );
+                }
+            }
         }
     }
 }

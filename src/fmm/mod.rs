@@ -39,6 +39,7 @@ pub mod gpu_near;
 pub mod kernels;
 pub mod kifmm;
 pub mod m2l_fft;
+pub mod m2l_plan;
 pub mod near_field;
 pub mod octree;
 pub mod operators;
