@@ -2,30 +2,31 @@
 //! tool; "M2L at ≥ 50 % of its roofline, GEMM or memory bandwidth").
 //!
 //! ```text
-//! cargo run --release --example m2l_roofline [-- BOXES REPEATS]
+//! cargo run --release --example m2l_roofline [-- SIDE REPEATS]
 //! ```
 //!
 //! The M2L of [`mobo::fmm::m2l_fft`] multiplies, for every frequency chunk and every
 //! (target box, source box) pair of a V list, a `dt × de` block of kernel spectra by the source's
 //! spectrum chunk and adds it to the target's: `8 dt de` flops per frequency (complex
-//! multiply-add), 32 frequencies per chunk. This runs exactly that loop
-//! ([`FftM2l::accumulate_chunk`] over every chunk, pairs sorted by offset then target as the
-//! evaluator sorts them) on the real kernel spectra at the order of 6 digits, for `BOXES`
-//! targets and sources (default 4096, a level of a 10⁶-point tree) with 189 random V-list
-//! partners each, and reports:
+//! multiply-add), 32 frequencies per chunk. This runs, on the real kernel spectra at the order
+//! of 6 digits, the V lists of one full level of `SIDE³` boxes (default 16: 4096 boxes, the
+//! finest level of a uniform 2·10⁵-point tree) two ways:
 //!
-//! * the flop rate against faer's one-thread GEMM rate measured in the same run (the compute
-//!   roof);
-//! * the bytes it streams per call, the source and target chunks (`(de + 2 dt)·2·32·8` bytes;
-//!   the kernel block of an offset stays in cache while the pairs of that offset run), against
-//!   the one-thread triad bandwidth measured in the same run, from memory and from cache (one
-//!   chunk's source and target slices, a few MB, stay in the last-level cache while its pairs
-//!   run): `roof = min(GEMM, AI × cache bandwidth)`.
+//! * **pairs**: [`FftM2l::accumulate_chunk`] for every pair, sorted by offset then target;
+//! * **8 × 8 blocks**: [`FftM2l::accumulate_siblings`] for every pair of neighbouring parents
+//!   (the evaluator's default in uniform regions; 64 products per block, zeros for touching
+//!   children), sorted by target.
+//!
+//! Rates count the useful flops (the V-list pairs') either way, against faer's one-thread GEMM
+//! rate and the one-thread triad bandwidth measured in the same run:
+//! `roof = min(GEMM, AI × cache bandwidth)`, the arithmetic intensity from the source and
+//! target slices each call streams (a pair: `(de + 2 dt)·2·32·8` bytes; a block: 8 times that
+//! for its pairs).
 use faer::Par;
 use mobo::fmm::calibration::order_for_digits;
 use mobo::fmm::evaluator::FmmKernel;
 use mobo::fmm::kernels::{Kernel, Laplace, Stokeslet};
-use mobo::fmm::m2l_fft::{offset_index, FftM2l, CHUNK};
+use mobo::fmm::m2l_fft::{offset_index, parent_offset_index, FftM2l, CHUNK};
 use mobo::fmm::surface::CubeSurface;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -48,9 +49,82 @@ fn triad_bandwidth(n: usize) -> f64 {
     24.0 * n as f64 / t / 1e9
 }
 
+/// One full level of a uniform tree: `side³` boxes (`side` even) in Morton-like order, the
+/// 8 children of a parent in consecutive slots.
+struct Lattice {
+    side: usize,
+}
+
+impl Lattice {
+    fn new(side: usize) -> Self {
+        Lattice { side: side.max(4) / 2 * 2 }
+    }
+
+    fn boxes(&self) -> usize {
+        self.side.pow(3)
+    }
+
+    /// Slot of the box at integer position `x`: parent index times 8 plus the octant.
+    fn slot(&self, x: [usize; 3]) -> usize {
+        let h = self.side / 2;
+        let parent = (x[0] / 2 * h + x[1] / 2) * h + x[2] / 2;
+        8 * parent + ((x[0] & 1) << 2 | (x[1] & 1) << 1 | (x[2] & 1))
+    }
+
+    fn positions(&self) -> impl Iterator<Item = [usize; 3]> + '_ {
+        let n = self.side;
+        (0..n).flat_map(move |i| (0..n).flat_map(move |j| (0..n).map(move |k| [i, j, k])))
+    }
+
+    /// `(target slot, source slot, offset)` of every V-list pair: children of the parent's
+    /// colleagues that do not touch the target.
+    fn v_pairs(&self) -> impl Iterator<Item = (usize, usize, [i32; 3])> + '_ {
+        let n = self.side as i32;
+        self.positions().flat_map(move |x| {
+            let p = x.map(|c| (c / 2) as i32);
+            let mut out = Vec::new();
+            for d in 0..27 {
+                let q = [p[0] + d / 9 - 1, p[1] + (d / 3) % 3 - 1, p[2] + d % 3 - 1];
+                if q.iter().any(|&c| c < 0 || 2 * c >= n) || q == p {
+                    continue;
+                }
+                for o in 0..8 {
+                    let y = [2 * q[0] + (o >> 2 & 1), 2 * q[1] + (o >> 1 & 1), 2 * q[2] + (o & 1)];
+                    let off = [0, 1, 2].map(|k| x[k] as i32 - y[k]);
+                    if off.iter().any(|c| c.abs() >= 2) {
+                        out.push((self.slot(x), self.slot(y.map(|c| c as usize)), off));
+                    }
+                }
+            }
+            out
+        })
+    }
+
+    /// `(first target slot, first source slot, parent offset slot)` of every pair of
+    /// neighbouring parents, by target.
+    fn sibling_blocks(&self) -> Vec<(usize, usize, usize)> {
+        let h = (self.side / 2) as i32;
+        let mut out = Vec::new();
+        for p in 0..h.pow(3) {
+            let pp = [p / (h * h), (p / h) % h, p % h];
+            for d in (0..27).filter(|&d| d != 13) {
+                let q = [pp[0] + d / 9 - 1, pp[1] + (d / 3) % 3 - 1, pp[2] + d % 3 - 1];
+                if q.iter().any(|&c| c < 0 || c >= h) {
+                    continue;
+                }
+                let qi = (q[0] * h + q[1]) * h + q[2];
+                // Parent offset target − source, as a slot of [−1, 1]³.
+                let dp = [0, 1, 2].map(|k| pp[k] - q[k]);
+                out.push((8 * p as usize, 8 * qi as usize, parent_offset_index(dp)));
+            }
+        }
+        out
+    }
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
-    let boxes: usize = a.first().map_or(Ok(4096), |s| s.parse())?;
+    let side: usize = a.first().map_or(Ok(16), |s| s.parse())?;
     let reps: usize = a.get(1).map_or(Ok(3), |s| s.parse())?;
     let gemm = gemm_rate(1024, Par::Seq);
     // Memory (3 × 32 MB) and cache (3 × 2 MB: the size of one chunk's source and target
@@ -59,40 +133,34 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let bw_cache = triad_bandwidth(1 << 18);
     println!(
         "one core: faer GEMM {gemm:.1} GFLOP/s, triad {bw:.1} GB/s (memory), {bw_cache:.1} GB/s \
-         (3 × 2 MB, cache); {boxes} target and source boxes, 189 V-list pairs each"
+         (3 × 2 MB, cache); one level of {side}³ boxes, their V lists"
     );
     println!();
-    println!("| kernel | order | dt × de | chunks | chunk slices (MB) | GFLOP/s | % of GEMM | AI (flop/B) | AI × memory | AI × cache | roof min(GEMM, AI × cache) | % of roof |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
-    let offsets: Vec<[i32; 3]> = (-3i32..=3)
-        .flat_map(|x| (-3i32..=3).flat_map(move |y| (-3i32..=3).map(move |z| [x, y, z])))
-        .filter(|d| d[0].abs().max(d[1].abs()).max(d[2].abs()) >= 2)
-        .collect();
+    println!("| kernel | order | dt × de | chunks | loop | useful GFLOP/s | % of GEMM | AI (flop/B) | roof min(GEMM, AI × cache) | % of roof | time (s) |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|");
     let cases: [(&str, FmmKernel, &dyn Kernel); 2] = [
         ("Laplace", FmmKernel::Laplace, &Laplace),
         ("Stokeslet", FmmKernel::Stokeslet, &Stokeslet),
     ];
+    let lattice = Lattice::new(side);
     for (name, fk, ke) in cases {
         let p = order_for_digits(fk, 6)?;
         let m2l = FftM2l::new(ke, &CubeSurface::new(p));
         let (dt, de) = (ke.output_dim(), ke.density_dim());
         let (sl, tl) = (FftM2l::chunk_len(de), FftM2l::chunk_len(dt));
-        let nch = m2l.n_chunks;
+        let (nch, boxes) = (m2l.n_chunks, lattice.boxes());
         let mut rng = StdRng::seed_from_u64(7);
-        // (target, source, compact offset): 189 distinct partners per target.
-        let mut pairs: Vec<(u32, u32, u16)> = Vec::with_capacity(boxes * 189);
-        for t in 0..boxes {
-            for k in 0..189 {
-                let o = m2l.compact_offset(offset_index(offsets[(t + k * 5) % offsets.len()]));
-                pairs.push((t as u32, rng.random_range(0..boxes) as u32, o as u16));
-            }
-        }
-        pairs.sort_unstable_by_key(|&(t, _, o)| (o, t));
         let src: Vec<f64> = (0..nch * boxes * sl)
             .map(|_| rng.random::<f64>() - 0.5)
             .collect();
         let mut tgt = vec![0.0; nch * boxes * tl];
-        let secs = best_of(reps, 0.0, || {
+        // Pairs: (target, source, compact offset), sorted by offset then target.
+        let mut pairs: Vec<(u32, u32, u16)> = lattice
+            .v_pairs()
+            .map(|(t, s, d)| (t as u32, s as u32, m2l.compact_offset(offset_index(d)) as u16))
+            .collect();
+        pairs.sort_unstable_by_key(|&(t, _, o)| (o, t));
+        let pair_secs = best_of(reps, 0.0, || {
             for c in 0..nch {
                 let sc = &src[c * boxes * sl..(c + 1) * boxes * sl];
                 let tc = &mut tgt[c * boxes * tl..(c + 1) * boxes * tl];
@@ -108,19 +176,38 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             std::hint::black_box(&tgt);
         });
-        let calls = (nch * pairs.len()) as f64;
-        let flops = 8.0 * (dt * de * CHUNK) as f64 * calls;
-        let rate = flops / secs / 1e9;
-        let ai = (8 * dt * de * CHUNK) as f64 / (8 * (sl + 2 * tl)) as f64;
-        let roof = gemm.min(ai * bw_cache);
-        let slices_mb = (boxes * (sl + tl) * 8) as f64 / 1e6;
-        println!(
-            "| {name} | {p} | {dt} × {de} | {nch} | {slices_mb:.1} | {rate:.2} | {:.0} % | {ai:.3} | {:.2} | {:.2} | {roof:.2} | {:.0} % |",
-            100.0 * rate / gemm,
-            ai * bw,
-            ai * bw_cache,
-            100.0 * rate / roof
-        );
+        // Blocks: (first target slot, first source slot, parent offset slot), by target.
+        let blocks = lattice.sibling_blocks();
+        let block_secs = best_of(reps, 0.0, || {
+            for c in 0..nch {
+                let sc = &src[c * boxes * sl..(c + 1) * boxes * sl];
+                let tc = &mut tgt[c * boxes * tl..(c + 1) * boxes * tl];
+                let tables: Vec<[&[f64]; 64]> =
+                    (0..27).map(|dp| m2l.sibling_blocks(c, dp)).collect();
+                for &(t0, s0, dp) in &blocks {
+                    m2l.accumulate_siblings(
+                        &tables[dp],
+                        &sc[s0 * sl..(s0 + 8) * sl],
+                        &mut tc[t0 * tl..(t0 + 8) * tl],
+                    );
+                }
+            }
+            std::hint::black_box(&tgt);
+        });
+        // Useful flops: the V-list pairs' products, either way.
+        let flops = 8.0 * (dt * de * CHUNK) as f64 * (nch * pairs.len()) as f64;
+        let pair_ai = (8 * dt * de * CHUNK) as f64 / (8 * (sl + 2 * tl)) as f64;
+        // A block streams 8 source and 8 target slices (read and write) for its pairs.
+        let block_ai = flops / (nch * blocks.len() * 8 * (8 * (sl + 2 * tl))) as f64;
+        for (what, secs, ai) in [("pairs", pair_secs, pair_ai), ("8 × 8 blocks", block_secs, block_ai)] {
+            let rate = flops / secs / 1e9;
+            let roof = gemm.min(ai * bw_cache);
+            println!(
+                "| {name} | {p} | {dt} × {de} | {nch} | {what} | {rate:.2} | {:.0} % | {ai:.2} | {roof:.2} | {:.0} % | {secs:.3} |",
+                100.0 * rate / gemm,
+                100.0 * rate / roof
+            );
+        }
     }
     Ok(())
 }
