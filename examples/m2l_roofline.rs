@@ -57,7 +57,9 @@ struct Lattice {
 
 impl Lattice {
     fn new(side: usize) -> Self {
-        Lattice { side: side.max(4) / 2 * 2 }
+        Lattice {
+            side: side.max(4) / 2 * 2,
+        }
     }
 
     fn boxes(&self) -> usize {
@@ -89,7 +91,11 @@ impl Lattice {
                     continue;
                 }
                 for o in 0..8 {
-                    let y = [2 * q[0] + (o >> 2 & 1), 2 * q[1] + (o >> 1 & 1), 2 * q[2] + (o & 1)];
+                    let y = [
+                        2 * q[0] + (o >> 2 & 1),
+                        2 * q[1] + (o >> 1 & 1),
+                        2 * q[2] + (o & 1),
+                    ];
                     let off = [0, 1, 2].map(|k| x[k] as i32 - y[k]);
                     if off.iter().any(|c| c.abs() >= 2) {
                         out.push((self.slot(x), self.slot(y.map(|c| c as usize)), off));
@@ -108,7 +114,11 @@ impl Lattice {
         for p in 0..h.pow(3) {
             let pp = [p / (h * h), (p / h) % h, p % h];
             for d in (0..27).filter(|&d| d != 13) {
-                let q = [pp[0] + d / 9 - 1, pp[1] + (d / 3) % 3 - 1, pp[2] + d % 3 - 1];
+                let q = [
+                    pp[0] + d / 9 - 1,
+                    pp[1] + (d / 3) % 3 - 1,
+                    pp[2] + d % 3 - 1,
+                ];
                 if q.iter().any(|&c| c < 0 || c >= h) {
                     continue;
                 }
@@ -157,7 +167,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // Pairs: (target, source, compact offset), sorted by offset then target.
         let mut pairs: Vec<(u32, u32, u16)> = lattice
             .v_pairs()
-            .map(|(t, s, d)| (t as u32, s as u32, m2l.compact_offset(offset_index(d)) as u16))
+            .map(|(t, s, d)| {
+                (
+                    t as u32,
+                    s as u32,
+                    m2l.compact_offset(offset_index(d)) as u16,
+                )
+            })
             .collect();
         pairs.sort_unstable_by_key(|&(t, _, o)| (o, t));
         let pair_secs = best_of(reps, 0.0, || {
@@ -199,7 +215,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let pair_ai = (8 * dt * de * CHUNK) as f64 / (8 * (sl + 2 * tl)) as f64;
         // A block streams 8 source and 8 target slices (read and write) for its pairs.
         let block_ai = flops / (nch * blocks.len() * 8 * (8 * (sl + 2 * tl))) as f64;
-        for (what, secs, ai) in [("pairs", pair_secs, pair_ai), ("8 × 8 blocks", block_secs, block_ai)] {
+        for (what, secs, ai) in [
+            ("pairs", pair_secs, pair_ai),
+            ("8 × 8 blocks", block_secs, block_ai),
+        ] {
             let rate = flops / secs / 1e9;
             let roof = gemm.min(ai * bw_cache);
             println!(
