@@ -10,7 +10,7 @@
 //! spectrum chunk and adds it to the target's: `8 dt de` flops per frequency (complex
 //! multiply-add), 32 frequencies per chunk. This runs, on the real kernel spectra at the order
 //! of 6 digits, the V lists of one full level of `SIDE³` boxes (default 16: 4096 boxes, the
-//! finest level of a uniform 2·10⁵-point tree) two ways:
+//! finest level of a uniform 10⁶-point tree at the default leaf size) two ways:
 //!
 //! * **pairs**: [`FftM2l::accumulate_chunk`] for every pair, sorted by offset then target;
 //! * **8 × 8 blocks**: [`FftM2l::accumulate_siblings`] for every pair of neighbouring parents

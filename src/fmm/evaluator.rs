@@ -5,8 +5,12 @@
 //!
 //! 1. **P2M** (leaves) and **M2M**, level by level upwards: upward check potentials fitted by
 //!    the factored pseudo-inverse; densities normalised per level ([`super::operators`]).
-//! 2. **M2L** by FFT ([`super::m2l_fft`]): spectra of all upward densities, Hadamard products
-//!    summed per target box over its V list, one inverse FFT per target box.
+//! 2. **M2L** by FFT ([`super::m2l_fft`]): spectra of the V-list sources' upward densities,
+//!    Hadamard products summed per target box over its V list (8 × 8 blocks of the children of
+//!    two neighbouring parents where they are dense, pairs elsewhere: [`super::m2l_plan`]), one
+//!    inverse FFT per target box. Which pairs run as blocks depends on the boxes a rank
+//!    computes, and the blocks fuse multiply-adds where the CPU has FMA, so values differ
+//!    between rank counts and CPUs by round-off (the order of a target's sum).
 //! 3. **P2L** (X list) into the same check potentials, then the downward fit and **L2L** from
 //!    the parent, level by level downwards.
 //! 4. **L2P**, **M2P** (W list) and **P2P** (U list) at the leaves.
@@ -306,18 +310,19 @@ struct M2lBuffers {
     tgt: Vec<f64>,
 }
 
-/// `v` with its first `n` values zero (grown if shorter, in huge pages where the system
-/// gives them: a fresh buffer of hundreds of MB costs more in 4 KiB page faults than the
-/// products that fill it).
-fn zeroed(v: &mut Vec<f64>, n: usize) {
+/// The first `n` values of `v`, zeroed (`v` grown to `n` if shorter, in huge pages where the
+/// system gives them: a fresh buffer of hundreds of MB costs more in 4 KiB page faults than
+/// the products that fill it; kept at its largest length, so a later level that fits reuses it).
+fn zeroed(v: &mut Vec<f64>, n: usize) -> &mut [f64] {
     if v.len() < n {
         *v = Vec::new();
         // Zero pages from the allocator (not touched yet), advised before the first touch.
         *v = vec![0.0; n];
         advise_huge_pages(v);
     }
-    v.truncate(n);
-    v.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
+    let head = &mut v[..n];
+    head.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
+    head
 }
 
 /// Ask the kernel for transparent huge pages over the 2 MiB-aligned part of `v` (Linux; a
@@ -799,7 +804,7 @@ impl Fmm {
         let nc = self.ops.n_check();
         let tree = &self.tree;
         let mut down = vec![0.0; tree.boxes.len() * ne];
-        // The M2L's chunked spectra, reused from level to level (freed with the pass).
+        // The M2L's chunked spectra, reused by a level that fits (freed with the pass).
         let mut buffers = M2lBuffers::default();
         for level in 2..tree.depth() as usize {
             let sel: Vec<usize> = (tree.level_start[level]..tree.level_start[level + 1])
@@ -888,11 +893,9 @@ impl Fmm {
         let (nss, nts) = (plan.n_source_slots, plan.n_target_slots);
         let (sl, tl) = (FftM2l::chunk_len(de), FftM2l::chunk_len(dt));
         let nch = self.m2l.n_chunks;
-        // The chunked spectra of sources and targets, in buffers kept from level to level:
-        // fresh ones of this size (hundreds of MB) cost more in page faults than the products.
-        let M2lBuffers { src, tgt } = buffers;
-        zeroed(src, nch * nss * sl);
-        zeroed(tgt, nch * nts * tl);
+        // The chunked spectra of sources and targets (zeros where a slot has no box).
+        let src = zeroed(&mut buffers.src, nch * nss * sl);
+        let tgt = zeroed(&mut buffers.tgt, nch * nts * tl);
         // Spectra of the sources, a batch at a time, scattered into their slots.
         const BATCH: usize = 256;
         let mut batch = vec![0.0; BATCH.min(plan.sources.len()) * de * nf2];

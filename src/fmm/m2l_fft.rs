@@ -11,6 +11,11 @@
 //! (`φ̃ = h^d φ` per component of degree `d`, see [`super::operators`]), so the kernel
 //! spectra `Ĝ_Δ` are computed once, at `h = 1`, for the 316 offsets with `2 ≤ |Δ|∞ ≤ 3`.
 //! Real data: spectra keep the `p + 1` non-negative frequencies of the last axis.
+//!
+//! The products run per chunk of [`CHUNK`] frequencies, pair by pair
+//! ([`FftM2l::accumulate_chunk`]) or for all children of two neighbouring parents at once
+//! ([`FftM2l::accumulate_siblings`]: their child offsets `2Δp + c_i − c_j` take 27 values,
+//! so a block of 64 products reads 27 kernel spectra and 8 source chunks from cache).
 
 use std::sync::Arc;
 
@@ -57,6 +62,7 @@ fn sibling_tables(compact: &[u16]) -> Vec<[u16; 64]> {
                 let d = [0, 1, 2].map(|k| 2 * dp[k] + ci[k] - cj[k]);
                 if d.iter().any(|c| c.abs() >= 2) {
                     *e = compact[offset_index(d)];
+                    debug_assert!(*e != u16::MAX, "offset {d:?} without a spectrum");
                 }
             }
             t
@@ -735,6 +741,23 @@ mod tests {
                 .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
             assert_eq!(a.kernel_chunks.len(), b.kernel_chunks.len());
             assert!(err <= 1e-13 * scale, "{}: {err:e} of {scale:e}", ke.name());
+        }
+    }
+
+    /// `octant_position` is where `BoxKey` puts a child: its anchor is twice its parent's plus
+    /// the position (in child widths), for every octant.
+    #[test]
+    fn octant_positions_follow_the_box_keys() {
+        use crate::fmm::box_key::BoxKey;
+        let parent = BoxKey::from_anchor(3, [3 << 18, 5 << 18, 6 << 18]).expect("in the cube");
+        let pa = parent.anchor();
+        for o in 0..8 {
+            let c = octant_position(o);
+            let w = parent.width() / 2;
+            let anchor = [0, 1, 2].map(|k| (pa[k] + c[k] as u64 * w) as i64);
+            let child = BoxKey::from_anchor(4, anchor).expect("in the cube");
+            assert_eq!(child.octant(), o, "octant {o} at {c:?}");
+            assert_eq!(child.parent(), Some(parent));
         }
     }
 

@@ -12,8 +12,8 @@
 //!
 //! Absent children cost a block of zero products, so the plan runs a `(P, Q)` block only where
 //! it holds at least [`DENSE_PAIRS`] of the level's V-list pairs (uniform regions); the other
-//! pairs run one by one ([`FftM2l::accumulate_chunk`]). Children of a parent in a block get the
-//! 8 consecutive slots `8 s + octant` (zeros where a source child is absent or has no sources);
+//! pairs run one by one ([`FftM2l::accumulate_chunk`]). Children of a parent in a block get 8
+//! consecutive slots, `base + octant` (zeros where a source child is absent or has no sources);
 //! every other box a slot of its own. The sums are the V-list sums exactly: every pair of a
 //! block whose children do not touch is in the V list of the target child (the V list is
 //! defined by that structure), and the absent ones add zeros or land in target slots no one
@@ -51,14 +51,15 @@ pub struct M2lPlan {
     pub sources: Vec<(u32, usize)>,
     /// Source slots in all.
     pub n_source_slots: usize,
-    /// The blocks, sorted by parent offset, then target.
+    /// The blocks, sorted by target, then parent offset (a target's 8 chunks stay in cache
+    /// over its up to 26 blocks).
     pub blocks: Vec<SiblingBlock>,
     /// The pairs run one by one: `(target slot, source slot, compact offset)`, sorted by offset
     /// then target.
     pub pairs: Vec<(u32, u32, u16)>,
 }
 
-/// Slots handed out in order of first use: a parent in a block takes 8 (`8 s + octant` for its
+/// Slots handed out in order of first use: a parent in a block takes 8 (`base + octant` for its
 /// children), any other box one. Indexed by box, so no hashing per pair.
 struct Slots {
     of_parent: Vec<u32>,
@@ -195,7 +196,32 @@ mod tests {
     /// The products a plan runs, as `(target box, source box)`: its pairs, and the pairs of
     /// its blocks whose children do not touch, whose target is in the selection and whose
     /// source slot holds a spectrum.
-    fn products(tree: &DistTree, plan: &M2lPlan, sel: &[usize]) -> Vec<(usize, usize)> {
+    fn products(
+        tree: &DistTree,
+        m2l: &FftM2l,
+        plan: &M2lPlan,
+        sel: &[usize],
+    ) -> Vec<(usize, usize)> {
+        // Slots in range and one box per slot.
+        let mut slots: Vec<u32> = plan.sources.iter().map(|&(s, _)| s).collect();
+        let mut tslots: Vec<u32> = plan.target_slot.iter().flatten().copied().collect();
+        for (v, n, what) in [
+            (&mut slots, plan.n_source_slots, "source"),
+            (&mut tslots, plan.n_target_slots, "target"),
+        ] {
+            let len = v.len();
+            v.sort_unstable();
+            v.dedup();
+            assert_eq!(v.len(), len, "two {what} boxes share a slot");
+            assert!(
+                v.iter().all(|&s| (s as usize) < n),
+                "{what} slot out of range"
+            );
+        }
+        for b in &plan.blocks {
+            assert!(b.target as usize + 8 <= plan.n_target_slots);
+            assert!(b.source as usize + 8 <= plan.n_source_slots);
+        }
         let mut target_of = std::collections::HashMap::new();
         for (i, s) in plan.target_slot.iter().enumerate() {
             if let Some(s) = s {
@@ -205,8 +231,15 @@ mod tests {
         let source_of: std::collections::HashMap<u32, usize> =
             plan.sources.iter().copied().collect();
         let mut out = Vec::new();
-        for &(t, s, _) in &plan.pairs {
-            out.push((target_of[&t], source_of[&s]));
+        for &(t, s, o) in &plan.pairs {
+            let (t, s) = (target_of[&t], source_of[&s]);
+            let d = tree.boxes[t].key.offset_from(&tree.boxes[s].key);
+            assert_eq!(
+                o as usize,
+                m2l.compact_offset(offset_index(d)),
+                "pair offset"
+            );
+            out.push((t, s));
         }
         for b in &plan.blocks {
             for i in 0..8u32 {
@@ -217,7 +250,11 @@ mod tests {
                     ) else {
                         continue;
                     };
-                    if !tree.boxes[t].key.adjacent(&tree.boxes[s].key) {
+                    let (tk, sk) = (tree.boxes[t].key, tree.boxes[s].key);
+                    assert_eq!((tk.octant(), sk.octant()), (i as usize, j as usize));
+                    let dp = tk.parent().unwrap().offset_from(&sk.parent().unwrap());
+                    assert_eq!(b.dp as usize, parent_offset_index(dp), "block offset");
+                    if !tk.adjacent(&sk) {
                         out.push((t, s));
                     }
                 }
@@ -248,7 +285,7 @@ mod tests {
                         .filter(|&b| tree.computes_down(b))
                         .collect();
                     let plan = M2lPlan::new(&tree, &m2l, &sel, dense);
-                    let mut got = products(&tree, &plan, &sel);
+                    let mut got = products(&tree, &m2l, &plan, &sel);
                     let n = got.len();
                     got.sort_unstable();
                     got.dedup();
@@ -275,6 +312,9 @@ mod tests {
             }
             println!("{cloud:?}: {blocks} blocks, {pairs} pairs by default");
             assert!(blocks > 0, "{cloud:?}: no blocks");
+            if cloud == Cloud::Spheres {
+                assert!(pairs > 0, "cell surfaces: no pairs run one by one");
+            }
         }
     }
 }
