@@ -5,6 +5,7 @@
 //! convergence in the order; a 10⁵-point run.
 
 use mobo::fmm::clouds::Cloud;
+use mobo::fmm::m2l_plan::DENSE_PAIRS;
 use mobo::fmm::{direct_sum, order_for_digits, Fmm, FmmKernel, Kernel, SumInput};
 
 const KERNELS: [FmmKernel; 5] = [
@@ -319,7 +320,7 @@ fn sibling_blocked_m2l_matches_the_pairwise_m2l() {
                 fmm.evaluate(&dens, &mut u).unwrap();
                 u
             };
-            let (pairs, blocked, everywhere) = (run(usize::MAX), run(16), run(1));
+            let (pairs, blocked, everywhere) = (run(usize::MAX), run(DENSE_PAIRS), run(1));
             let scale = pairs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (name, u) in [("default", &blocked), ("everywhere", &everywhere)] {
                 let err = u
