@@ -310,40 +310,17 @@ struct M2lBuffers {
     tgt: Vec<f64>,
 }
 
-/// The first `n` values of `v`, zeroed (`v` grown to `n` if shorter, in huge pages where the
-/// system gives them: a fresh buffer of hundreds of MB costs more in 4 KiB page faults than
-/// the products that fill it; kept at its largest length, so a later level that fits reuses it).
+/// The first `n` values of `v`, zeroed in parallel (`v` grown to `n` if shorter, and kept at
+/// its largest length, so a later level that fits reuses it).
 fn zeroed(v: &mut Vec<f64>, n: usize) -> &mut [f64] {
     if v.len() < n {
+        // Free the old buffer first; the new one comes as untouched zero pages.
         *v = Vec::new();
-        // Zero pages from the allocator (not touched yet), advised before the first touch.
         *v = vec![0.0; n];
-        advise_huge_pages(v);
     }
     let head = &mut v[..n];
     head.par_chunks_mut(1 << 16).for_each(|c| c.fill(0.0));
     head
-}
-
-/// Ask the kernel for transparent huge pages over the 2 MiB-aligned part of `v` (Linux; a
-/// hint: ignored where not supported).
-fn advise_huge_pages(v: &mut [f64]) {
-    #[cfg(target_os = "linux")]
-    {
-        const HUGE: usize = 2 << 20;
-        let (start, len) = (v.as_mut_ptr() as usize, std::mem::size_of_val(v));
-        let lo = start.next_multiple_of(HUGE);
-        let hi = (start + len) / HUGE * HUGE;
-        if hi > lo {
-            // SAFETY: [lo, hi) lies inside `v`'s allocation; MADV_HUGEPAGE changes only how
-            // the kernel backs those pages, never their contents.
-            unsafe {
-                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE);
-            }
-        }
-    }
-    #[cfg(not(target_os = "linux"))]
-    let _ = v;
 }
 
 /// Per-thread scratch of the leaf phase.
