@@ -26,7 +26,7 @@ use faer::Par;
 use mobo::fmm::calibration::order_for_digits;
 use mobo::fmm::evaluator::FmmKernel;
 use mobo::fmm::kernels::{Kernel, Laplace, Stokeslet};
-use mobo::fmm::m2l_fft::{offset_index, parent_offset_index, FftM2l, CHUNK};
+use mobo::fmm::m2l_fft::{offset_index, parent_offset, parent_offset_index, FftM2l, CHUNK};
 use mobo::fmm::surface::CubeSurface;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -86,7 +86,7 @@ impl Lattice {
             let p = x.map(|c| (c / 2) as i32);
             let mut out = Vec::new();
             for d in 0..27 {
-                let q = [p[0] + d / 9 - 1, p[1] + (d / 3) % 3 - 1, p[2] + d % 3 - 1];
+                let q = [0, 1, 2].map(|k| p[k] + parent_offset(d)[k]);
                 if q.iter().any(|&c| c < 0 || 2 * c >= n) || q == p {
                     continue;
                 }
@@ -114,11 +114,7 @@ impl Lattice {
         for p in 0..h.pow(3) {
             let pp = [p / (h * h), (p / h) % h, p % h];
             for d in (0..27).filter(|&d| d != 13) {
-                let q = [
-                    pp[0] + d / 9 - 1,
-                    pp[1] + (d / 3) % 3 - 1,
-                    pp[2] + d % 3 - 1,
-                ];
+                let q = [0, 1, 2].map(|k| pp[k] + parent_offset(d)[k]);
                 if q.iter().any(|&c| c < 0 || c >= h) {
                     continue;
                 }

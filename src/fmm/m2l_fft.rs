@@ -40,6 +40,13 @@ pub fn parent_offset_index(d: [i32; 3]) -> usize {
     ((d[0] + 1) * 9 + (d[1] + 1) * 3 + (d[2] + 1)) as usize
 }
 
+/// The parent offset `Δp ∈ [−1, 1]³` of slot `slot < 27` (the inverse of
+/// [`parent_offset_index`]).
+pub fn parent_offset(slot: usize) -> [i32; 3] {
+    let s = slot as i32;
+    [s / 9 - 1, (s / 3) % 3 - 1, s % 3 - 1]
+}
+
 /// Position of octant `o` in its parent (x bit 2, y bit 1, z bit 0, as
 /// [`super::box_key::BoxKey::octant`]).
 fn octant_position(o: usize) -> [i32; 3] {
@@ -51,11 +58,7 @@ fn octant_position(o: usize) -> [i32; 3] {
 fn sibling_tables(compact: &[u16]) -> Vec<[u16; 64]> {
     (0..27usize)
         .map(|slot| {
-            let dp = [
-                slot as i32 / 9 - 1,
-                (slot as i32 / 3) % 3 - 1,
-                slot as i32 % 3 - 1,
-            ];
+            let dp = parent_offset(slot);
             let mut t = [u16::MAX; 64];
             for (ij, e) in t.iter_mut().enumerate() {
                 let (ci, cj) = (octant_position(ij / 8), octant_position(ij % 8));
@@ -784,11 +787,8 @@ mod tests {
                     let mut blocked = start.clone();
                     m2l.accumulate_siblings(&m2l.sibling_blocks(c, dp), &src, &mut blocked);
                     let mut pairs = start.clone();
-                    let dpv = [
-                        dp as i32 / 9 - 1,
-                        (dp as i32 / 3) % 3 - 1,
-                        dp as i32 % 3 - 1,
-                    ];
+                    let dpv = parent_offset(dp);
+                    assert_eq!(parent_offset_index(dpv), dp);
                     let mut n = 0;
                     for i in 0..8 {
                         for j in 0..8 {
