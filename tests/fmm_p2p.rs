@@ -134,3 +134,167 @@ fn every_instruction_set_matches_the_pairwise_sum() {
         }
     }
 }
+
+/// One Newton step ([`p2p::Newton::One`]) on every instruction set this CPU has: each target's
+/// error against the pair-by-pair sum stays within the stated bound times the sum of the
+/// pairs' magnitudes (`powers ·` [`Simd::one_newton_error`] `· Σ_j |K_j q_j|`), at scales
+/// outside single precision's range and with coincident points; and on AVX-512 and AVX2 the
+/// relaxed loop does differ from the exact one (the step is really skipped).
+#[test]
+fn one_newton_step_stays_within_its_bound() {
+    use p2p::Newton;
+    for scale in [1.0, 1e-17, 1e17] {
+        // 300 sources, 40 targets (5 coincide with sources).
+        let s: Vec<[f64; 3]> = Cloud::Blobs
+            .points(300, 11)
+            .iter()
+            .map(|p| [p[0] * scale, p[1] * scale, p[2] * scale])
+            .collect();
+        let mut t: Vec<[f64; 3]> = Cloud::Uniform
+            .points(35, 12)
+            .iter()
+            .map(|p| [p[0] * scale, p[1] * scale, p[2] * scale])
+            .collect();
+        t.extend_from_slice(&s[..5]);
+        let order: Vec<usize> = (0..s.len()).collect();
+        let none = vec![[0.0; 3]; s.len()];
+        for (k, dd, powers) in [
+            (&Laplace as &dyn Kernel, 1, 1),
+            (&Stokeslet as &dyn Kernel, 3, 3),
+        ] {
+            let q = Cloud::densities(s.len() * dd, 13);
+            let mut blk = SourceBlock::new(&s, None, &order);
+            blk.set_density(&q, dd, &order);
+            let want = pairwise(k, &t, &s, &none, &q);
+            // Σ_j |K(x − y_j)| |q_j| per target: the Laplace kernel with |q| bounds each output
+            // of either kernel up to the factor 2/(8π) · 4π = 1 for the Stokeslet.
+            let qa: Vec<f64> = (0..s.len())
+                .map(|j| q[j * dd..(j + 1) * dd].iter().map(|v| v.abs()).sum())
+                .collect();
+            let envelope = pairwise(&Laplace, &t, &s, &none, &qa);
+            for simd in [Simd::Portable, Simd::Avx2, Simd::Avx512] {
+                if !simd.available() {
+                    continue;
+                }
+                let (mut relaxed, mut exact) = (vec![0.0; want.len()], vec![0.0; want.len()]);
+                if dd == 1 {
+                    p2p::laplace_with(simd, Newton::One, &t, &blk.all(), &mut relaxed);
+                    p2p::laplace_with(simd, Newton::Two, &t, &blk.all(), &mut exact);
+                } else {
+                    p2p::stokeslet_with(simd, Newton::One, &t, &blk.all(), &mut relaxed);
+                    p2p::stokeslet_with(simd, Newton::Two, &t, &blk.all(), &mut exact);
+                }
+                let bound = f64::from(powers) * simd.one_newton_error();
+                let mut worst: f64 = 0.0;
+                for (i, (g, w)) in relaxed.iter().zip(&want).enumerate() {
+                    let env = envelope[i / k.output_dim()];
+                    let err = (g - w).abs();
+                    assert!(
+                        err <= (bound + 1e-13) * env,
+                        "{} {simd:?} scale {scale:e} target {i}: error {err:e} > {bound:e} · {env:e}",
+                        k.name()
+                    );
+                    worst = worst.max(err / env);
+                }
+                assert_close(
+                    &format!("{} {simd:?} two steps", k.name()),
+                    &exact,
+                    &want,
+                    1e-13,
+                );
+                if simd != Simd::Portable && scale == 1.0 {
+                    assert!(
+                        worst > 1e-12,
+                        "{} {simd:?}: the one-step loop matches the exact one to {worst:e}",
+                        k.name()
+                    );
+                }
+                println!(
+                    "{} {simd:?} scale {scale:e}: worst {worst:.2e} (bound {bound:.1e})",
+                    k.name()
+                );
+            }
+        }
+    }
+}
+
+/// The near field's tolerance follows the order's calibrated digits, and one Newton step is
+/// chosen only where it fits.
+#[test]
+fn near_tolerance_follows_the_calibration() {
+    use mobo::fmm::calibration::{digits_for_order, near_tolerance};
+    use mobo::fmm::{order_for_digits, FmmKernel};
+    use p2p::Newton;
+    for kind in [FmmKernel::Laplace, FmmKernel::Stokeslet] {
+        for d in 3..=10 {
+            let o = order_for_digits(kind, d).unwrap();
+            assert_eq!(digits_for_order(kind, o), d, "{kind:?} order {o}");
+        }
+        assert_eq!(digits_for_order(kind, 2), 2);
+        assert_eq!(near_tolerance(kind, 20), 0.0);
+    }
+    let tol = |k, d| near_tolerance(k, order_for_digits(k, d).unwrap());
+    assert_eq!(tol(FmmKernel::Laplace, 6), 1e-7);
+    assert_eq!(
+        Newton::within(Simd::Avx512, tol(FmmKernel::Laplace, 7), 1),
+        Newton::One
+    );
+    assert_eq!(
+        Newton::within(Simd::Avx512, tol(FmmKernel::Laplace, 8), 1),
+        Newton::Two
+    );
+    assert_eq!(
+        Newton::within(Simd::Avx512, tol(FmmKernel::Stokeslet, 6), 3),
+        Newton::One
+    );
+    assert_eq!(
+        Newton::within(Simd::Avx512, tol(FmmKernel::Stokeslet, 7), 3),
+        Newton::Two
+    );
+    assert_eq!(
+        Newton::within(Simd::Avx2, tol(FmmKernel::Laplace, 5), 1),
+        Newton::One
+    );
+    assert_eq!(
+        Newton::within(Simd::Avx2, tol(FmmKernel::Laplace, 6), 1),
+        Newton::Two
+    );
+    assert_eq!(Newton::within(Simd::Portable, 1.0, 1), Newton::Two);
+}
+
+/// The bound of [`Simd::one_newton_error`] pair by pair: 4000 pairs at separations over twelve
+/// decades (each as 8 copies of one source, a full vector step), each within the bound, and the worst of them within a factor 10 of it (the
+/// bound is not slack).
+#[test]
+fn one_newton_error_bound_holds_per_pair() {
+    use p2p::Newton;
+    let pts = Cloud::Uniform.points(4000, 21);
+    for simd in [Simd::Avx2, Simd::Avx512] {
+        if !simd.available() {
+            continue;
+        }
+        let mut worst: f64 = 0.0;
+        for (i, p) in pts.iter().enumerate() {
+            let scale = 10f64.powf(-6.0 + 12.0 * (i as f64 / pts.len() as f64));
+            let y = [[p[0] * scale, p[1] * scale, p[2] * scale]; 8];
+            let order: Vec<usize> = (0..8).collect();
+            let mut blk = SourceBlock::new(&y, None, &order);
+            blk.set_density(&[0.125; 8], 1, &order);
+            let mut got = [0.0];
+            p2p::laplace_with(simd, Newton::One, &[[0.0; 3]], &blk.all(), &mut got);
+            let d = (y[0][0].powi(2) + y[0][1].powi(2) + y[0][2].powi(2)).sqrt();
+            let want = 1.0 / (4.0 * std::f64::consts::PI * d);
+            let err = (got[0] - want).abs() / want;
+            assert!(
+                err <= simd.one_newton_error(),
+                "{simd:?} |r| = {d:e}: {err:e}"
+            );
+            worst = worst.max(err);
+        }
+        println!(
+            "{simd:?}: worst per pair {worst:.2e}, bound {:.1e}",
+            simd.one_newton_error()
+        );
+        assert!(worst > 0.1 * simd.one_newton_error(), "{simd:?}: {worst:e}");
+    }
+}

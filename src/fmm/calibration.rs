@@ -55,3 +55,23 @@ pub fn order_for_digits(kernel: FmmKernel, digits: u32) -> Result<usize, FmmErro
     };
     Ok(table[(digits - MIN_DIGITS) as usize])
 }
+
+/// The digits `order` is calibrated to reach for `kernel`: the most digits whose table order
+/// is at most `order` (`MIN_DIGITS − 1` below the table, [`MAX_DIGITS`] above it).
+pub fn digits_for_order(kernel: FmmKernel, order: usize) -> u32 {
+    (MIN_DIGITS..=MAX_DIGITS)
+        .rev()
+        .find(|&d| order_for_digits(kernel, d).is_ok_and(|o| o <= order))
+        .unwrap_or(MIN_DIGITS - 1)
+}
+
+/// The relative error per pair the near field may add at `order`: a tenth of the accuracy the
+/// order is calibrated to (`0.1 · 10^-digits`), none above [`MAX_DIGITS`] digits' order.
+pub fn near_tolerance(kernel: FmmKernel, order: usize) -> f64 {
+    let d = digits_for_order(kernel, order);
+    if d >= MAX_DIGITS {
+        0.0
+    } else {
+        0.1 * 10f64.powi(-(d as i32))
+    }
+}

@@ -82,6 +82,14 @@ pub trait Kernel: Sync {
             }
         }
     }
+    /// As [`Kernel::eval_block`], allowed a relative error up to `tol` per pair (the near field
+    /// of an FMM whose own error is far larger): the Laplace and Stokeslet loops then refine
+    /// `1/|r|` by one Newton step instead of two where that stays within `tol`
+    /// ([`super::p2p::Newton::within`]). The default is exact.
+    fn eval_block_within(&self, targets: &[[f64; 3]], s: &SourceView, out: &mut [f64], tol: f64) {
+        let _ = tol;
+        self.eval_block(targets, s, out)
+    }
     /// Degree of homogeneity of density component `c`, `K(s r) = s^d K(r)` for `s > 0`, if the
     /// kernel is homogeneous (the FMM then builds its translation operators once for all levels).
     fn homogeneity(&self, _component: usize) -> Option<i32> {
@@ -124,6 +132,10 @@ impl Kernel for Laplace {
     }
     fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         p2p::laplace(t, s, out)
+    }
+    fn eval_block_within(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64], tol: f64) {
+        let simd = p2p::Simd::best();
+        p2p::laplace_with(simd, p2p::Newton::within(simd, tol, 1), t, s, out);
     }
     fn homogeneity(&self, _c: usize) -> Option<i32> {
         Some(-1)
@@ -186,6 +198,10 @@ impl Kernel for Stokeslet {
     }
     fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         p2p::stokeslet(t, s, out)
+    }
+    fn eval_block_within(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64], tol: f64) {
+        let simd = p2p::Simd::best();
+        p2p::stokeslet_with(simd, p2p::Newton::within(simd, tol, 3), t, s, out);
     }
     fn homogeneity(&self, _c: usize) -> Option<i32> {
         Some(-1)

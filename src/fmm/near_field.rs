@@ -138,12 +138,25 @@ pub trait NearField: Sync {
 /// The CPU near field: the serial kernels of [`super::p2p`] over the rows, rows in parallel.
 pub struct CpuNearField {
     kernel: Box<dyn Kernel>,
+    tol: f64,
 }
 
 impl CpuNearField {
-    /// The CPU backend for `kernel` (the FMM's near kernel).
+    /// The CPU backend for `kernel` (the FMM's near kernel), exact to round-off.
     pub fn new(kernel: Box<dyn Kernel>) -> Self {
-        CpuNearField { kernel }
+        Self::within(kernel, 0.0)
+    }
+
+    /// The CPU backend allowed a relative error up to `tol` per pair
+    /// ([`Kernel::eval_block_within`]); the FMM passes a tenth of its own calibrated accuracy
+    /// ([`super::calibration::near_tolerance`]).
+    pub fn within(kernel: Box<dyn Kernel>, tol: f64) -> Self {
+        CpuNearField { kernel, tol }
+    }
+
+    /// The relative error per pair this backend may add.
+    pub fn tolerance(&self) -> f64 {
+        self.tol
     }
 }
 
@@ -167,7 +180,8 @@ impl NearField for CpuNearField {
         for_each_row(list, out, dt, |r, vals| {
             let tgts = &targets[list.rows[r].clone()];
             for s in list.row_ranges(r) {
-                self.kernel.eval_block(tgts, &sources.view(s.clone()), vals);
+                self.kernel
+                    .eval_block_within(tgts, &sources.view(s.clone()), vals, self.tol);
             }
         });
         Ok(())

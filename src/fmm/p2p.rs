@@ -83,12 +83,47 @@ impl Simd {
         }
     }
 
+    /// Relative error bound of `1/|r|` after [`Newton::One`] on this instruction set: the
+    /// estimate's error `e` becomes `1.5 e² + O(e³)` (always below the true value), with
+    /// `|e| ≤ 2⁻¹⁴` for AVX-512's `rsqrt14` (5.6e-9) and `|e| ≤ 1.5·2⁻¹²` for AVX2's `rsqrt`
+    /// (2.0e-7; its conversion to single precision adds 6e-8 to `e`, second order after the
+    /// step). The portable loops divide exactly: 0.
+    pub fn one_newton_error(self) -> f64 {
+        match self {
+            Simd::Portable => 0.0,
+            Simd::Avx2 => 2.1e-7,
+            Simd::Avx512 => 5.6e-9,
+        }
+    }
+
     /// The widest one this CPU runs.
     pub fn best() -> Self {
         [Simd::Avx512, Simd::Avx2]
             .into_iter()
             .find(|s| s.available())
             .unwrap_or(Simd::Portable)
+    }
+}
+
+/// How many Newton steps refine the hardware's `1/√d²` estimate in the AVX2 and AVX-512 loops.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Newton {
+    /// Two steps: `1/|r|` to round-off (≈ 1e-16 relative), the default.
+    Two,
+    /// One step: relative error at most [`Simd::one_newton_error`] (5.6e-9 with AVX-512), for
+    /// an FMM whose own error is far larger; 25 % fewer cycles per pair in the Laplace loop.
+    One,
+}
+
+impl Newton {
+    /// One step where its error on `simd`, times `powers` (the largest power of `1/|r|` the
+    /// kernel takes: errors add up to that factor), stays within `tol`; else two.
+    pub fn within(simd: Simd, tol: f64, powers: u32) -> Self {
+        if simd != Simd::Portable && f64::from(powers) * simd.one_newton_error() <= tol {
+            Newton::One
+        } else {
+            Newton::Two
+        }
     }
 }
 
@@ -153,12 +188,32 @@ pub fn laplace(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
 /// [`laplace`] on the instruction set `simd`; `false` (and nothing added) where the CPU does
 /// not have it.
 pub fn laplace_on(simd: Simd, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) -> bool {
-    Variants {
-        portable: laplace_portable,
-        #[cfg(target_arch = "x86_64")]
-        avx2: avx2::laplace,
-        #[cfg(target_arch = "x86_64")]
-        avx512: avx512::laplace,
+    laplace_with(simd, Newton::Two, t, s, out)
+}
+
+/// [`laplace_on`] with `newton` steps refining `1/|r|` (the portable loop is exact either way).
+pub fn laplace_with(
+    simd: Simd,
+    newton: Newton,
+    t: &[[f64; 3]],
+    s: &SourceView,
+    out: &mut [f64],
+) -> bool {
+    match newton {
+        Newton::Two => Variants {
+            portable: laplace_portable,
+            #[cfg(target_arch = "x86_64")]
+            avx2: avx2::laplace::<2>,
+            #[cfg(target_arch = "x86_64")]
+            avx512: avx512::laplace::<2>,
+        },
+        Newton::One => Variants {
+            portable: laplace_portable,
+            #[cfg(target_arch = "x86_64")]
+            avx2: avx2::laplace::<1>,
+            #[cfg(target_arch = "x86_64")]
+            avx512: avx512::laplace::<1>,
+        },
     }
     .run(simd, t, s, out)
 }
@@ -234,12 +289,33 @@ pub fn stokeslet(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
 /// [`stokeslet`] on the instruction set `simd`; `false` (and nothing added) where the CPU
 /// does not have it.
 pub fn stokeslet_on(simd: Simd, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) -> bool {
-    Variants {
-        portable: stokeslet_portable,
-        #[cfg(target_arch = "x86_64")]
-        avx2: avx2::stokeslet,
-        #[cfg(target_arch = "x86_64")]
-        avx512: avx512::stokeslet,
+    stokeslet_with(simd, Newton::Two, t, s, out)
+}
+
+/// [`stokeslet_on`] with `newton` steps refining `1/|r|` (the portable loop is exact either
+/// way).
+pub fn stokeslet_with(
+    simd: Simd,
+    newton: Newton,
+    t: &[[f64; 3]],
+    s: &SourceView,
+    out: &mut [f64],
+) -> bool {
+    match newton {
+        Newton::Two => Variants {
+            portable: stokeslet_portable,
+            #[cfg(target_arch = "x86_64")]
+            avx2: avx2::stokeslet::<2>,
+            #[cfg(target_arch = "x86_64")]
+            avx512: avx512::stokeslet::<2>,
+        },
+        Newton::One => Variants {
+            portable: stokeslet_portable,
+            #[cfg(target_arch = "x86_64")]
+            avx2: avx2::stokeslet::<1>,
+            #[cfg(target_arch = "x86_64")]
+            avx512: avx512::stokeslet::<1>,
+        },
     }
     .run(simd, t, s, out)
 }
@@ -352,8 +428,8 @@ dispatched!(
 );
 
 /// Hand-vectorised AVX2/FMA loops, four sources per step. `1/|r|` comes from the single-precision
-/// estimate `rsqrt` refined by two Newton steps `y ← y (3 − d² y²)/2` (relative error ≈ 1e-15,
-/// as PVFMM does); lanes with `d²` outside `[1e-30, 1e30]` fall back to `1/√d²`, and `d² = 0`
+/// estimate `rsqrt` refined by `N` Newton steps `y ← y (3 − d² y²)/2` (two: relative error
+/// ≈ 1e-15, as PVFMM does; one: [`super::Simd::one_newton_error`]); lanes with `d²` outside `[1e-30, 1e30]` fall back to `1/√d²`, and `d² = 0`
 /// gives 0.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
@@ -361,7 +437,7 @@ mod avx2 {
     use std::arch::x86_64::*;
 
     #[inline(always)]
-    unsafe fn inv_norm(d2: __m256d) -> __m256d {
+    unsafe fn inv_norm<const N: usize>(d2: __m256d) -> __m256d {
         let lo = _mm256_set1_pd(1e-30);
         let hi = _mm256_set1_pd(1e30);
         let in_range = _mm256_and_pd(
@@ -374,13 +450,13 @@ mod avx2 {
             let exact = _mm256_div_pd(_mm256_set1_pd(1.0), _mm256_sqrt_pd(d2));
             return _mm256_and_pd(exact, nonzero);
         }
-        let y = _mm256_cvtps_pd(_mm_rsqrt_ps(_mm256_cvtpd_ps(d2)));
+        let mut y = _mm256_cvtps_pd(_mm_rsqrt_ps(_mm256_cvtpd_ps(d2)));
         let half = _mm256_set1_pd(0.5);
         let three = _mm256_set1_pd(3.0);
-        let h = _mm256_mul_pd(half, y);
-        let y = _mm256_mul_pd(h, _mm256_fnmadd_pd(_mm256_mul_pd(d2, y), y, three));
-        let h = _mm256_mul_pd(half, y);
-        let y = _mm256_mul_pd(h, _mm256_fnmadd_pd(_mm256_mul_pd(d2, y), y, three));
+        for _ in 0..N {
+            let h = _mm256_mul_pd(half, y);
+            y = _mm256_mul_pd(h, _mm256_fnmadd_pd(_mm256_mul_pd(d2, y), y, three));
+        }
         _mm256_and_pd(y, in_range)
     }
 
@@ -393,7 +469,7 @@ mod avx2 {
     }
 
     #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn laplace(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+    pub unsafe fn laplace<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
         let (sx, sy, sz, q) = (&s.x[..n], &s.y[..n], &s.z[..n], &s.q[0][..n]);
         let nb = n - n % 4;
@@ -410,7 +486,7 @@ mod avx2 {
                 let dy = _mm256_sub_pd(x1, _mm256_loadu_pd(sy.as_ptr().add(j)));
                 let dz = _mm256_sub_pd(x2, _mm256_loadu_pd(sz.as_ptr().add(j)));
                 let d2 = _mm256_fmadd_pd(dx, dx, _mm256_fmadd_pd(dy, dy, _mm256_mul_pd(dz, dz)));
-                acc = _mm256_fmadd_pd(_mm256_loadu_pd(q.as_ptr().add(j)), inv_norm(d2), acc);
+                acc = _mm256_fmadd_pd(_mm256_loadu_pd(q.as_ptr().add(j)), inv_norm::<N>(d2), acc);
                 j += 4;
             }
             let mut sum = hsum(acc);
@@ -426,7 +502,7 @@ mod avx2 {
     }
 
     #[target_feature(enable = "avx2,fma")]
-    pub unsafe fn stokeslet(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+    pub unsafe fn stokeslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
         let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
         let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
@@ -448,7 +524,7 @@ mod avx2 {
                 let dy = _mm256_sub_pd(x1, _mm256_loadu_pd(sy.as_ptr().add(j)));
                 let dz = _mm256_sub_pd(x2, _mm256_loadu_pd(sz.as_ptr().add(j)));
                 let d2 = _mm256_fmadd_pd(dx, dx, _mm256_fmadd_pd(dy, dy, _mm256_mul_pd(dz, dz)));
-                let inv = inv_norm(d2);
+                let inv = inv_norm::<N>(d2);
                 let (gx, gy, gz) = (
                     _mm256_loadu_pd(fx.as_ptr().add(j)),
                     _mm256_loadu_pd(fy.as_ptr().add(j)),
@@ -482,27 +558,25 @@ mod avx2 {
 
 /// Hand-vectorised AVX-512F loops, eight sources per step, the last partial group by masked
 /// loads (masked-off lanes carry zero density). `1/|r|` from the 14-bit estimate
-/// `rsqrt14` (double precision, whole exponent range) refined by two Newton steps (≈ 1e-16
-/// relative); `d² = 0` gives 0.
+/// `rsqrt14` (double precision, whole exponent range) refined by `N` Newton steps (two: ≈ 1e-16
+/// relative; one: [`super::Simd::one_newton_error`]); `d² = 0` gives 0.
 #[cfg(target_arch = "x86_64")]
 mod avx512 {
     use super::{SourceView, EIGHT_PI, FOUR_PI};
     use std::arch::x86_64::*;
 
     #[inline(always)]
-    unsafe fn inv_norm(d2: __m512d) -> __m512d {
+    unsafe fn inv_norm<const N: usize>(d2: __m512d) -> __m512d {
         let nonzero = _mm512_cmp_pd_mask::<_CMP_GT_OQ>(d2, _mm512_setzero_pd());
         let half = _mm512_set1_pd(0.5);
         let three = _mm512_set1_pd(3.0);
-        let y = _mm512_rsqrt14_pd(d2);
-        let y = _mm512_mul_pd(
-            _mm512_mul_pd(half, y),
-            _mm512_fnmadd_pd(_mm512_mul_pd(d2, y), y, three),
-        );
-        let y = _mm512_mul_pd(
-            _mm512_mul_pd(half, y),
-            _mm512_fnmadd_pd(_mm512_mul_pd(d2, y), y, three),
-        );
+        let mut y = _mm512_rsqrt14_pd(d2);
+        for _ in 0..N {
+            y = _mm512_mul_pd(
+                _mm512_mul_pd(half, y),
+                _mm512_fnmadd_pd(_mm512_mul_pd(d2, y), y, three),
+            );
+        }
         _mm512_maskz_mov_pd(nonzero, y)
     }
 
@@ -514,7 +588,7 @@ mod avx512 {
     }
 
     #[target_feature(enable = "avx512f")]
-    pub unsafe fn laplace(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+    pub unsafe fn laplace<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
         let (sx, sy, sz, q) = (&s.x[..n], &s.y[..n], &s.z[..n], &s.q[0][..n]);
         for (x, o) in t.iter().zip(out.iter_mut()) {
@@ -533,7 +607,7 @@ mod avx512 {
                 let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
                 acc = _mm512_fmadd_pd(
                     _mm512_maskz_loadu_pd(m, q.as_ptr().add(j)),
-                    inv_norm(d2),
+                    inv_norm::<N>(d2),
                     acc,
                 );
                 j += 8;
@@ -543,7 +617,7 @@ mod avx512 {
     }
 
     #[target_feature(enable = "avx512f")]
-    pub unsafe fn stokeslet(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+    pub unsafe fn stokeslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
         let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
         let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
@@ -565,7 +639,7 @@ mod avx512 {
                 let dy = _mm512_sub_pd(x1, _mm512_maskz_loadu_pd(m, sy.as_ptr().add(j)));
                 let dz = _mm512_sub_pd(x2, _mm512_maskz_loadu_pd(m, sz.as_ptr().add(j)));
                 let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
-                let inv = inv_norm(d2);
+                let inv = inv_norm::<N>(d2);
                 let (gx, gy, gz) = (
                     _mm512_maskz_loadu_pd(m, fx.as_ptr().add(j)),
                     _mm512_maskz_loadu_pd(m, fy.as_ptr().add(j)),
