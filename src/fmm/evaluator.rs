@@ -36,6 +36,7 @@ use super::kernels::{
 use super::m2l_fft::FftM2l;
 use super::m2l_plan::{M2lPlan, DENSE_PAIRS};
 use super::near_field::{CpuNearField, NearField, NearList, NearPoints};
+use super::near_pairs::MutualPairs;
 use super::operators::{gemm, Reflection, Translations, DOWN_EQUIV, INNER, UP_CHECK};
 use super::surface::CubeSurface;
 use super::FmmError;
@@ -97,6 +98,23 @@ fn operators_for(kind: FmmKernel, order: usize) -> Result<Operators, FmmError> {
     let v = (Arc::new(ops), Arc::new(m2l));
     cache.lock().map_err(|_| poisoned())?.insert(key, v.clone());
     Ok(v)
+}
+
+/// The CPU near field of `tree` allowed `tol` per pair; where the targets are the sources in
+/// the same order (one rank, no `--targets`), each pair of leaves once for both directions
+/// ([`MutualPairs`]).
+fn cpu_near_field(kind: FmmKernel, tree: &DistTree, list: &NearList, tol: f64) -> CpuNearField {
+    let near = CpuNearField::within(kind.near(), tol);
+    if near_is_mutual(tree) {
+        near.with_mutual(MutualPairs::build(list))
+    } else {
+        near
+    }
+}
+
+/// Whether `tree`'s sorted targets are its sorted sources.
+fn near_is_mutual(tree: &DistTree) -> bool {
+    tree.normals.is_none() && tree.sources == tree.targets
 }
 
 fn poisoned() -> FmmError {
@@ -418,6 +436,12 @@ impl Fmm {
         let identity: Vec<usize> = (0..tree.sources.len()).collect();
         let block = SourceBlock::new(&tree.sources, tree.normals.as_deref(), &identity);
         let near_list = NearList::build(&tree, ops.surf.len());
+        let near_field = Box::new(cpu_near_field(
+            kind,
+            &tree,
+            &near_list,
+            calibration::near_tolerance(kind, order),
+        ));
         Ok(Fmm {
             kind,
             near,
@@ -433,10 +457,7 @@ impl Fmm {
             timings: FmmTimings::default(),
             comm: FmmComm::default(),
             near_list,
-            near_field: Box::new(CpuNearField::within(
-                kind.near(),
-                calibration::near_tolerance(kind, order),
-            )),
+            near_field,
             m2l_dense_pairs: DENSE_PAIRS,
         })
     }
@@ -475,7 +496,12 @@ impl Fmm {
     /// to, which lets the AVX2/AVX-512 loops refine `1/|r|` by one Newton step instead of two
     /// (AVX-512: Laplace up to 7 digits, Stokeslet up to 6; AVX2: both up to 5).
     pub fn set_cpu_near_tolerance(&mut self, tol: f64) {
-        self.near_field = Box::new(CpuNearField::within(self.kind.near(), tol.max(0.0)));
+        self.near_field = Box::new(cpu_near_field(
+            self.kind,
+            &self.tree,
+            &self.near_list,
+            tol.max(0.0),
+        ));
     }
 
     /// What evaluates the near field (`"cpu"`, or the GPU and its precision).

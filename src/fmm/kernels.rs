@@ -90,6 +90,26 @@ pub trait Kernel: Sync {
         let _ = tol;
         self.eval_block(targets, s, out)
     }
+    /// For a kernel symmetric under swapping source and target (`K(x − y) = K(y − x)`, the
+    /// same density and output components): add block `b`'s field at block `a`'s points to
+    /// `oa` and `a`'s at `b`'s to `ob` (both blocks sources and targets of one point set), each
+    /// pair's kernel computed once, within `tol` as in [`Kernel::eval_block_within`]. `false`
+    /// (nothing added) where the kernel has no such loop; the default.
+    fn eval_mutual_within(
+        &self,
+        a: &SourceView,
+        oa: &mut [f64],
+        b: &SourceView,
+        ob: &mut [f64],
+        tol: f64,
+    ) -> bool {
+        let _ = (a, oa, b, ob, tol);
+        false
+    }
+    /// Whether [`Kernel::eval_mutual_within`] runs for this kernel.
+    fn has_mutual(&self) -> bool {
+        false
+    }
     /// Degree of homogeneity of density component `c`, `K(s r) = s^d K(r)` for `s > 0`, if the
     /// kernel is homogeneous (the FMM then builds its translation operators once for all levels).
     fn homogeneity(&self, _component: usize) -> Option<i32> {
@@ -136,6 +156,20 @@ impl Kernel for Laplace {
     fn eval_block_within(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64], tol: f64) {
         let simd = p2p::Simd::best();
         p2p::laplace_with(simd, p2p::Newton::within(simd, tol, 1), t, s, out);
+    }
+    fn eval_mutual_within(
+        &self,
+        a: &SourceView,
+        oa: &mut [f64],
+        b: &SourceView,
+        ob: &mut [f64],
+        tol: f64,
+    ) -> bool {
+        let simd = p2p::Simd::best();
+        p2p::laplace_mutual_with(simd, p2p::Newton::within(simd, tol, 1), a, oa, b, ob)
+    }
+    fn has_mutual(&self) -> bool {
+        true
     }
     fn homogeneity(&self, _c: usize) -> Option<i32> {
         Some(-1)

@@ -41,6 +41,7 @@ pub mod kifmm;
 pub mod m2l_fft;
 pub mod m2l_plan;
 pub mod near_field;
+pub mod near_pairs;
 pub mod octree;
 pub mod operators;
 pub mod p2p;

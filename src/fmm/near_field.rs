@@ -20,6 +20,7 @@ use rayon::prelude::*;
 use super::blocks::SourceBlock;
 use super::dist_tree::{DistTree, Role};
 use super::kernels::Kernel;
+use super::near_pairs::MutualPairs;
 use super::FmmError;
 
 /// The direct interactions of a tree's leaves, compressed-row: row `r` sums the sources in
@@ -135,10 +136,13 @@ pub trait NearField: Sync {
     ) -> Result<(), FmmError>;
 }
 
-/// The CPU near field: the serial kernels of [`super::p2p`] over the rows, rows in parallel.
+/// The CPU near field: the serial kernels of [`super::p2p`] over the rows, rows in parallel;
+/// with a [`MutualPairs`] split (targets that are the sources, a symmetric kernel), each pair of
+/// leaves once for both directions.
 pub struct CpuNearField {
     kernel: Box<dyn Kernel>,
     tol: f64,
+    mutual: Option<MutualPairs>,
 }
 
 impl CpuNearField {
@@ -151,7 +155,24 @@ impl CpuNearField {
     /// ([`Kernel::eval_block_within`]); the FMM passes a tenth of its own calibrated accuracy
     /// ([`super::calibration::near_tolerance`]).
     pub fn within(kernel: Box<dyn Kernel>, tol: f64) -> Self {
-        CpuNearField { kernel, tol }
+        CpuNearField {
+            kernel,
+            tol,
+            mutual: None,
+        }
+    }
+
+    /// Evaluate the mutual pairs of `pairs` once for both directions (built from the list this
+    /// backend will be given, whose targets are its sources in the same order); ignored for a
+    /// kernel without a mutual loop ([`Kernel::has_mutual`]) or another list.
+    pub fn with_mutual(mut self, pairs: MutualPairs) -> Self {
+        self.mutual = self.kernel.has_mutual().then_some(pairs);
+        self
+    }
+
+    /// The mutual split in use, if any.
+    pub fn mutual(&self) -> Option<&MutualPairs> {
+        self.mutual.as_ref()
     }
 
     /// The relative error per pair this backend may add.
@@ -177,13 +198,64 @@ impl NearField for CpuNearField {
         out: &mut [f64],
     ) -> Result<(), FmmError> {
         let dt = self.kernel.output_dim();
-        for_each_row(list, out, dt, |r, vals| {
-            let tgts = &targets[list.rows[r].clone()];
-            for s in list.row_ranges(r) {
+        let mutual = self.mutual.as_ref().filter(|m| m.fits(list));
+        let one_way = mutual.map_or(list, |m| &m.one_way);
+        for_each_row(one_way, out, dt, |r, vals| {
+            let tgts = &targets[one_way.rows[r].clone()];
+            for s in one_way.row_ranges(r) {
                 self.kernel
                     .eval_block_within(tgts, &sources.view(s.clone()), vals, self.tol);
             }
         });
+        if let Some(m) = mutual {
+            self.mutual_rounds(m, sources, targets, out, dt)?;
+        }
+        Ok(())
+    }
+}
+
+/// `out`'s start, shared by the tasks of one round of mutual pairs.
+struct RowsPtr(*mut f64);
+// SAFETY: the tasks holding it write disjoint rows (see `mutual_rounds`).
+unsafe impl Sync for RowsPtr {}
+
+impl CpuNearField {
+    /// The rounds of mutual pairs, one after another, each round's pairs in parallel.
+    fn mutual_rounds(
+        &self,
+        m: &MutualPairs,
+        sources: &SourceBlock,
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+        dt: usize,
+    ) -> Result<(), FmmError> {
+        let rows = &m.one_way.rows;
+        if rows.last().is_some_and(|r| r.end * dt > out.len()) {
+            return Err(FmmError::Shape("near-field rows beyond the output".into()));
+        }
+        let base = RowsPtr(out.as_mut_ptr());
+        let base = &base;
+        for round in &m.rounds {
+            round.par_iter().for_each(|&[a, b]| {
+                let (ra, rb) = (rows[a].clone(), rows[b].clone());
+                // SAFETY: rows are disjoint ranges within `out` (sorted, checked to end inside
+                // it), `a ≠ b`, and the pairs of one round share no row, so no two tasks
+                // of the round touch the same values.
+                let (oa, ob) = unsafe {
+                    (
+                        std::slice::from_raw_parts_mut(base.0.add(ra.start * dt), ra.len() * dt),
+                        std::slice::from_raw_parts_mut(base.0.add(rb.start * dt), rb.len() * dt),
+                    )
+                };
+                let (va, vb) = (sources.view(ra.clone()), sources.view(rb.clone()));
+                if !self.kernel.eval_mutual_within(&va, oa, &vb, ob, self.tol) {
+                    // No mutual loop after all: both directions one way.
+                    let (ta, tb) = (&targets[ra], &targets[rb]);
+                    self.kernel.eval_block_within(ta, &vb, oa, self.tol);
+                    self.kernel.eval_block_within(tb, &va, ob, self.tol);
+                }
+            });
+        }
         Ok(())
     }
 }

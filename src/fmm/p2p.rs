@@ -218,6 +218,62 @@ pub fn laplace_with(
     .run(simd, t, s, out)
 }
 
+/// Mutual Laplace between two disjoint blocks of the same point set (sources that are also
+/// targets): `oa_i += Σ_j q^b_j/(4π|x^a_i − x^b_j|)` and `ob_j += Σ_i q^a_i/(4π|x^a_i − x^b_j|)`,
+/// each `1/|r|` computed once for both directions (half the work of two one-way calls).
+/// Coincident points give nothing, as in [`laplace`]. `false` (and nothing added) where the
+/// CPU does not have `simd`.
+pub fn laplace_mutual_with(
+    simd: Simd,
+    newton: Newton,
+    a: &SourceView,
+    oa: &mut [f64],
+    b: &SourceView,
+    ob: &mut [f64],
+) -> bool {
+    assert!(
+        oa.len() == a.len() && ob.len() == b.len(),
+        "one output per point"
+    );
+    if !simd.available() {
+        return false;
+    }
+    match (simd, newton) {
+        (Simd::Portable, _) => laplace_mutual_portable(a, oa, b, ob),
+        // SAFETY (all below): the CPU supports the instruction set (checked just above).
+        #[cfg(target_arch = "x86_64")]
+        (Simd::Avx2, Newton::Two) => unsafe { avx2::laplace_mutual::<2>(a, oa, b, ob) },
+        #[cfg(target_arch = "x86_64")]
+        (Simd::Avx2, Newton::One) => unsafe { avx2::laplace_mutual::<1>(a, oa, b, ob) },
+        #[cfg(target_arch = "x86_64")]
+        (Simd::Avx512, Newton::Two) => unsafe { avx512::laplace_mutual::<2>(a, oa, b, ob) },
+        #[cfg(target_arch = "x86_64")]
+        (Simd::Avx512, Newton::One) => unsafe { avx512::laplace_mutual::<1>(a, oa, b, ob) },
+        #[cfg(not(target_arch = "x86_64"))]
+        _ => return false,
+    }
+    true
+}
+
+/// [`laplace_mutual_with`], portable loop (the reference of the vectorised ones).
+pub fn laplace_mutual_portable(a: &SourceView, oa: &mut [f64], b: &SourceView, ob: &mut [f64]) {
+    let n = b.len();
+    let (sx, sy, sz, q) = (&b.x[..n], &b.y[..n], &b.z[..n], &b.q[0][..n]);
+    let ob = &mut ob[..n];
+    for i in 0..a.len() {
+        let x = [a.x[i], a.y[i], a.z[i]];
+        let qi = a.q[0][i] / FOUR_PI;
+        let mut acc = 0.0;
+        for j in 0..n {
+            let (dx, dy, dz) = (x[0] - sx[j], x[1] - sy[j], x[2] - sz[j]);
+            let inv = inv_norm(dx * dx + dy * dy + dz * dz);
+            acc += q[j] * inv;
+            ob[j] += qi * inv;
+        }
+        oa[i] += acc / FOUR_PI;
+    }
+}
+
 /// One loop on each instruction set.
 struct Variants {
     portable: fn(&[[f64; 3]], &SourceView, &mut [f64]),
@@ -501,6 +557,54 @@ mod avx2 {
         }
     }
 
+    /// [`super::laplace_mutual_with`]: four sources of `b` per step, the rest one by one.
+    #[target_feature(enable = "avx2,fma")]
+    pub unsafe fn laplace_mutual<const N: usize>(
+        a: &SourceView,
+        oa: &mut [f64],
+        b: &SourceView,
+        ob: &mut [f64],
+    ) {
+        let n = b.len();
+        let (sx, sy, sz, q) = (&b.x[..n], &b.y[..n], &b.z[..n], &b.q[0][..n]);
+        let ob = &mut ob[..n];
+        let nb = n - n % 4;
+        for i in 0..a.len() {
+            let x = [a.x[i], a.y[i], a.z[i]];
+            let (x0, x1, x2) = (
+                _mm256_set1_pd(x[0]),
+                _mm256_set1_pd(x[1]),
+                _mm256_set1_pd(x[2]),
+            );
+            let qi = a.q[0][i] / FOUR_PI;
+            let qv = _mm256_set1_pd(qi);
+            let mut acc = _mm256_setzero_pd();
+            let mut j = 0;
+            while j < nb {
+                let dx = _mm256_sub_pd(x0, _mm256_loadu_pd(sx.as_ptr().add(j)));
+                let dy = _mm256_sub_pd(x1, _mm256_loadu_pd(sy.as_ptr().add(j)));
+                let dz = _mm256_sub_pd(x2, _mm256_loadu_pd(sz.as_ptr().add(j)));
+                let d2 = _mm256_fmadd_pd(dx, dx, _mm256_fmadd_pd(dy, dy, _mm256_mul_pd(dz, dz)));
+                let inv = inv_norm::<N>(d2);
+                acc = _mm256_fmadd_pd(_mm256_loadu_pd(q.as_ptr().add(j)), inv, acc);
+                let o = ob.as_mut_ptr().add(j);
+                _mm256_storeu_pd(o, _mm256_fmadd_pd(qv, inv, _mm256_loadu_pd(o)));
+                j += 4;
+            }
+            let mut sum = hsum(acc);
+            for k in nb..n {
+                let (dx, dy, dz) = (x[0] - sx[k], x[1] - sy[k], x[2] - sz[k]);
+                let d2 = dx * dx + dy * dy + dz * dz;
+                if d2 > 0.0 {
+                    let inv = 1.0 / d2.sqrt();
+                    sum += q[k] * inv;
+                    ob[k] += qi * inv;
+                }
+            }
+            oa[i] += sum / FOUR_PI;
+        }
+    }
+
     #[target_feature(enable = "avx2,fma")]
     pub unsafe fn stokeslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
@@ -613,6 +717,43 @@ mod avx512 {
                 j += 8;
             }
             *o += _mm512_reduce_add_pd(acc) / FOUR_PI;
+        }
+    }
+
+    /// [`super::laplace_mutual_with`]: eight sources of `b` per step, the last group masked
+    /// (masked-off lanes are neither read nor written).
+    #[target_feature(enable = "avx512f")]
+    pub unsafe fn laplace_mutual<const N: usize>(
+        a: &SourceView,
+        oa: &mut [f64],
+        b: &SourceView,
+        ob: &mut [f64],
+    ) {
+        let n = b.len();
+        let (sx, sy, sz, q) = (&b.x[..n], &b.y[..n], &b.z[..n], &b.q[0][..n]);
+        let ob = &mut ob[..n];
+        for i in 0..a.len() {
+            let (x0, x1, x2) = (
+                _mm512_set1_pd(a.x[i]),
+                _mm512_set1_pd(a.y[i]),
+                _mm512_set1_pd(a.z[i]),
+            );
+            let qv = _mm512_set1_pd(a.q[0][i] / FOUR_PI);
+            let mut acc = _mm512_setzero_pd();
+            let mut j = 0;
+            while j < n {
+                let m = mask(j, n);
+                let dx = _mm512_sub_pd(x0, _mm512_maskz_loadu_pd(m, sx.as_ptr().add(j)));
+                let dy = _mm512_sub_pd(x1, _mm512_maskz_loadu_pd(m, sy.as_ptr().add(j)));
+                let dz = _mm512_sub_pd(x2, _mm512_maskz_loadu_pd(m, sz.as_ptr().add(j)));
+                let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
+                let inv = inv_norm::<N>(d2);
+                acc = _mm512_fmadd_pd(_mm512_maskz_loadu_pd(m, q.as_ptr().add(j)), inv, acc);
+                let o = ob.as_mut_ptr().add(j);
+                _mm512_mask_storeu_pd(o, m, _mm512_fmadd_pd(qv, inv, _mm512_maskz_loadu_pd(m, o)));
+                j += 8;
+            }
+            oa[i] += _mm512_reduce_add_pd(acc) / FOUR_PI;
         }
     }
 

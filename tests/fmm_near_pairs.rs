@@ -1,0 +1,196 @@
+//! The near field of a point set on itself, each pair of leaves once
+//! (`mobo::fmm::near_pairs`): the split covers every interaction of the row-by-row list
+//! exactly once, no round writes a row twice, the mutual loops equal two one-way loops on
+//! every instruction set, and whole FMM evaluations agree with the one-way near field.
+
+use std::collections::HashMap;
+
+use mobo::check::assert_close;
+use mobo::fmm::blocks::SourceBlock;
+use mobo::fmm::clouds::Cloud;
+use mobo::fmm::near_field::CpuNearField;
+use mobo::fmm::near_pairs::MutualPairs;
+use mobo::fmm::p2p::{self, Newton, Simd};
+use mobo::fmm::{Fmm, FmmKernel};
+
+/// Every (row, range) of the list is summed exactly once by the split: one way in its row, or
+/// as one direction of a mutual pair; every pair's mirror is in the list; rounds share no row.
+fn check_split(pts: &[[f64; 3]], leaf: usize) -> (usize, usize) {
+    let fmm = Fmm::new(FmmKernel::Laplace, pts, None, pts, 6, leaf).unwrap();
+    let list = fmm.near_list();
+    let split = MutualPairs::build(list);
+    assert!(split.fits(list));
+    let mut want: HashMap<(usize, usize, usize), usize> = HashMap::new();
+    for r in 0..list.rows.len() {
+        for s in list.row_ranges(r) {
+            *want.entry((r, s.start, s.end)).or_default() += 1;
+        }
+    }
+    let mut got: HashMap<(usize, usize, usize), usize> = HashMap::new();
+    for r in 0..split.one_way.rows.len() {
+        for s in split.one_way.row_ranges(r) {
+            *got.entry((r, s.start, s.end)).or_default() += 1;
+        }
+    }
+    for round in &split.rounds {
+        let mut seen = vec![false; list.rows.len()];
+        for &[a, b] in round {
+            assert!(a < b, "pair [{a}, {b}] not ordered");
+            for r in [a, b] {
+                assert!(!seen[r], "row {r} twice in one round");
+                seen[r] = true;
+            }
+            let (ra, rb) = (&list.rows[a], &list.rows[b]);
+            *got.entry((a, rb.start, rb.end)).or_default() += 1;
+            *got.entry((b, ra.start, ra.end)).or_default() += 1;
+        }
+    }
+    assert_eq!(got, want, "the split does not cover the list once");
+    // The points of each pair's rows are the same as the sources they stand for.
+    let points = fmm.near_points();
+    assert_eq!(points.sources, points.targets);
+    (split.mutual_pairs(), split.rounds.len())
+}
+
+#[test]
+fn the_split_covers_every_near_interaction_once() {
+    for (cloud, n, leaf) in [
+        (Cloud::Uniform, 20_000, 200),
+        (Cloud::Clustered, 20_000, 60),
+        (Cloud::Spheres, 20_000, 100),
+        (Cloud::TwoScale, 10_000, 40),
+    ] {
+        let pts = cloud.points(n, 3);
+        let (pairs, rounds) = check_split(&pts, leaf);
+        println!("{}: {pairs} mutual pairs in {rounds} rounds", cloud.name());
+        assert!(pairs > 0, "{}: no mutual pair", cloud.name());
+        assert!(rounds <= 128, "{}: {rounds} rounds", cloud.name());
+    }
+}
+
+/// The mutual loops against two one-way calls of the exact loop, every instruction set this
+/// CPU has, both Newton settings, every block size 0–19 against 0–19 (all remainders of the
+/// four- and eight-wide steps), with points shared between the blocks (coincident: nothing).
+#[test]
+fn mutual_loops_equal_two_one_way_loops() {
+    let pts = Cloud::Blobs.points(40, 4);
+    let q = Cloud::densities(40, 5);
+    let order: Vec<usize> = (0..40).collect();
+    let mut blk = SourceBlock::new(&pts, None, &order);
+    blk.set_density(&q, 1, &order);
+    for na in [0, 1, 3, 7, 8, 9, 16, 19] {
+        for nb in 0..20 {
+            // b starts inside a's points shifted by 20, and repeats a's first point.
+            let (ra, rb) = (0..na, 20..20 + nb);
+            let (va, vb) = (blk.view(ra.clone()), blk.view(rb.clone()));
+            let mut want_a = vec![0.0; na];
+            let mut want_b = vec![0.0; nb];
+            p2p::laplace_portable(&pts[ra.clone()], &vb, &mut want_a);
+            p2p::laplace_portable(&pts[rb.clone()], &va, &mut want_b);
+            for simd in [Simd::Portable, Simd::Avx2, Simd::Avx512] {
+                for newton in [Newton::Two, Newton::One] {
+                    let (mut oa, mut ob) = (vec![0.0; na], vec![0.0; nb]);
+                    let ran = p2p::laplace_mutual_with(simd, newton, &va, &mut oa, &vb, &mut ob);
+                    assert_eq!(ran, simd.available());
+                    if !ran {
+                        continue;
+                    }
+                    let tol = if newton == Newton::Two {
+                        1e-13
+                    } else {
+                        // Densities of both signs: the sum's error against its size can
+                        // exceed the per-pair bound; 1e-6 still tells one step from none.
+                        1e-6
+                    };
+                    let what = format!("{simd:?} {newton:?} {na}×{nb}");
+                    assert_close(&format!("{what} a"), &oa, &want_a, tol);
+                    assert_close(&format!("{what} b"), &ob, &want_b, tol);
+                }
+            }
+        }
+    }
+    // Coincident points between the blocks give nothing (as the one-way loops).
+    let same = [[0.3, 0.2, 0.1]; 9];
+    let o: Vec<usize> = (0..9).collect();
+    let mut b2 = SourceBlock::new(&same, None, &o);
+    b2.set_density(&[1.0; 9], 1, &o);
+    for simd in [Simd::Portable, Simd::Avx2, Simd::Avx512] {
+        let (mut oa, mut ob) = (vec![0.0; 9], vec![0.0; 9]);
+        if p2p::laplace_mutual_with(
+            simd,
+            Newton::Two,
+            &b2.view(0..9),
+            &mut oa,
+            &b2.view(0..9),
+            &mut ob,
+        ) {
+            assert!(
+                oa.iter().chain(&ob).all(|v| *v == 0.0),
+                "{simd:?}: {oa:?} {ob:?}"
+            );
+        }
+    }
+}
+
+/// Whole evaluations: the default near field (mutual pairs where targets are sources) against
+/// the one-way CPU near field, exact (tolerance 0) and at the default tolerance, on a uniform
+/// and a clustered (adaptive, W and X lists) cloud.
+#[test]
+fn mutual_near_field_matches_the_one_way_near_field() {
+    for (cloud, n, leaf) in [
+        (Cloud::Uniform, 30_000, 400),
+        (Cloud::Clustered, 20_000, 60),
+    ] {
+        let pts = cloud.points(n, 8);
+        let dens = Cloud::densities(n, 9);
+        let mut fmm = Fmm::new(FmmKernel::Laplace, &pts, None, &pts, 8, leaf).unwrap();
+        let run = |fmm: &mut Fmm| {
+            let mut u = vec![0.0; n];
+            fmm.evaluate(&dens, &mut u).unwrap();
+            u
+        };
+        fmm.set_cpu_near_tolerance(0.0);
+        let mutual = run(&mut fmm);
+        fmm.set_near_field(Box::new(CpuNearField::new(FmmKernel::Laplace.near())));
+        let one_way = run(&mut fmm);
+        assert_close(&format!("{} exact", cloud.name()), &mutual, &one_way, 1e-13);
+        assert_ne!(
+            mutual,
+            one_way,
+            "{}: the mutual pass did not run",
+            cloud.name()
+        );
+        // The default: mutual and one Newton step (Laplace at order 8 is calibrated to 6
+        // digits: 1e-7 per pair allowed).
+        let tol = mobo::fmm::calibration::near_tolerance(FmmKernel::Laplace, 8);
+        fmm.set_cpu_near_tolerance(tol);
+        let fast = run(&mut fmm);
+        assert_close(
+            &format!("{} default", cloud.name()),
+            &fast,
+            &one_way,
+            10.0 * tol,
+        );
+    }
+}
+
+/// Targets other than the sources: no mutual split (the one-way pass), same values as the
+/// direct sum within the FMM's digits.
+#[test]
+fn separate_targets_keep_the_one_way_pass() {
+    let pts = Cloud::Uniform.points(8000, 10);
+    let tgt = Cloud::Uniform.points(3000, 11);
+    let dens = Cloud::densities(8000, 12);
+    let mut fmm = Fmm::new(FmmKernel::Laplace, &pts, None, &tgt, 8, 200).unwrap();
+    let mut u = vec![0.0; 3000];
+    fmm.evaluate(&dens, &mut u).unwrap();
+    let mut exact = vec![0.0; 3000];
+    let blk = {
+        let order: Vec<usize> = (0..8000).collect();
+        let mut b = SourceBlock::new(&pts, None, &order);
+        b.set_density(&dens, 1, &order);
+        b
+    };
+    p2p::laplace_portable(&tgt, &blk.all(), &mut exact);
+    assert_close("separate targets", &u, &exact, 1e-6);
+}
