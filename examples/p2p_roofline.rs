@@ -14,11 +14,16 @@
 //!   same 18, `r·f` 5, `(r·f)/r²` 2, three components 12). The hardware estimate, compares and
 //!   masks are not counted (they take issue slots that no flop counts), so the share of the
 //!   peak is a lower bound on how busy the units are.
+//! * **Laplace, one Newton step** (`Newton::One`, what the FMM runs up to 7 digits): 15 flops
+//!   per pair. **Laplace mutual** (`laplace_mutual_with`, a point set on itself: one kernel
+//!   evaluation serves both directions): the two halves of the cloud against each other,
+//!   `pairs/s` counts both directions (2 per evaluation), flops per evaluation 17 (one Newton
+//!   step) or 22 (two): the second direction's FMA on top.
 use std::time::Instant;
 
 use mobo::fmm::blocks::SourceBlock;
 use mobo::fmm::clouds::Cloud;
-use mobo::fmm::p2p::{self, Simd};
+use mobo::fmm::p2p::{self, Newton, Simd};
 
 #[cfg(target_arch = "x86_64")]
 mod peak {
@@ -101,39 +106,65 @@ fn main() {
     let pts = Cloud::Uniform.points(n, 1);
     let order: Vec<usize> = (0..n).collect();
     println!(
-        "| kernel | loop | pairs/s (10⁹) | flops/pair | GFLOP/s | of the same width's FMA peak |"
+        "| kernel | loop | pairs/s (10⁹) | flops/evaluation | GFLOP/s | of the same width's FMA peak |"
     );
     println!("|---|---|---|---|---|---|");
     for (name, dim, flops) in [("Laplace", 1usize, 20.0), ("Stokeslet", 3, 37.0)] {
         let mut src = SourceBlock::new(&pts, None, &order);
         src.set_density(&Cloud::densities(n * dim, 3), dim, &order);
         let mut out = vec![0.0; n * dim];
+        let half = n / 2;
+        let (ra, rb) = (0..half, half..n);
+        let mut ob = vec![0.0; n - half];
         for simd in [Simd::Portable, Simd::Avx2, Simd::Avx512] {
             if !simd.available() {
                 continue;
             }
-            let rate = best(repeats, || {
-                let t = Instant::now();
-                if dim == 1 {
-                    p2p::laplace_on(simd, &pts, &src.all(), &mut out);
+            // (loop, flops per kernel evaluation, interactions per evaluation)
+            let mut loops: Vec<(&str, f64, f64)> = vec![("", flops, 1.0)];
+            if dim == 1 && simd != Simd::Portable {
+                loops.extend([
+                    (" one Newton", 15.0, 1.0),
+                    (" mutual", 22.0, 2.0),
+                    (" mutual one Newton", 17.0, 2.0),
+                ]);
+            }
+            for (what, flops, per) in loops {
+                let newton = if what.contains("one Newton") {
+                    Newton::One
                 } else {
-                    p2p::stokeslet_on(simd, &pts, &src.all(), &mut out);
-                }
-                ((n * n) as f64, t.elapsed().as_secs_f64())
-            });
-            std::hint::black_box(&out);
-            let peak = match simd {
-                Simd::Avx512 => peak512,
-                _ => peak256,
-            };
-            let share = peak.map_or("–".into(), |p| {
-                format!("{:.0} %", 100.0 * rate * flops / p)
-            });
-            println!(
-                "| {name} | {simd:?} | {:.2} | {flops} | {:.1} | {share} |",
-                rate / 1e9,
-                rate * flops / 1e9
-            );
+                    Newton::Two
+                };
+                let rate = best(repeats, || {
+                    let t = Instant::now();
+                    let evals = if what.contains("mutual") {
+                        let (a, b) = (src.view(ra.clone()), src.view(rb.clone()));
+                        p2p::laplace_mutual_with(simd, newton, &a, &mut out[..half], &b, &mut ob);
+                        (half * (n - half)) as f64
+                    } else {
+                        if dim == 1 {
+                            p2p::laplace_with(simd, newton, &pts, &src.all(), &mut out);
+                        } else {
+                            p2p::stokeslet_on(simd, &pts, &src.all(), &mut out);
+                        }
+                        (n * n) as f64
+                    };
+                    (evals, t.elapsed().as_secs_f64())
+                });
+                std::hint::black_box((&out, &ob));
+                let peak = match simd {
+                    Simd::Avx512 => peak512,
+                    _ => peak256,
+                };
+                let share = peak.map_or("–".into(), |p| {
+                    format!("{:.0} %", 100.0 * rate * flops / p)
+                });
+                println!(
+                    "| {name} | {simd:?}{what} | {:.2} | {flops} | {:.1} | {share} |",
+                    per * rate / 1e9,
+                    rate * flops / 1e9
+                );
+            }
         }
     }
 }

@@ -691,6 +691,16 @@ mod avx512 {
         ((1u16 << k) - 1) as __mmask8
     }
 
+    /// Eight values from `p`, the lanes outside `m` zero (an unmasked load for a full mask).
+    #[inline(always)]
+    unsafe fn load(m: __mmask8, p: *const f64) -> __m512d {
+        if m == 0xff {
+            _mm512_loadu_pd(p)
+        } else {
+            _mm512_maskz_loadu_pd(m, p)
+        }
+    }
+
     #[target_feature(enable = "avx512f")]
     pub unsafe fn laplace<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
@@ -705,12 +715,12 @@ mod avx512 {
             let mut j = 0;
             while j < n {
                 let m = mask(j, n);
-                let dx = _mm512_sub_pd(x0, _mm512_maskz_loadu_pd(m, sx.as_ptr().add(j)));
-                let dy = _mm512_sub_pd(x1, _mm512_maskz_loadu_pd(m, sy.as_ptr().add(j)));
-                let dz = _mm512_sub_pd(x2, _mm512_maskz_loadu_pd(m, sz.as_ptr().add(j)));
+                let dx = _mm512_sub_pd(x0, load(m, sx.as_ptr().add(j)));
+                let dy = _mm512_sub_pd(x1, load(m, sy.as_ptr().add(j)));
+                let dz = _mm512_sub_pd(x2, load(m, sz.as_ptr().add(j)));
                 let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
                 acc = _mm512_fmadd_pd(
-                    _mm512_maskz_loadu_pd(m, q.as_ptr().add(j)),
+                    load(m, q.as_ptr().add(j)),
                     inv_norm::<N>(d2),
                     acc,
                 );
@@ -743,14 +753,21 @@ mod avx512 {
             let mut j = 0;
             while j < n {
                 let m = mask(j, n);
-                let dx = _mm512_sub_pd(x0, _mm512_maskz_loadu_pd(m, sx.as_ptr().add(j)));
-                let dy = _mm512_sub_pd(x1, _mm512_maskz_loadu_pd(m, sy.as_ptr().add(j)));
-                let dz = _mm512_sub_pd(x2, _mm512_maskz_loadu_pd(m, sz.as_ptr().add(j)));
+                let dx = _mm512_sub_pd(x0, load(m, sx.as_ptr().add(j)));
+                let dy = _mm512_sub_pd(x1, load(m, sy.as_ptr().add(j)));
+                let dz = _mm512_sub_pd(x2, load(m, sz.as_ptr().add(j)));
                 let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
                 let inv = inv_norm::<N>(d2);
-                acc = _mm512_fmadd_pd(_mm512_maskz_loadu_pd(m, q.as_ptr().add(j)), inv, acc);
+                acc = _mm512_fmadd_pd(load(m, q.as_ptr().add(j)), inv, acc);
                 let o = ob.as_mut_ptr().add(j);
-                _mm512_mask_storeu_pd(o, m, _mm512_fmadd_pd(qv, inv, _mm512_maskz_loadu_pd(m, o)));
+                if j + 8 <= n {
+                    // Unmasked where the whole group is inside: masked stores are slow on
+                    // some CPUs (AMD Zen 4).
+                    _mm512_storeu_pd(o, _mm512_fmadd_pd(qv, inv, _mm512_loadu_pd(o)));
+                } else {
+                    let v = _mm512_fmadd_pd(qv, inv, _mm512_maskz_loadu_pd(m, o));
+                    _mm512_mask_storeu_pd(o, m, v);
+                }
                 j += 8;
             }
             oa[i] += _mm512_reduce_add_pd(acc) / FOUR_PI;
@@ -776,15 +793,15 @@ mod avx512 {
             let mut j = 0;
             while j < n {
                 let m = mask(j, n);
-                let dx = _mm512_sub_pd(x0, _mm512_maskz_loadu_pd(m, sx.as_ptr().add(j)));
-                let dy = _mm512_sub_pd(x1, _mm512_maskz_loadu_pd(m, sy.as_ptr().add(j)));
-                let dz = _mm512_sub_pd(x2, _mm512_maskz_loadu_pd(m, sz.as_ptr().add(j)));
+                let dx = _mm512_sub_pd(x0, load(m, sx.as_ptr().add(j)));
+                let dy = _mm512_sub_pd(x1, load(m, sy.as_ptr().add(j)));
+                let dz = _mm512_sub_pd(x2, load(m, sz.as_ptr().add(j)));
                 let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
                 let inv = inv_norm::<N>(d2);
                 let (gx, gy, gz) = (
-                    _mm512_maskz_loadu_pd(m, fx.as_ptr().add(j)),
-                    _mm512_maskz_loadu_pd(m, fy.as_ptr().add(j)),
-                    _mm512_maskz_loadu_pd(m, fz.as_ptr().add(j)),
+                    load(m, fx.as_ptr().add(j)),
+                    load(m, fy.as_ptr().add(j)),
+                    load(m, fz.as_ptr().add(j)),
                 );
                 let rf = _mm512_fmadd_pd(dx, gx, _mm512_fmadd_pd(dy, gy, _mm512_mul_pd(dz, gz)));
                 let c = _mm512_mul_pd(rf, _mm512_mul_pd(inv, inv));
