@@ -54,8 +54,10 @@ pub struct FmmArgs {
     /// selects from the calibration table.
     #[arg(long)]
     order: Option<usize>,
-    /// Maximum points per leaf box (default: chosen from kernel and order, 4× larger where the
-    /// near field goes to a GPU).
+    /// Maximum points per leaf box, sources plus targets (default: chosen from kernel and
+    /// order; 4× larger where the near field goes to a GPU; √2 larger for Laplace without
+    /// --targets on one rank, where the near field evaluates each pair once for both
+    /// directions).
     #[arg(long)]
     leaf_size: Option<usize>,
     /// Exact direct summation instead of the FMM (one rank only).
@@ -150,7 +152,8 @@ fn points(v: Vec<f64>) -> Vec<[f64; 3]> {
 }
 
 /// The kernel and order the arguments ask for (the same on every rank).
-fn settings(a: &FmmArgs) -> Result<(FmmKernel, usize, usize, GpuChoice), CliError> {
+/// On `ranks` ranks.
+fn settings(a: &FmmArgs, ranks: usize) -> Result<(FmmKernel, usize, usize, GpuChoice), CliError> {
     if !(3..=10).contains(&a.digits) {
         return Err(CliError::Arg(format!(
             "--digits must be between 3 and 10, got {}",
@@ -186,12 +189,12 @@ fn settings(a: &FmmArgs) -> Result<(FmmKernel, usize, usize, GpuChoice), CliErro
         CliError::Arg(format!("--gpu takes auto, true or false, got '{}'", a.gpu))
     })?;
     let leaf = a.leaf_size.unwrap_or_else(|| {
-        let factor = if gpu_expected(gpu) && !a.direct {
-            GPU_LEAF_FACTOR
+        if gpu_expected(gpu) && !a.direct {
+            kind.default_leaf_size(order) * GPU_LEAF_FACTOR
         } else {
-            1
-        };
-        kind.default_leaf_size(order) * factor
+            // Targets that are the sources, on one rank: the near field's mutual pairs.
+            kind.default_leaf_size_for(order, a.targets.is_none() && ranks == 1)
+        }
     });
     if leaf == 0 {
         return Err(CliError::Arg("--leaf-size must be positive".into()));
@@ -260,7 +263,7 @@ fn every_rank_has(e: &CliError) -> bool {
 }
 
 fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
-    let (kind, order, leaf, gpu) = settings(a)?;
+    let (kind, order, leaf, gpu) = settings(a, comm.size())?;
     let gpu_precision = match a.gpu_precision.as_deref() {
         None => None,
         Some("f32") => Some(GpuPrecision::F32),

@@ -194,3 +194,24 @@ fn separate_targets_keep_the_one_way_pass() {
     p2p::laplace_portable(&tgt, &blk.all(), &mut exact);
     assert_close("separate targets", &u, &exact, 1e-6);
 }
+
+/// Leaves √2 larger only where the near field can run mutual pairs (Laplace, targets that are
+/// the sources).
+#[test]
+fn mutual_near_fields_take_larger_default_leaves() {
+    for order in [4, 8, 13] {
+        let base = FmmKernel::Laplace.default_leaf_size(order);
+        let mutual = FmmKernel::Laplace.default_leaf_size_for(order, true);
+        assert_eq!(
+            mutual,
+            (base as f64 * std::f64::consts::SQRT_2).round() as usize
+        );
+        assert_eq!(FmmKernel::Laplace.default_leaf_size_for(order, false), base);
+        for k in [FmmKernel::Stokeslet, FmmKernel::Stresslet] {
+            assert_eq!(
+                k.default_leaf_size_for(order, true),
+                k.default_leaf_size(order)
+            );
+        }
+    }
+}

@@ -719,11 +719,7 @@ mod avx512 {
                 let dy = _mm512_sub_pd(x1, load(m, sy.as_ptr().add(j)));
                 let dz = _mm512_sub_pd(x2, load(m, sz.as_ptr().add(j)));
                 let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
-                acc = _mm512_fmadd_pd(
-                    load(m, q.as_ptr().add(j)),
-                    inv_norm::<N>(d2),
-                    acc,
-                );
+                acc = _mm512_fmadd_pd(load(m, q.as_ptr().add(j)), inv_norm::<N>(d2), acc);
                 j += 8;
             }
             *o += _mm512_reduce_add_pd(acc) / FOUR_PI;
