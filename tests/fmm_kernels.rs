@@ -247,7 +247,9 @@ fn cli_round_trip_on_npy_files() {
             }
         }
     }
-    assert_close("mobo fmm stokeslet", &u, &want, 1e-13);
+    // 6 digits asked: the near field may refine 1/|r| by one Newton step (1e-7 per pair
+    // allowed at 6 digits, `calibration::near_tolerance`).
+    assert_close("mobo fmm stokeslet", &u, &want, 1e-7);
     // Laplace charges as (N,) and output as (M,).
     let qs = save(&dir, "c.npy", &[50], &f[..50]);
     let o = mobo(&[

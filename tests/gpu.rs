@@ -504,7 +504,9 @@ fn mobo_fmm_with_gpu_matches_the_cpu_run() {
     let (_, a) = mobo::io::npy::read_f64(&cpu_out).unwrap();
     let (_, b) = mobo::io::npy::read_f64(&gpu_out).unwrap();
     let e = rel(&b, &a);
-    assert!(e < 1e-12, "GPU run off the CPU run by {e:e}");
+    // At 6 digits the CPU's near field may refine 1/|r| by one Newton step (1e-7 per pair
+    // allowed, `calibration::near_tolerance`); the GPU's f64 near field is exact.
+    assert!(e < 1e-7, "GPU run off the CPU run by {e:e}");
     let (bad, _) = run(&["--gpu", "sometimes"], "bad.npy");
     assert!(!bad.status.success());
     let msg = String::from_utf8_lossy(&bad.stderr);
