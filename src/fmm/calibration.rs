@@ -66,7 +66,7 @@ pub fn digits_for_order(kernel: FmmKernel, order: usize) -> u32 {
 }
 
 /// The relative error per pair the near field may add at `order`: a tenth of the accuracy the
-/// order is calibrated to (`0.1 · 10^-digits`), none above [`MAX_DIGITS`] digits' order.
+/// order is calibrated to (`0.1 · 10^-digits`), none at or above [`MAX_DIGITS`] digits' order.
 pub fn near_tolerance(kernel: FmmKernel, order: usize) -> f64 {
     let d = digits_for_order(kernel, order);
     if d >= MAX_DIGITS {

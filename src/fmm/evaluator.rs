@@ -105,7 +105,7 @@ fn operators_for(kind: FmmKernel, order: usize) -> Result<Operators, FmmError> {
 /// ([`MutualPairs`]).
 fn cpu_near_field(kind: FmmKernel, tree: &DistTree, list: &NearList, tol: f64) -> CpuNearField {
     let near = CpuNearField::within(kind.near(), tol);
-    if near_is_mutual(tree) {
+    if kind.near().has_mutual() && near_is_mutual(tree) {
         near.with_mutual(MutualPairs::build(list))
     } else {
         near
@@ -217,9 +217,10 @@ impl FmmKernel {
     /// (`same_points`). A kernel whose near field then evaluates each pair of leaves once for
     /// both directions ([`MutualPairs`], Laplace) pays half as much per pair in the P2P, so
     /// the balance against the translations moves to leaves √2 larger. Measured (2·10⁵ points,
-    /// Laplace at 6 digits, 2 threads, 3 interleaved rounds, s per evaluation, 800 against
-    /// 1131 points): uniform cube 0.38–0.44 against 0.28–0.31, spheres 0.33–0.40 against
-    /// 0.33–0.34, Gaussian blobs 0.42–0.43 against 0.43–0.47.
+    /// Laplace at 6 digits, 2 threads, 3 interleaved rounds, s per evaluation, leaves of 800
+    /// against 1131 sources plus targets, i.e. 400 against 566 points): uniform cube
+    /// 0.38–0.44 against 0.28–0.31, spheres 0.33–0.40 against 0.33–0.34, Gaussian blobs
+    /// 0.42–0.43 against 0.43–0.47.
     pub fn default_leaf_size_for(&self, order: usize, same_points: bool) -> usize {
         let base = self.default_leaf_size(order);
         if same_points && self.near().has_mutual() {

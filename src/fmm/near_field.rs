@@ -199,7 +199,7 @@ impl NearField for CpuNearField {
     ) -> Result<(), FmmError> {
         let dt = self.kernel.output_dim();
         let mutual = self.mutual.as_ref().filter(|m| m.fits(list));
-        let one_way = mutual.map_or(list, |m| &m.one_way);
+        let one_way = mutual.map_or(list, |m| m.one_way());
         for_each_row(one_way, out, dt, |r, vals| {
             let tgts = &targets[one_way.rows[r].clone()];
             for s in one_way.row_ranges(r) {
@@ -229,18 +229,21 @@ impl CpuNearField {
         out: &mut [f64],
         dt: usize,
     ) -> Result<(), FmmError> {
-        let rows = &m.one_way.rows;
+        let rows = &m.one_way().rows;
+        // Rows are sorted and disjoint (`MutualPairs::build` keeps no pair otherwise): the
+        // last one ending inside `out` puts every row inside it.
         if rows.last().is_some_and(|r| r.end * dt > out.len()) {
             return Err(FmmError::Shape("near-field rows beyond the output".into()));
         }
         let base = RowsPtr(out.as_mut_ptr());
         let base = &base;
-        for round in &m.rounds {
+        for round in m.rounds() {
             round.par_iter().for_each(|&[a, b]| {
                 let (ra, rb) = (rows[a].clone(), rows[b].clone());
-                // SAFETY: rows are disjoint ranges within `out` (sorted, checked to end inside
-                // it), `a ≠ b`, and the pairs of one round share no row, so no two tasks
-                // of the round touch the same values.
+                // SAFETY: rows are disjoint ranges within `out` (sorted and disjoint by
+                // `MutualPairs::build`, checked above to end inside it), `a < b`, and the
+                // pairs of one round share no row (the split's fields are private to its
+                // builder), so no two tasks of the round touch the same values.
                 let (oa, ob) = unsafe {
                     (
                         std::slice::from_raw_parts_mut(base.0.add(ra.start * dt), ra.len() * dt),

@@ -23,13 +23,17 @@ use super::near_field::NearList;
 const MAX_ROUNDS: usize = 128;
 
 /// A [`NearList`] of a point set on itself, split into one-way ranges and mutual row pairs.
+/// Built only by [`MutualPairs::build`], which guarantees what the parallel rounds rely on:
+/// rows sorted and disjoint, `a < b` in every pair, no row twice in a round.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct MutualPairs {
+    /// The list it was built from.
+    list: NearList,
     /// The same rows as the list, each with the ranges it sums one way.
-    pub one_way: NearList,
+    one_way: NearList,
     /// Pairs of rows `[a, b]` (`a < b`) whose ranges mirror each other, by round: the pairs of
     /// one round share no row.
-    pub rounds: Vec<Vec<[usize; 2]>>,
+    rounds: Vec<Vec<[usize; 2]>>,
 }
 
 impl MutualPairs {
@@ -38,6 +42,15 @@ impl MutualPairs {
     /// whose targets are among that row's ranges, becomes one mutual pair.
     pub fn build(list: &NearList) -> Self {
         let n = list.rows.len();
+        let disjoint = list.rows.windows(2).all(|w| w[0].end <= w[1].start);
+        if !disjoint {
+            // Not a tree's list: everything one way.
+            return MutualPairs {
+                list: list.clone(),
+                one_way: list.clone(),
+                rounds: Vec::new(),
+            };
+        }
         let row_of: HashMap<(usize, usize), usize> = list
             .rows
             .iter()
@@ -80,6 +93,14 @@ impl MutualPairs {
             offsets: vec![0],
             ranges: Vec::new(),
         };
+        debug_assert!(
+            (0..n).all(|r| {
+                let rr = list.row_ranges(r);
+                let set: HashSet<(usize, usize)> = rr.iter().map(|s| (s.start, s.end)).collect();
+                set.len() == rr.len()
+            }),
+            "a row sums the same range twice"
+        );
         for a in 0..n {
             for s in list.row_ranges(a) {
                 let paired = partner(a, s).is_some_and(|b| mutual.contains(&(a.min(b), a.max(b))));
@@ -89,7 +110,21 @@ impl MutualPairs {
             }
             one_way.offsets.push(one_way.ranges.len());
         }
-        MutualPairs { one_way, rounds }
+        MutualPairs {
+            list: list.clone(),
+            one_way,
+            rounds,
+        }
+    }
+
+    /// The rows of the list, each with the ranges it sums one way.
+    pub fn one_way(&self) -> &NearList {
+        &self.one_way
+    }
+
+    /// The mutual pairs of rows `[a, b]` (`a < b`), by round; no row twice in a round.
+    pub fn rounds(&self) -> &[Vec<[usize; 2]>] {
+        &self.rounds
     }
 
     /// Number of mutual pairs of rows.
@@ -97,8 +132,8 @@ impl MutualPairs {
         self.rounds.iter().map(Vec::len).sum()
     }
 
-    /// Whether this split was made for `list` (same rows).
+    /// Whether this split was made for `list` (the same rows and ranges).
     pub fn fits(&self, list: &NearList) -> bool {
-        self.one_way.rows == list.rows
+        self.list == *list
     }
 }

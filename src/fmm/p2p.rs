@@ -86,8 +86,8 @@ impl Simd {
     /// Relative error bound of `1/|r|` after [`Newton::One`] on this instruction set: the
     /// estimate's error `e` becomes `1.5 e² + O(e³)` (always below the true value), with
     /// `|e| ≤ 2⁻¹⁴` for AVX-512's `rsqrt14` (5.6e-9) and `|e| ≤ 1.5·2⁻¹²` for AVX2's `rsqrt`
-    /// (2.0e-7; its conversion to single precision adds 6e-8 to `e`, second order after the
-    /// step). The portable loops divide exactly: 0.
+    /// (2.0e-7; its conversion to single precision adds at most 3e-8 to `e`, second order after
+    /// the step). The portable loops divide exactly: 0.
     pub fn one_newton_error(self) -> f64 {
         match self {
             Simd::Portable => 0.0,
@@ -524,6 +524,35 @@ mod avx2 {
         _mm_cvtsd_f64(_mm_add_sd(s, _mm_unpackhi_pd(s, s)))
     }
 
+    /// The separations `x − y` from a target to the sources of a tail (from `nb`, padded with
+    /// `x` itself), and their `1/|r|`.
+    #[inline(always)]
+    unsafe fn tail_separations<const N: usize>(
+        x: [f64; 3],
+        s: [&[f64]; 3],
+        nb: usize,
+    ) -> ([__m256d; 3], __m256d) {
+        let d: [__m256d; 3] =
+            std::array::from_fn(|c| _mm256_sub_pd(_mm256_set1_pd(x[c]), tail(s[c], nb, x[c])));
+        let d2 = _mm256_fmadd_pd(
+            d[0],
+            d[0],
+            _mm256_fmadd_pd(d[1], d[1], _mm256_mul_pd(d[2], d[2])),
+        );
+        (d, inv_norm::<N>(d2))
+    }
+
+    /// The values of `v` from `nb` (fewer than four), padded with `fill` to four lanes: the
+    /// tail of a loop runs through the same `1/|r|` as its full groups, so a pair's value does
+    /// not depend on where a block ends (padding the coordinates with the target's own gives
+    /// `r = 0`, which contributes nothing).
+    #[inline(always)]
+    unsafe fn tail(v: &[f64], nb: usize, fill: f64) -> __m256d {
+        let mut t = [fill; 4];
+        t[..v.len() - nb].copy_from_slice(&v[nb..]);
+        _mm256_loadu_pd(t.as_ptr())
+    }
+
     #[target_feature(enable = "avx2,fma")]
     pub unsafe fn laplace<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
@@ -545,15 +574,11 @@ mod avx2 {
                 acc = _mm256_fmadd_pd(_mm256_loadu_pd(q.as_ptr().add(j)), inv_norm::<N>(d2), acc);
                 j += 4;
             }
-            let mut sum = hsum(acc);
-            for k in nb..n {
-                let (dx, dy, dz) = (x[0] - sx[k], x[1] - sy[k], x[2] - sz[k]);
-                let d2 = dx * dx + dy * dy + dz * dz;
-                if d2 > 0.0 {
-                    sum += q[k] / d2.sqrt();
-                }
+            if nb < n {
+                let (_, inv) = tail_separations::<N>([x[0], x[1], x[2]], [sx, sy, sz], nb);
+                acc = _mm256_fmadd_pd(tail(q, nb, 0.0), inv, acc);
             }
-            *o += sum / FOUR_PI;
+            *o += hsum(acc) / FOUR_PI;
         }
     }
 
@@ -591,17 +616,16 @@ mod avx2 {
                 _mm256_storeu_pd(o, _mm256_fmadd_pd(qv, inv, _mm256_loadu_pd(o)));
                 j += 4;
             }
-            let mut sum = hsum(acc);
-            for k in nb..n {
-                let (dx, dy, dz) = (x[0] - sx[k], x[1] - sy[k], x[2] - sz[k]);
-                let d2 = dx * dx + dy * dy + dz * dz;
-                if d2 > 0.0 {
-                    let inv = 1.0 / d2.sqrt();
-                    sum += q[k] * inv;
-                    ob[k] += qi * inv;
+            if nb < n {
+                let (_, inv) = tail_separations::<N>(x, [sx, sy, sz], nb);
+                acc = _mm256_fmadd_pd(tail(q, nb, 0.0), inv, acc);
+                let mut t = [0.0; 4];
+                _mm256_storeu_pd(t.as_mut_ptr(), _mm256_mul_pd(qv, inv));
+                for (o, v) in ob[nb..].iter_mut().zip(t) {
+                    *o += v;
                 }
             }
-            oa[i] += sum / FOUR_PI;
+            oa[i] += hsum(acc) / FOUR_PI;
         }
     }
 
@@ -641,18 +665,16 @@ mod avx2 {
                 az = _mm256_fmadd_pd(_mm256_fmadd_pd(c, dz, gz), inv, az);
                 j += 4;
             }
-            let mut v = [hsum(ax), hsum(ay), hsum(az)];
-            for k in nb..n {
-                let (dx, dy, dz) = (x[0] - sx[k], x[1] - sy[k], x[2] - sz[k]);
-                let d2 = dx * dx + dy * dy + dz * dz;
-                if d2 > 0.0 {
-                    let inv = 1.0 / d2.sqrt();
-                    let rf = (dx * fx[k] + dy * fy[k] + dz * fz[k]) * inv * inv;
-                    v[0] += (fx[k] + rf * dx) * inv;
-                    v[1] += (fy[k] + rf * dy) * inv;
-                    v[2] += (fz[k] + rf * dz) * inv;
-                }
+            if nb < n {
+                let ([dx, dy, dz], inv) = tail_separations::<N>(*x, [sx, sy, sz], nb);
+                let (gx, gy, gz) = (tail(fx, nb, 0.0), tail(fy, nb, 0.0), tail(fz, nb, 0.0));
+                let rf = _mm256_fmadd_pd(dx, gx, _mm256_fmadd_pd(dy, gy, _mm256_mul_pd(dz, gz)));
+                let c = _mm256_mul_pd(rf, _mm256_mul_pd(inv, inv));
+                ax = _mm256_fmadd_pd(_mm256_fmadd_pd(c, dx, gx), inv, ax);
+                ay = _mm256_fmadd_pd(_mm256_fmadd_pd(c, dy, gy), inv, ay);
+                az = _mm256_fmadd_pd(_mm256_fmadd_pd(c, dz, gz), inv, az);
             }
+            let v = [hsum(ax), hsum(ay), hsum(az)];
             for c in 0..3 {
                 o[c] += v[c] / EIGHT_PI;
             }
