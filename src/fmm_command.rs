@@ -56,7 +56,7 @@ pub struct FmmArgs {
     order: Option<usize>,
     /// Maximum points per leaf box, sources plus targets (default: chosen from kernel and
     /// order; 4× larger where the near field goes to a GPU; √2 larger for Laplace without
-    /// --targets on one rank, where the near field evaluates each pair once for both
+    /// --targets, where on one rank the near field evaluates each pair once for both
     /// directions).
     #[arg(long)]
     leaf_size: Option<usize>,
@@ -152,8 +152,7 @@ fn points(v: Vec<f64>) -> Vec<[f64; 3]> {
 }
 
 /// The kernel and order the arguments ask for (the same on every rank).
-/// On `ranks` ranks.
-fn settings(a: &FmmArgs, ranks: usize) -> Result<(FmmKernel, usize, usize, GpuChoice), CliError> {
+fn settings(a: &FmmArgs) -> Result<(FmmKernel, usize, usize, GpuChoice), CliError> {
     if !(3..=10).contains(&a.digits) {
         return Err(CliError::Arg(format!(
             "--digits must be between 3 and 10, got {}",
@@ -192,8 +191,9 @@ fn settings(a: &FmmArgs, ranks: usize) -> Result<(FmmKernel, usize, usize, GpuCh
         if gpu_expected(gpu) && !a.direct {
             kind.default_leaf_size(order) * GPU_LEAF_FACTOR
         } else {
-            // Targets that are the sources, on one rank: the near field's mutual pairs.
-            kind.default_leaf_size_for(order, a.targets.is_none() && ranks == 1)
+            // Targets that are the sources: on one rank the near field's mutual pairs; the
+            // same leaves on every rank count, so that K ranks give one rank's values.
+            kind.default_leaf_size_for(order, a.targets.is_none())
         }
     });
     if leaf == 0 {
@@ -263,7 +263,7 @@ fn every_rank_has(e: &CliError) -> bool {
 }
 
 fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
-    let (kind, order, leaf, gpu) = settings(a, comm.size())?;
+    let (kind, order, leaf, gpu) = settings(a)?;
     let gpu_precision = match a.gpu_precision.as_deref() {
         None => None,
         Some("f32") => Some(GpuPrecision::F32),

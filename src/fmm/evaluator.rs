@@ -213,10 +213,11 @@ impl FmmKernel {
         100 * order.max(4)
     }
 
-    /// [`FmmKernel::default_leaf_size`] where the targets are the sources on one rank
-    /// (`same_points`). A kernel whose near field then evaluates each pair of leaves once for
-    /// both directions ([`MutualPairs`], Laplace) pays half as much per pair in the P2P, so
-    /// the balance against the translations moves to leaves √2 larger. Measured (2·10⁵ points,
+    /// [`FmmKernel::default_leaf_size`] where the targets are the sources (`same_points`). A
+    /// kernel whose near field then evaluates each pair of leaves once for both directions
+    /// ([`MutualPairs`], Laplace, on one rank) pays half as much per pair in the P2P, so the
+    /// balance against the translations moves to leaves √2 larger. `mobo fmm` takes them on
+    /// every rank count (the same tree, so K ranks give one rank's values to round-off). Measured (2·10⁵ points,
     /// Laplace at 6 digits, 2 threads, 3 interleaved rounds, s per evaluation, leaves of 800
     /// against 1131 sources plus targets, i.e. 400 against 566 points): uniform cube
     /// 0.38–0.44 against 0.28–0.31, spheres 0.33–0.40 against 0.33–0.34, Gaussian blobs
