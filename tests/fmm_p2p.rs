@@ -235,36 +235,24 @@ fn near_tolerance_follows_the_calibration() {
     }
     let tol = |k, d| near_tolerance(k, order_for_digits(k, d).unwrap());
     assert_eq!(tol(FmmKernel::Laplace, 6), 1e-7);
-    assert_eq!(
-        Newton::within(Simd::Avx512, tol(FmmKernel::Laplace, 7), 1),
-        Newton::One
-    );
-    assert_eq!(
-        Newton::within(Simd::Avx512, tol(FmmKernel::Laplace, 8), 1),
-        Newton::Two
-    );
-    assert_eq!(
-        Newton::within(Simd::Avx512, tol(FmmKernel::Stokeslet, 6), 3),
-        Newton::One
-    );
-    assert_eq!(
-        Newton::within(Simd::Avx512, tol(FmmKernel::Stokeslet, 7), 3),
-        Newton::Two
-    );
-    assert_eq!(
-        Newton::within(Simd::Avx2, tol(FmmKernel::Laplace, 5), 1),
-        Newton::One
-    );
-    assert_eq!(
-        Newton::within(Simd::Avx2, tol(FmmKernel::Laplace, 6), 1),
-        Newton::Two
-    );
+    // (instruction set, kernel, digits, powers of 1/|r|, steps chosen)
+    for (simd, kind, digits, powers, want) in [
+        (Simd::Avx512, FmmKernel::Laplace, 7, 1, Newton::One),
+        (Simd::Avx512, FmmKernel::Laplace, 8, 1, Newton::Two),
+        (Simd::Avx512, FmmKernel::Stokeslet, 6, 3, Newton::One),
+        (Simd::Avx512, FmmKernel::Stokeslet, 7, 3, Newton::Two),
+        (Simd::Avx2, FmmKernel::Laplace, 5, 1, Newton::One),
+        (Simd::Avx2, FmmKernel::Laplace, 6, 1, Newton::Two),
+    ] {
+        let got = Newton::within(simd, tol(kind, digits), powers);
+        assert_eq!(got, want, "{simd:?} {kind:?} at {digits} digits");
+    }
     assert_eq!(Newton::within(Simd::Portable, 1.0, 1), Newton::Two);
 }
 
 /// The bound of [`Simd::one_newton_error`] pair by pair: 4000 pairs at separations over twelve
-/// decades (each as 8 copies of one source, a full vector step), each within the bound, and the worst of them within a factor 10 of it (the
-/// bound is not slack).
+/// decades (each as 8 copies of one source, a full vector step), each within the bound, and
+/// the worst of them within a factor 10 of it (the bound is not slack).
 #[test]
 fn one_newton_error_bound_holds_per_pair() {
     use p2p::Newton;

@@ -36,7 +36,6 @@ use super::kernels::{
 use super::m2l_fft::FftM2l;
 use super::m2l_plan::{M2lPlan, DENSE_PAIRS};
 use super::near_field::{CpuNearField, NearField, NearList, NearPoints};
-use super::near_pairs::MutualPairs;
 use super::operators::{gemm, Reflection, Translations, DOWN_EQUIV, INNER, UP_CHECK};
 use super::surface::CubeSurface;
 use super::FmmError;
@@ -102,11 +101,11 @@ fn operators_for(kind: FmmKernel, order: usize) -> Result<Operators, FmmError> {
 
 /// The CPU near field of `tree` allowed `tol` per pair; where the targets are the sources in
 /// the same order (one rank, no `--targets`), each pair of leaves once for both directions
-/// ([`MutualPairs`]).
+/// ([`MutualPairs`](super::near_pairs::MutualPairs)).
 fn cpu_near_field(kind: FmmKernel, tree: &DistTree, list: &NearList, tol: f64) -> CpuNearField {
     let near = CpuNearField::within(kind.near(), tol);
-    if kind.near().has_mutual() && near_is_mutual(tree) {
-        near.with_mutual(MutualPairs::build(list))
+    if near_is_mutual(tree) {
+        near.with_mutual(list)
     } else {
         near
     }
@@ -215,13 +214,14 @@ impl FmmKernel {
 
     /// [`FmmKernel::default_leaf_size`] where the targets are the sources (`same_points`). A
     /// kernel whose near field then evaluates each pair of leaves once for both directions
-    /// ([`MutualPairs`], Laplace, on one rank) pays half as much per pair in the P2P, so the
-    /// balance against the translations moves to leaves √2 larger. `mobo fmm` takes them on
-    /// every rank count (the same tree, so K ranks give one rank's values to round-off). Measured (2·10⁵ points,
-    /// Laplace at 6 digits, 2 threads, 3 interleaved rounds, s per evaluation, leaves of 800
-    /// against 1131 sources plus targets, i.e. 400 against 566 points): uniform cube
-    /// 0.38–0.44 against 0.28–0.31, spheres 0.33–0.40 against 0.33–0.34, Gaussian blobs
-    /// 0.42–0.43 against 0.43–0.47.
+    /// ([`MutualPairs`](super::near_pairs::MutualPairs), Laplace, on one rank) pays half as
+    /// much per pair in the P2P, so the balance against the translations moves to leaves √2
+    /// larger. `mobo fmm` takes them on
+    /// every rank count (the same tree, so K ranks give one rank's values to round-off).
+    /// Measured (2·10⁵ points, Laplace at 6 digits, 2 threads, 3 interleaved rounds, s per
+    /// evaluation, leaves of 800 against 1131 sources plus targets, i.e. 400 against 566
+    /// points): uniform cube 0.38–0.44 against 0.28–0.31, spheres 0.33–0.40 against
+    /// 0.33–0.34, Gaussian blobs 0.42–0.43 against 0.43–0.47.
     pub fn default_leaf_size_for(&self, order: usize, same_points: bool) -> usize {
         let base = self.default_leaf_size(order);
         if same_points && self.near().has_mutual() {

@@ -162,22 +162,13 @@ impl CpuNearField {
         }
     }
 
-    /// Evaluate the mutual pairs of `pairs` once for both directions (built from the list this
-    /// backend will be given, whose targets are its sources in the same order); ignored for a
-    /// kernel without a mutual loop ([`Kernel::has_mutual`]) or another list.
-    pub fn with_mutual(mut self, pairs: MutualPairs) -> Self {
-        self.mutual = self.kernel.has_mutual().then_some(pairs);
+    /// Evaluate the mutual pairs of `list` ([`MutualPairs`]) once for both directions: `list`
+    /// is the one this backend will be given, and its targets are its sources in the same
+    /// order. Nothing is built for a kernel without a mutual loop ([`Kernel::has_mutual`]);
+    /// another list is evaluated row by row.
+    pub fn with_mutual(mut self, list: &NearList) -> Self {
+        self.mutual = self.kernel.has_mutual().then(|| MutualPairs::build(list));
         self
-    }
-
-    /// The mutual split in use, if any.
-    pub fn mutual(&self) -> Option<&MutualPairs> {
-        self.mutual.as_ref()
-    }
-
-    /// The relative error per pair this backend may add.
-    pub fn tolerance(&self) -> f64 {
-        self.tol
     }
 }
 

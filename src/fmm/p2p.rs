@@ -200,20 +200,8 @@ pub fn laplace_with(
     out: &mut [f64],
 ) -> bool {
     match newton {
-        Newton::Two => Variants {
-            portable: laplace_portable,
-            #[cfg(target_arch = "x86_64")]
-            avx2: avx2::laplace::<2>,
-            #[cfg(target_arch = "x86_64")]
-            avx512: avx512::laplace::<2>,
-        },
-        Newton::One => Variants {
-            portable: laplace_portable,
-            #[cfg(target_arch = "x86_64")]
-            avx2: avx2::laplace::<1>,
-            #[cfg(target_arch = "x86_64")]
-            avx512: avx512::laplace::<1>,
-        },
+        Newton::Two => variants!(laplace_portable, laplace, 2),
+        Newton::One => variants!(laplace_portable, laplace, 1),
     }
     .run(simd, t, s, out)
 }
@@ -273,6 +261,21 @@ pub fn laplace_mutual_portable(a: &SourceView, oa: &mut [f64], b: &SourceView, o
         oa[i] += acc / FOUR_PI;
     }
 }
+
+/// The [`Variants`] of a kernel: its portable loop and its AVX2 and AVX-512 loops with
+/// `$steps` Newton steps.
+macro_rules! variants {
+    ($portable:ident, $simd:ident, $steps:literal) => {
+        Variants {
+            portable: $portable,
+            #[cfg(target_arch = "x86_64")]
+            avx2: avx2::$simd::<$steps>,
+            #[cfg(target_arch = "x86_64")]
+            avx512: avx512::$simd::<$steps>,
+        }
+    };
+}
+use variants;
 
 /// One loop on each instruction set.
 struct Variants {
@@ -358,20 +361,8 @@ pub fn stokeslet_with(
     out: &mut [f64],
 ) -> bool {
     match newton {
-        Newton::Two => Variants {
-            portable: stokeslet_portable,
-            #[cfg(target_arch = "x86_64")]
-            avx2: avx2::stokeslet::<2>,
-            #[cfg(target_arch = "x86_64")]
-            avx512: avx512::stokeslet::<2>,
-        },
-        Newton::One => Variants {
-            portable: stokeslet_portable,
-            #[cfg(target_arch = "x86_64")]
-            avx2: avx2::stokeslet::<1>,
-            #[cfg(target_arch = "x86_64")]
-            avx512: avx512::stokeslet::<1>,
-        },
+        Newton::Two => variants!(stokeslet_portable, stokeslet, 2),
+        Newton::One => variants!(stokeslet_portable, stokeslet, 1),
     }
     .run(simd, t, s, out)
 }
@@ -483,10 +474,11 @@ dispatched!(
     rpy_far, rpy_far_body, (a: f64)
 );
 
-/// Hand-vectorised AVX2/FMA loops, four sources per step. `1/|r|` comes from the single-precision
-/// estimate `rsqrt` refined by `N` Newton steps `y ← y (3 − d² y²)/2` (two: relative error
-/// ≈ 1e-15, as PVFMM does; one: [`super::Simd::one_newton_error`]); lanes with `d²` outside `[1e-30, 1e30]` fall back to `1/√d²`, and `d² = 0`
-/// gives 0.
+/// Hand-vectorised AVX2/FMA loops, four sources per step (the last partial group padded).
+/// `1/|r|` comes from the single-precision estimate `rsqrt` refined by `N` Newton steps
+/// `y ← y (3 − d² y²)/2` (two: relative error ≈ 1e-15, as PVFMM does; one:
+/// [`super::Simd::one_newton_error`]); lanes with `d²` outside `[1e-30, 1e30]` fall back to
+/// `1/√d²`, and `d² = 0` gives 0.
 #[cfg(target_arch = "x86_64")]
 mod avx2 {
     use super::{SourceView, EIGHT_PI, FOUR_PI};
@@ -575,14 +567,15 @@ mod avx2 {
                 j += 4;
             }
             if nb < n {
-                let (_, inv) = tail_separations::<N>([x[0], x[1], x[2]], [sx, sy, sz], nb);
+                let (_, inv) = tail_separations::<N>(*x, [sx, sy, sz], nb);
                 acc = _mm256_fmadd_pd(tail(q, nb, 0.0), inv, acc);
             }
             *o += hsum(acc) / FOUR_PI;
         }
     }
 
-    /// [`super::laplace_mutual_with`]: four sources of `b` per step, the rest one by one.
+    /// [`super::laplace_mutual_with`]: four sources of `b` per step, the last partial group
+    /// padded.
     #[target_feature(enable = "avx2,fma")]
     pub unsafe fn laplace_mutual<const N: usize>(
         a: &SourceView,
@@ -723,6 +716,17 @@ mod avx512 {
         }
     }
 
+    /// The lanes `m` of `v` to `p` (an unmasked store for a full mask: masked stores are slow
+    /// on some CPUs, AMD Zen 4).
+    #[inline(always)]
+    unsafe fn store(m: __mmask8, p: *mut f64, v: __m512d) {
+        if m == 0xff {
+            _mm512_storeu_pd(p, v)
+        } else {
+            _mm512_mask_storeu_pd(p, m, v)
+        }
+    }
+
     #[target_feature(enable = "avx512f")]
     pub unsafe fn laplace<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         let n = s.len();
@@ -778,14 +782,7 @@ mod avx512 {
                 let inv = inv_norm::<N>(d2);
                 acc = _mm512_fmadd_pd(load(m, q.as_ptr().add(j)), inv, acc);
                 let o = ob.as_mut_ptr().add(j);
-                if j + 8 <= n {
-                    // Unmasked where the whole group is inside: masked stores are slow on
-                    // some CPUs (AMD Zen 4).
-                    _mm512_storeu_pd(o, _mm512_fmadd_pd(qv, inv, _mm512_loadu_pd(o)));
-                } else {
-                    let v = _mm512_fmadd_pd(qv, inv, _mm512_maskz_loadu_pd(m, o));
-                    _mm512_mask_storeu_pd(o, m, v);
-                }
+                store(m, o, _mm512_fmadd_pd(qv, inv, load(m, o)));
                 j += 8;
             }
             oa[i] += _mm512_reduce_add_pd(acc) / FOUR_PI;
