@@ -945,30 +945,54 @@ impl Fmm {
             self.m2l.to_chunks(&batch, &slots, de, nss, src);
         }
         t = clock.add(2, t);
+        // The kernel offsets this level uses, expanded per chunk from their base offsets.
+        let mut used = vec![false; self.m2l.n_offsets()];
+        let mut dps = [false; 27];
+        for b in &plan.blocks {
+            dps[b.dp as usize] = true;
+        }
+        for (dp, _) in dps.iter().enumerate().filter(|(_, &u)| u) {
+            self.m2l.mark_siblings(dp, &mut used);
+        }
+        for &(_, _, o) in &plan.pairs {
+            used[o as usize] = true;
+        }
         tgt.par_chunks_mut(nts * tl)
             .zip(src.par_chunks(nss * sl))
             .enumerate()
-            .for_each(|(c, (tc, sc))| {
-                let tables: Vec<[&[f64]; 64]> =
-                    (0..27).map(|dp| self.m2l.sibling_blocks(c, dp)).collect();
-                for b in &plan.blocks {
-                    let (t0, s0) = (b.target as usize, b.source as usize);
-                    self.m2l.accumulate_siblings(
-                        &tables[b.dp as usize],
-                        &sc[s0 * sl..(s0 + 8) * sl],
-                        &mut tc[t0 * tl..(t0 + 8) * tl],
-                    );
-                }
-                for &(ti, si, o) in &plan.pairs {
-                    let (ti, si) = (ti as usize, si as usize);
-                    self.m2l.accumulate_chunk(
-                        c,
-                        o as usize,
-                        &sc[si * sl..(si + 1) * sl],
-                        &mut tc[ti * tl..(ti + 1) * tl],
-                    );
-                }
-            });
+            .for_each_init(
+                || vec![0.0; self.m2l.kernel_chunk_len()],
+                |kernels, (c, (tc, sc))| {
+                    self.m2l.expand_chunk(c, &used, kernels);
+                    let kernels = &kernels[..];
+                    let tables: Vec<[&[f64]; 64]> = (0..27)
+                        .map(|dp| {
+                            if dps[dp] {
+                                self.m2l.sibling_blocks(kernels, dp)
+                            } else {
+                                [&[][..]; 64]
+                            }
+                        })
+                        .collect();
+                    for b in &plan.blocks {
+                        let (t0, s0) = (b.target as usize, b.source as usize);
+                        self.m2l.accumulate_siblings(
+                            &tables[b.dp as usize],
+                            &sc[s0 * sl..(s0 + 8) * sl],
+                            &mut tc[t0 * tl..(t0 + 8) * tl],
+                        );
+                    }
+                    for &(ti, si, o) in &plan.pairs {
+                        let (ti, si) = (ti as usize, si as usize);
+                        self.m2l.accumulate_chunk(
+                            kernels,
+                            o as usize,
+                            &sc[si * sl..(si + 1) * sl],
+                            &mut tc[ti * tl..(ti + 1) * tl],
+                        );
+                    }
+                },
+            );
         t = clock.add(3, t);
         check.par_chunks_mut(nc).enumerate().for_each_init(
             || (self.m2l.scratch(), vec![0.0; self.m2l.spectrum_len(dt)]),

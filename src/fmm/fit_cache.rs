@@ -36,6 +36,7 @@
 
 use std::ffi::OsString;
 use std::fs;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 
@@ -141,81 +142,118 @@ fn encode(key: &str, fit: &Pinv) -> Vec<u8> {
     out
 }
 
-/// A little-endian reader that returns `None` past the end.
-struct Reader<'a>(&'a [u8]);
-
-impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
-        if self.0.len() < n {
-            return None;
-        }
-        let (a, b) = self.0.split_at(n);
-        self.0 = b;
-        Some(a)
-    }
-    fn u64(&mut self) -> Option<u64> {
-        Some(u64::from_le_bytes(self.take(8)?.try_into().ok()?))
-    }
-    fn matrix(&mut self) -> Option<Mat<f64>> {
-        let (r, c) = (self.u64()? as usize, self.u64()? as usize);
-        let bytes = self.take(r.checked_mul(c)?.checked_mul(8)?)?;
-        let mut m = Mat::<f64>::zeros(r, c);
-        if r > 0 {
-            for (j, col) in bytes.chunks_exact(8 * r).enumerate() {
-                for (v, b) in m.col_mut(j).iter_mut().zip(col.chunks_exact(8)) {
-                    *v = f64::from_le_bytes(b.try_into().expect("8 bytes"));
-                }
-            }
-        }
-        Some(m)
-    }
-}
-
 /// The checksum of a file's body: FNV-1a over little-endian 64-bit words (the 8× fewer
 /// dependent multiplies of byte-wise FNV-1a matter at 50 MB per fit), the last partial word
 /// zero-padded, then the length.
 fn body_sum(bytes: &[u8]) -> u64 {
-    const PRIME: u64 = 0x0000_0100_0000_01b3;
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut h = WordSum::new();
     let words = bytes.chunks_exact(8);
     let tail = words.remainder();
     for w in words {
-        h = (h ^ u64::from_le_bytes(w.try_into().expect("8 bytes"))).wrapping_mul(PRIME);
+        h.word(u64::from_le_bytes(w.try_into().expect("8 bytes")));
     }
     if !tail.is_empty() {
         let mut last = [0u8; 8];
         last[..tail.len()].copy_from_slice(tail);
-        h = (h ^ u64::from_le_bytes(last)).wrapping_mul(PRIME);
+        h.word(u64::from_le_bytes(last));
     }
-    (h ^ bytes.len() as u64).wrapping_mul(PRIME)
+    h.finish(bytes.len() as u64)
 }
 
-fn decode(key: &str, bytes: &[u8]) -> Option<Pinv> {
-    let mut r = Reader(bytes);
-    if r.take(8)? != MAGIC {
-        return None;
+/// FNV-1a over little-endian 64-bit words, fed a word at a time (the same sum as
+/// [`body_sum`] over a body of whole words).
+struct WordSum(u64);
+
+impl WordSum {
+    const PRIME: u64 = 0x0000_0100_0000_01b3;
+    fn new() -> Self {
+        WordSum(0xcbf2_9ce4_8422_2325)
     }
-    let klen = r.u64()? as usize;
-    if r.take(klen)? != key.as_bytes() {
-        return None;
+    #[inline(always)]
+    fn word(&mut self, w: u64) {
+        self.0 = (self.0 ^ w).wrapping_mul(Self::PRIME);
     }
-    let blen = r.u64()? as usize;
-    let sum = r.u64()?;
-    let body = r.take(blen)?;
-    if body_sum(body) != sum || !r.0.is_empty() {
-        return None;
+    fn finish(&self, len: u64) -> u64 {
+        (self.0 ^ len).wrapping_mul(Self::PRIME)
     }
-    let mut b = Reader(body);
-    let vs = b.matrix()?;
-    let ut = b.matrix()?;
-    (b.0.is_empty() && vs.ncols() == ut.nrows()).then_some(Pinv { vs, ut })
 }
 
-/// The fit stored under `key` in `dir`, or `None` (no file, another key, damaged file).
+/// Read a little-endian `u64`, summed.
+fn read_u64(r: &mut impl Read, sum: Option<&mut WordSum>) -> Option<u64> {
+    let mut b = [0u8; 8];
+    r.read_exact(&mut b).ok()?;
+    let v = u64::from_le_bytes(b);
+    if let Some(h) = sum {
+        h.word(v);
+    }
+    Some(v)
+}
+
+/// One matrix of a body (rows, columns, then the columns' values), read straight into the
+/// matrix's columns; `left` is the body's bytes not yet read, so a header that claims more
+/// than the file holds is a miss before anything is allocated.
+fn read_matrix(r: &mut impl Read, sum: &mut WordSum, left: &mut u64) -> Option<Mat<f64>> {
+    *left = left.checked_sub(16)?;
+    let rows = read_u64(r, Some(sum))? as usize;
+    let cols = read_u64(r, Some(sum))? as usize;
+    let bytes = (rows as u64).checked_mul(cols as u64)?.checked_mul(8)?;
+    *left = left.checked_sub(bytes)?;
+    let mut m = Mat::<f64>::zeros(rows, cols);
+    for j in 0..cols {
+        let col = m.col_mut(j).try_as_col_major_mut()?.as_slice_mut();
+        // SAFETY: a `[f64]` is `8 · len` initialised bytes, and every bit pattern is an f64.
+        let raw = unsafe {
+            std::slice::from_raw_parts_mut(
+                col.as_mut_ptr().cast::<u8>(),
+                std::mem::size_of_val(col),
+            )
+        };
+        r.read_exact(raw).ok()?;
+        for v in col.iter_mut() {
+            let w = u64::from_le(v.to_bits());
+            sum.word(w);
+            *v = f64::from_bits(w);
+        }
+    }
+    Some(m)
+}
+
+/// A fit from a file of `len` bytes under `key`: `None` for another key, a wrong length, a
+/// damaged body.
+fn read_fit(r: &mut impl Read, key: &str, len: u64) -> Option<Pinv> {
+    let mut magic = [0u8; 8];
+    r.read_exact(&mut magic).ok()?;
+    if &magic != MAGIC {
+        return None;
+    }
+    let klen = read_u64(r, None)?;
+    if klen != key.len() as u64 {
+        return None;
+    }
+    let mut k = vec![0u8; key.len()];
+    r.read_exact(&mut k).ok()?;
+    if k != key.as_bytes() {
+        return None;
+    }
+    let blen = read_u64(r, None)?;
+    let want = read_u64(r, None)?;
+    if Some(len) != blen.checked_add(32 + klen) {
+        return None;
+    }
+    let mut sum = WordSum::new();
+    let mut left = blen;
+    let vs = read_matrix(r, &mut sum, &mut left)?;
+    let ut = read_matrix(r, &mut sum, &mut left)?;
+    (left == 0 && sum.finish(blen) == want && vs.ncols() == ut.nrows()).then_some(Pinv { vs, ut })
+}
+
+/// The fit stored under `key` in `dir`, or `None` (no file, another key, damaged file). The
+/// file is read straight into the two matrices (no file-sized buffer: at 9 digits a fit is
+/// 92 MB, and a fresh process pays for every page it touches).
 pub fn load(dir: &Path, key: &str) -> Option<Pinv> {
-    fs::read(file_for(dir, key))
-        .ok()
-        .and_then(|b| decode(key, &b))
+    let mut f = fs::File::open(file_for(dir, key)).ok()?;
+    let len = f.metadata().ok()?.len();
+    read_fit(&mut f, key, len)
 }
 
 /// Store `fit` under `key` in `dir` (created if missing), atomically.
@@ -253,6 +291,30 @@ mod tests {
         assert!(load(&dir, "k").is_none());
         fs::write(&path, &bytes[..bytes.len() / 2]).unwrap();
         assert!(load(&dir, "k").is_none());
+        fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A header that claims more rows than the file holds, and a file with bytes after its
+    /// body, are misses (no allocation of the claimed size, no partial read).
+    #[test]
+    fn a_header_that_does_not_match_the_file_length_is_a_miss() {
+        let dir = std::env::temp_dir().join(format!("mobo-fit-len-{}", std::process::id()));
+        let f = fit();
+        store(&dir, "k", &f).unwrap();
+        let path = file_for(&dir, "k");
+        let good = fs::read(&path).unwrap();
+        // The first matrix's row count sits after magic, key length, key, body length, sum.
+        let at = 8 + 8 + 1 + 8 + 8;
+        let mut huge = good.clone();
+        huge[at..at + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        fs::write(&path, &huge).unwrap();
+        assert!(load(&dir, "k").is_none());
+        let mut longer = good.clone();
+        longer.extend([0u8; 8]);
+        fs::write(&path, &longer).unwrap();
+        assert!(load(&dir, "k").is_none());
+        fs::write(&path, &good).unwrap();
+        assert_eq!(load(&dir, "k").unwrap().ut, f.ut);
         fs::remove_dir_all(&dir).unwrap();
     }
 

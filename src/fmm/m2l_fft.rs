@@ -12,6 +12,15 @@
 //! spectra `Ĝ_Δ` are computed once, at `h = 1`, for the 316 offsets with `2 ≤ |Δ|∞ ≤ 3`.
 //! Real data: spectra keep the `p + 1` non-negative frequencies of the last axis.
 //!
+//! Where the kernel has reflection signs (`K(Rx) = S_out K(x) S_in` for `R = diag(±1)`), only
+//! the 56 offsets with no negative component are computed and kept; the others follow as
+//! `Ĝ_{RΔ}(k) = S_out Ĝ_Δ(Rk) S_in`. The frequencies are stored in an order that keeps each
+//! orbit `{(±k_x, ±k_y, k_z)}` inside one chunk, so a reflected spectrum on a chunk is a
+//! permutation of its base spectrum on the same chunk, expanded in cache just before the
+//! chunk's products ([`FftM2l::expand_chunk`]). This keeps 56/316 of the table in memory
+//! (116 MB instead of 655 MB for the Stokeslet at order 15), which is most of the setup time
+//! of a fresh process: the pages of a table written once cost more than its arithmetic.
+//!
 //! The products run per chunk of [`CHUNK`] frequencies, pair by pair
 //! ([`FftM2l::accumulate_chunk`]) or for all children of two neighbouring parents at once
 //! ([`FftM2l::accumulate_siblings`]: their child offsets `2Δp + c_i − c_j` take 27 values,
@@ -81,15 +90,37 @@ pub struct FftScratch {
 }
 
 /// Precomputed kernel spectra and FFT plans for one kernel and order.
+///
+/// Spectra are stored in *position* order, not in the natural order of the frequencies
+/// `(i, j, k)`: the positions group each orbit `{(±i, ±j, k)}` of the reflections inside one
+/// chunk of [`CHUNK`] positions, so that a reflected offset's spectrum on a chunk is a
+/// permutation of its base offset's spectrum on the same chunk
+/// ([`FftM2l::expand_chunk`]). Only the base offsets are kept (56 of 316 for the kernels
+/// with reflection signs: 116 MB instead of 655 MB for the Stokeslet at order 15).
 pub struct FftM2l {
     p: usize,
     n: usize,
     /// Frequencies kept per component: `n · n · (p + 1)`.
     pub nf: usize,
+    /// Positions per component: [`FftM2l::n_chunks`] `· CHUNK` (the last chunk padded with
+    /// zeros after the `nf` frequencies).
+    np: usize,
     dt: usize,
     de: usize,
-    /// The spectra of the 316 offsets (`dt × de` blocks each) by frequency chunk: `[chunk][compact offset][a][b][re; CHUNK][im; CHUNK]`.
-    kernel_chunks: Vec<f64>,
+    /// Position of each natural frequency `(i n + j)(p + 1) + k`.
+    pos: Vec<u32>,
+    /// The spectra of the base offsets by frequency chunk:
+    /// `[base offset][chunk][a][b][re; CHUNK][im; CHUNK]`.
+    base_chunks: Vec<f64>,
+    /// Per compact offset (0..316): its base offset and reflection pattern (0..8).
+    derived: Vec<(u16, u8)>,
+    /// Per compact offset: the sign of each `a·de + b` block (`S_out[a] S_in[b]`).
+    block_signs: Vec<f64>,
+    /// Per chunk and reflection pattern: the position within the chunk that each position
+    /// of the reflected spectrum reads, `[chunk][pattern][CHUNK]`.
+    within: Vec<u8>,
+    /// Per reflection pattern: the sign of the imaginary part (−1 where z is reflected).
+    conj: [f64; 8],
     /// Compact index (0..316) of each of the 343 offset slots.
     compact: Vec<u16>,
     /// Per parent offset `Δp ∈ [−1, 1]³` (27 slots, [`parent_offset_index`]): the compact
@@ -105,6 +136,50 @@ pub struct FftM2l {
     inv: Arc<dyn Fft<f64>>,
 }
 
+/// The positions of the frequencies `(i, j, k)` (natural index `(i n + j) nh + k`): the
+/// orbits `{(±i, ±j, k)}` (mod `n`) of 4, then of 2, then of 1 element, each orbit at
+/// consecutive positions, so that no orbit straddles a multiple of [`CHUNK`].
+fn frequency_positions(n: usize, nh: usize) -> Vec<u32> {
+    let neg = |k: usize| (n - k) % n;
+    let mut seen = vec![false; n * n];
+    // Orbits of (i, j) by size: 4, 2, 1.
+    let mut classes: [Vec<Vec<usize>>; 3] = [Vec::new(), Vec::new(), Vec::new()];
+    for i in 0..n {
+        for j in 0..n {
+            if seen[i * n + j] {
+                continue;
+            }
+            let mut orbit: Vec<usize> = Vec::with_capacity(4);
+            for (a, b) in [(i, j), (neg(i), j), (i, neg(j)), (neg(i), neg(j))] {
+                let ij = a * n + b;
+                if !orbit.contains(&ij) {
+                    orbit.push(ij);
+                    seen[ij] = true;
+                }
+            }
+            let class = match orbit.len() {
+                4 => 0,
+                2 => 1,
+                _ => 2,
+            };
+            classes[class].push(orbit);
+        }
+    }
+    let mut pos = vec![u32::MAX; n * n * nh];
+    let mut next = 0u32;
+    for class in &classes {
+        for k in 0..nh {
+            for orbit in class {
+                for &ij in orbit {
+                    pos[ij * nh + k] = next;
+                    next += 1;
+                }
+            }
+        }
+    }
+    pos
+}
+
 impl FftM2l {
     /// Spectra of `ke` for every well-separated offset at unit half-width (56 computed, the
     /// others by reflection where the kernel allows it).
@@ -118,7 +193,9 @@ impl FftM2l {
         let n = 2 * p;
         let nh = p + 1;
         let nf = n * n * nh;
+        let n_chunks = nf.div_ceil(CHUNK);
         let (dt, de) = (ke.output_dim(), ke.density_dim());
+        let nblk = dt * de;
         let mut planner = FftPlanner::new();
         let fwd = planner.plan_fft_forward(n);
         let inv = planner.plan_fft_inverse(n);
@@ -126,13 +203,19 @@ impl FftM2l {
             p,
             n,
             nf,
+            np: n_chunks * CHUNK,
             dt,
             de,
-            kernel_chunks: Vec::new(),
+            pos: frequency_positions(n, nh),
+            base_chunks: Vec::new(),
+            derived: Vec::new(),
+            block_signs: Vec::new(),
+            within: Vec::new(),
+            conj: [1.0; 8],
             compact: vec![u16::MAX; 343],
             siblings: Vec::new(),
-            zeros: vec![0.0; dt * de * 2 * CHUNK],
-            n_chunks: nf.div_ceil(CHUNK),
+            zeros: vec![0.0; nblk * 2 * CHUNK],
+            n_chunks,
             lattice: surf.lattice.clone(),
             fwd,
             inv,
@@ -153,113 +236,182 @@ impl FftM2l {
             .copied()
             .filter(|d| !reflect || d.iter().all(|&c| c >= 0))
             .collect();
-        let hats = m2l.spectra(ke, &computed);
-        let mut base: Vec<Option<&Vec<f64>>> = vec![None; 343];
-        for (d, h) in computed.iter().zip(&hats) {
-            base[offset_index(*d)] = Some(h);
+        m2l.base_chunks = m2l.spectra(ke, &computed);
+        let mut base = vec![u16::MAX; 343];
+        for (b, d) in computed.iter().enumerate() {
+            base[offset_index(*d)] = b as u16;
         }
-        // Per reflection pattern: the source frequency of each frequency, and the sign of the
-        // imaginary part (see `reflected_frequencies`).
-        let maps: Vec<(Vec<u32>, f64)> = (0..8)
-            .map(|o| m2l.reflected_frequencies(reflection_of(o)))
-            .collect();
-        let nblk = dt * de;
-        // (spectrum, reflection pattern, per-block sign) of each offset, in slot order.
-        let plan: Vec<(&Vec<f64>, usize, Vec<f64>)> = offsets
-            .iter()
-            .map(|d| {
-                let o = if reflect {
-                    (usize::from(d[0] < 0) << 2)
-                        | (usize::from(d[1] < 0) << 1)
-                        | usize::from(d[2] < 0)
-                } else {
-                    0
-                };
-                let src = base[offset_index(d.map(|c| if reflect { c.abs() } else { c }))]
-                    .expect("every source offset computed");
-                let sb = match &signs[o] {
-                    Some((so, si)) if reflect => {
-                        (0..nblk).map(|blk| so[blk / de] * si[blk % de]).collect()
-                    }
-                    _ => vec![1.0; nblk],
-                };
-                (src, o, sb)
-            })
-            .collect();
         for (k, d) in offsets.iter().enumerate() {
             m2l.compact[offset_index(*d)] = k as u16;
+            let o = if reflect {
+                (usize::from(d[0] < 0) << 2) | (usize::from(d[1] < 0) << 1) | usize::from(d[2] < 0)
+            } else {
+                0
+            };
+            let b = base[offset_index(d.map(|c| if reflect { c.abs() } else { c }))];
+            assert!(b != u16::MAX, "every source offset computed");
+            m2l.derived.push((b, o as u8));
+            match &signs[o] {
+                Some((so, si)) if reflect => m2l
+                    .block_signs
+                    .extend((0..nblk).map(|blk| so[blk / de] * si[blk % de])),
+                _ => m2l.block_signs.extend(std::iter::repeat_n(1.0, nblk)),
+            }
         }
         m2l.siblings = sibling_tables(&m2l.compact);
-        // The chunked layout (chunk × offset × block × [re; CHUNK][im; CHUNK]), chunks in
-        // parallel.
-        let per_chunk = offsets.len() * nblk * 2 * CHUNK;
-        let mut kc = vec![0.0; m2l.n_chunks * per_chunk];
-        kc.par_chunks_mut(per_chunk)
-            .enumerate()
-            .for_each(|(c, region)| {
-                let fs = c * CHUNK..((c + 1) * CHUNK).min(nf);
-                for (k, (src, o, sb)) in plan.iter().enumerate() {
-                    let (map, conj) = (&maps[*o].0, maps[*o].1);
-                    for (blk, s) in sb.iter().enumerate() {
-                        let h = &src[blk * 2 * nf..(blk + 1) * 2 * nf];
-                        let out = &mut region[(k * nblk + blk) * 2 * CHUNK..][..2 * CHUNK];
-                        for (i, f) in fs.clone().enumerate() {
-                            let g = map[f] as usize;
-                            out[i] = s * h[g];
-                            out[CHUNK + i] = conj * s * h[nf + g];
-                        }
-                    }
-                }
-            });
-        m2l.kernel_chunks = kc;
+        // Per reflection pattern and chunk: where each position reads (within its chunk).
+        let mut order = vec![usize::MAX; m2l.np];
+        for (f, &q) in m2l.pos.iter().enumerate() {
+            order[q as usize] = f;
+        }
+        m2l.within = vec![0; n_chunks * 8 * CHUNK];
+        for o in 0..8 {
+            let (map, conj) = m2l.reflected_frequencies(reflection_of(o));
+            m2l.conj[o] = conj;
+            for (q, &f) in order.iter().enumerate() {
+                let (c, i) = (q / CHUNK, q % CHUNK);
+                let from = if f == usize::MAX {
+                    i
+                } else {
+                    let g = m2l.pos[map[f] as usize] as usize;
+                    assert_eq!(g / CHUNK, c, "a reflection leaves its chunk");
+                    g % CHUNK
+                };
+                m2l.within[(c * 8 + o) * CHUNK + i] = from as u8;
+            }
+        }
         m2l
     }
 
-    /// Spectra (`dt·de` blocks of `[re; nf][im; nf]`) of the kernel sampled on the doubled
-    /// grid for each offset in `offsets`, in parallel: the direct computation.
-    fn spectra(&self, ke: &dyn Kernel, offsets: &[[i32; 3]]) -> Vec<Vec<f64>> {
-        let (p, n, nf, dt, de) = (self.p, self.n, self.nf, self.dt, self.de);
+    /// Number of well-separated offsets (316), the compact offsets' range.
+    pub fn n_offsets(&self) -> usize {
+        self.derived.len()
+    }
+
+    /// Length of the buffer [`FftM2l::expand_chunk`] fills: every offset's kernel blocks on
+    /// one chunk.
+    pub fn kernel_chunk_len(&self) -> usize {
+        self.derived.len() * self.dt * self.de * 2 * CHUNK
+    }
+
+    /// Mark in `used` (one flag per compact offset) the offsets of the sibling blocks of
+    /// parent offset slot `dp`.
+    pub fn mark_siblings(&self, dp: usize, used: &mut [bool]) {
+        for &o in &self.siblings[dp] {
+            if o != u16::MAX {
+                used[o as usize] = true;
+            }
+        }
+    }
+
+    /// The kernel blocks of frequency chunk `c` of the compact offsets marked in `used`
+    /// (`[offset][a][b][re; CHUNK][im; CHUNK]`; the others are left as they are), each read
+    /// from its base offset's chunk: `ĝ_d(q) = s_ab ĝ_|d|(w(q))`, the imaginary part negated
+    /// where the reflection flips z.
+    pub fn expand_chunk(&self, c: usize, used: &[bool], out: &mut [f64]) {
+        let nblk = self.dt * self.de;
+        let len = nblk * 2 * CHUNK;
+        for (k, &(b, o)) in self.derived.iter().enumerate() {
+            if !used[k] {
+                continue;
+            }
+            let src = &self.base_chunks[(b as usize * self.n_chunks + c) * len..][..len];
+            let dst = &mut out[k * len..(k + 1) * len];
+            let signs = &self.block_signs[k * nblk..(k + 1) * nblk];
+            let o = o as usize;
+            if o == 0 {
+                for ((d, s), &sg) in dst
+                    .chunks_exact_mut(2 * CHUNK)
+                    .zip(src.chunks_exact(2 * CHUNK))
+                    .zip(signs)
+                {
+                    for (x, y) in d.iter_mut().zip(s) {
+                        *x = sg * y;
+                    }
+                }
+                continue;
+            }
+            let w: &[u8; CHUNK] = self.within[(c * 8 + o) * CHUNK..][..CHUNK]
+                .try_into()
+                .expect("a chunk");
+            let conj = self.conj[o];
+            for ((d, s), &sg) in dst
+                .chunks_exact_mut(2 * CHUNK)
+                .zip(src.chunks_exact(2 * CHUNK))
+                .zip(signs)
+            {
+                let (dre, dim) = d.split_at_mut(CHUNK);
+                let (sre, sim) = s.split_at(CHUNK);
+                let si = sg * conj;
+                for i in 0..CHUNK {
+                    let from = w[i] as usize;
+                    dre[i] = sg * sre[from];
+                    dim[i] = si * sim[from];
+                }
+            }
+        }
+    }
+
+    /// Spectra of the kernel sampled on the doubled grid for each offset in `offsets`, in
+    /// parallel (the direct computation), in the chunked layout of
+    /// [`FftM2l::base_chunks`](FftM2l): `[offset][chunk][a][b][re; CHUNK][im; CHUNK]`.
+    fn spectra(&self, ke: &dyn Kernel, offsets: &[[i32; 3]]) -> Vec<f64> {
+        let (p, n, np, dt, de) = (self.p, self.n, self.np, self.dt, self.de);
         let delta = 2.0 * INNER / (p - 1) as f64;
         let scale = 1.0 / (n * n * n) as f64;
         let wrap = |m: i64| -> usize { m.rem_euclid(n as i64) as usize };
         let lim = p as i64 - 1;
-        offsets
-            .par_iter()
-            .map(|&[dx, dy, dz]| {
-                let mut scratch = self.scratch();
-                let mut unit = vec![0.0; de];
-                let mut val = vec![0.0; dt];
-                let mut hat = vec![0.0; dt * de * 2 * nf];
-                // One real grid per output component a.
-                let mut grids = vec![vec![0.0; n * n * n]; dt];
-                for b in 0..de {
-                    unit.fill(0.0);
-                    unit[b] = 1.0;
-                    for mx in -lim..=lim {
-                        for my in -lim..=lim {
-                            for mz in -lim..=lim {
-                                let r = [
-                                    2.0 * dx as f64 + delta * mx as f64,
-                                    2.0 * dy as f64 + delta * my as f64,
-                                    2.0 * dz as f64 + delta * mz as f64,
-                                ];
-                                val.fill(0.0);
-                                ke.accumulate(r, &unit, [0.0; 3], &mut val);
-                                let idx = (wrap(mx) * n + wrap(my)) * n + wrap(mz);
-                                for a in 0..dt {
-                                    grids[a][idx] = val[a] * scale;
+        let nblk = dt * de;
+        let mut out = vec![0.0; offsets.len() * nblk * 2 * np];
+        out.par_chunks_mut(nblk * 2 * np)
+            .zip(offsets)
+            .for_each_init(
+                || {
+                    (
+                        self.scratch(),
+                        vec![vec![0.0; n * n * n]; dt],
+                        vec![0.0; 2 * np],
+                    )
+                },
+                |(scratch, grids, hat), (dst, &[dx, dy, dz])| {
+                    let mut unit = vec![0.0; de];
+                    let mut val = vec![0.0; dt];
+                    for b in 0..de {
+                        unit.fill(0.0);
+                        unit[b] = 1.0;
+                        for mx in -lim..=lim {
+                            for my in -lim..=lim {
+                                for mz in -lim..=lim {
+                                    let r = [
+                                        2.0 * dx as f64 + delta * mx as f64,
+                                        2.0 * dy as f64 + delta * my as f64,
+                                        2.0 * dz as f64 + delta * mz as f64,
+                                    ];
+                                    val.fill(0.0);
+                                    ke.accumulate(r, &unit, [0.0; 3], &mut val);
+                                    let idx = (wrap(mx) * n + wrap(my)) * n + wrap(mz);
+                                    for a in 0..dt {
+                                        grids[a][idx] = val[a] * scale;
+                                    }
                                 }
                             }
                         }
+                        for (a, g) in grids.iter().enumerate() {
+                            self.forward_full(g, hat, scratch);
+                            // Into the chunked layout: chunk × block × [re; CHUNK][im; CHUNK].
+                            let blk = a * de + b;
+                            for c in 0..self.n_chunks {
+                                let at = (c * nblk + blk) * 2 * CHUNK;
+                                let d = &mut dst[at..at + 2 * CHUNK];
+                                d[..CHUNK].copy_from_slice(&hat[c * CHUNK..(c + 1) * CHUNK]);
+                                d[CHUNK..]
+                                    .copy_from_slice(&hat[np + c * CHUNK..np + (c + 1) * CHUNK]);
+                            }
+                        }
                     }
-                    for (a, g) in grids.iter().enumerate() {
-                        let blk = &mut hat[(a * de + b) * 2 * nf..(a * de + b + 1) * 2 * nf];
-                        self.forward_full(g, blk, &mut scratch);
-                    }
-                }
-                hat
-            })
-            .collect()
+                },
+            );
+        out
     }
 
     /// For the reflection `R`: the stored frequency `g(f)` whose value gives frequency `f`
@@ -299,9 +451,9 @@ impl FftM2l {
         comps * 2 * CHUNK
     }
 
-    /// Scatter per-box spectra (`boxes × comps × [re; nf][im; nf]`) into slots `slots[k]` of
-    /// chunked storage of `nslots` slots (`chunk × slot × comps × [re; CHUNK][im; CHUNK]`; the
-    /// padding of the last chunk and other slots are left as they are), chunks in parallel.
+    /// Scatter per-box spectra (`boxes × comps × [re; np][im; np]`, position order) into
+    /// slots `slots[k]` of chunked storage of `nslots` slots (`chunk × slot × comps × [re;
+    /// CHUNK][im; CHUNK]`; other slots are left as they are), chunks in parallel.
     pub fn to_chunks(
         &self,
         per_box: &[f64],
@@ -310,27 +462,25 @@ impl FftM2l {
         nslots: usize,
         out: &mut [f64],
     ) {
-        let nf = self.nf;
+        let np = self.np;
         let per_chunk = nslots * comps * 2 * CHUNK;
         out.par_chunks_mut(per_chunk)
             .enumerate()
             .for_each(|(c, dst)| {
                 let f0 = c * CHUNK;
-                let len = CHUNK.min(nf - f0);
                 for (bx, &slot) in slots.iter().enumerate() {
                     for k in 0..comps {
-                        let src =
-                            &per_box[(bx * comps + k) * 2 * nf..(bx * comps + k + 1) * 2 * nf];
+                        let src = &per_box[(bx * comps + k) * 2 * np..][..2 * np];
                         let at = (slot as usize * comps + k) * 2 * CHUNK;
                         let d = &mut dst[at..at + 2 * CHUNK];
-                        d[..len].copy_from_slice(&src[f0..f0 + len]);
-                        d[CHUNK..CHUNK + len].copy_from_slice(&src[nf + f0..nf + f0 + len]);
+                        d[..CHUNK].copy_from_slice(&src[f0..f0 + CHUNK]);
+                        d[CHUNK..].copy_from_slice(&src[np + f0..np + f0 + CHUNK]);
                     }
                 }
             });
     }
 
-    /// Gather box `bx`'s spectrum (`comps × [re; nf][im; nf]`) from chunked storage of `nbox`
+    /// Gather box `bx`'s spectrum (`comps × [re; np][im; np]`) from chunked storage of `nbox`
     /// boxes.
     pub fn from_chunks(
         &self,
@@ -340,42 +490,42 @@ impl FftM2l {
         comps: usize,
         out: &mut [f64],
     ) {
-        let nf = self.nf;
+        let np = self.np;
         let per_chunk = nbox * comps * 2 * CHUNK;
         for c in 0..self.n_chunks {
             let f0 = c * CHUNK;
-            let len = CHUNK.min(nf - f0);
             for k in 0..comps {
                 let s = &chunks[c * per_chunk + (bx * comps + k) * 2 * CHUNK..];
-                out[k * 2 * nf + f0..k * 2 * nf + f0 + len].copy_from_slice(&s[..len]);
-                out[k * 2 * nf + nf + f0..k * 2 * nf + nf + f0 + len]
-                    .copy_from_slice(&s[CHUNK..CHUNK + len]);
+                out[k * 2 * np + f0..][..CHUNK].copy_from_slice(&s[..CHUNK]);
+                out[k * 2 * np + np + f0..][..CHUNK].copy_from_slice(&s[CHUNK..2 * CHUNK]);
             }
         }
     }
 
-    /// Within frequency chunk `c`: `target += Ĝ_o · source` for compact offset `o`.
-    pub fn accumulate_chunk(&self, c: usize, o: usize, source: &[f64], target: &mut [f64]) {
-        let nblk = self.dt * self.de;
-        let per_chunk = self.kernel_chunks.len() / self.n_chunks;
-        let base = c * per_chunk + o * nblk * 2 * CHUNK;
-        let g = &self.kernel_chunks[base..base + nblk * 2 * CHUNK];
-        hadamard(g, source, target, self.dt, self.de);
+    /// Within one frequency chunk: `target += Ĝ_o · source` for compact offset `o`, with
+    /// `kernels` that chunk's blocks from [`FftM2l::expand_chunk`].
+    pub fn accumulate_chunk(&self, kernels: &[f64], o: usize, source: &[f64], target: &mut [f64]) {
+        let len = self.dt * self.de * 2 * CHUNK;
+        hadamard(
+            &kernels[o * len..(o + 1) * len],
+            source,
+            target,
+            self.dt,
+            self.de,
+        );
     }
 
-    /// The kernel blocks of frequency chunk `c` between the 8 children of a target box and the
-    /// 8 children of a source box at parent offset slot `dp` ([`parent_offset_index`]), at
-    /// `8 i + j` for target octant `i` and source octant `j`: zeros where the children touch.
-    pub fn sibling_blocks(&self, c: usize, dp: usize) -> [&[f64]; 64] {
-        let nblk = self.dt * self.de;
-        let per_chunk = self.kernel_chunks.len() / self.n_chunks;
-        let len = nblk * 2 * CHUNK;
+    /// The kernel blocks (from `kernels`, one chunk's blocks from [`FftM2l::expand_chunk`])
+    /// between the 8 children of a target box and the 8 children of a source box at parent
+    /// offset slot `dp` ([`parent_offset_index`]), at `8 i + j` for target octant `i` and
+    /// source octant `j`: zeros where the children touch.
+    pub fn sibling_blocks<'a>(&'a self, kernels: &'a [f64], dp: usize) -> [&'a [f64]; 64] {
+        let len = self.dt * self.de * 2 * CHUNK;
         self.siblings[dp].map(|o| {
             if o == u16::MAX {
                 &self.zeros[..]
             } else {
-                let base = c * per_chunk + o as usize * len;
-                &self.kernel_chunks[base..base + len]
+                &kernels[o as usize * len..(o as usize + 1) * len]
             }
         })
     }
@@ -407,10 +557,10 @@ impl FftM2l {
 
     /// Length of one spectrum of `comps` components.
     pub fn spectrum_len(&self, comps: usize) -> usize {
-        comps * 2 * self.nf
+        comps * 2 * self.np
     }
 
-    /// Half spectrum (`[re; nf] [im; nf]`) of a full real `n³` grid.
+    /// Half spectrum (`[re; np] [im; np]`, position order) of a full real `n³` grid.
     fn forward_full(&self, real: &[f64], out: &mut [f64], s: &mut FftScratch) {
         let n = self.n;
         for (c, &r) in s.line.iter_mut().zip(real) {
@@ -430,13 +580,17 @@ impl FftM2l {
         self.store(s, out);
     }
 
+    /// `s.grid`'s spectrum into `out` (`[re; np] [im; np]`) at the frequencies' positions,
+    /// zeros in the padding.
     fn store(&self, s: &FftScratch, out: &mut [f64]) {
-        let nf = self.nf;
-        let (re, im) = out.split_at_mut(nf);
-        for (f, c) in s.grid[..nf].iter().enumerate() {
-            re[f] = c.re;
-            im[f] = c.im;
+        let (nf, np) = (self.nf, self.np);
+        let (re, im) = out[..2 * np].split_at_mut(np);
+        for (c, &q) in s.grid[..nf].iter().zip(&self.pos) {
+            re[q as usize] = c.re;
+            im[q as usize] = c.im;
         }
+        re[nf..].fill(0.0);
+        im[nf..].fill(0.0);
     }
 
     /// FFTs of `s.grid` (`n × n × (p+1)`) along one of its first two axes (`axis` 0: along
@@ -481,7 +635,7 @@ impl FftM2l {
     }
 
     /// Spectrum of an equivalent density on the surface (`de` values per surface point,
-    /// interleaved) into `out` (`de` blocks of `[re; nf] [im; nf]`).
+    /// interleaved) into `out` (`de` blocks of `[re; np] [im; np]`, position order).
     pub fn spectrum(&self, density: &[f64], out: &mut [f64], s: &mut FftScratch) {
         let (p, n, nh, nf) = (self.p, self.n, self.p + 1, self.nf);
         for b in 0..self.de {
@@ -502,7 +656,7 @@ impl FftM2l {
                 }
             }
             self.transform_ij(s, false, p);
-            self.store(s, &mut out[b * 2 * nf..(b + 1) * 2 * nf]);
+            self.store(s, &mut out[b * 2 * self.np..(b + 1) * 2 * self.np]);
         }
     }
 
@@ -510,9 +664,9 @@ impl FftM2l {
     pub fn check_values(&self, spec: &[f64], out: &mut [f64], s: &mut FftScratch) {
         let (p, n, nh, nf) = (self.p, self.n, self.p + 1, self.nf);
         for a in 0..self.dt {
-            let blk = &spec[a * 2 * nf..(a + 1) * 2 * nf];
-            for f in 0..nf {
-                s.grid[f] = Complex64::new(blk[f], blk[nf + f]);
+            let (re, im) = spec[a * 2 * self.np..(a + 1) * 2 * self.np].split_at(self.np);
+            for (g, &q) in s.grid[..nf].iter_mut().zip(&self.pos) {
+                *g = Complex64::new(re[q as usize], im[q as usize]);
             }
             // Inverse along i (all j, k), then along j for i < p.
             self.fft_axis(s, 0, n, true);
@@ -726,7 +880,7 @@ mod tests {
     use crate::fmm::kernels::{Laplace, Stokeslet, StokesletSource};
 
     /// The spectra obtained by reflecting the 56 offsets with no negative component equal
-    /// the ones computed directly for all 316 offsets.
+    /// the ones computed directly for all 316 offsets, on every chunk.
     #[test]
     fn reflected_spectra_equal_the_direct_ones() {
         let kernels: [&dyn Kernel; 3] = [&Laplace, &Stokeslet, &StokesletSource];
@@ -736,14 +890,56 @@ mod tests {
                 FftM2l::build(ke, &surf, true),
                 FftM2l::build(ke, &surf, false),
             );
-            let scale = b.kernel_chunks.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let err = a
-                .kernel_chunks
-                .iter()
-                .zip(&b.kernel_chunks)
-                .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
-            assert_eq!(a.kernel_chunks.len(), b.kernel_chunks.len());
-            assert!(err <= 1e-13 * scale, "{}: {err:e} of {scale:e}", ke.name());
+            assert_eq!(a.base_chunks.len() * 316, b.base_chunks.len() * 56);
+            let used = vec![true; a.n_offsets()];
+            let (mut ka, mut kb) = (
+                vec![0.0; a.kernel_chunk_len()],
+                vec![0.0; b.kernel_chunk_len()],
+            );
+            let scale = b.base_chunks.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for c in 0..a.n_chunks {
+                a.expand_chunk(c, &used, &mut ka);
+                b.expand_chunk(c, &used, &mut kb);
+                let err = ka
+                    .iter()
+                    .zip(&kb)
+                    .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+                assert!(
+                    err <= 1e-13 * scale,
+                    "{} chunk {c}: {err:e} of {scale:e}",
+                    ke.name()
+                );
+            }
+        }
+    }
+
+    /// The positions put each frequency once, group every reflection orbit inside one chunk,
+    /// and leave only the last chunk's tail as padding, for even and odd orders.
+    #[test]
+    fn frequency_positions_keep_reflection_orbits_in_one_chunk() {
+        for p in [3usize, 4, 6, 10, 15] {
+            let (n, nh) = (2 * p, p + 1);
+            let pos = frequency_positions(n, nh);
+            let nf = n * n * nh;
+            let mut seen = vec![false; nf];
+            for &q in &pos {
+                assert!(
+                    (q as usize) < nf && !seen[q as usize],
+                    "p = {p}: position {q}"
+                );
+                seen[q as usize] = true;
+            }
+            let neg = |k: usize| (n - k) % n;
+            for i in 0..n {
+                for j in 0..n {
+                    for k in 0..nh {
+                        let c = pos[(i * n + j) * nh + k] as usize / CHUNK;
+                        for (a, b) in [(neg(i), j), (i, neg(j)), (neg(i), neg(j))] {
+                            assert_eq!(pos[(a * n + b) * nh + k] as usize / CHUNK, c);
+                        }
+                    }
+                }
+            }
         }
     }
 
@@ -782,10 +978,13 @@ mod tests {
             };
             let src: Vec<f64> = (0..8 * sl).map(|_| next()).collect();
             let start: Vec<f64> = (0..8 * tl).map(|_| next()).collect();
+            let used = vec![true; m2l.n_offsets()];
+            let mut kernels = vec![0.0; m2l.kernel_chunk_len()];
             for dp in (0..27).filter(|&d| d != 13) {
                 for c in [0, m2l.n_chunks - 1] {
+                    m2l.expand_chunk(c, &used, &mut kernels);
                     let mut blocked = start.clone();
-                    m2l.accumulate_siblings(&m2l.sibling_blocks(c, dp), &src, &mut blocked);
+                    m2l.accumulate_siblings(&m2l.sibling_blocks(&kernels, dp), &src, &mut blocked);
                     let mut pairs = start.clone();
                     let dpv = parent_offset(dp);
                     assert_eq!(parent_offset_index(dpv), dp);
@@ -800,7 +999,7 @@ mod tests {
                             n += 1;
                             let o = m2l.compact_offset(offset_index(d));
                             m2l.accumulate_chunk(
-                                c,
+                                &kernels,
                                 o,
                                 &src[j * sl..(j + 1) * sl],
                                 &mut pairs[i * tl..(i + 1) * tl],

@@ -122,22 +122,23 @@ pub fn kernel_matrix(k: &dyn Kernel, xs: &[[f64; 3]], ys: &[[f64; 3]]) -> Mat<f6
     if rows == 0 || ys.is_empty() {
         return Mat::zeros(rows, ys.len() * de);
     }
-    // Column-major, the `de` columns of one source at a time, sources in parallel.
-    let mut data = vec![0.0; rows * ys.len() * de];
-    data.par_chunks_mut(rows * de)
+    // The `de` columns of one source at a time, sources in parallel, written in place (a
+    // matrix of 100 MB at order 15: its pages once, not a buffer and a copy).
+    let mut m = Mat::<f64>::zeros(rows, ys.len() * de);
+    m.par_col_chunks_mut(de)
         .zip(ys.par_iter())
-        .for_each(|(cols, y)| {
+        .for_each(|(mut cols, y)| {
             let mut t = [0.0; 16];
             for (i, x) in xs.iter().enumerate() {
                 k.tensor([x[0] - y[0], x[1] - y[1], x[2] - y[2]], &mut t);
                 for a in 0..dt {
                     for b in 0..de {
-                        cols[b * rows + i * dt + a] = t[a * de + b];
+                        cols[(i * dt + a, b)] = t[a * de + b];
                     }
                 }
             }
         });
-    MatRef::from_column_major_slice(&data, rows, ys.len() * de).to_owned()
+    m
 }
 
 /// Octant index of a child whose centre is at `sign(σ)` from its parent's: bit 2 for x, 1 for
