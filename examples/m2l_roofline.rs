@@ -14,8 +14,8 @@
 //!
 //! * **pairs**: [`FftM2l::accumulate_chunk`] for every pair, sorted by offset then target;
 //! * **8 × 8 blocks**: [`FftM2l::accumulate_siblings`] for every pair of neighbouring parents
-//!   (the evaluator's default in uniform regions; 64 products per block, zeros for touching
-//!   children), sorted by target.
+//!   (the evaluator's default in uniform regions; up to 63 products per block, touching
+//!   children skipped, zeros for absent ones), sorted by target.
 //!
 //! Rates count the useful flops (the V-list pairs') either way, against faer's one-thread GEMM
 //! rate and the one-thread triad bandwidth measured in the same run:
@@ -200,7 +200,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let sc = &src[c * boxes * sl..(c + 1) * boxes * sl];
                 let tc = &mut tgt[c * boxes * tl..(c + 1) * boxes * tl];
                 m2l.expand_chunk(c, &used, &mut kernels);
-                let tables: Vec<[&[f64]; 64]> =
+                let tables: Vec<[&[f64]; 27]> =
                     (0..27).map(|dp| m2l.sibling_blocks(&kernels, dp)).collect();
                 for &(t0, s0, dp) in &blocks {
                     m2l.accumulate_siblings(

@@ -80,6 +80,11 @@ pub struct FmmArgs {
     /// the JSON's `operator_cache` names the directory used).
     #[arg(long)]
     no_cache: bool,
+    /// The most memory (MiB) the M2L's frequency-domain buffers of one tree level may take; a
+    /// level that needs more runs in parts (slower: sources near a split are transformed once
+    /// per part). The JSON's `m2l_buffer_peak_mib` is what the evaluation used.
+    #[arg(long, default_value_t = (mobo::fmm::evaluator::M2L_BUFFER_BYTES >> 20) as u64)]
+    m2l_buffer_mib: u64,
     /// Output file, (M,) for Laplace kernels, (M, 3) for vector kernels.
     #[arg(long)]
     out: PathBuf,
@@ -310,6 +315,9 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         order,
         leaf,
     )?;
+    fmm.set_m2l_buffer_bytes(
+        usize::try_from(a.m2l_buffer_mib.saturating_mul(1 << 20)).unwrap_or(usize::MAX),
+    );
     let near = if a.direct {
         None
     } else {
@@ -396,6 +404,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         "boxes": fmm.tree.boxes.len(),
         "threads": rayon::current_num_threads(),
         "setup_s": max(5),
+        "m2l_buffer_peak_mib": fmm.m2l_peak_bytes() as f64 / (1u64 << 20) as f64,
         "operator_cache": mobo::fmm::fit_cache::dir().map(|d| d.display().to_string()),
         "eval_s": max(2),
         "eval_first_s": eval_first,

@@ -295,6 +295,13 @@ fn fmm_convergence_table() {
     }
 }
 
+/// The largest `|a_i − b_i|`.
+fn max_difference(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+}
+
 /// The M2L run as 8 × 8 sibling blocks (the default) gives the pair-by-pair M2L's values to
 /// round-off, for every kernel shape (1 × 1, 3 × 3, 3 × 4 blocks) on a uniform cloud (blocks
 /// nearly everywhere) and a cell-surface cloud (blocks and pairs mixed), and again with
@@ -323,10 +330,7 @@ fn sibling_blocked_m2l_matches_the_pairwise_m2l() {
             let (pairs, blocked, everywhere) = (run(usize::MAX), run(DENSE_PAIRS), run(1));
             let scale = pairs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (name, u) in [("default", &blocked), ("everywhere", &everywhere)] {
-                let err = u
-                    .iter()
-                    .zip(&pairs)
-                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                let err = max_difference(u, &pairs);
                 println!(
                     "{kernel:?} {}: blocks {name} vs pairs {err:.1e} of {scale:.1e}",
                     cloud.name()
@@ -337,6 +341,56 @@ fn sibling_blocked_m2l_matches_the_pairwise_m2l() {
                     cloud.name()
                 );
                 assert_ne!(u, &pairs, "{kernel:?} {}: no block ran", cloud.name());
+            }
+        }
+    }
+}
+
+/// The M2L run in parts (a level whose chunked spectra exceed the budget is split between
+/// sibling groups, each part with its own sources' spectra) gives the one-part values to
+/// round-off, on a uniform and a cell-surface cloud, with budgets that force a few parts and
+/// one sibling group per part; the footprint it reports shrinks accordingly.
+#[test]
+fn m2l_in_parts_matches_the_m2l_in_one_part() {
+    let n = 12_000;
+    for cloud in [Cloud::Uniform, Cloud::Spheres] {
+        let pts = cloud.points(n, 8);
+        for kernel in [FmmKernel::Laplace, FmmKernel::Stokeslet] {
+            let (dd, od) = (kernel.near().density_dim(), kernel.near().output_dim());
+            let dens = Cloud::densities(n * dd, 9);
+            let mut fmm = Fmm::new(kernel, &pts, None, &pts, 6, 80).unwrap();
+            let mut run = |bytes: usize| {
+                fmm.set_m2l_buffer_bytes(bytes);
+                let mut u = vec![0.0; n * od];
+                fmm.evaluate(&dens, &mut u).unwrap();
+                (u, fmm.m2l_peak_bytes())
+            };
+            let (whole, peak) = run(usize::MAX);
+            let scale = whole.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for bytes in [peak / 3, 0] {
+                let (u, part_peak) = run(bytes);
+                let err = max_difference(&u, &whole);
+                println!(
+                    "{kernel:?} {}: budget {bytes} B, peak {part_peak} of {peak} B, {err:.1e} of {scale:.1e}",
+                    cloud.name()
+                );
+                assert!(
+                    err <= 1e-12 * scale,
+                    "{kernel:?} {} budget {bytes}: {err:e}",
+                    cloud.name()
+                );
+                assert!(
+                    part_peak < peak,
+                    "{kernel:?} {}: budget {bytes} did not split",
+                    cloud.name()
+                );
+                if bytes > 0 {
+                    assert!(
+                        part_peak <= peak / 2,
+                        "{kernel:?} {}: parts of {part_peak} B",
+                        cloud.name()
+                    );
+                }
             }
         }
     }

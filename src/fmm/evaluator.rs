@@ -338,7 +338,20 @@ pub struct Fmm {
     near_field: Box<dyn NearField>,
     /// The least V-list pairs of a parent pair for the M2L to run it as an 8 × 8 block.
     m2l_dense_pairs: usize,
+    /// The most bytes the M2L's chunked spectra of one level may take at once (sources and
+    /// targets): a level that needs more runs in parts ([`M2L_BUFFER_BYTES`]).
+    m2l_buffer_bytes: usize,
+    /// The largest chunked-spectra footprint of the last evaluation's M2L parts, in bytes.
+    m2l_peak_bytes: std::sync::atomic::AtomicUsize,
 }
+
+/// The default most bytes of the M2L's chunked spectra at once (2 GiB). A level whose V-list
+/// sources and targets need more (at 6 digits, Stokeslet: about 0.4 MB per box, so a level of
+/// more than about 5000 boxes) runs in parts of consecutive target boxes, split between
+/// sibling groups, each part with the spectra of its own sources: the sources near a split
+/// are transformed once per part that needs them. Without it a 10⁴-cell suspension at p = 12
+/// (1.2·10⁷ upsampled sources) peaked at 23.7 GB on a 24 GiB machine.
+pub const M2L_BUFFER_BYTES: usize = 2 << 30;
 
 /// The M2L's source and target spectra by frequency chunk, for one downward pass.
 #[derive(Default)]
@@ -477,7 +490,23 @@ impl Fmm {
             near_list,
             near_field,
             m2l_dense_pairs: DENSE_PAIRS,
+            m2l_buffer_bytes: M2L_BUFFER_BYTES,
+            m2l_peak_bytes: Default::default(),
         })
+    }
+
+    /// The most bytes the M2L's chunked spectra of one level may take at once (default
+    /// [`M2L_BUFFER_BYTES`]); a level that needs more runs in parts. The values do not depend
+    /// on it beyond round-off.
+    pub fn set_m2l_buffer_bytes(&mut self, bytes: usize) {
+        self.m2l_buffer_bytes = bytes;
+    }
+
+    /// The largest footprint of the M2L's chunked spectra (one part of one level) in the last
+    /// evaluation, in bytes.
+    pub fn m2l_peak_bytes(&self) -> usize {
+        self.m2l_peak_bytes
+            .load(std::sync::atomic::Ordering::Relaxed)
     }
 
     /// Run the M2L's products as 8 × 8 sibling blocks where a parent pair holds at least
@@ -838,6 +867,8 @@ impl Fmm {
         let nc = self.ops.n_check();
         let tree = &self.tree;
         let mut down = vec![0.0; tree.boxes.len() * ne];
+        self.m2l_peak_bytes
+            .store(0, std::sync::atomic::Ordering::Relaxed);
         // The M2L's chunked spectra, reused by a level that fits (freed with the pass).
         let mut buffers = M2lBuffers::default();
         for level in 2..tree.depth() as usize {
@@ -903,12 +934,68 @@ impl Fmm {
         down
     }
 
-    /// M2L into the check potentials of the target boxes `sel` (one level): spectra of the
-    /// V-list sources, blocked Hadamard products per frequency chunk (8 × 8 sibling blocks in
-    /// uniform regions, pairs elsewhere: [`M2lPlan`]), one inverse FFT per target box.
+    /// M2L into the check potentials of the target boxes `sel` (one level), in parts whose
+    /// chunked spectra fit [`Fmm::set_m2l_buffer_bytes`] ([`Fmm::m2l_parts`]).
     fn m2l_level(
         &self,
         sel: &[usize],
+        up: &[f64],
+        check: &mut [f64],
+        buffers: &mut M2lBuffers,
+        clock: &PhaseClock,
+    ) {
+        let nc = self.ops.n_check();
+        let t = Instant::now();
+        let parts = self.m2l_parts(sel);
+        clock.add(2, t);
+        for (range, plan) in parts {
+            let rows = &mut check[range.start * nc..range.end * nc];
+            self.m2l_part(&plan, up, rows, buffers, clock);
+        }
+    }
+
+    /// Bytes of the chunked spectra a plan needs (its source and target slots).
+    fn m2l_bytes(&self, plan: &M2lPlan) -> usize {
+        let de = self.ops.degrees.len();
+        let dt = self.near.output_dim();
+        let slots = plan.n_source_slots * FftM2l::chunk_len(de)
+            + plan.n_target_slots * FftM2l::chunk_len(dt);
+        slots * self.m2l.n_chunks * std::mem::size_of::<f64>()
+    }
+
+    /// `sel` split into consecutive parts, each with its plan, whose chunked spectra fit the
+    /// budget: halves, split at the nearest change of parent after the middle (so a sibling
+    /// group stays in one part and its blocks are those of the whole level), until each part
+    /// fits or holds one sibling group.
+    fn m2l_parts(&self, sel: &[usize]) -> Vec<(std::ops::Range<usize>, M2lPlan)> {
+        let parent = |i: usize| self.tree.boxes[sel[i]].parent;
+        let mut parts = Vec::new();
+        let mut todo = Vec::new();
+        todo.push(0..sel.len());
+        while let Some(r) = todo.pop() {
+            let plan = M2lPlan::new(&self.tree, &self.m2l, &sel[r.clone()], self.m2l_dense_pairs);
+            let mut mid = r.start + r.len() / 2;
+            while mid < r.end && mid > r.start && parent(mid) == parent(mid - 1) {
+                mid += 1;
+            }
+            // One sibling group (or one box) is not split further.
+            if self.m2l_bytes(&plan) <= self.m2l_buffer_bytes || mid == r.end || mid == r.start {
+                parts.push((r, plan));
+                continue;
+            }
+            // The first half is taken next, so the parts come in order.
+            todo.push(mid..r.end);
+            todo.push(r.start..mid);
+        }
+        parts
+    }
+
+    /// The M2L of one part of a level (`check`: its target boxes' rows): spectra of the V-list
+    /// sources, blocked Hadamard products per frequency chunk (8 × 8 sibling blocks in uniform
+    /// regions, pairs elsewhere: [`M2lPlan`]), one inverse FFT per target box.
+    fn m2l_part(
+        &self,
+        plan: &M2lPlan,
         up: &[f64],
         check: &mut [f64],
         buffers: &mut M2lBuffers,
@@ -920,10 +1007,11 @@ impl Fmm {
         let nc = self.ops.n_check();
         let nf2 = self.m2l.spectrum_len(1);
         let mut t = Instant::now();
-        let plan = M2lPlan::new(&self.tree, &self.m2l, sel, self.m2l_dense_pairs);
         if plan.blocks.is_empty() && plan.pairs.is_empty() {
             return;
         }
+        self.m2l_peak_bytes
+            .fetch_max(self.m2l_bytes(plan), std::sync::atomic::Ordering::Relaxed);
         let (nss, nts) = (plan.n_source_slots, plan.n_target_slots);
         let (sl, tl) = (FftM2l::chunk_len(de), FftM2l::chunk_len(dt));
         let nch = self.m2l.n_chunks;
@@ -965,12 +1053,12 @@ impl Fmm {
                 |kernels, (c, (tc, sc))| {
                     self.m2l.expand_chunk(c, &used, kernels);
                     let kernels = &kernels[..];
-                    let tables: Vec<[&[f64]; 64]> = (0..27)
+                    let tables: Vec<[&[f64]; 27]> = (0..27)
                         .map(|dp| {
                             if dps[dp] {
                                 self.m2l.sibling_blocks(kernels, dp)
                             } else {
-                                [&[][..]; 64]
+                                [&[][..]; 27]
                             }
                         })
                         .collect();

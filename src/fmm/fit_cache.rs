@@ -196,6 +196,10 @@ fn read_matrix(r: &mut impl Read, sum: &mut WordSum, left: &mut u64) -> Option<M
     *left = left.checked_sub(16)?;
     let rows = read_u64(r, Some(sum))? as usize;
     let cols = read_u64(r, Some(sum))? as usize;
+    if rows == 0 || cols == 0 {
+        // No fit has an empty side; a header that says so is damage (and 0 × 2⁶⁰ reads).
+        return None;
+    }
     let bytes = (rows as u64).checked_mul(cols as u64)?.checked_mul(8)?;
     *left = left.checked_sub(bytes)?;
     let mut m = Mat::<f64>::zeros(rows, cols);

@@ -9,7 +9,7 @@
 //!
 //! which on a `(2p)³` grid has no wrap-around for `j ∈ [0, p)³`. Densities are normalised
 //! (`φ̃ = h^d φ` per component of degree `d`, see [`super::operators`]), so the kernel
-//! spectra `Ĝ_Δ` are computed once, at `h = 1`, for the 316 offsets with `2 ≤ |Δ|∞ ≤ 3`.
+//! spectra `Ĝ_Δ` are needed, at `h = 1`, for the 316 offsets with `2 ≤ |Δ|∞ ≤ 3`.
 //! Real data: spectra keep the `p + 1` non-negative frequencies of the last axis.
 //!
 //! Where the kernel has reflection signs (`K(Rx) = S_out K(x) S_in` for `R = diag(±1)`), only
@@ -24,7 +24,8 @@
 //! The products run per chunk of [`CHUNK`] frequencies, pair by pair
 //! ([`FftM2l::accumulate_chunk`]) or for all children of two neighbouring parents at once
 //! ([`FftM2l::accumulate_siblings`]: their child offsets `2Δp + c_i − c_j` take 27 values,
-//! so a block of 64 products reads 27 kernel spectra and 8 source chunks from cache).
+//! so a block of up to 63 products, those whose children do not touch, reads 27 kernel spectra
+//! and 8 source chunks from cache).
 
 use std::sync::Arc;
 
@@ -58,26 +59,38 @@ pub fn parent_offset(slot: usize) -> [i32; 3] {
 
 /// Position of octant `o` in its parent (x bit 2, y bit 1, z bit 0, as
 /// [`super::box_key::BoxKey::octant`]).
+#[cfg(test)]
 fn octant_position(o: usize) -> [i32; 3] {
     [(o >> 2) as i32 & 1, (o >> 1) as i32 & 1, o as i32 & 1]
 }
 
-/// The child offsets of every pair of octants for the 27 parent offsets: target child `i` of
-/// a parent at `Δp` from the source's parent, source child `j`, are `2Δp + c_i − c_j` apart.
-fn sibling_tables(compact: &[u16]) -> Vec<[u16; 64]> {
+/// Index of the difference `e = c_i − c_j ∈ [−1, 1]³` of two octants' positions among 27.
+const fn difference_index(i: usize, j: usize) -> usize {
+    const fn e(i: usize, j: usize, bit: usize) -> usize {
+        ((i >> bit) & 1) + 1 - ((j >> bit) & 1)
+    }
+    e(i, j, 2) * 9 + e(i, j, 1) * 3 + e(i, j, 0)
+}
+
+/// The child offsets of two sibling groups for the 27 parent offsets: target child `i` of a
+/// parent at `Δp` from the source's parent and source child `j` are `2Δp + e` apart, `e = c_i −
+/// c_j` ([`difference_index`]); per parent offset, the compact offset of each `e`
+/// (`u16::MAX` where such children touch).
+fn sibling_tables(compact: &[u16]) -> Vec<[u16; 27]> {
     (0..27usize)
         .map(|slot| {
             let dp = parent_offset(slot);
-            let mut t = [u16::MAX; 64];
-            for (ij, e) in t.iter_mut().enumerate() {
-                let (ci, cj) = (octant_position(ij / 8), octant_position(ij % 8));
-                let d = [0, 1, 2].map(|k| 2 * dp[k] + ci[k] - cj[k]);
+            std::array::from_fn(|e| {
+                let ev = parent_offset(e);
+                let d = [0, 1, 2].map(|k| 2 * dp[k] + ev[k]);
                 if d.iter().any(|c| c.abs() >= 2) {
-                    *e = compact[offset_index(d)];
-                    debug_assert!(*e != u16::MAX, "offset {d:?} without a spectrum");
+                    let o = compact[offset_index(d)];
+                    debug_assert!(o != u16::MAX, "offset {d:?} without a spectrum");
+                    o
+                } else {
+                    u16::MAX
                 }
-            }
-            t
+            })
         })
         .collect()
 }
@@ -124,11 +137,9 @@ pub struct FftM2l {
     /// Compact index (0..316) of each of the 343 offset slots.
     compact: Vec<u16>,
     /// Per parent offset `Δp ∈ [−1, 1]³` (27 slots, [`parent_offset_index`]): the compact
-    /// child offset of target octant `i` and source octant `j` at `8 i + j`, `u16::MAX` where
-    /// the children touch (no M2L between them).
-    siblings: Vec<[u16; 64]>,
-    /// One kernel block of zeros (`dt · de · 2 · CHUNK`), standing in for touching children.
-    zeros: Vec<f64>,
+    /// child offset `2Δp + e` of each octant difference `e` ([`difference_index`]),
+    /// `u16::MAX` where such children touch (no M2L between them).
+    siblings: Vec<[u16; 27]>,
     /// Number of frequency chunks.
     pub n_chunks: usize,
     lattice: Vec<[usize; 3]>,
@@ -214,7 +225,6 @@ impl FftM2l {
             conj: [1.0; 8],
             compact: vec![u16::MAX; 343],
             siblings: Vec::new(),
-            zeros: vec![0.0; nblk * 2 * CHUNK],
             n_chunks,
             lattice: surf.lattice.clone(),
             fwd,
@@ -517,13 +527,14 @@ impl FftM2l {
 
     /// The kernel blocks (from `kernels`, one chunk's blocks from [`FftM2l::expand_chunk`])
     /// between the 8 children of a target box and the 8 children of a source box at parent
-    /// offset slot `dp` ([`parent_offset_index`]), at `8 i + j` for target octant `i` and
-    /// source octant `j`: zeros where the children touch.
-    pub fn sibling_blocks<'a>(&'a self, kernels: &'a [f64], dp: usize) -> [&'a [f64]; 64] {
+    /// offset slot `dp` ([`parent_offset_index`]), by the difference `e = c_i − c_j` of target
+    /// octant `i` and source octant `j` (the offset is `2Δp + e`): empty where such children
+    /// touch (the products skip them).
+    pub fn sibling_blocks<'a>(&'a self, kernels: &'a [f64], dp: usize) -> [&'a [f64]; 27] {
         let len = self.dt * self.de * 2 * CHUNK;
         self.siblings[dp].map(|o| {
             if o == u16::MAX {
-                &self.zeros[..]
+                &[][..]
             } else {
                 &kernels[o as usize * len..(o as usize + 1) * len]
             }
@@ -534,9 +545,9 @@ impl FftM2l {
     /// `target[i] += Σ_j Ĝ_{ij} · source[j]` for the 8 target octants `i` and 8 source octants
     /// `j` (`g` from [`FftM2l::sibling_blocks`]; `source`: `8 × de` chunk slices, zeros for
     /// absent children; `target`: `8 × dt`). The same sums as [`FftM2l::accumulate_chunk`] over
-    /// the pairs, with each target's chunk kept in registers over its 64 partners (the products
-    /// of Malhotra & Biros 2015 blocked by siblings).
-    pub fn accumulate_siblings(&self, g: &[&[f64]; 64], source: &[f64], target: &mut [f64]) {
+    /// the pairs that do not touch, with each target's chunk kept in registers over its
+    /// partners (the products of Malhotra & Biros 2015 blocked by siblings).
+    pub fn accumulate_siblings(&self, g: &[&[f64]; 27], source: &[f64], target: &mut [f64]) {
         siblings(g, source, target, self.dt, self.de);
     }
 
@@ -749,12 +760,13 @@ fn lane(s: &[f64], at: usize) -> &[f64; CHUNK] {
     s[at..at + CHUNK].try_into().expect("a chunk")
 }
 
-/// `t[i][a] += Σ_j Σ_b g[8i + j][a][b] · s[j][b]` over `CHUNK` complex frequencies, for the 8
+/// `t[i][a] += Σ_j Σ_b g[e(i, j)][a][b] · s[j][b]` over `CHUNK` complex frequencies
+/// (`e` = [`difference_index`]; touching children skipped), for the 8
 /// target and 8 source octants of two sibling groups; each target component is summed in
 /// local arrays (registers) over its 8 · `DE` partners, then added once.
 #[inline(always)]
 fn siblings_body<const DT: usize, const DE: usize, const FMA: bool>(
-    g: &[&[f64]; 64],
+    g: &[&[f64]; 27],
     src: &[f64],
     tgt: &mut [f64],
 ) {
@@ -765,7 +777,11 @@ fn siblings_body<const DT: usize, const DE: usize, const FMA: bool>(
         for a in 0..DT {
             let (mut re, mut im) = ([0.0; F], [0.0; F]);
             for j in 0..8 {
-                let gij = g[8 * i + j];
+                let gij = g[difference_index(i, j)];
+                if gij.is_empty() {
+                    // Touching children: no M2L between them.
+                    continue;
+                }
                 for b in 0..DE {
                     let o = (a * DE + b) * 2 * F;
                     let (gr, gi) = (lane(gij, o), lane(gij, o + F));
@@ -789,7 +805,7 @@ fn siblings_body<const DT: usize, const DE: usize, const FMA: bool>(
 }
 
 fn siblings_generic<const DT: usize, const DE: usize>(
-    g: &[&[f64]; 64],
+    g: &[&[f64]; 27],
     src: &[f64],
     tgt: &mut [f64],
 ) {
@@ -797,7 +813,7 @@ fn siblings_generic<const DT: usize, const DE: usize>(
     {
         #[target_feature(enable = "avx512f,avx2,fma")]
         unsafe fn avx512<const DT: usize, const DE: usize>(
-            g: &[&[f64]; 64],
+            g: &[&[f64]; 27],
             s: &[f64],
             t: &mut [f64],
         ) {
@@ -805,7 +821,7 @@ fn siblings_generic<const DT: usize, const DE: usize>(
         }
         #[target_feature(enable = "avx2,fma")]
         unsafe fn avx2<const DT: usize, const DE: usize>(
-            g: &[&[f64]; 64],
+            g: &[&[f64]; 27],
             s: &[f64],
             t: &mut [f64],
         ) {
@@ -828,7 +844,7 @@ fn siblings_generic<const DT: usize, const DE: usize>(
 }
 
 /// [`siblings_body`] for the kernels' shapes, any other shape through the pair-by-pair sum.
-fn siblings(g: &[&[f64]; 64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize) {
+fn siblings(g: &[&[f64]; 27], src: &[f64], tgt: &mut [f64], dt: usize, de: usize) {
     match (dt, de) {
         (1, 1) => siblings_generic::<1, 1>(g, src, tgt),
         (3, 3) => siblings_generic::<3, 3>(g, src, tgt),
@@ -836,9 +852,9 @@ fn siblings(g: &[&[f64]; 64], src: &[f64], tgt: &mut [f64], dt: usize, de: usize
         _ => {
             let (sl, tl) = (de * 2 * CHUNK, dt * 2 * CHUNK);
             for i in 0..8 {
-                for j in 0..8 {
+                for j in (0..8).filter(|&j| !g[difference_index(i, j)].is_empty()) {
                     hadamard(
-                        g[8 * i + j],
+                        g[difference_index(i, j)],
                         &src[j * sl..(j + 1) * sl],
                         &mut tgt[i * tl..(i + 1) * tl],
                         dt,

@@ -6,7 +6,7 @@
 //! block shape for every `(P, Q)` at the same parent offset `Δp = P − Q`: the child offset of
 //! target octant `i` and source octant `j` is `2Δp + c_i − c_j`. Running such a block at once
 //! ([`FftM2l::accumulate_siblings`]) keeps the 8 source chunks in the first-level cache while
-//! every target's chunk stays in registers over its 64 partners, instead of streaming one
+//! every target's chunk stays in registers over its partners, instead of streaming one
 //! source and one target chunk per pair (the sibling blocking of Malhotra & Biros,
 //! Commun. Comput. Phys. 2015).
 //!
@@ -23,9 +23,10 @@ use super::dist_tree::DistTree;
 use super::m2l_fft::{offset_index, parent_offset_index, FftM2l};
 
 /// The least number of V-list pairs of a `(target parent, source parent)` block for it to run
-/// as one 8 × 8 block (of 48 to 63 where all children are present). A block costs 64 pair
-/// products at 1.6 (Stokeslet) to 2.5 (Laplace) times the rate of pairs run one by one, plus
-/// zero-filled slots for absent children, so it pays from about 26–40 pairs. Measured
+/// as one 8 × 8 block (of 48 to 63 where all children are present). A block costs its 48–63
+/// non-touching pair products at 1.6 (Stokeslet) to 2.5 (Laplace) times the rate of pairs run
+/// one by one (measured when a block still ran all 64 with zeros), plus zero-filled slots for
+/// absent children, so it pays from about 26–40 pairs. Measured
 /// (2026-11-26, `mobo fmm`, 6 digits): on 1000 cell-like spheres of 312 points (Stokeslet, one
 /// thread) the evaluation took 12.0–12.6 s at 16, 9.8–10.5 s at 40 and 10.1–11.5 s with pairs
 /// only; on 2·10⁵ uniform and sphere-cloud points 40 was as fast as 16 or faster.
