@@ -302,6 +302,14 @@ fn max_difference(a: &[f64], b: &[f64]) -> f64 {
         .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
 }
 
+/// `u` equals `reference` to round-off: within 1e-12 of the reference's largest value.
+fn assert_round_off(what: &str, u: &[f64], reference: &[f64]) {
+    let scale = reference.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let err = max_difference(u, reference);
+    println!("{what}: {err:.1e} of {scale:.1e}");
+    assert!(err <= 1e-12 * scale, "{what}: {err:e} of {scale:e}");
+}
+
 /// The M2L run as 8 × 8 sibling blocks (the default) gives the pair-by-pair M2L's values to
 /// round-off, for every kernel shape (1 × 1, 3 × 3, 3 × 4 blocks) on a uniform cloud (blocks
 /// nearly everywhere) and a cell-surface cloud (blocks and pairs mixed), and again with
@@ -328,18 +336,9 @@ fn sibling_blocked_m2l_matches_the_pairwise_m2l() {
                 u
             };
             let (pairs, blocked, everywhere) = (run(usize::MAX), run(DENSE_PAIRS), run(1));
-            let scale = pairs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for (name, u) in [("default", &blocked), ("everywhere", &everywhere)] {
-                let err = max_difference(u, &pairs);
-                println!(
-                    "{kernel:?} {}: blocks {name} vs pairs {err:.1e} of {scale:.1e}",
-                    cloud.name()
-                );
-                assert!(
-                    err <= 1e-12 * scale,
-                    "{kernel:?} {} {name}: {err:e}",
-                    cloud.name()
-                );
+                let what = format!("{kernel:?} {}: blocks {name} vs pairs", cloud.name());
+                assert_round_off(&what, u, &pairs);
                 assert_ne!(u, &pairs, "{kernel:?} {}: no block ran", cloud.name());
             }
         }
@@ -366,19 +365,13 @@ fn m2l_in_parts_matches_the_m2l_in_one_part() {
                 (u, fmm.m2l_peak_bytes())
             };
             let (whole, peak) = run(usize::MAX);
-            let scale = whole.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for bytes in [peak / 3, 0] {
                 let (u, part_peak) = run(bytes);
-                let err = max_difference(&u, &whole);
-                println!(
-                    "{kernel:?} {}: budget {bytes} B, peak {part_peak} of {peak} B, {err:.1e} of {scale:.1e}",
+                let what = format!(
+                    "{kernel:?} {}: budget {bytes} B, peak {part_peak} of {peak} B",
                     cloud.name()
                 );
-                assert!(
-                    err <= 1e-12 * scale,
-                    "{kernel:?} {} budget {bytes}: {err:e}",
-                    cloud.name()
-                );
+                assert_round_off(&what, &u, &whole);
                 assert!(
                     part_peak < peak,
                     "{kernel:?} {}: budget {bytes} did not split",

@@ -349,8 +349,8 @@ pub struct Fmm {
 /// sources and targets need more (at 6 digits, Stokeslet: about 0.4 MB per box, so a level of
 /// more than about 5000 boxes) runs in parts of consecutive target boxes, split between
 /// sibling groups, each part with the spectra of its own sources: the sources near a split
-/// are transformed once per part that needs them. Without it a 10⁴-cell suspension at p = 12
-/// (1.2·10⁷ upsampled sources) peaked at 23.7 GB on a 24 GiB machine.
+/// are transformed once per part that needs them. Before it a 10⁴-cell suspension at p = 12
+/// (1.2·10⁷ upsampled sources) peaked at 22.6 GiB on a 24 GiB machine (`benches/RESULTS.md`).
 pub const M2L_BUFFER_BYTES: usize = 2 << 30;
 
 /// The M2L's source and target spectra by frequency chunk, for one downward pass.

@@ -329,18 +329,7 @@ impl FftM2l {
             let dst = &mut out[k * len..(k + 1) * len];
             let signs = &self.block_signs[k * nblk..(k + 1) * nblk];
             let o = o as usize;
-            if o == 0 {
-                for ((d, s), &sg) in dst
-                    .chunks_exact_mut(2 * CHUNK)
-                    .zip(src.chunks_exact(2 * CHUNK))
-                    .zip(signs)
-                {
-                    for (x, y) in d.iter_mut().zip(s) {
-                        *x = sg * y;
-                    }
-                }
-                continue;
-            }
+            // Pattern 0 (no reflection) reads each position itself, with conj = 1.
             let w: &[u8; CHUNK] = self.within[(c * 8 + o) * CHUNK..][..CHUNK]
                 .try_into()
                 .expect("a chunk");
