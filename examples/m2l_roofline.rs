@@ -15,7 +15,9 @@
 //! * **pairs**: [`FftM2l::accumulate_chunk`] for every pair, sorted by offset then target;
 //! * **8 × 8 blocks**: [`FftM2l::accumulate_siblings`] for every pair of neighbouring parents
 //!   (the evaluator's default in uniform regions; up to 63 products per block, touching
-//!   children skipped, zeros for absent ones), sorted by target.
+//!   children skipped, zeros for absent ones), sorted by target, on each instruction set the
+//!   CPU runs ([`SiblingPath`]: the AVX2 loop by target octant, the AVX-512 one by octant
+//!   difference; the evaluator takes the widest).
 //!
 //! Rates count the useful flops (the V-list pairs') either way, against faer's one-thread GEMM
 //! rate and the one-thread triad bandwidth measured in the same run:
@@ -26,7 +28,9 @@ use faer::Par;
 use mobo::fmm::calibration::order_for_digits;
 use mobo::fmm::evaluator::FmmKernel;
 use mobo::fmm::kernels::{Kernel, Laplace, Stokeslet};
-use mobo::fmm::m2l_fft::{offset_index, parent_offset, parent_offset_index, FftM2l, CHUNK};
+use mobo::fmm::m2l_fft::{
+    offset_index, parent_offset, parent_offset_index, FftM2l, SiblingPath, CHUNK,
+};
 use mobo::fmm::surface::CubeSurface;
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -193,34 +197,48 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             std::hint::black_box(&tgt);
         });
-        // Blocks: (first target slot, first source slot, parent offset slot), by target.
+        // Blocks: (first target slot, first source slot, parent offset slot), by target; on
+        // every instruction set this CPU runs (the portable reference only where it is the one).
         let blocks = lattice.sibling_blocks();
-        let block_secs = best_of(reps, 0.0, || {
-            for c in 0..nch {
-                let sc = &src[c * boxes * sl..(c + 1) * boxes * sl];
-                let tc = &mut tgt[c * boxes * tl..(c + 1) * boxes * tl];
-                m2l.expand_chunk(c, &used, &mut kernels);
-                let tables: Vec<[&[f64]; 27]> =
-                    (0..27).map(|dp| m2l.sibling_blocks(&kernels, dp)).collect();
-                for &(t0, s0, dp) in &blocks {
-                    m2l.accumulate_siblings(
-                        &tables[dp],
-                        &sc[s0 * sl..(s0 + 8) * sl],
-                        &mut tc[t0 * tl..(t0 + 8) * tl],
-                    );
-                }
-            }
-            std::hint::black_box(&tgt);
-        });
+        let mut paths = SiblingPath::available();
+        if paths.len() > 1 {
+            paths.retain(|&p| p != SiblingPath::Portable);
+        }
+        let block_secs: Vec<(SiblingPath, f64)> = paths
+            .into_iter()
+            .map(|path| {
+                let secs = best_of(reps, 0.0, || {
+                    for c in 0..nch {
+                        let sc = &src[c * boxes * sl..(c + 1) * boxes * sl];
+                        let tc = &mut tgt[c * boxes * tl..(c + 1) * boxes * tl];
+                        m2l.expand_chunk(c, &used, &mut kernels);
+                        let tables: Vec<[&[f64]; 27]> =
+                            (0..27).map(|dp| m2l.sibling_blocks(&kernels, dp)).collect();
+                        for &(t0, s0, dp) in &blocks {
+                            m2l.accumulate_siblings_on(
+                                path,
+                                &tables[dp],
+                                &sc[s0 * sl..(s0 + 8) * sl],
+                                &mut tc[t0 * tl..(t0 + 8) * tl],
+                            );
+                        }
+                    }
+                    std::hint::black_box(&tgt);
+                });
+                (path, secs)
+            })
+            .collect();
         // Useful flops: the V-list pairs' products, either way.
         let flops = 8.0 * (dt * de * CHUNK) as f64 * (nch * pairs.len()) as f64;
         let pair_ai = (8 * dt * de * CHUNK) as f64 / (8 * (sl + 2 * tl)) as f64;
         // A block streams 8 source and 8 target slices (read and write) for its pairs.
         let block_ai = flops / (nch * blocks.len() * 8 * (8 * (sl + 2 * tl))) as f64;
-        for (what, secs, ai) in [
-            ("pairs", pair_secs, pair_ai),
-            ("8 × 8 blocks", block_secs, block_ai),
-        ] {
+        let rows = std::iter::once(("pairs".to_string(), pair_secs, pair_ai)).chain(
+            block_secs
+                .iter()
+                .map(|&(path, secs)| (format!("8 × 8 blocks, {path:?}"), secs, block_ai)),
+        );
+        for (what, secs, ai) in rows {
             let rate = flops / secs / 1e9;
             let roof = gemm.min(ai * bw_cache);
             println!(

@@ -537,7 +537,19 @@ impl FftM2l {
     /// the pairs that do not touch, with each target's chunk kept in registers over its
     /// partners (the products of Malhotra & Biros 2015 blocked by siblings).
     pub fn accumulate_siblings(&self, g: &[&[f64]; 27], source: &[f64], target: &mut [f64]) {
-        siblings(g, source, target, self.dt, self.de);
+        siblings(SiblingPath::best(), g, source, target, self.dt, self.de);
+    }
+
+    /// [`FftM2l::accumulate_siblings`] on a given instruction set (for tests and benchmarks;
+    /// panics where the CPU does not support it).
+    pub fn accumulate_siblings_on(
+        &self,
+        path: SiblingPath,
+        g: &[&[f64]; 27],
+        source: &[f64],
+        target: &mut [f64],
+    ) {
+        siblings(path, g, source, target, self.dt, self.de);
     }
 
     /// Fresh scratch buffers.
@@ -793,21 +805,61 @@ fn siblings_body<const DT: usize, const DE: usize, const FMA: bool>(
     }
 }
 
+/// The instruction sets the sibling products ([`FftM2l::accumulate_siblings`]) can run on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SiblingPath {
+    /// [`siblings_body`] without FMA: the reference.
+    Portable,
+    /// [`siblings_body`] compiled for AVX2 and FMA.
+    Avx2,
+    /// [`by_difference::siblings`]: AVX-512 registers, the products ordered by octant
+    /// difference.
+    Avx512,
+}
+
+impl SiblingPath {
+    /// The widest path this CPU runs (the one [`FftM2l::accumulate_siblings`] takes).
+    pub fn best() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                return SiblingPath::Avx512;
+            }
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                return SiblingPath::Avx2;
+            }
+        }
+        SiblingPath::Portable
+    }
+
+    /// The paths this CPU runs, the reference first.
+    pub fn available() -> Vec<Self> {
+        let mut paths = vec![SiblingPath::Portable];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                paths.push(SiblingPath::Avx2);
+            }
+            if std::arch::is_x86_feature_detected!("avx512f") {
+                paths.push(SiblingPath::Avx512);
+            }
+        }
+        paths
+    }
+}
+
 fn siblings_generic<const DT: usize, const DE: usize>(
+    path: SiblingPath,
     g: &[&[f64]; 27],
     src: &[f64],
     tgt: &mut [f64],
 ) {
     #[cfg(target_arch = "x86_64")]
     {
-        #[target_feature(enable = "avx512f,avx2,fma")]
-        unsafe fn avx512<const DT: usize, const DE: usize>(
-            g: &[&[f64]; 27],
-            s: &[f64],
-            t: &mut [f64],
-        ) {
-            siblings_body::<DT, DE, true>(g, s, t)
-        }
         #[target_feature(enable = "avx2,fma")]
         unsafe fn avx2<const DT: usize, const DE: usize>(
             g: &[&[f64]; 27],
@@ -816,28 +868,229 @@ fn siblings_generic<const DT: usize, const DE: usize>(
         ) {
             siblings_body::<DT, DE, true>(g, s, t)
         }
-        if std::arch::is_x86_feature_detected!("avx512f") {
-            // SAFETY: the CPU supports AVX-512F (checked just above; AVX2 and FMA come with
-            // every AVX-512 CPU).
-            unsafe { avx512::<DT, DE>(g, src, tgt) };
-            return;
-        }
-        if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-        {
-            // SAFETY: the CPU supports AVX2 and FMA (checked just above).
-            unsafe { avx2::<DT, DE>(g, src, tgt) };
-            return;
+        match path {
+            SiblingPath::Avx512 => {
+                assert!(std::arch::is_x86_feature_detected!("avx512f"));
+                // SAFETY: the CPU supports AVX-512F (asserted just above).
+                unsafe { by_difference::siblings::<DT, DE>(g, src, tgt) };
+                return;
+            }
+            SiblingPath::Avx2 => {
+                assert!(
+                    std::arch::is_x86_feature_detected!("avx2")
+                        && std::arch::is_x86_feature_detected!("fma")
+                );
+                // SAFETY: the CPU supports AVX2 and FMA (asserted just above).
+                unsafe { avx2::<DT, DE>(g, src, tgt) };
+                return;
+            }
+            SiblingPath::Portable => {}
         }
     }
+    let _ = path;
     siblings_body::<DT, DE, false>(g, src, tgt)
 }
 
+/// The sibling products on AVX-512, ordered by octant difference.
+///
+/// For one vector of 8 frequencies, one target component `a` and one half of the target
+/// octants (those with the same `x` bit), the sums of the 4 target octants stay in 8 registers
+/// and the 8 source octants of one source component `b` are loaded into 16. Each of the 27
+/// kernel blocks `Ĝ_e` is then loaded once and applied to every pair `(i, j)` of the half with
+/// `c_i − c_j = e`. The pairs of each `e` are compile-time constants, so the sums and sources
+/// are indexed by constants and never leave the registers. Per complex multiply-add (4 FMAs)
+/// this loads about half a vector (the sources once per half, each kernel value once or twice
+/// per block), against two in [`siblings_body`], whose every product loads its kernel and its
+/// source value. That loop's `one load per FMA` held the Stokeslet's blocks at 45–50 % of
+/// GEMM on an AVX-512 core (`examples/m2l_roofline.rs`; 50–62 % with this one).
+#[cfg(target_arch = "x86_64")]
+mod by_difference {
+    use super::{difference_index, CHUNK};
+    use std::arch::x86_64::{
+        __m512d, _mm512_add_pd, _mm512_fmadd_pd, _mm512_fnmadd_pd, _mm512_loadu_pd,
+        _mm512_setzero_pd, _mm512_storeu_pd,
+    };
+
+    /// Frequencies per AVX-512 vector.
+    const W: usize = 8;
+
+    /// The source octant `j` with `c_i − c_j = e` for target octant `i`, or 8 where there is
+    /// none.
+    const fn partner(e: usize, i: usize) -> usize {
+        let mut j = 0;
+        while j < 8 {
+            if difference_index(i, j) == e {
+                return j;
+            }
+            j += 1;
+        }
+        8
+    }
+
+    /// The sums of the 4 target octants of one half (`x` bit `H`), real and imaginary parts.
+    type Sums = [[__m512d; 2]; 4];
+
+    /// One source component of the 8 source octants, real and imaginary parts.
+    type Sources = [[__m512d; 2]; 8];
+
+    /// Whether some target octant of half `H` has a partner at difference `E`.
+    const fn has_pairs(e: usize, h: usize) -> bool {
+        let mut k = 0;
+        while k < 4 {
+            if partner(e, 4 * h + k) < 8 {
+                return true;
+            }
+            k += 1;
+        }
+        false
+    }
+
+    /// `acc[K] += ĝ · s[j]` for target octant `4H + K` and `j` = [`partner`]`(E, 4H + K)`,
+    /// if any.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    fn pair<const E: usize, const H: usize, const K: usize>(
+        gr: __m512d,
+        gi: __m512d,
+        s: &Sources,
+        acc: &mut Sums,
+    ) {
+        let j = const { partner(E, 4 * H + K) };
+        if j < 8 {
+            let [sr, si] = s[j];
+            let [re, im] = &mut acc[K];
+            *re = _mm512_fmadd_pd(gr, sr, *re);
+            *re = _mm512_fnmadd_pd(gi, si, *re);
+            *im = _mm512_fmadd_pd(gr, si, *im);
+            *im = _mm512_fmadd_pd(gi, sr, *im);
+        }
+    }
+
+    /// The pairs at difference `E` of half `H`, with the kernel value at offset `o` of
+    /// block `g[E]` (null where those children touch).
+    ///
+    /// # Safety
+    /// A non-null `g[E]` holds at least `o + CHUNK + W` values.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn difference<const E: usize, const H: usize>(
+        g: &[*const f64; 27],
+        o: usize,
+        s: &Sources,
+        acc: &mut Sums,
+    ) {
+        if !const { has_pairs(E, H) } || g[E].is_null() {
+            return;
+        }
+        // SAFETY: the caller's bound.
+        let (gr, gi) = unsafe {
+            (
+                _mm512_loadu_pd(g[E].add(o)),
+                _mm512_loadu_pd(g[E].add(o + CHUNK)),
+            )
+        };
+        pair::<E, H, 0>(gr, gi, s, acc);
+        pair::<E, H, 1>(gr, gi, s, acc);
+        pair::<E, H, 2>(gr, gi, s, acc);
+        pair::<E, H, 3>(gr, gi, s, acc);
+    }
+
+    /// Half `H` of the target octants (those with `x` bit `H`) for target component `a` and
+    /// frequency vector `v`: the 8 source octants of each source component are loaded into
+    /// registers once, then every kernel value once for all its pairs in the half.
+    ///
+    /// # Safety
+    /// Every non-null `g[e]` holds `DT · DE · 2 · CHUNK` values.
+    #[inline]
+    #[target_feature(enable = "avx512f")]
+    unsafe fn half<const H: usize, const DT: usize, const DE: usize>(
+        g: &[*const f64; 27],
+        src: &[f64],
+        tgt: &mut [f64],
+        a: usize,
+        v: usize,
+    ) {
+        let src = &src[..8 * DE * 2 * CHUNK];
+        let mut acc: Sums = [[_mm512_setzero_pd(); 2]; 4];
+        for b in 0..DE {
+            let s: Sources = std::array::from_fn(|j| {
+                let at = &src[(j * DE + b) * 2 * CHUNK + v * W..][..CHUNK + W];
+                // SAFETY: `at` holds `CHUNK + W` values.
+                unsafe {
+                    [
+                        _mm512_loadu_pd(at.as_ptr()),
+                        _mm512_loadu_pd(at.as_ptr().add(CHUNK)),
+                    ]
+                }
+            });
+            let o = (a * DE + b) * 2 * CHUNK + v * W;
+            macro_rules! differences {
+                ($($e:literal)*) => {
+                    // SAFETY: `o + CHUNK + W ≤ DT · DE · 2 · CHUNK` (a < DT, b < DE, v < CHUNK / W).
+                    $(unsafe { difference::<$e, H>(g, o, &s, &mut acc) };)*
+                };
+            }
+            differences!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20 21 22 23 24 25 26);
+        }
+        for (k, [re, im]) in acc.iter().enumerate() {
+            let t = &mut tgt[((4 * H + k) * DT + a) * 2 * CHUNK + v * W..][..CHUNK + W];
+            let p = t.as_mut_ptr();
+            // SAFETY: `t` holds `CHUNK + W` values: the real part's `W` at 0, the imaginary
+            // part's at `CHUNK`.
+            unsafe {
+                _mm512_storeu_pd(p, _mm512_add_pd(_mm512_loadu_pd(p), *re));
+                let q = p.add(CHUNK);
+                _mm512_storeu_pd(q, _mm512_add_pd(_mm512_loadu_pd(q), *im));
+            }
+        }
+    }
+
+    /// [`super::siblings_body`]'s sums (`t[i][a] += Σ_j Σ_b g[e(i, j)][a][b] · s[j][b]`),
+    /// ordered by difference.
+    ///
+    /// # Safety
+    /// The CPU must support AVX-512F.
+    #[target_feature(enable = "avx512f")]
+    pub(super) unsafe fn siblings<const DT: usize, const DE: usize>(
+        g: &[&[f64]; 27],
+        src: &[f64],
+        tgt: &mut [f64],
+    ) {
+        let src = &src[..8 * DE * 2 * CHUNK];
+        let tgt = &mut tgt[..8 * DT * 2 * CHUNK];
+        let g: [*const f64; 27] = g.map(|ge| {
+            if ge.is_empty() {
+                std::ptr::null()
+            } else {
+                assert!(ge.len() >= DT * DE * 2 * CHUNK, "a short kernel block");
+                ge.as_ptr()
+            }
+        });
+        for v in 0..CHUNK / W {
+            for a in 0..DT {
+                // SAFETY: the non-null blocks were checked just above.
+                unsafe {
+                    half::<0, DT, DE>(&g, src, tgt, a, v);
+                    half::<1, DT, DE>(&g, src, tgt, a, v);
+                }
+            }
+        }
+    }
+}
+
 /// [`siblings_body`] for the kernels' shapes, any other shape through the pair-by-pair sum.
-fn siblings(g: &[&[f64]; 27], src: &[f64], tgt: &mut [f64], dt: usize, de: usize) {
+fn siblings(
+    path: SiblingPath,
+    g: &[&[f64]; 27],
+    src: &[f64],
+    tgt: &mut [f64],
+    dt: usize,
+    de: usize,
+) {
     match (dt, de) {
-        (1, 1) => siblings_generic::<1, 1>(g, src, tgt),
-        (3, 3) => siblings_generic::<3, 3>(g, src, tgt),
-        (3, 4) => siblings_generic::<3, 4>(g, src, tgt),
+        (1, 1) => siblings_generic::<1, 1>(path, g, src, tgt),
+        (3, 3) => siblings_generic::<3, 3>(path, g, src, tgt),
+        (3, 4) => siblings_generic::<3, 4>(path, g, src, tgt),
         _ => {
             let (sl, tl) = (de * 2 * CHUNK, dt * 2 * CHUNK);
             for i in 0..8 {
@@ -966,7 +1219,8 @@ mod tests {
     }
 
     /// The 8 × 8 sibling products equal the pair-by-pair products over the children that do
-    /// not touch, for every parent offset and every kernel shape.
+    /// not touch, for every parent offset, every kernel shape and every instruction set this
+    /// CPU runs.
     #[test]
     fn sibling_blocks_equal_the_pairwise_products() {
         let kernels: [&dyn Kernel; 3] = [&Laplace, &Stokeslet, &StokesletSource];
@@ -988,8 +1242,6 @@ mod tests {
             for dp in (0..27).filter(|&d| d != 13) {
                 for c in [0, m2l.n_chunks - 1] {
                     m2l.expand_chunk(c, &used, &mut kernels);
-                    let mut blocked = start.clone();
-                    m2l.accumulate_siblings(&m2l.sibling_blocks(&kernels, dp), &src, &mut blocked);
                     let mut pairs = start.clone();
                     let dpv = parent_offset(dp);
                     assert_eq!(parent_offset_index(dpv), dp);
@@ -1013,15 +1265,24 @@ mod tests {
                     }
                     assert!((48..=63).contains(&n), "parent offset {dpv:?}: {n} pairs");
                     let scale = pairs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                    let err = blocked
-                        .iter()
-                        .zip(&pairs)
-                        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
-                    assert!(
-                        err <= 64.0 * f64::EPSILON * scale,
-                        "{} dp {dpv:?} chunk {c}: {err:e} of {scale:e}",
-                        ke.name()
-                    );
+                    for path in SiblingPath::available() {
+                        let mut blocked = start.clone();
+                        m2l.accumulate_siblings_on(
+                            path,
+                            &m2l.sibling_blocks(&kernels, dp),
+                            &src,
+                            &mut blocked,
+                        );
+                        let err = blocked
+                            .iter()
+                            .zip(&pairs)
+                            .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                        assert!(
+                            err <= 64.0 * f64::EPSILON * scale,
+                            "{} {path:?} dp {dpv:?} chunk {c}: {err:e} of {scale:e}",
+                            ke.name()
+                        );
+                    }
                 }
             }
         }
