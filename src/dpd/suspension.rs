@@ -78,6 +78,7 @@ use super::pair_force::{minimum_image, Particles};
 use super::rng::{mix64, normal, pair_noise, step_key, stream};
 use super::system::{BodyForce, DpdSystem};
 use super::{require, DpdError};
+use rayon::prelude::*;
 
 /// Parameters of the coupling between membranes and solvent.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -378,6 +379,9 @@ pub struct DpdSuspension {
     bounces: u64,
     leaked: u64,
     max_leaked: u64,
+    /// Per cell, its contributions to the solvent's forces in the current force evaluation
+    /// (scratch kept between steps).
+    solvent_kicks: Vec<Vec<(u32, [f64; 3])>>,
 }
 
 impl DpdSuspension {
@@ -462,6 +466,7 @@ impl DpdSuspension {
             bounces: 0,
             leaked: 0,
             max_leaked: 0,
+            solvent_kicks: Vec::new(),
         };
         let owner = sim.sides();
         sim.owner = owner;
@@ -551,6 +556,7 @@ impl DpdSuspension {
             bounces,
             leaked,
             max_leaked,
+            solvent_kicks: Vec::new(),
         })
     }
 
@@ -744,24 +750,30 @@ impl DpdSuspension {
     fn sides(&self) -> Vec<u32> {
         let p = &self.fluid.particles;
         let l = self.fluid.params.box_len;
+        // The ids inside each membrane, cells in parallel; written in cell order, so a
+        // particle found inside two membranes (a leak) takes the later cell, as in a serial loop.
+        let inside_ids: Vec<Vec<u32>> = self
+            .cells
+            .par_iter()
+            .map_init(Vec::new, |near, c| {
+                let (lo, hi) = bbox(&c.x);
+                let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+                let tris = c.membrane.topology().triangles();
+                particles_near(self.fluid.cell_list(), lo, hi, near);
+                near.iter()
+                    .filter(|&&i| p.moves[i] != 0.0)
+                    .filter(|&&i| {
+                        let q = image_near([p.x[i], p.y[i], p.z[i]], centre, l);
+                        !(0..3).any(|k| q[k] < lo[k] || q[k] > hi[k]) && inside(q, &c.x, tris)
+                    })
+                    .map(|&i| p.id[i])
+                    .collect()
+            })
+            .collect();
         let mut out = vec![OUTSIDE; self.owner.len()];
-        let mut near = Vec::new();
-        for (ci, c) in self.cells.iter().enumerate() {
-            let (lo, hi) = bbox(&c.x);
-            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-            let tris = c.membrane.topology().triangles();
-            particles_near(self.fluid.cell_list(), lo, hi, &mut near);
-            for &i in &near {
-                if p.moves[i] == 0.0 {
-                    continue;
-                }
-                let q = image_near([p.x[i], p.y[i], p.z[i]], centre, l);
-                if (0..3).any(|k| q[k] < lo[k] || q[k] > hi[k]) {
-                    continue;
-                }
-                if inside(q, &c.x, tris) {
-                    out[p.id[i] as usize] = ci as u32;
-                }
+        for (ci, ids) in inside_ids.iter().enumerate() {
+            for &id in ids {
+                out[id as usize] = ci as u32;
             }
         }
         out
@@ -958,125 +970,156 @@ impl DpdSuspension {
         let cp = self.coupling;
         let key = step_key(params.seed ^ SALT_COUPLING, step);
         let inv_sqrt_dt = 1.0 / dt.sqrt();
+        // Each cell's own forces, cells in parallel (each writes only its own vertices).
+        let body = self.fluid.body;
+        let membrane_seed = mix64(params.seed ^ SALT_MEMBRANE);
+        let own: Vec<Result<(), DpdError>> = self
+            .cells
+            .par_iter_mut()
+            .enumerate()
+            .map(|(ci, c)| {
+                c.f.iter_mut().for_each(|f| *f = [0.0; 3]);
+                c.membrane.add_forces(&c.x, &mut c.f)?;
+                c.membrane.add_viscous_forces(
+                    &c.x,
+                    &c.v,
+                    step,
+                    membrane_seed.wrapping_add(ci as u64),
+                    dt,
+                    &mut c.f,
+                )?;
+                let nv = c.x.len() as f64;
+                // Body force (per particle, as on the solvent) and the external force.
+                for (x, f) in c.x.iter().zip(c.f.iter_mut()) {
+                    let g = match body {
+                        BodyForce::None => [0.0; 3],
+                        BodyForce::Constant(g) => g,
+                        BodyForce::ReversePoiseuille { force } => {
+                            let z = wrap(*x, l)[2];
+                            [if z < 0.5 * l[2] { force } else { -force }, 0.0, 0.0]
+                        }
+                    };
+                    for k in 0..3 {
+                        f[k] += g[k] + c.external[k] / nv;
+                    }
+                }
+                Ok(())
+            })
+            .collect();
+        // The first failure by cell index, as a serial loop would report it.
+        own.into_iter().collect::<Result<(), DpdError>>()?;
         let mut counter = [0.0; 3];
-        for (ci, c) in self.cells.iter_mut().enumerate() {
-            c.f.iter_mut().for_each(|f| *f = [0.0; 3]);
-            c.membrane.add_forces(&c.x, &mut c.f)?;
-            c.membrane.add_viscous_forces(
-                &c.x,
-                &c.v,
-                step,
-                mix64(params.seed ^ SALT_MEMBRANE).wrapping_add(ci as u64),
-                dt,
-                &mut c.f,
-            )?;
-            let nv = c.x.len() as f64;
+        for c in &self.cells {
             for k in 0..3 {
                 counter[k] += c.external[k];
             }
-            // Body force (per particle, as on the solvent) and the external force.
-            for (x, f) in c.x.iter().zip(c.f.iter_mut()) {
-                let g = match self.fluid.body {
-                    BodyForce::None => [0.0; 3],
-                    BodyForce::Constant(g) => g,
-                    BodyForce::ReversePoiseuille { force } => {
-                        let z = wrap(*x, l)[2];
-                        [if z < 0.5 * l[2] { force } else { -force }, 0.0, 0.0]
-                    }
-                };
-                for k in 0..3 {
-                    f[k] += g[k] + c.external[k] / nv;
-                }
-            }
         }
-        // Solvent–vertex pairs.
+        // Solvent–vertex pairs, cells in parallel: each cell sums its vertices' forces and
+        // lists its contributions to the solvent, which are then added cell by cell in the
+        // order of a serial loop (the same sums bit for bit at any thread count).
         let (cells_list, p, [fx, fy, fz]) = self.fluid.split_for_coupling();
         let (grid, starts) = (&cells_list.grid, &cells_list.starts);
         let weight = |w: f64| super::pair_force::weight_r(cp.power, w);
-        for (ci, c) in self.cells.iter_mut().enumerate() {
-            for (vi, (x, (v, f))) in c.x.iter().zip(c.v.iter().zip(c.f.iter_mut())).enumerate() {
-                let xw = wrap(*x, l);
-                let vid = c.id0 + vi as u32;
-                for (nc, s) in grid.neighbours(grid.cell_of(xw)) {
-                    for j in starts[nc]..starts[nc + 1] {
-                        let d = [
-                            xw[0] - (p.x[j] + s[0]),
-                            xw[1] - (p.y[j] + s[1]),
-                            xw[2] - (p.z[j] + s[2]),
-                        ];
-                        let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-                        if r2 >= rc * rc || r2 == 0.0 {
-                            continue;
+        let owner = &self.owner;
+        self.solvent_kicks.resize_with(self.cells.len(), Vec::new);
+        self.cells
+            .par_iter_mut()
+            .zip(self.solvent_kicks.par_iter_mut())
+            .enumerate()
+            .for_each(|(ci, (c, kicks))| {
+                kicks.clear();
+                for (vi, (x, (v, f))) in c.x.iter().zip(c.v.iter().zip(c.f.iter_mut())).enumerate()
+                {
+                    let xw = wrap(*x, l);
+                    let vid = c.id0 + vi as u32;
+                    for (nc, s) in grid.neighbours(grid.cell_of(xw)) {
+                        for j in starts[nc]..starts[nc + 1] {
+                            let d = [
+                                xw[0] - (p.x[j] + s[0]),
+                                xw[1] - (p.y[j] + s[1]),
+                                xw[2] - (p.z[j] + s[2]),
+                            ];
+                            let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                            if r2 >= rc * rc || r2 == 0.0 {
+                                continue;
+                            }
+                            let r = r2.sqrt();
+                            let w = 1.0 - r / rc;
+                            let wr = weight(w);
+                            let gamma = if owner[p.id[j] as usize] == ci as u32 {
+                                cp.gamma_in
+                            } else {
+                                cp.gamma_out
+                            };
+                            let ve = ((v[0] - p.vx[j]) * d[0]
+                                + (v[1] - p.vy[j]) * d[1]
+                                + (v[2] - p.vz[j]) * d[2])
+                                / r;
+                            let sigma = (2.0 * gamma * kbt).sqrt();
+                            let fm = (-gamma * wr * wr * ve
+                                + sigma * wr * pair_noise(key, vid, p.id[j]) * inv_sqrt_dt)
+                                / r;
+                            let fd = [fm * d[0], fm * d[1], fm * d[2]];
+                            for k in 0..3 {
+                                f[k] += fd[k];
+                            }
+                            kicks.push((j as u32, [-fd[0], -fd[1], -fd[2]]));
                         }
-                        let r = r2.sqrt();
-                        let w = 1.0 - r / rc;
-                        let wr = weight(w);
-                        let gamma = if self.owner[p.id[j] as usize] == ci as u32 {
-                            cp.gamma_in
-                        } else {
-                            cp.gamma_out
-                        };
-                        let ve = ((v[0] - p.vx[j]) * d[0]
-                            + (v[1] - p.vy[j]) * d[1]
-                            + (v[2] - p.vz[j]) * d[2])
-                            / r;
-                        let sigma = (2.0 * gamma * kbt).sqrt();
-                        let fm = (-gamma * wr * wr * ve
-                            + sigma * wr * pair_noise(key, vid, p.id[j]) * inv_sqrt_dt)
-                            / r;
-                        for k in 0..3 {
-                            f[k] += fm * d[k];
-                        }
-                        fx[j] -= fm * d[0];
-                        fy[j] -= fm * d[1];
-                        fz[j] -= fm * d[2];
                     }
                 }
-            }
-        }
+            });
+        add_kicks(&self.solvent_kicks, [&mut fx[..], &mut fy[..], &mut fz[..]]);
         if counter.iter().any(|&c| c != 0.0) {
             spread_over_outer_solvent(p, &self.owner, counter, [&mut *fx, &mut *fy, &mut *fz]);
         }
         // A more viscous inner fluid: extra dissipative + random pairs among the inner
         // solvent of each cell (independent noise).
         if cp.inner_extra_gamma > 0.0 {
+            // Each cell's inner solvent is its own, so the cells run in parallel; their
+            // contributions are added in the order of a serial loop.
             let key_in = step_key(params.seed ^ SALT_INNER, step);
             let sigma = (2.0 * cp.inner_extra_gamma * kbt).sqrt();
-            let mut near = Vec::new();
-            for ci in 0..self.cells.len() {
-                let (lo, hi) = bbox(&self.cells[ci].x);
-                particles_near(cells_list, lo, hi, &mut near);
-                let members: Vec<usize> = near
-                    .iter()
-                    .copied()
-                    .filter(|&i| self.owner[p.id[i] as usize] == ci as u32)
-                    .collect();
-                for (a, &i) in members.iter().enumerate() {
-                    for &j in &members[a + 1..] {
-                        let d =
-                            minimum_image([p.x[i], p.y[i], p.z[i]], [p.x[j], p.y[j], p.z[j]], l);
-                        let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-                        if r2 >= rc * rc || r2 == 0.0 {
-                            continue;
+            let pair = params.pair;
+            self.solvent_kicks
+                .par_iter_mut()
+                .zip(self.cells.par_iter())
+                .enumerate()
+                .for_each_init(Vec::new, |near, (ci, (kicks, c))| {
+                    kicks.clear();
+                    let (lo, hi) = bbox(&c.x);
+                    particles_near(cells_list, lo, hi, near);
+                    let members: Vec<usize> = near
+                        .iter()
+                        .copied()
+                        .filter(|&i| owner[p.id[i] as usize] == ci as u32)
+                        .collect();
+                    for (a, &i) in members.iter().enumerate() {
+                        for &j in &members[a + 1..] {
+                            let d = minimum_image(
+                                [p.x[i], p.y[i], p.z[i]],
+                                [p.x[j], p.y[j], p.z[j]],
+                                l,
+                            );
+                            let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+                            if r2 >= rc * rc || r2 == 0.0 {
+                                continue;
+                            }
+                            let r = r2.sqrt();
+                            let wr = pair.weight_r(1.0 - r / rc);
+                            let ve = ((p.vx[i] - p.vx[j]) * d[0]
+                                + (p.vy[i] - p.vy[j]) * d[1]
+                                + (p.vz[i] - p.vz[j]) * d[2])
+                                / r;
+                            let fm = (-cp.inner_extra_gamma * wr * wr * ve
+                                + sigma * wr * pair_noise(key_in, p.id[i], p.id[j]) * inv_sqrt_dt)
+                                / r;
+                            let fd = [fm * d[0], fm * d[1], fm * d[2]];
+                            kicks.push((i as u32, fd));
+                            kicks.push((j as u32, [-fd[0], -fd[1], -fd[2]]));
                         }
-                        let r = r2.sqrt();
-                        let wr = params.pair.weight_r(1.0 - r / rc);
-                        let ve = ((p.vx[i] - p.vx[j]) * d[0]
-                            + (p.vy[i] - p.vy[j]) * d[1]
-                            + (p.vz[i] - p.vz[j]) * d[2])
-                            / r;
-                        let fm = (-cp.inner_extra_gamma * wr * wr * ve
-                            + sigma * wr * pair_noise(key_in, p.id[i], p.id[j]) * inv_sqrt_dt)
-                            / r;
-                        fx[i] += fm * d[0];
-                        fy[i] += fm * d[1];
-                        fz[i] += fm * d[2];
-                        fx[j] -= fm * d[0];
-                        fy[j] -= fm * d[1];
-                        fz[j] -= fm * d[2];
                     }
-                }
-            }
+                });
+            add_kicks(&self.solvent_kicks, [&mut fx[..], &mut fy[..], &mut fz[..]]);
         }
         // Contact repulsion between vertices of different cells.
         if cp.contact_a > 0.0 && self.cells.len() > 1 {
@@ -1129,6 +1172,19 @@ impl DpdSuspension {
             });
         }
         Ok(())
+    }
+}
+
+/// Add the per-cell lists of solvent force contributions `(particle, force)` to the solvent's
+/// forces, cell by cell and in list order (the order of a serial loop over cells).
+fn add_kicks(kicks: &[Vec<(u32, [f64; 3])>], [fx, fy, fz]: [&mut [f64]; 3]) {
+    for list in kicks {
+        for &(j, d) in list {
+            let j = j as usize;
+            fx[j] += d[0];
+            fy[j] += d[1];
+            fz[j] += d[2];
+        }
     }
 }
 
