@@ -382,6 +382,9 @@ pub struct DpdSuspension {
     /// Per cell, its contributions to the solvent's forces in the current force evaluation
     /// (scratch kept between steps).
     solvent_kicks: Vec<Vec<(u32, [f64; 3])>>,
+    /// Per particle, near how many cells it is in the current bounce-back (scratch kept
+    /// between steps).
+    bounce_count: Vec<u8>,
 }
 
 impl DpdSuspension {
@@ -467,6 +470,7 @@ impl DpdSuspension {
             leaked: 0,
             max_leaked: 0,
             solvent_kicks: Vec::new(),
+            bounce_count: Vec::new(),
         };
         let owner = sim.sides();
         sim.owner = owner;
@@ -557,6 +561,7 @@ impl DpdSuspension {
             leaked,
             max_leaked,
             solvent_kicks: Vec::new(),
+            bounce_count: Vec::new(),
         })
     }
 
@@ -780,155 +785,79 @@ impl DpdSuspension {
     }
 
     /// Bounce the solvent particles whose drift crossed a membrane (see the module docs).
+    ///
+    /// The cells run in parallel for the particles near one cell only (each such particle and
+    /// each cell's vertices are touched by one task; the particles are taken in the cell
+    /// list's order, as a serial loop would); the particles near several cells follow, cell by
+    /// cell in order, each cell seeing the bounces of the ones before. The result does not
+    /// depend on the thread count, and with cells apart it is the serial loop's.
     fn bounce_off_membranes(&mut self) {
-        let dt = self.fluid.params.dt;
-        let l = self.fluid.params.box_len;
-        let ms = self.fluid.params.mass;
-        let mv = self.coupling.vertex_mass;
+        let (dt, l) = (self.fluid.params.dt, self.fluid.params.box_len);
         let rc = self.fluid.params.pair.rc;
-        let mut near = Vec::new();
-        for c in &mut self.cells {
-            let tris = c.membrane.topology().triangles();
-            // Swept bounding box of the membrane over the step, and a bin grid of side r_c
-            // over it holding the triangles whose swept boxes touch each bin.
-            let (lo0, hi0) = bbox(&c.x_old);
-            let (lo1, hi1) = bbox(&c.x);
-            let lo = [0, 1, 2].map(|k| lo0[k].min(lo1[k]) - 1e-9);
-            let hi = [0, 1, 2].map(|k| hi0[k].max(hi1[k]) + 1e-9);
-            let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
-            // (The drift check bounds the box; the cap keeps the grid small regardless.)
-            let dims = [0, 1, 2].map(|k| {
-                (((hi[k] - lo[k]) / rc).ceil() as usize).clamp(1, (l[k] / rc) as usize + 2)
-            });
-            let bin_of = |p: [f64; 3]| {
-                [0, 1, 2]
-                    .map(|k| (((p[k] - lo[k]) / rc).floor().max(0.0) as usize).min(dims[k] - 1))
-            };
-            let mut bins: Vec<Vec<u32>> = vec![Vec::new(); dims[0] * dims[1] * dims[2]];
-            for (t, tri) in tris.iter().enumerate() {
-                let pts = [0, 1, 2].map(|j| [c.x_old[tri[j]], c.x[tri[j]]]);
-                let flat: Vec<[f64; 3]> = pts.iter().flatten().copied().collect();
-                let (tl, th) = bbox(&flat);
-                let (b0, b1) = (bin_of(tl), bin_of(th));
-                for bz in b0[2]..=b1[2] {
-                    for by in b0[1]..=b1[1] {
-                        for bx in b0[0]..=b1[0] {
-                            bins[(bz * dims[1] + by) * dims[0] + bx].push(t as u32);
-                        }
-                    }
-                }
+        let hit = Collision {
+            dt,
+            box_len: l,
+            ms: self.fluid.params.mass,
+            mv: self.coupling.vertex_mass,
+            rc,
+        };
+        let swept: Vec<SweptMembrane> = self
+            .cells
+            .par_iter()
+            .map(|c| SweptMembrane::new(c, rc, l))
+            .collect();
+        let (cells_list, p) = (self.fluid.cell_list(), &self.fluid.particles);
+        let candidates: Vec<Vec<u32>> = swept
+            .par_iter()
+            .map_init(Vec::new, |near, sw| sw.candidates(cells_list, p, near))
+            .collect();
+        // Near how many cells each particle is.
+        let count = &mut self.bounce_count;
+        count.clear();
+        count.resize(p.len(), 0);
+        for list in &candidates {
+            for &i in list {
+                count[i as usize] = count[i as usize].saturating_add(1);
             }
-            // Candidates: the particles of the cells around the swept box (a particle moves
-            // far less than a cell, r_c, in a step since the last sort).
-            particles_near(self.fluid.cell_list(), lo, hi, &mut near);
-            let p = &mut self.fluid.particles;
-            for &i in &near {
-                if p.moves[i] == 0.0 {
-                    continue;
+        }
+        let count = &self.bounce_count;
+        // Particles near one cell only: cells in parallel, the new states applied after.
+        let moved: Vec<(Vec<Bounced>, u64)> = self
+            .cells
+            .par_iter_mut()
+            .zip(swept.par_iter())
+            .zip(candidates.par_iter())
+            .map(|((c, sw), list)| {
+                let (mut out, mut n) = (Vec::new(), 0);
+                for &i in list.iter().filter(|&&i| count[i as usize] == 1) {
+                    let i = i as usize;
+                    let (x, v) = ([p.x[i], p.y[i], p.z[i]], [p.vx[i], p.vy[i], p.vz[i]]);
+                    if let Some((x, v, b)) = hit.follow(c, sw, x, v) {
+                        out.push((i as u32, x, v));
+                        n += b;
+                    }
                 }
-                let v = [p.vx[i], p.vy[i], p.vz[i]];
-                let x1 = [p.x[i], p.y[i], p.z[i]];
-                // The image of the path nearest the membrane.
-                let x0 = [0, 1, 2].map(|k| x1[k] - dt * v[k]);
-                let q0 = image_near(x0, centre, l);
-                let shift = [0, 1, 2].map(|k| q0[k] - x0[k]);
-                let q1 = [0, 1, 2].map(|k| x1[k] + shift[k]);
-                if (0..3).any(|k| q0[k].max(q1[k]) < lo[k] || q0[k].min(q1[k]) > hi[k]) {
-                    continue;
-                }
-                // The path is followed through up to MAX_BOUNCES collisions: after each, the
-                // rest of the step (from the collision point at fraction `t0` to the end) is
-                // tested again against the triangles moving from their positions at `t0` to
-                // their ends, so that a particle bounced near an edge cannot slip through the
-                // neighbouring triangle.
-                let (mut s0, mut s1, mut t0, mut vel) = (q0, q1, 0.0f64, v);
-                for _ in 0..MAX_BOUNCES {
-                    let (pl, ph) = bbox(&[s0, s1]);
-                    let (b0, b1) = (bin_of(pl), bin_of(ph));
-                    let at = |j: usize| -> [f64; 3] {
-                        [0, 1, 2].map(|k| c.x_old[j][k] + t0 * (c.x[j][k] - c.x_old[j][k]))
-                    };
-                    let mut best: Option<(super::crossing::Crossing, usize)> = None;
-                    for bz in b0[2]..=b1[2] {
-                        for by in b0[1]..=b1[1] {
-                            for bx in b0[0]..=b1[0] {
-                                for &t in &bins[(bz * dims[1] + by) * dims[0] + bx] {
-                                    let tri = tris[t as usize];
-                                    let tri0 = tri.map(at);
-                                    let tri1 = tri.map(|j| c.x[j]);
-                                    if let Some(hit) = first_crossing(s0, s1, tri0, tri1) {
-                                        if best.is_none_or(|(b, _)| hit.t < b.t) {
-                                            best = Some((hit, t as usize));
-                                        }
-                                    }
-                                }
-                            }
-                        }
-                    }
-                    let Some((hit, t)) = best else { break };
-                    let tri = tris[t];
-                    let lam = hit.bary;
-                    let t_hit = t0 + hit.t * (1.0 - t0);
-                    // Velocity of the triangle's point over the step, and the point at the end
-                    // of the step.
-                    let mut u = [0.0; 3];
-                    let mut q = [0.0; 3];
-                    for (j, &vtx) in tri.iter().enumerate() {
-                        for k in 0..3 {
-                            u[k] += lam[j] * (c.x[vtx][k] - c.x_old[vtx][k]) / dt;
-                            q[k] += lam[j] * c.x[vtx][k];
-                        }
-                    }
-                    // The collision with the triangle's point (see `collision_impulse`), whose
-                    // velocity now is Σλ_k v_k (the vertices' current velocities: an earlier
-                    // collision in this step may have changed them since they drifted with
-                    // `u`), so that every collision conserves energy; `u` places the particle.
-                    let mut up = [0.0; 3];
-                    for (j, &vtx) in tri.iter().enumerate() {
-                        for k in 0..3 {
-                            up[k] += lam[j] * c.v[vtx][k];
-                        }
-                    }
-                    let jmp = collision_impulse([0, 1, 2].map(|k| vel[k] - up[k]), lam, ms, mv);
-                    let w = [0, 1, 2].map(|k| vel[k] - u[k]);
-                    for k in 0..3 {
-                        vel[k] += jmp[k] / ms;
-                    }
-                    for (j, &vtx) in tri.iter().enumerate() {
-                        for k in 0..3 {
-                            c.v[vtx][k] -= lam[j] * jmp[k] / mv;
-                        }
-                    }
-                    self.bounces += 1;
-                    // The unit normal towards the side the particle came from, at the hit and
-                    // at the end of the step.
-                    let normal = |pts: [[f64; 3]; 3]| {
-                        let n = cross3(sub3(pts[1], pts[0]), sub3(pts[2], pts[0]));
-                        let nn = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-                        n.map(|c| hit.side * c / nn)
-                    };
-                    let n_hit = normal(tri.map(|j| {
-                        [0, 1, 2].map(|k| c.x_old[j][k] + t_hit * (c.x[j][k] - c.x_old[j][k]))
-                    }));
-                    let n_end = normal(tri.map(|j| c.x[j]));
-                    // The rest of the step: away from the triangle's point with the reversed
-                    // relative velocity −w (riding with the point if that is not away from
-                    // the plane), a small step off the plane on the particle's side.
-                    let rest = (1.0 - t_hit) * dt;
-                    let away = -(w[0] * n_end[0] + w[1] * n_end[1] + w[2] * n_end[2]);
-                    let eps = 1e-7 * rc;
-                    let hit_point = [0, 1, 2].map(|k| s0[k] + hit.t * (s1[k] - s0[k]));
-                    s0 = [0, 1, 2].map(|k| hit_point[k] + eps * n_hit[k]);
-                    s1 = [0, 1, 2].map(|k| {
-                        let off = if away > 0.0 { -rest * w[k] } else { 0.0 };
-                        q[k] + off + eps * n_end[k]
-                    });
-                    t0 = t_hit;
-                }
-                if t0 > 0.0 {
-                    (p.x[i], p.y[i], p.z[i]) =
-                        (s1[0] - shift[0], s1[1] - shift[1], s1[2] - shift[2]);
-                    (p.vx[i], p.vy[i], p.vz[i]) = (vel[0], vel[1], vel[2]);
+                (out, n)
+            })
+            .collect();
+        let p = &mut self.fluid.particles;
+        for (list, n) in moved {
+            self.bounces += n;
+            for (i, x, v) in list {
+                let i = i as usize;
+                (p.x[i], p.y[i], p.z[i]) = (x[0], x[1], x[2]);
+                (p.vx[i], p.vy[i], p.vz[i]) = (v[0], v[1], v[2]);
+            }
+        }
+        // Particles near several cells: cell by cell, each seeing the others' bounces.
+        for ((c, sw), list) in self.cells.iter_mut().zip(&swept).zip(&candidates) {
+            for &i in list.iter().filter(|&&i| count[i as usize] > 1) {
+                let i = i as usize;
+                let (x, v) = ([p.x[i], p.y[i], p.z[i]], [p.vx[i], p.vy[i], p.vz[i]]);
+                if let Some((x, v, b)) = hit.follow(c, sw, x, v) {
+                    (p.x[i], p.y[i], p.z[i]) = (x[0], x[1], x[2]);
+                    (p.vx[i], p.vy[i], p.vz[i]) = (v[0], v[1], v[2]);
+                    self.bounces += b;
                 }
             }
         }
@@ -1185,6 +1114,234 @@ fn add_kicks(kicks: &[Vec<(u32, [f64; 3])>], [fx, fy, fz]: [&mut [f64]; 3]) {
             fy[j] += d[1];
             fz[j] += d[2];
         }
+    }
+}
+
+/// A membrane's swept bounding box over the step, and a bin grid of side `r_c` over it holding
+/// the triangles whose swept boxes touch each bin.
+struct SweptMembrane {
+    lo: [f64; 3],
+    hi: [f64; 3],
+    centre: [f64; 3],
+    dims: [usize; 3],
+    rc: f64,
+    bins: Vec<Vec<u32>>,
+}
+
+impl SweptMembrane {
+    fn new(c: &FluidCell, rc: f64, l: [f64; 3]) -> Self {
+        let (lo0, hi0) = bbox(&c.x_old);
+        let (lo1, hi1) = bbox(&c.x);
+        let lo = [0, 1, 2].map(|k| lo0[k].min(lo1[k]) - 1e-9);
+        let hi = [0, 1, 2].map(|k| hi0[k].max(hi1[k]) + 1e-9);
+        let centre = [0, 1, 2].map(|k| 0.5 * (lo[k] + hi[k]));
+        // (The drift check bounds the box; the cap keeps the grid small regardless.)
+        let dims = [0, 1, 2]
+            .map(|k| (((hi[k] - lo[k]) / rc).ceil() as usize).clamp(1, (l[k] / rc) as usize + 2));
+        let mut sw = SweptMembrane {
+            lo,
+            hi,
+            centre,
+            dims,
+            rc,
+            bins: vec![Vec::new(); dims[0] * dims[1] * dims[2]],
+        };
+        for (t, tri) in c.membrane.topology().triangles().iter().enumerate() {
+            let pts = [0, 1, 2].map(|j| [c.x_old[tri[j]], c.x[tri[j]]]);
+            let flat: Vec<[f64; 3]> = pts.iter().flatten().copied().collect();
+            let (tl, th) = bbox(&flat);
+            let (b0, b1) = (sw.bin_of(tl), sw.bin_of(th));
+            for bz in b0[2]..=b1[2] {
+                for by in b0[1]..=b1[1] {
+                    for bx in b0[0]..=b1[0] {
+                        let at = sw.bin_index([bx, by, bz]);
+                        sw.bins[at].push(t as u32);
+                    }
+                }
+            }
+        }
+        sw
+    }
+
+    fn bin_of(&self, p: [f64; 3]) -> [usize; 3] {
+        [0, 1, 2].map(|k| {
+            (((p[k] - self.lo[k]) / self.rc).floor().max(0.0) as usize).min(self.dims[k] - 1)
+        })
+    }
+
+    fn bin_index(&self, b: [usize; 3]) -> usize {
+        (b[2] * self.dims[1] + b[1]) * self.dims[0] + b[0]
+    }
+
+    /// The path of a particle at `x1` with velocity `v` over the step (`x1 − dt v → x1`),
+    /// as the image nearest the membrane, and the shift of that image.
+    fn path(&self, x1: [f64; 3], v: [f64; 3], dt: f64, l: [f64; 3]) -> PathImage {
+        let x0 = [0, 1, 2].map(|k| x1[k] - dt * v[k]);
+        let q0 = image_near(x0, self.centre, l);
+        let shift = [0, 1, 2].map(|k| q0[k] - x0[k]);
+        let q1 = [0, 1, 2].map(|k| x1[k] + shift[k]);
+        let meets = !(0..3).any(|k| q0[k].max(q1[k]) < self.lo[k] || q0[k].min(q1[k]) > self.hi[k]);
+        PathImage {
+            q0,
+            q1,
+            shift,
+            meets,
+        }
+    }
+
+    /// The moving particles in the cells of the cell list around the swept box, in the cell
+    /// list's order: those that may hit this membrane (a particle moves far less than a cell,
+    /// `r_c`, in a step since the last sort).
+    fn candidates(&self, cells: &CellList, p: &Particles, near: &mut Vec<usize>) -> Vec<u32> {
+        particles_near(cells, self.lo, self.hi, near);
+        near.iter()
+            .copied()
+            .filter(|&i| p.moves[i] != 0.0)
+            .map(|i| i as u32)
+            .collect()
+    }
+}
+
+/// A bounced particle: its index, new position and new velocity.
+type Bounced = (u32, [f64; 3], [f64; 3]);
+
+/// A particle's path over the step as the image nearest a membrane.
+struct PathImage {
+    q0: [f64; 3],
+    q1: [f64; 3],
+    shift: [f64; 3],
+    meets: bool,
+}
+
+/// What a collision of a solvent particle with a membrane triangle needs.
+struct Collision {
+    dt: f64,
+    box_len: [f64; 3],
+    ms: f64,
+    mv: f64,
+    rc: f64,
+}
+
+impl Collision {
+    /// Follow the path of the particle at `x1` with velocity `v` (after the drift) through
+    /// up to [`MAX_BOUNCES`] collisions with the membrane of `c` (whose vertices take the
+    /// impulses): the particle's new position and velocity and the number of collisions, or
+    /// `None` if it hit nothing.
+    fn follow(
+        &self,
+        c: &mut FluidCell,
+        sw: &SweptMembrane,
+        x1: [f64; 3],
+        v: [f64; 3],
+    ) -> Option<([f64; 3], [f64; 3], u64)> {
+        let Collision {
+            dt,
+            box_len: l,
+            ms,
+            mv,
+            rc,
+        } = *self;
+        let PathImage {
+            q0,
+            q1,
+            shift,
+            meets,
+        } = sw.path(x1, v, dt, l);
+        if !meets {
+            return None;
+        }
+        let tris = c.membrane.topology().triangles();
+        // The path is followed through up to MAX_BOUNCES collisions: after each, the rest of
+        // the step (from the collision point at fraction `t0` to the end) is tested again
+        // against the triangles moving from their positions at `t0` to their ends, so that a
+        // particle bounced near an edge cannot slip through the neighbouring triangle.
+        let (mut s0, mut s1, mut t0, mut vel) = (q0, q1, 0.0f64, v);
+        let mut bounces = 0;
+        for _ in 0..MAX_BOUNCES {
+            let (pl, ph) = bbox(&[s0, s1]);
+            let (b0, b1) = (sw.bin_of(pl), sw.bin_of(ph));
+            let at = |j: usize| -> [f64; 3] {
+                [0, 1, 2].map(|k| c.x_old[j][k] + t0 * (c.x[j][k] - c.x_old[j][k]))
+            };
+            let mut best: Option<(super::crossing::Crossing, usize)> = None;
+            for bz in b0[2]..=b1[2] {
+                for by in b0[1]..=b1[1] {
+                    for bx in b0[0]..=b1[0] {
+                        for &t in &sw.bins[sw.bin_index([bx, by, bz])] {
+                            let tri = tris[t as usize];
+                            let tri0 = tri.map(at);
+                            let tri1 = tri.map(|j| c.x[j]);
+                            if let Some(hit) = first_crossing(s0, s1, tri0, tri1) {
+                                if best.is_none_or(|(b, _)| hit.t < b.t) {
+                                    best = Some((hit, t as usize));
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            let Some((hit, t)) = best else { break };
+            let tri = tris[t];
+            let lam = hit.bary;
+            let t_hit = t0 + hit.t * (1.0 - t0);
+            // Velocity of the triangle's point over the step, and the point at the end of the
+            // step.
+            let mut u = [0.0; 3];
+            let mut q = [0.0; 3];
+            for (j, &vtx) in tri.iter().enumerate() {
+                for k in 0..3 {
+                    u[k] += lam[j] * (c.x[vtx][k] - c.x_old[vtx][k]) / dt;
+                    q[k] += lam[j] * c.x[vtx][k];
+                }
+            }
+            // The collision with the triangle's point (see `collision_impulse`), whose
+            // velocity now is Σλ_k v_k (the vertices' current velocities: an earlier collision
+            // in this step may have changed them since they drifted with `u`), so that every
+            // collision conserves energy; `u` places the particle.
+            let mut up = [0.0; 3];
+            for (j, &vtx) in tri.iter().enumerate() {
+                for k in 0..3 {
+                    up[k] += lam[j] * c.v[vtx][k];
+                }
+            }
+            let jmp = collision_impulse([0, 1, 2].map(|k| vel[k] - up[k]), lam, ms, mv);
+            let w = [0, 1, 2].map(|k| vel[k] - u[k]);
+            for k in 0..3 {
+                vel[k] += jmp[k] / ms;
+            }
+            for (j, &vtx) in tri.iter().enumerate() {
+                for k in 0..3 {
+                    c.v[vtx][k] -= lam[j] * jmp[k] / mv;
+                }
+            }
+            bounces += 1;
+            // The unit normal towards the side the particle came from, at the hit and at the
+            // end of the step.
+            let normal = |pts: [[f64; 3]; 3]| {
+                let n = cross3(sub3(pts[1], pts[0]), sub3(pts[2], pts[0]));
+                let nn = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                n.map(|c| hit.side * c / nn)
+            };
+            let n_hit =
+                normal(tri.map(|j| {
+                    [0, 1, 2].map(|k| c.x_old[j][k] + t_hit * (c.x[j][k] - c.x_old[j][k]))
+                }));
+            let n_end = normal(tri.map(|j| c.x[j]));
+            // The rest of the step: away from the triangle's point with the reversed relative
+            // velocity −w (riding with the point if that is not away from the plane), a small
+            // step off the plane on the particle's side.
+            let rest = (1.0 - t_hit) * dt;
+            let away = -(w[0] * n_end[0] + w[1] * n_end[1] + w[2] * n_end[2]);
+            let eps = 1e-7 * rc;
+            let hit_point = [0, 1, 2].map(|k| s0[k] + hit.t * (s1[k] - s0[k]));
+            s0 = [0, 1, 2].map(|k| hit_point[k] + eps * n_hit[k]);
+            s1 = [0, 1, 2].map(|k| {
+                let off = if away > 0.0 { -rest * w[k] } else { 0.0 };
+                q[k] + off + eps * n_end[k]
+            });
+            t0 = t_hit;
+        }
+        (t0 > 0.0).then(|| ([0, 1, 2].map(|k| s1[k] - shift[k]), vel, bounces))
     }
 }
 
