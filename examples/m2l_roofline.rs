@@ -15,9 +15,9 @@
 //! * **pairs**: [`FftM2l::accumulate_chunk`] for every pair, sorted by offset then target;
 //! * **8 × 8 blocks**: [`FftM2l::accumulate_siblings`] for every pair of neighbouring parents
 //!   (the evaluator's default in uniform regions; up to 63 products per block, touching
-//!   children skipped, zeros for absent ones), sorted by target, on each instruction set the
-//!   CPU runs ([`SiblingPath`]: the AVX2 loop by target octant, the AVX-512 one by octant
-//!   difference; the evaluator takes the widest).
+//!   children skipped, zeros for absent ones), sorted by target, on each SIMD path the CPU
+//!   runs ([`SiblingPath`]: the AVX2 loop by target octant, the AVX-512 one by octant
+//!   difference; the portable loop only where there is none; the evaluator takes the widest).
 //!
 //! Rates count the useful flops (the V-list pairs') either way, against faer's one-thread GEMM
 //! rate and the one-thread triad bandwidth measured in the same run:

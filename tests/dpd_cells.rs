@@ -195,9 +195,10 @@ fn inner_viscosity_keeps_the_inner_solvent_at_k_bt() {
 }
 
 /// The cells' loops run in parallel (their own forces, the solvent–vertex pairs, the inner
-/// viscosity, the leak count), each cell's contributions to the solvent added in cell order:
-/// three touching cells with a viscous interior, stepped on 1 and on 3 threads, end in the
-/// same state bit for bit (solvent, vertices, counters).
+/// viscosity, the bounce-back, the leak count), each cell's contributions to the solvent added
+/// in cell order: three cells with a viscous interior (two 0.3 apart, in contact; the third
+/// 1.4–1.5 from them, so solvent particles lie near several membranes), stepped on 1 and on 3
+/// threads, end in the same state bit for bit (solvent, vertices, counters).
 #[test]
 fn cells_give_the_same_run_on_any_thread_count() {
     let run = |threads: usize| {
@@ -227,7 +228,14 @@ fn cells_give_the_same_run_on_any_thread_count() {
             }
             let p = &sim.fluid.particles;
             (
-                [p.x.clone(), p.y.clone(), p.z.clone(), p.vx.clone()],
+                [
+                    p.x.clone(),
+                    p.y.clone(),
+                    p.z.clone(),
+                    p.vx.clone(),
+                    p.vy.clone(),
+                    p.vz.clone(),
+                ],
                 sim.state(),
             )
         })

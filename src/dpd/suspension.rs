@@ -382,8 +382,9 @@ pub struct DpdSuspension {
     /// Per cell, its contributions to the solvent's forces in the current force evaluation
     /// (scratch kept between steps).
     solvent_kicks: Vec<Vec<(u32, [f64; 3])>>,
-    /// Per particle, near how many cells it is in the current bounce-back (scratch kept
-    /// between steps).
+    /// Per moving particle, in how many cells' bounce-back candidate lists it is (the cell-list
+    /// cells around each membrane's swept box) in the current step (scratch kept between
+    /// steps).
     bounce_count: Vec<u8>,
 }
 
@@ -794,7 +795,7 @@ impl DpdSuspension {
     fn bounce_off_membranes(&mut self) {
         let (dt, l) = (self.fluid.params.dt, self.fluid.params.box_len);
         let rc = self.fluid.params.pair.rc;
-        let hit = Collision {
+        let collision = Collision {
             dt,
             box_len: l,
             ms: self.fluid.params.mass,
@@ -832,7 +833,7 @@ impl DpdSuspension {
                 for &i in list.iter().filter(|&&i| count[i as usize] == 1) {
                     let i = i as usize;
                     let (x, v) = ([p.x[i], p.y[i], p.z[i]], [p.vx[i], p.vy[i], p.vz[i]]);
-                    if let Some((x, v, b)) = hit.follow(c, sw, x, v) {
+                    if let Some((x, v, b)) = collision.follow(c, sw, x, v) {
                         out.push((i as u32, x, v));
                         n += b;
                     }
@@ -854,7 +855,7 @@ impl DpdSuspension {
             for &i in list.iter().filter(|&&i| count[i as usize] > 1) {
                 let i = i as usize;
                 let (x, v) = ([p.x[i], p.y[i], p.z[i]], [p.vx[i], p.vy[i], p.vz[i]]);
-                if let Some((x, v, b)) = hit.follow(c, sw, x, v) {
+                if let Some((x, v, b)) = collision.follow(c, sw, x, v) {
                     (p.x[i], p.y[i], p.z[i]) = (x[0], x[1], x[2]);
                     (p.vx[i], p.vy[i], p.vz[i]) = (v[0], v[1], v[2]);
                     self.bounces += b;

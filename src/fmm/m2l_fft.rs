@@ -534,14 +534,17 @@ impl FftM2l {
     /// `target[i] += Σ_j Ĝ_{ij} · source[j]` for the 8 target octants `i` and 8 source octants
     /// `j` (`g` from [`FftM2l::sibling_blocks`]; `source`: `8 × de` chunk slices, zeros for
     /// absent children; `target`: `8 × dt`). The same sums as [`FftM2l::accumulate_chunk`] over
-    /// the pairs that do not touch, with each target's chunk kept in registers over its
-    /// partners (the products of Malhotra & Biros 2015 blocked by siblings).
+    /// the pairs that do not touch (the products of Malhotra & Biros 2015 blocked by siblings),
+    /// on the widest [`SiblingPath`] of the CPU: with AVX-512 ordered by octant difference, each
+    /// kernel block loaded once for all its pairs; otherwise by target octant, each target's
+    /// chunk kept in registers over its partners.
     pub fn accumulate_siblings(&self, g: &[&[f64]; 27], source: &[f64], target: &mut [f64]) {
         siblings(SiblingPath::best(), g, source, target, self.dt, self.de);
     }
 
-    /// [`FftM2l::accumulate_siblings`] on a given instruction set (for tests and benchmarks;
-    /// panics where the CPU does not support it).
+    /// [`FftM2l::accumulate_siblings`] on a given instruction set (for tests and benchmarks).
+    /// On x86-64, panics where the CPU does not support it; elsewhere, and for kernel shapes
+    /// other than 1 × 1, 3 × 3 and 3 × 4, every path runs the portable sums.
     pub fn accumulate_siblings_on(
         &self,
         path: SiblingPath,
@@ -808,12 +811,12 @@ fn siblings_body<const DT: usize, const DE: usize, const FMA: bool>(
 /// The instruction sets the sibling products ([`FftM2l::accumulate_siblings`]) can run on.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SiblingPath {
-    /// [`siblings_body`] without FMA: the reference.
+    /// The loop by target octant (each target's sums kept over its partners) without FMA:
+    /// the reference.
     Portable,
-    /// [`siblings_body`] compiled for AVX2 and FMA.
+    /// The loop by target octant compiled for AVX2 and FMA.
     Avx2,
-    /// [`by_difference::siblings`]: AVX-512 registers, the products ordered by octant
-    /// difference.
+    /// AVX-512 registers, the products ordered by octant difference (x86-64 only).
     Avx512,
 }
 
@@ -913,6 +916,7 @@ mod by_difference {
 
     /// Frequencies per AVX-512 vector.
     const W: usize = 8;
+    const _: () = assert!(CHUNK.is_multiple_of(W), "a chunk is whole AVX-512 vectors");
 
     /// The source octant `j` with `c_i − c_j = e` for target octant `i`, or 8 where there is
     /// none.
@@ -1078,7 +1082,8 @@ mod by_difference {
     }
 }
 
-/// [`siblings_body`] for the kernels' shapes, any other shape through the pair-by-pair sum.
+/// The sibling products on `path` for the kernels' shapes ([`siblings_body`] or
+/// `by_difference::siblings`), any other shape through the pair-by-pair sum.
 fn siblings(
     path: SiblingPath,
     g: &[&[f64]; 27],
