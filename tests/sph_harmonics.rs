@@ -421,6 +421,49 @@ mod properties {
             prop_assert!(rel_max_error(&c, &want) < 1e-12);
         }
 
+        /// The transposed rotation is the transpose: `r · rotate_k(c) = adjoint(r)_k · c` for
+        /// every longitude `k` of a latitude, with two functions per longitude.
+        #[test]
+        fn adjoint_rotation_is_the_transpose(p in 1usize..10, extra in 0usize..4, lat in 0usize..10, seed in 0u64..100) {
+            let lat = lat % (p + 1);
+            let q = p + extra;
+            let (lay, lq) = (CoefLayout::new(p), CoefLayout::new(q));
+            let mut rot = ShRotation::new(p, q).unwrap();
+            let wide = rot.wide_layout().clone();
+            prop_assert_eq!(wide.order(), p + 1);
+            let nlon = 2 * p;
+            let c = random_coefs(2 * lay.len(), seed);
+            let r = random_coefs(2 * nlon * wide.len(), seed + 1000);
+            let mut rc = vec![0.0; 2 * nlon * wide.len()];
+            rot.rotate_coefs_every_longitude(lat, &c, &mut rc).unwrap();
+            let mut ar = vec![0.0; 2 * nlon * lay.len()];
+            rot.adjoint_every_longitude(lat, 2, &r, &mut ar).unwrap();
+            let scale: f64 = r.iter().map(|x| x.abs()).sum::<f64>() + 1.0;
+            for k in 0..nlon {
+                // Against the single-longitude rotation (order-q layout).
+                let mut one = vec![0.0; 2 * lq.len()];
+                rot.rotate_coefs(lat, k, &c, &mut one).unwrap();
+                let mut mine = vec![0.0; 2 * lq.len()];
+                let blk = 2 * k * wide.len()..2 * (k + 1) * wide.len();
+                resample_coefs(&wide, &lq, &rc[blk], &mut mine).unwrap();
+                prop_assert!(rel_max_error(&mine, &one) < 1e-14);
+                for f in 0..2 {
+                    let g = 2 * k + f;
+                    let lhs: f64 = r[g * wide.len()..(g + 1) * wide.len()]
+                        .iter()
+                        .zip(&rc[g * wide.len()..(g + 1) * wide.len()])
+                        .map(|(x, y)| x * y)
+                        .sum();
+                    let rhs: f64 = ar[g * lay.len()..(g + 1) * lay.len()]
+                        .iter()
+                        .zip(&c[f * lay.len()..(f + 1) * lay.len()])
+                        .map(|(x, y)| x * y)
+                        .sum();
+                    prop_assert!((lhs - rhs).abs() < 1e-13 * scale, "k = {k}, f = {f}: {lhs} vs {rhs}");
+                }
+            }
+        }
+
         /// Rotating to the pole preserves the L2 norm (the blocks are orthogonal).
         #[test]
         fn rotation_preserves_norm(p in 1usize..12, lat in 0usize..12, lon in 0usize..24, seed in 0u64..100) {

@@ -327,8 +327,9 @@ fn convergence_table() {
 
 #[test]
 fn dense_operator_equals_matrix_free_evaluation_for_both_rotations() {
-    // p = 6, q = 12: plain Graham–Sloan; p = 8, q = 24: the dimple targets are split.
-    for (p, q) in [(6, 12), (8, 24)] {
+    // p = 6, q = 12: plain Graham–Sloan; p = 8, q = 24: the dimple targets are split; q = p + 3
+    // and q = p (no upsampling: the assembly by rotation matrices) are checked too.
+    for (p, q) in [(6, 12), (8, 24), (7, 10), (5, 5)] {
         dense_equals_matrix_free(p, q);
     }
 }
@@ -353,16 +354,33 @@ fn dense_equals_matrix_free(p: usize, q: usize) {
                 q >= 24,
                 "far-side split at p = {p}, q = {q}: {split}"
             );
+            // The coefficient-space rows against MOBO's GEMM with the rotation matrices.
+            let mut by_matrices = vec![0.0; n3 * n3];
+            si.assemble_by_rotation_matrices(kernel, s.coefs(), &mut by_matrices)
+                .unwrap();
+            let e = assert_close(
+                &format!("{kernel:?} {algo:?}, p = {p}, q = {q}: assembly in coefficient space vs by rotation matrices"),
+                &a,
+                &by_matrices,
+                1e-12,
+            );
+            println!("{kernel:?} {algo:?}, p = {p}, q = {q}: coefficient rows vs rotation matrices {e:.2e}");
             let mut direct = vec![0.0; n3];
             si.evaluate(kernel, s.coefs(), &f, &mut direct).unwrap();
             let applied: Vec<f64> = (0..n3)
                 .map(|r| (0..n3).map(|c| a[c * n3 + r] * f[c]).sum())
                 .collect();
+            // The operator is built with the coefficient-space rotation; the direct rotation's
+            // matrix-free path rounds differently (~1e-13 for the double layer).
+            let tol = match algo {
+                RotationAlgorithm::ViaSh => 1e-13,
+                RotationAlgorithm::Direct => 5e-13,
+            };
             let e = assert_close(
                 &format!("{kernel:?} {algo:?}, p = {p}: A·f vs matrix-free"),
                 &applied,
                 &direct,
-                1e-13,
+                tol,
             );
             println!("{kernel:?} {algo:?}, p = {p}, q = {q} ({split} split): operator vs matrix-free {e:.2e}");
             ops.push(a);

@@ -79,6 +79,16 @@ pub enum SphError {
     /// A workspace made for another plan or block size.
     #[error("workspace was made for a different transform plan")]
     Workspace,
+    /// Coefficients of a higher order than the transform's grid resolves.
+    #[error(
+        "coefficients of order {order} do not fit the grid of a transform of order {transform}"
+    )]
+    LayoutOrder {
+        /// The coefficients' order.
+        order: usize,
+        /// The transform's order.
+        transform: usize,
+    },
     /// The output order of a rotation must not be below the input order.
     #[error("rotation output order q = {q} is below the input order p = {p}")]
     UpsampleOrder {

@@ -229,6 +229,9 @@ pub struct ShRotation {
     p: usize,
     q: usize,
     layout: CoefLayout,
+    /// The layout of order `p + 1`: every degree `n ≤ p` with all its orders (`Y_p^{-p}`
+    /// included), the output of the rotations of a whole latitude.
+    wide: CoefLayout,
     dst: ShTransform,
     dst_ws: ShWorkspace,
     /// Per source latitude: all degree blocks of `[U_{θ_i}]`.
@@ -284,6 +287,7 @@ impl ShRotation {
             p,
             q,
             layout,
+            wide: CoefLayout::new(p + 1),
             dst,
             dst_ws,
             blocks,
@@ -307,42 +311,120 @@ impl ShRotation {
         coefs: &[f64],
         out: &mut [f64],
     ) -> Result<(), SphError> {
+        let lay = self.dst.layout().clone();
+        self.rotate_coefs_at(lat, &[lon], coefs, &lay, out)
+    }
+
+    /// [`Self::rotate_coefs`] for every longitude `k = 0 … 2p−1` of latitude `lat` at once:
+    /// `out` holds the batch rotated for longitude `k` in functions `k·nf … k·nf + nf − 1`
+    /// (`nf` the number of functions in `coefs`), in the layout of order `p + 1` (the degrees
+    /// `≤ p` of a rotated expansion, `Y_p^{-p}` included; [`super::ShTransform::synthesize_from`]
+    /// puts them on any grid of order `> p`).
+    pub fn rotate_coefs_every_longitude(
+        &mut self,
+        lat: usize,
+        coefs: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), SphError> {
+        let lons: Vec<usize> = (0..2 * self.p).collect();
+        let lay = self.wide.clone();
+        self.rotate_coefs_at(lat, &lons, coefs, &lay, out)
+    }
+
+    /// The transpose of [`Self::rotate_coefs_every_longitude`], per function: `coefs_q`
+    /// (layout of order `p + 1`, `2p·per_lon` functions, function `g` belonging to longitude
+    /// `g / per_lon`) is mapped to `out` (order-`p` layout, as many functions) by
+    /// `out_g = Φ_kᵀ U_iᵀ Lᵀ g`, where the rotation of longitude `k` is `L U_i Φ_k` (`Φ_k` the
+    /// phase shift of every order, `U_i` the degree blocks of latitude `i`, `L` the copy into
+    /// the wider layout; `Lᵀ` ignores degree `p + 1`). So for a row vector `r` of
+    /// coefficients, `r · rotate(c) = adjoint(r) · c` for every `c` of order `p`:
+    /// the layer potentials use it to carry kernel rows back to the unrotated coefficients
+    /// ([`crate::vesicle::SelfInteraction::assemble`]).
+    pub fn adjoint_every_longitude(
+        &mut self,
+        lat: usize,
+        per_lon: usize,
+        coefs_q: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), SphError> {
         let (p, lp) = (self.p, self.layout.len());
-        let lq = self.dst.n_coefs();
-        let nf = coefs.len() / lp;
-        if coefs.len() != nf * lp || out.len() != nf * lq {
+        let lq = self.wide.len();
+        let nf = 2 * p * per_lon;
+        if coefs_q.len() != nf * lq {
             return Err(SphError::CoefLength {
-                len: coefs.len(),
+                len: coefs_q.len(),
+                expected: nf * lq,
+            });
+        }
+        if out.len() != nf * lp {
+            return Err(SphError::CoefLength {
+                len: out.len(),
                 expected: nf * lp,
             });
         }
-        if lat > p || lon >= 2 * p {
+        if lat > p {
             return Err(SphError::Latitude { lat, p });
         }
-        let phi = self.src_phi[lon];
-        // (sin mφ, cos mφ) once per call, not per function.
-        let phase: Vec<(f64, f64)> = (0..=p).map(|m| (m as f64 * phi).sin_cos()).collect();
+        if nf == 0 {
+            return Ok(());
+        }
         let nloc = (p + 1) * (p + 1);
         self.buf_in.resize(nloc * nf, 0.0);
         self.buf_out.resize(nloc * nf, 0.0);
-        // Gather into degree-major blocks: degree n occupies rows n²..(n+1)² of a
-        // (p+1)² × nf matrix, phase-shifted by R_z(φ_k).
-        for (f, c) in coefs.chunks_exact(lp).enumerate() {
-            let col = &mut self.buf_in[f * nloc..(f + 1) * nloc];
-            for n in 0..=p {
-                let base = n * n + n;
-                col[base] = c[self.layout.cos_block(0) + n];
-                for m in 1..=n {
-                    let cv = c[self.layout.cos_block(m) + n - m];
-                    let sv = self.layout.sin_block(m).map_or(0.0, |b| c[b + n - m]);
-                    let (s, co) = phase[m];
-                    col[base + m] = cv * co + sv * s;
-                    col[base - m] = -cv * s + sv * co;
+        // Lᵀ: gather the degrees n ≤ p into the degree-major local order.
+        let map = local_to(self.p, &self.wide);
+        for (c, col) in coefs_q
+            .chunks_exact(lq)
+            .zip(self.buf_in.chunks_exact_mut(nloc))
+        {
+            col.fill(0.0);
+            for &(l, ix) in &map {
+                col[l] = c[ix];
+            }
+        }
+        // U_iᵀ, one GEMM per degree over all functions.
+        self.blocks_times(lat, nf, true);
+        // Φ_kᵀ: the transposed phase shift into the order-p layout.
+        for k in 0..2 * p {
+            let phase = self.phases(k);
+            for f in k * per_lon..(k + 1) * per_lon {
+                let h = &self.buf_out[f * nloc..(f + 1) * nloc];
+                let o = &mut out[f * lp..(f + 1) * lp];
+                for n in 0..=p {
+                    let base = n * n + n;
+                    o[self.layout.cos_block(0) + n] = h[base];
+                    for m in 1..=n {
+                        let (s, co) = phase[m];
+                        let (hc, hs) = (h[base + m], h[base - m]);
+                        o[self.layout.cos_block(m) + n - m] = hc * co - hs * s;
+                        if let Some(b) = self.layout.sin_block(m) {
+                            o[b + n - m] = hc * s + hs * co;
+                        }
+                    }
                 }
             }
         }
+        Ok(())
+    }
+
+    /// The layout of order `p + 1` of [`Self::rotate_coefs_every_longitude`]'s output and
+    /// [`Self::adjoint_every_longitude`]'s input.
+    pub fn wide_layout(&self) -> &CoefLayout {
+        &self.wide
+    }
+
+    /// `(sin mφ_k, cos mφ_k)` for `m = 0 … p`.
+    fn phases(&self, lon: usize) -> Vec<(f64, f64)> {
+        let phi = self.src_phi[lon];
+        (0..=self.p).map(|m| (m as f64 * phi).sin_cos()).collect()
+    }
+
+    /// `buf_out = U · buf_in` (or `Uᵀ · buf_in`) per degree for `nf` functions in the
+    /// degree-major local order.
+    fn blocks_times(&mut self, lat: usize, nf: usize, transpose: bool) {
+        let nloc = (self.p + 1) * (self.p + 1);
         let blocks = &self.blocks[lat];
-        for n in 0..=p {
+        for n in 0..=self.p {
             let d = 2 * n + 1;
             let off = block_offset(n);
             let row0 = n * n;
@@ -360,30 +442,75 @@ impl ShRotation {
                 nf,
                 nloc,
             );
+            let u = MatRef::from_column_major_slice(&blocks[off..off + d * d], d, d);
             matmul(
                 dst,
                 Accum::Replace,
-                MatRef::from_column_major_slice(&blocks[off..off + d * d], d, d),
+                if transpose { u.transpose() } else { u },
                 src,
                 1.0,
                 Par::Seq,
             );
         }
-        // Scatter: local (degree-major) index → order-q layout index, found once per call.
-        let lay_q = self.dst.layout();
-        let map: Vec<(usize, usize)> = (0..=p)
-            .flat_map(|n| {
-                let base = n * n + n;
-                (-(n as isize)..=(n as isize)).filter_map(move |m| {
-                    lay_q
-                        .index(n, m)
-                        .map(|ix| ((base as isize + m) as usize, ix))
-                })
-            })
-            .collect();
-        for (f, o) in out.chunks_exact_mut(lq).enumerate() {
+    }
+
+    /// [`Self::rotate_coefs`] for the listed longitudes of one latitude (longitude `lons[j]`
+    /// into functions `j·nf …`).
+    fn rotate_coefs_at(
+        &mut self,
+        lat: usize,
+        lons: &[usize],
+        coefs: &[f64],
+        lay_out: &CoefLayout,
+        out: &mut [f64],
+    ) -> Result<(), SphError> {
+        let (p, lp) = (self.p, self.layout.len());
+        let lq = lay_out.len();
+        let nf = coefs.len() / lp;
+        let nt = nf * lons.len();
+        if coefs.len() != nf * lp || out.len() != nt * lq {
+            return Err(SphError::CoefLength {
+                len: coefs.len(),
+                expected: nf * lp,
+            });
+        }
+        if lat > p || lons.iter().any(|&k| k >= 2 * p) {
+            return Err(SphError::Latitude { lat, p });
+        }
+        if nt == 0 {
+            return Ok(());
+        }
+        let nloc = (p + 1) * (p + 1);
+        self.buf_in.resize(nloc * nt, 0.0);
+        self.buf_out.resize(nloc * nt, 0.0);
+        // Gather into degree-major blocks: degree n occupies rows n²..(n+1)² of a
+        // (p+1)² × nt matrix, phase-shifted by R_z(φ_k) ((sin mφ, cos mφ) once per longitude).
+        for (j, &lon) in lons.iter().enumerate() {
+            let phase = self.phases(lon);
+            for (f, c) in coefs.chunks_exact(lp).enumerate() {
+                let g = j * nf + f;
+                let col = &mut self.buf_in[g * nloc..(g + 1) * nloc];
+                for n in 0..=p {
+                    let base = n * n + n;
+                    col[base] = c[self.layout.cos_block(0) + n];
+                    for m in 1..=n {
+                        let cv = c[self.layout.cos_block(m) + n - m];
+                        let sv = self.layout.sin_block(m).map_or(0.0, |b| c[b + n - m]);
+                        let (s, co) = phase[m];
+                        col[base + m] = cv * co + sv * s;
+                        col[base - m] = -cv * s + sv * co;
+                    }
+                }
+            }
+        }
+        self.blocks_times(lat, nt, false);
+        // Scatter: local (degree-major) index → output layout index, found once per call.
+        let map = local_to(p, lay_out);
+        for (o, col) in out
+            .chunks_exact_mut(lq)
+            .zip(self.buf_out.chunks_exact(nloc))
+        {
             o.fill(0.0);
-            let col = &self.buf_out[f * nloc..(f + 1) * nloc];
             for &(l, ix) in &map {
                 o[ix] = col[l];
             }
@@ -414,6 +541,17 @@ impl ShRotation {
     pub fn output_order(&self) -> usize {
         self.q
     }
+}
+
+/// Pairs (degree-major local index, index in `lay`) of every `Y_n^m`, `n ≤ p`, that `lay` holds.
+fn local_to(p: usize, lay: &CoefLayout) -> Vec<(usize, usize)> {
+    (0..=p)
+        .flat_map(|n| {
+            let base = n * n + n;
+            (-(n as isize)..=(n as isize))
+                .filter_map(move |m| lay.index(n, m).map(|ix| ((base as isize + m) as usize, ix)))
+        })
+        .collect()
 }
 
 /// Blocks `J^n = [V_X]` of the quarter turn `X = R_x(−π/2)`, `(x, y, z) ↦ (x, z, −y)`, for

@@ -281,8 +281,17 @@ impl ShTransform {
     }
 
     fn check_batch(&self, grid_len: usize, coef_len: usize) -> Result<usize, SphError> {
+        self.check_batch_in(grid_len, coef_len, self.n_coefs())
+    }
+
+    /// [`Self::check_batch`] for `nc` coefficients per function.
+    fn check_batch_in(
+        &self,
+        grid_len: usize,
+        coef_len: usize,
+        nc: usize,
+    ) -> Result<usize, SphError> {
         let np = self.n_points();
-        let nc = self.n_coefs();
         if !grid_len.is_multiple_of(np) {
             return Err(SphError::GridLength {
                 len: grid_len,
@@ -314,14 +323,31 @@ impl ShTransform {
         coefs: &mut [f64],
         ws: &mut ShWorkspace,
     ) -> Result<(), SphError> {
-        let nf = self.check_batch(grid.len(), coefs.len())?;
+        self.forward_to(&self.layout, grid, coefs, ws)
+    }
+
+    /// The forward transform truncated to the degrees `n ≤ t` of a lower order `t ≤ p`:
+    /// `coefs` receives `nf · lay.len()` coefficients in the layout `lay` of order `t` (the
+    /// projections onto those basis functions, exact for band-limited functions as
+    /// [`Self::forward`]; `Y_t^{-t}`, which that layout leaves out, is dropped). Only the
+    /// Legendre work of the kept degrees is done.
+    pub fn forward_to(
+        &self,
+        lay: &CoefLayout,
+        grid: &[f64],
+        coefs: &mut [f64],
+        ws: &mut ShWorkspace,
+    ) -> Result<(), SphError> {
+        self.check_order(lay)?;
+        let nf = self.check_batch_in(grid.len(), coefs.len(), lay.len())?;
         self.check_workspace(ws)?;
         let np = self.n_points();
-        let nc = self.n_coefs();
+        let nc = lay.len();
         let mut f0 = 0;
         while f0 < nf {
             let b = self.block.min(nf - f0);
             self.forward_block(
+                lay,
                 &grid[f0 * np..(f0 + b) * np],
                 &mut coefs[f0 * nc..(f0 + b) * nc],
                 ws,
@@ -331,12 +357,30 @@ impl ShTransform {
         Ok(())
     }
 
-    fn forward_block(&self, grid: &[f64], coefs: &mut [f64], ws: &mut ShWorkspace) {
+    /// Error unless `lay` is of an order `t ≤ p`.
+    fn check_order(&self, lay: &CoefLayout) -> Result<(), SphError> {
+        if lay.order() > self.order() {
+            return Err(SphError::LayoutOrder {
+                order: lay.order(),
+                transform: self.order(),
+            });
+        }
+        Ok(())
+    }
+
+    fn forward_block(
+        &self,
+        lay: &CoefLayout,
+        grid: &[f64],
+        coefs: &mut [f64],
+        ws: &mut ShWorkspace,
+    ) {
         let p = self.order();
+        let pt = lay.order();
         let nlat = p + 1;
         let nlon = 2 * p;
         let np = self.n_points();
-        let nc = self.n_coefs();
+        let nc = lay.len();
         let b = grid.len() / np;
         let level = nlat * self.block;
         let t0 = Instant::now();
@@ -364,7 +408,7 @@ impl ShTransform {
             let (ra, rb) = (2 * pr, 2 * pr + 1);
             // Spectral column of ring r = j·(p+1) + i is r itself.
             let (col_a, col_b) = (ra, rb);
-            for m in 0..=p {
+            for m in 0..=pt {
                 let zm = z[m];
                 let zc = z[(nlon - m) % nlon].conj();
                 let off = 2 * m * level;
@@ -378,9 +422,15 @@ impl ShTransform {
             }
         }
         let t1 = Instant::now();
-        for m in 0..=p {
-            let rows = p + 1 - m;
-            let lhs = MatRef::from_column_major_slice(&self.analysis[m], rows, nlat);
+        for m in 0..=pt {
+            // The first `pt + 1 − m` degrees of the analysis matrix of order m.
+            let (all, rows) = (p + 1 - m, pt + 1 - m);
+            let lhs = MatRef::from_column_major_slice_with_stride(
+                &self.analysis[m][..(nlat - 1) * all + rows],
+                rows,
+                nlat,
+                all,
+            );
             let emit = |src_off: usize, dst_off: usize, coefs: &mut [f64]| {
                 let rhs =
                     MatRef::from_column_major_slice(&spec[src_off..src_off + nlat * b], nlat, b);
@@ -393,8 +443,8 @@ impl ShTransform {
                 );
                 matmul(dst, Accum::Replace, lhs, rhs, 1.0, Par::Seq);
             };
-            emit(2 * m * level, self.layout.cos_block(m), coefs);
-            if let Some(sb) = self.layout.sin_block(m) {
+            emit(2 * m * level, lay.cos_block(m), coefs);
+            if let Some(sb) = lay.sin_block(m) {
                 emit(2 * m * level + level, sb, coefs);
             }
         }
@@ -422,13 +472,28 @@ impl ShTransform {
         outs: &mut [&mut [f64]],
         ws: &mut ShWorkspace,
     ) -> Result<(), SphError> {
+        self.synthesize_from(&self.layout, coefs, derivs, outs, ws)
+    }
+
+    /// [`Self::synthesize`] of expansions of a lower order `t ≤ p` (coefficients in the layout
+    /// `lay` of order `t`) on this transform's grid: the upsampling of band-limited functions,
+    /// with only the Legendre work of their degrees done.
+    pub fn synthesize_from(
+        &self,
+        lay: &CoefLayout,
+        coefs: &[f64],
+        derivs: &[Deriv],
+        outs: &mut [&mut [f64]],
+        ws: &mut ShWorkspace,
+    ) -> Result<(), SphError> {
+        self.check_order(lay)?;
         if derivs.len() != outs.len() {
             return Err(SphError::OutputCount {
                 derivs: derivs.len(),
                 outputs: outs.len(),
             });
         }
-        let nc = self.n_coefs();
+        let nc = lay.len();
         if !coefs.len().is_multiple_of(nc) {
             return Err(SphError::CoefLength {
                 len: coefs.len(),
@@ -437,14 +502,21 @@ impl ShTransform {
         }
         let nf = coefs.len() / nc;
         for o in outs.iter() {
-            self.check_batch(o.len(), coefs.len())?;
+            self.check_batch_in(o.len(), coefs.len(), nc)?;
         }
         self.check_workspace(ws)?;
         let np = self.n_points();
         let mut f0 = 0;
         while f0 < nf {
             let b = self.block.min(nf - f0);
-            self.synthesize_block(&coefs[f0 * nc..(f0 + b) * nc], derivs, outs, f0 * np, ws);
+            self.synthesize_block(
+                lay,
+                &coefs[f0 * nc..(f0 + b) * nc],
+                derivs,
+                outs,
+                f0 * np,
+                ws,
+            );
             f0 += b;
         }
         Ok(())
@@ -452,6 +524,7 @@ impl ShTransform {
 
     fn synthesize_block(
         &self,
+        lay: &CoefLayout,
         coefs: &[f64],
         derivs: &[Deriv],
         outs: &mut [&mut [f64]],
@@ -459,9 +532,10 @@ impl ShTransform {
         ws: &mut ShWorkspace,
     ) {
         let p = self.order();
+        let pt = lay.order();
         let nlat = p + 1;
         let nlon = 2 * p;
-        let nc = self.n_coefs();
+        let nc = lay.len();
         let b = coefs.len() / nc;
         let level = nlat * self.block;
         let mut needed = [false; 3];
@@ -473,9 +547,18 @@ impl ShTransform {
             if !needed[t] {
                 continue;
             }
-            for m in 0..=p {
-                let rows = p + 1 - m;
-                let lhs = MatRef::from_column_major_slice(&self.synthesis[t][m], nlat, rows);
+            for m in pt + 1..=p {
+                // Orders above the expansion's: no content.
+                spec[2 * m * level..2 * m * level + level + nlat * b].fill(0.0);
+            }
+            for m in 0..=pt {
+                // The first `pt + 1 − m` degrees of the synthesis matrix of order m.
+                let rows = pt + 1 - m;
+                let lhs = MatRef::from_column_major_slice(
+                    &self.synthesis[t][m][..nlat * rows],
+                    nlat,
+                    rows,
+                );
                 let emit = |src_off: usize, dst_off: usize, spec: &mut [f64]| {
                     let end = (b - 1) * nc + src_off + rows;
                     let rhs = MatRef::from_column_major_slice_with_stride(
@@ -491,8 +574,8 @@ impl ShTransform {
                     );
                     matmul(dst, Accum::Replace, lhs, rhs, 1.0, Par::Seq);
                 };
-                emit(self.layout.cos_block(m), 2 * m * level, spec);
-                match self.layout.sin_block(m) {
+                emit(lay.cos_block(m), 2 * m * level, spec);
+                match lay.sin_block(m) {
                     Some(sb) => emit(sb, 2 * m * level + level, spec),
                     None => spec[2 * m * level + level..2 * m * level + level + nlat * b].fill(0.0),
                 }

@@ -400,12 +400,84 @@ impl FarSide {
         x_grid: &[f64],
         out: &mut [f64],
     ) -> Result<(), VesicleError> {
+        let np = self.sht_p.n_points();
+        let ncp = self.sht_p.n_coefs();
+        let n3 = 3 * np;
+        let mut batch = Vec::new();
+        let mut r = Vec::new();
+        self.coefficient_rows(kernel, x_grid, |fwd, chunk, cp| {
+            let nf = SYM.len() * chunk.len();
+            r.resize(nf * np, 0.0);
+            batch.clear();
+            batch.extend_from_slice(chunk);
+            // R = Cᵀ F_p: row (target, a, b) over the order-p grid.
+            matmul(
+                MatMut::from_column_major_slice_mut(&mut r, nf, np),
+                Accum::Replace,
+                MatRef::from_column_major_slice(cp, ncp, nf).transpose(),
+                MatRef::from_column_major_slice(fwd, ncp, np),
+                1.0,
+                Par::Seq,
+            );
+            for (ti, &t) in batch.iter().enumerate() {
+                for (e, &(a, b)) in SYM.iter().enumerate() {
+                    let f = SYM.len() * ti + e;
+                    for c in 0..np {
+                        let v = r[c * nf + f];
+                        out[(b * np + c) * n3 + a * np + t] += v;
+                        if a != b {
+                            out[(a * np + c) * n3 + b * np + t] += v;
+                        }
+                    }
+                }
+            }
+        })
+    }
+
+    /// Add the far rows of every flagged target in coefficient space: `rows[b]`
+    /// (`3n_p × n_c(p)`, row-major, row `a·n_p + t`) gains `Y_Qᵀ W k E` for the kernel entry
+    /// `(a, b)` of target `t`, so that `rows[b] · F_p` are the grid rows of [`Self::add_rows`].
+    pub(crate) fn add_coefficient_rows(
+        &mut self,
+        kernel: LayerKernel,
+        x_grid: &[f64],
+        rows: &mut [Vec<f64>; 3],
+    ) -> Result<(), VesicleError> {
+        let np = self.sht_p.n_points();
+        let ncp = self.sht_p.n_coefs();
+        self.coefficient_rows(kernel, x_grid, |_, chunk, cp| {
+            for (ti, &t) in chunk.iter().enumerate() {
+                for (e, &(a, b)) in SYM.iter().enumerate() {
+                    let c = &cp[(SYM.len() * ti + e) * ncp..(SYM.len() * ti + e + 1) * ncp];
+                    let row = a * np + t;
+                    for (x, v) in rows[b][row * ncp..(row + 1) * ncp].iter_mut().zip(c) {
+                        *x += v;
+                    }
+                    if a != b {
+                        let row = b * np + t;
+                        for (x, v) in rows[a][row * ncp..(row + 1) * ncp].iter_mut().zip(c) {
+                            *x += v;
+                        }
+                    }
+                }
+            }
+        })
+    }
+
+    /// The far rows of the flagged targets in coefficient space, a batch of targets at a time:
+    /// `put(F_p, targets, C)` with `C` (`n_c(p) × 6·targets`, column `6·i + e` the symmetric
+    /// kernel entry `SYM[e]` of `targets[i]`) and the forward matrix `F_p` (`n_c(p) × n_p`).
+    fn coefficient_rows(
+        &mut self,
+        kernel: LayerKernel,
+        x_grid: &[f64],
+        mut put: impl FnMut(&[f64], &[usize], &[f64]),
+    ) -> Result<(), VesicleError> {
         let Some(far) = self.far.as_mut().filter(|_| !self.targets.is_empty()) else {
             return Ok(());
         };
         let np = self.sht_p.n_points();
         let ncp = self.sht_p.n_coefs();
-        let n3 = 3 * np;
         if self.forward_p.is_empty() {
             let mut eye = vec![0.0; np * np];
             for j in 0..np {
@@ -432,13 +504,10 @@ impl FarSide {
                 .collect::<Result<_, VesicleError>>()?;
         }
         let n = far.area.len();
-        let ncf = far.sht.n_coefs();
         let batch = ROW_BATCH.min(self.targets.len());
         let nf = SYM.len() * batch;
         let mut rows = vec![0.0; nf * n];
-        let mut cf = vec![0.0; nf * ncf];
         let mut cp = vec![0.0; nf * ncp];
-        let mut r = vec![0.0; nf * np];
         for chunk in self.targets.chunks(batch) {
             let nf = SYM.len() * chunk.len();
             for (ti, &t) in chunk.iter().enumerate() {
@@ -459,40 +528,19 @@ impl FarSide {
                     }
                 }
             }
-            far.sht
-                .forward(&rows[..nf * n], &mut cf[..nf * ncf], &mut far.ws)?;
-            resample_coefs(
-                far.sht.layout(),
+            // Y_Qᵀ W k E: the forward transform at Q truncated to the degrees of order p.
+            far.sht.forward_to(
                 self.sht_p.layout(),
-                &cf[..nf * ncf],
+                &rows[..nf * n],
                 &mut cp[..nf * ncp],
+                &mut far.ws,
             )?;
             for col in cp[..nf * ncp].chunks_exact_mut(ncp) {
                 for (c, nl) in col.iter_mut().zip(&self.norms) {
                     *c *= nl;
                 }
             }
-            // R = Cᵀ F_p: row (target, a, b) over the order-p grid.
-            matmul(
-                MatMut::from_column_major_slice_mut(&mut r[..nf * np], nf, np),
-                Accum::Replace,
-                MatRef::from_column_major_slice(&cp[..nf * ncp], ncp, nf).transpose(),
-                MatRef::from_column_major_slice(&self.forward_p, ncp, np),
-                1.0,
-                Par::Seq,
-            );
-            for (ti, &t) in chunk.iter().enumerate() {
-                for (e, &(a, b)) in SYM.iter().enumerate() {
-                    let f = SYM.len() * ti + e;
-                    for c in 0..np {
-                        let v = r[c * nf + f];
-                        out[(b * np + c) * n3 + a * np + t] += v;
-                        if a != b {
-                            out[(a * np + c) * n3 + b * np + t] += v;
-                        }
-                    }
-                }
-            }
+            put(&self.forward_p, chunk, &cp[..nf * ncp]);
         }
         Ok(())
     }

@@ -39,7 +39,7 @@ use super::coefficient_operator::forward_matrix;
 use super::far_side::{FarSide, FarSideParams};
 use super::{check_len, cross, dot, get3, VesicleError};
 use crate::sph_harmonics::{
-    Deriv, DirectRotation, GrahamSloan, Grid, ShRotation, ShTransform, ShWorkspace,
+    CoefLayout, Deriv, DirectRotation, GrahamSloan, Grid, ShRotation, ShTransform, ShWorkspace,
 };
 
 /// Which rotation carries a target to the north pole.
@@ -97,6 +97,13 @@ pub struct SelfInteraction {
     gs: Vec<f64>,
     /// The same times the far-side window `η` (for flagged targets).
     gs_local: Vec<f64>,
+    /// `gs` and `gs_local` divided by the order-`q` grid's quadrature weight of the latitude:
+    /// kernel rows so weighted turn the forward transform into the adjoint of synthesis.
+    gs_adjoint: Vec<f64>,
+    gs_local_adjoint: Vec<f64>,
+    /// The coefficient-space rotation for [`Self::assemble`] when `rot` is [`Rotator::Direct`]
+    /// (built at the first assembly).
+    sh_rot: Option<Box<ShRotation>>,
     far: FarSide,
     sin_q: Vec<f64>,
     // Scratch.
@@ -115,6 +122,8 @@ pub struct SelfInteraction {
     kern: Vec<f64>,
     /// Per-latitude batches (allocated at the first assembly or batched application).
     scratch: Option<Box<LatitudeScratch>>,
+    /// Scratch of [`Self::assemble`]'s coefficient-space rows (allocated at the first assembly).
+    adjoint: Option<Box<AdjointScratch>>,
 }
 
 impl SelfInteraction {
@@ -133,7 +142,13 @@ impl SelfInteraction {
         let (ncp, ncq) = (sht_p.n_coefs(), sht_q.n_coefs());
         let gs = GrahamSloan::new(q).latitude_weights;
         let far = FarSide::new(p, q)?;
-        let gs_local = gs.iter().zip(&far.eta_q).map(|(w, e)| w * e).collect();
+        let gs_local: Vec<f64> = gs.iter().zip(&far.eta_q).map(|(w, e)| w * e).collect();
+        let grid_q = Grid::new(q);
+        let w_q: Vec<f64> = (0..=q)
+            .map(|i| grid_q.gl_weights[i] * PI / q as f64)
+            .collect();
+        let gs_adjoint = gs.iter().zip(&w_q).map(|(a, w)| a / w).collect();
+        let gs_local_adjoint = gs_local.iter().zip(&w_q).map(|(a, w)| a / w).collect();
         Ok(SelfInteraction {
             p,
             q,
@@ -142,8 +157,11 @@ impl SelfInteraction {
             ws_q: sht_q.workspace(),
             gs,
             gs_local,
+            gs_adjoint,
+            gs_local_adjoint,
+            sh_rot: None,
             far,
-            sin_q: Grid::new(q).sin_theta,
+            sin_q: grid_q.sin_theta,
             x_grid: vec![0.0; 3 * np],
             x_coef: vec![0.0; 3 * ncp],
             surface_set: false,
@@ -156,6 +174,7 @@ impl SelfInteraction {
             dens_rot: vec![0.0; 3 * nq],
             kern: vec![0.0; 9 * nq],
             scratch: None,
+            adjoint: None,
             sht_p,
             sht_q,
         })
@@ -320,7 +339,152 @@ impl SelfInteraction {
 
     /// The dense self-interaction operator `A` (`3n_p × 3n_p`, column-major, rows and columns
     /// component-major) with `A · density = evaluate(density)` for every density on the grid.
+    ///
+    /// The rows are built in coefficient space. For target `(i, k)` the rotated density on the
+    /// order-`q` grid is `Y_q L U_i Φ_k F f` (`F` the forward transform at order `p`, `Φ_k` the
+    /// phase shift of longitude `k`, `U_i` the degree blocks of latitude `i`, `L` the copy into
+    /// the order-`q` layout, `Y_q` synthesis at order `q`; [`ShRotation`]), so a kernel row `K`
+    /// (`1 × n_q`) meets the density as `ρ F f` with `ρ = K Y_q L U_i Φ_k`. Per latitude, the
+    /// `9·2p` rows `K` go through `Y_qᵀ` (a forward transform of `K / w`, `w` the grid's
+    /// quadrature weights: `F_q = Y_qᵀ W`) and the transposed rotation
+    /// ([`ShRotation::adjoint_every_longitude`]); the far side of flagged targets adds its rows
+    /// in the same coefficient space ([`super::far_side`]); the rows `ρ` of all targets, per
+    /// source component, are then multiplied by `F` in one GEMM. That is `O(p⁴ log p)` work per
+    /// latitude where [`Self::assemble_by_rotation_matrices`] spends the `O(p⁵)` GEMM
+    /// `K · B_i`; both give the same operator to round-off. Needs `q > p` (else it is that
+    /// method).
     pub fn assemble(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        if self.q == self.p {
+            // F_q = Y_qᵀ W fails for the Nyquist order m = q; nothing to gain without upsampling.
+            return self.assemble_by_rotation_matrices(kernel, coefs, out);
+        }
+        kernel.check()?;
+        let np = self.n_points();
+        let n3 = 3 * np;
+        check_len("operator", out.len(), n3 * n3)?;
+        self.set_surface(coefs)?;
+        if matches!(self.rot, Rotator::Direct(_)) && self.sh_rot.is_none() {
+            self.sh_rot = Some(Box::new(ShRotation::new(self.p, self.q)?));
+        }
+        let mut sc = self.latitude_scratch()?;
+        let mut ad = match self.adjoint.take() {
+            Some(ad) => ad,
+            None => Box::new(AdjointScratch::new(
+                &self.sht_p,
+                &mut self.ws_p,
+                &self.sht_q,
+                2 * self.p,
+            )?),
+        };
+        let r = self
+            .coefficient_rows(kernel, &mut sc, &mut ad)
+            .and_then(|()| {
+                self.far
+                    .add_coefficient_rows(kernel, &self.x_grid, &mut ad.rows)
+            });
+        self.scratch = Some(sc);
+        if let Err(e) = r {
+            self.adjoint = Some(ad);
+            return Err(e);
+        }
+        let lp = self.sht_p.n_coefs();
+        for (b, rows) in ad.rows.iter().enumerate() {
+            matmul(
+                MatMut::from_column_major_slice_mut(
+                    &mut out[b * np * n3..(b + 1) * np * n3],
+                    n3,
+                    np,
+                ),
+                Accum::Replace,
+                MatRef::from_row_major_slice(rows, n3, lp),
+                MatRef::from_column_major_slice(&ad.forward, lp, np),
+                1.0,
+                Par::Seq,
+            );
+        }
+        self.adjoint = Some(ad);
+        Ok(())
+    }
+
+    /// The rows `ρ` of [`Self::assemble`] for every target into `ad.rows`.
+    fn coefficient_rows(
+        &mut self,
+        kernel: LayerKernel,
+        sc: &mut LatitudeScratch,
+        ad: &mut AdjointScratch,
+    ) -> Result<(), VesicleError> {
+        let (np, nq, lp) = (
+            self.sht_p.n_points(),
+            self.sht_q.n_points(),
+            self.sht_p.n_coefs(),
+        );
+        let nlon = 2 * self.p;
+        let rot: &mut ShRotation = match &mut self.rot {
+            Rotator::ViaSh(r) => r,
+            Rotator::Direct(_) => self.sh_rot.as_mut().expect("built before the rows are"),
+        };
+        let lw = ad.wide.len();
+        let c_rot = &mut sc.c_all[..3 * nlon * lw];
+        for lat in 0..=self.p {
+            // The rotated surfaces of the latitude's 2p targets and their derivatives (degrees
+            // ≤ p, in the layout of order p + 1, on the order-q grid).
+            rot.rotate_coefs_every_longitude(lat, &self.x_coef, c_rot)?;
+            self.sht_q.synthesize_from(
+                &ad.wide,
+                c_rot,
+                &[Deriv::Value, Deriv::Theta, Deriv::Phi],
+                &mut [&mut sc.y_all, &mut sc.yt_all, &mut sc.yp_all],
+                &mut self.ws_q,
+            )?;
+            // Kernel rows, one function per entry (9k + 3a + b), divided by the grid weights.
+            for lon in 0..nlon {
+                let t = lat * nlon + lon;
+                let blk = lon * 3 * nq..(lon + 1) * 3 * nq;
+                kernel_rows_by_entry(
+                    kernel,
+                    get3(&self.x_grid, np, t),
+                    &sc.y_all[blk.clone()],
+                    &sc.yt_all[blk.clone()],
+                    &sc.yp_all[blk],
+                    if self.far.flagged[t] {
+                        &self.gs_local_adjoint
+                    } else {
+                        &self.gs_adjoint
+                    },
+                    &self.sin_q,
+                    &mut sc.kmat[9 * lon * nq..9 * (lon + 1) * nq],
+                );
+            }
+            // ρ = K Y_q L U_i Φ_k for all of them (Y_qᵀ only for the degrees ≤ p + 1).
+            self.sht_q
+                .forward_to(&ad.wide, &sc.kmat, &mut ad.kcoef, &mut self.ws_q)?;
+            rot.adjoint_every_longitude(lat, 9, &ad.kcoef, &mut ad.rho)?;
+            for lon in 0..nlon {
+                let t = lat * nlon + lon;
+                for a in 0..3 {
+                    let row = a * np + t;
+                    for (b, rows) in ad.rows.iter_mut().enumerate() {
+                        let g = 9 * lon + 3 * a + b;
+                        rows[row * lp..(row + 1) * lp]
+                            .copy_from_slice(&ad.rho[g * lp..(g + 1) * lp]);
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The same operator as [`Self::assemble`], by the rotation matrices `B_i` (`n_q × n_p`;
+    /// [`DirectRotation`]'s `M_i`, or the same matrix built through [`ShRotation`]): one GEMM
+    /// `(9·2p × n_q) · (n_q × n_p)` per latitude for the kernel rows of all `2p` targets, the
+    /// longitude shift applied when the rows are scattered. MOBO's way (Veerapaneni et al.
+    /// 2011); kept as the reference the faster assembly is checked against.
+    pub fn assemble_by_rotation_matrices(
         &mut self,
         kernel: LayerKernel,
         coefs: &[f64],
@@ -566,6 +730,41 @@ struct LatitudeScratch {
     b_sh: Option<(Vec<f64>, Vec<f64>)>,
 }
 
+/// Scratch of [`SelfInteraction::assemble`] (rows in coefficient space).
+struct AdjointScratch {
+    /// The forward transform at order `p` as a matrix (`n_c(p) × n_p`, column-major).
+    forward: Vec<f64>,
+    /// The layout of order `p + 1` ([`ShRotation::wide_layout`]).
+    wide: CoefLayout,
+    /// Coefficients (layout `wide`) of one latitude's kernel rows (`9·2p` functions).
+    kcoef: Vec<f64>,
+    /// Their rows `ρ` (order-`p` layout, `9·2p` functions).
+    rho: Vec<f64>,
+    /// Per source component `b`: the rows `ρ` of every target component (`3n_p × n_c(p)`,
+    /// row-major, row `a·n_p + t`).
+    rows: [Vec<f64>; 3],
+}
+
+impl AdjointScratch {
+    fn new(
+        sht_p: &ShTransform,
+        ws_p: &mut ShWorkspace,
+        sht_q: &ShTransform,
+        nlon: usize,
+    ) -> Result<Self, VesicleError> {
+        let wide = CoefLayout::new(sht_p.order() + 1);
+        let (lp, lw, n3) = (sht_p.n_coefs(), wide.len(), 3 * sht_p.n_points());
+        debug_assert!(wide.order() <= sht_q.order());
+        Ok(AdjointScratch {
+            forward: forward_matrix(sht_p, ws_p)?,
+            wide,
+            kcoef: vec![0.0; 9 * nlon * lw],
+            rho: vec![0.0; 9 * nlon * lp],
+            rows: std::array::from_fn(|_| vec![0.0; n3 * lp]),
+        })
+    }
+}
+
 /// The nine entries `K_ab` (row-major, `3a + b`) of a layer kernel at `r = x − y` with the unit
 /// normal `n` at `y`, times the weight `wt`: single layer `wt (δ_ab/r + r_a r_b/r³) / 8πμ`, double
 /// layer `wt (3/4π) (r·n) r_a r_b / r⁵`.
@@ -610,6 +809,46 @@ fn kernel_rows(
     sin_q: &[f64],
     kern: &mut [f64],
 ) {
+    for_each_kernel_column(kernel, xt, y, yt, yp, gs, sin_q, |j, col| {
+        kern[9 * j..9 * j + 9].copy_from_slice(&col)
+    });
+}
+
+/// The same rows stored by entry: `kern[(3a + b) · n_q + j] = K_ab(j)` (`9` functions on the
+/// order-`q` grid, the layout of a transform batch).
+#[allow(clippy::too_many_arguments)]
+fn kernel_rows_by_entry(
+    kernel: LayerKernel,
+    xt: [f64; 3],
+    y: &[f64],
+    yt: &[f64],
+    yp: &[f64],
+    gs: &[f64],
+    sin_q: &[f64],
+    kern: &mut [f64],
+) {
+    let nq = y.len() / 3;
+    for_each_kernel_column(kernel, xt, y, yt, yp, gs, sin_q, |j, col| {
+        for (c, v) in col.into_iter().enumerate() {
+            kern[c * nq + j] = v;
+        }
+    });
+}
+
+/// `put(j, K(j))` for every point `j` of the order-`q` grid, `K(j)` the nine kernel entries
+/// (row-major) at `r = x_t − y_j` with the weight `gs[lat] |y_θ × y_φ| / sin θ`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn for_each_kernel_column(
+    kernel: LayerKernel,
+    xt: [f64; 3],
+    y: &[f64],
+    yt: &[f64],
+    yp: &[f64],
+    gs: &[f64],
+    sin_q: &[f64],
+    mut put: impl FnMut(usize, [f64; 9]),
+) {
     let nq = y.len() / 3;
     let nlon = nq / gs.len();
     for j in 0..nq {
@@ -620,6 +859,6 @@ fn kernel_rows(
         let wt = gs[lat] * w / sin_q[lat];
         let r = [xt[0] - yj[0], xt[1] - yj[1], xt[2] - yj[2]];
         let n = [nv[0] / w, nv[1] / w, nv[2] / w];
-        kern[9 * j..9 * j + 9].copy_from_slice(&kernel_entries(kernel, r, n, wt));
+        put(j, kernel_entries(kernel, r, n, wt));
     }
 }
