@@ -421,6 +421,49 @@ mod properties {
             prop_assert!(rel_max_error(&c, &want) < 1e-12);
         }
 
+        /// The truncated transforms are the full ones with the coefficients resampled:
+        /// `synthesize_from(t)` = `synthesize` of the zero-padded expansion (every derivative),
+        /// and `forward_to(t)` = `forward` truncated to order `t`, for `t ≤ p`.
+        #[test]
+        fn truncated_transforms_equal_resampled_full_ones(p in 2usize..14, cut in 0usize..6, seed in 0u64..100) {
+            let t = (p - cut.min(p - 1)).max(1);
+            let sht = ShTransform::new(p).unwrap();
+            let mut ws = sht.workspace();
+            let lt = CoefLayout::new(t);
+            let nf = 3;
+            let a = random_coefs(nf * lt.len(), seed);
+            let mut padded = vec![0.0; nf * sht.n_coefs()];
+            resample_coefs(&lt, sht.layout(), &a, &mut padded).unwrap();
+            let np = nf * sht.n_points();
+            let derivs = [Deriv::Value, Deriv::Theta, Deriv::Phi, Deriv::PhiPhi];
+            let mut want = vec![vec![0.0; np]; 4];
+            let mut got = vec![vec![0.0; np]; 4];
+            {
+                let mut outs: Vec<&mut [f64]> = want.iter_mut().map(|v| v.as_mut_slice()).collect();
+                sht.synthesize(&padded, &derivs, &mut outs, &mut ws).unwrap();
+            }
+            {
+                let mut outs: Vec<&mut [f64]> = got.iter_mut().map(|v| v.as_mut_slice()).collect();
+                sht.synthesize_from(&lt, &a, &derivs, &mut outs, &mut ws).unwrap();
+            }
+            for (g, w) in got.iter().zip(&want) {
+                prop_assert!(rel_max_error(g, w) < 1e-13, "synthesize_from, p = {p}, t = {t}");
+            }
+            // Forward of a function of full order p, truncated.
+            let f = random_coefs(np, seed + 7);
+            let mut full = vec![0.0; nf * sht.n_coefs()];
+            sht.forward(&f, &mut full, &mut ws).unwrap();
+            let mut cut_full = vec![0.0; nf * lt.len()];
+            resample_coefs(sht.layout(), &lt, &full, &mut cut_full).unwrap();
+            let mut trunc = vec![0.0; nf * lt.len()];
+            sht.forward_to(&lt, &f, &mut trunc, &mut ws).unwrap();
+            prop_assert!(rel_max_error(&trunc, &cut_full) < 1e-13, "forward_to, p = {p}, t = {t}");
+            // A layout above the transform's order is an error, not a panic.
+            let too_big = CoefLayout::new(p + 1);
+            let mut c = vec![0.0; nf * too_big.len()];
+            prop_assert!(sht.forward_to(&too_big, &f, &mut c, &mut ws).is_err());
+        }
+
         /// The transposed rotation is the transpose: `r · rotate_k(c) = adjoint(r)_k · c` for
         /// every longitude `k` of a latitude, with two functions per longitude.
         #[test]

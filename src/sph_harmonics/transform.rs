@@ -612,11 +612,16 @@ impl ShTransform {
                 a0.im = 0.0;
                 b0.im = 0.0;
                 z[0] = a0 + i * b0;
-                let (mut an, mut bn) = (coef(ra, p), coef(rb, p));
-                an.im = 0.0;
-                bn.im = 0.0;
-                z[p] = an + i * bn;
-                for m in 1..p {
+                if pt < p {
+                    // Orders above the expansion's are zero.
+                    z[pt + 1..nlon - pt].fill(Complex::new(0.0, 0.0));
+                } else {
+                    let (mut an, mut bn) = (coef(ra, p), coef(rb, p));
+                    an.im = 0.0;
+                    bn.im = 0.0;
+                    z[p] = an + i * bn;
+                }
+                for m in 1..pt.min(p - 1) + 1 {
                     let (a, bb) = (coef(ra, m), coef(rb, m));
                     z[m] = a + i * bb;
                     z[nlon - m] = a.conj() + i * bb.conj();

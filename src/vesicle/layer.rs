@@ -345,7 +345,8 @@ impl SelfInteraction {
     /// phase shift of longitude `k`, `U_i` the degree blocks of latitude `i`, `L` the copy into
     /// the order-`q` layout, `Y_q` synthesis at order `q`; [`ShRotation`]), so a kernel row `K`
     /// (`1 × n_q`) meets the density as `ρ F f` with `ρ = K Y_q L U_i Φ_k`. Per latitude, the
-    /// `9·2p` rows `K` go through `Y_qᵀ` (a forward transform of `K / w`, `w` the grid's
+    /// `6·2p` distinct rows `K` (the kernels are symmetric) go through `Y_qᵀ` (a forward
+    /// transform of `K / w`, truncated to the degrees `≤ p + 1`; `w` the grid's
     /// quadrature weights: `F_q = Y_qᵀ W`) and the transposed rotation
     /// ([`ShRotation::adjoint_every_longitude`]); the far side of flagged targets adds its rows
     /// in the same coefficient space ([`super::far_side`]); the rows `ρ` of all targets, per
@@ -441,7 +442,8 @@ impl SelfInteraction {
                 &mut [&mut sc.y_all, &mut sc.yt_all, &mut sc.yp_all],
                 &mut self.ws_q,
             )?;
-            // Kernel rows, one function per entry (9k + 3a + b), divided by the grid weights.
+            // Kernel rows, one function per symmetric entry (6k + e), divided by the grid
+            // weights.
             for lon in 0..nlon {
                 let t = lat * nlon + lon;
                 let blk = lon * 3 * nq..(lon + 1) * 3 * nq;
@@ -457,21 +459,22 @@ impl SelfInteraction {
                         &self.gs_adjoint
                     },
                     &self.sin_q,
-                    &mut sc.kmat[9 * lon * nq..9 * (lon + 1) * nq],
+                    &mut sc.kmat[6 * lon * nq..6 * (lon + 1) * nq],
                 );
             }
             // ρ = K Y_q L U_i Φ_k for all of them (Y_qᵀ only for the degrees ≤ p + 1).
+            let nk = 6 * nlon * nq;
             self.sht_q
-                .forward_to(&ad.wide, &sc.kmat, &mut ad.kcoef, &mut self.ws_q)?;
-            rot.adjoint_every_longitude(lat, 9, &ad.kcoef, &mut ad.rho)?;
+                .forward_to(&ad.wide, &sc.kmat[..nk], &mut ad.kcoef, &mut self.ws_q)?;
+            rot.adjoint_every_longitude(lat, 6, &ad.kcoef, &mut ad.rho)?;
             for lon in 0..nlon {
                 let t = lat * nlon + lon;
-                for a in 0..3 {
-                    let row = a * np + t;
-                    for (b, rows) in ad.rows.iter_mut().enumerate() {
-                        let g = 9 * lon + 3 * a + b;
-                        rows[row * lp..(row + 1) * lp]
-                            .copy_from_slice(&ad.rho[g * lp..(g + 1) * lp]);
+                for (e, &(a, b)) in SYM.iter().enumerate() {
+                    let g = 6 * lon + e;
+                    let rho = &ad.rho[g * lp..(g + 1) * lp];
+                    ad.rows[b][(a * np + t) * lp..(a * np + t + 1) * lp].copy_from_slice(rho);
+                    if a != b {
+                        ad.rows[a][(b * np + t) * lp..(b * np + t + 1) * lp].copy_from_slice(rho);
                     }
                 }
             }
@@ -730,15 +733,19 @@ struct LatitudeScratch {
     b_sh: Option<(Vec<f64>, Vec<f64>)>,
 }
 
+/// The entries `(a, b)`, `a ≤ b`, of the symmetric kernels.
+const SYM: [(usize, usize); 6] = [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)];
+
 /// Scratch of [`SelfInteraction::assemble`] (rows in coefficient space).
 struct AdjointScratch {
     /// The forward transform at order `p` as a matrix (`n_c(p) × n_p`, column-major).
     forward: Vec<f64>,
     /// The layout of order `p + 1` ([`ShRotation::wide_layout`]).
     wide: CoefLayout,
-    /// Coefficients (layout `wide`) of one latitude's kernel rows (`9·2p` functions).
+    /// Coefficients (layout `wide`) of one latitude's kernel rows (`6·2p` functions: the
+    /// symmetric entries).
     kcoef: Vec<f64>,
-    /// Their rows `ρ` (order-`p` layout, `9·2p` functions).
+    /// Their rows `ρ` (order-`p` layout, `6·2p` functions).
     rho: Vec<f64>,
     /// Per source component `b`: the rows `ρ` of every target component (`3n_p × n_c(p)`,
     /// row-major, row `a·n_p + t`).
@@ -758,8 +765,8 @@ impl AdjointScratch {
         Ok(AdjointScratch {
             forward: forward_matrix(sht_p, ws_p)?,
             wide,
-            kcoef: vec![0.0; 9 * nlon * lw],
-            rho: vec![0.0; 9 * nlon * lp],
+            kcoef: vec![0.0; 6 * nlon * lw],
+            rho: vec![0.0; 6 * nlon * lp],
             rows: std::array::from_fn(|_| vec![0.0; n3 * lp]),
         })
     }
@@ -814,8 +821,9 @@ fn kernel_rows(
     });
 }
 
-/// The same rows stored by entry: `kern[(3a + b) · n_q + j] = K_ab(j)` (`9` functions on the
-/// order-`q` grid, the layout of a transform batch).
+/// The same rows stored by symmetric entry: `kern[e · n_q + j] = K_ab(j)` for
+/// `(a, b) = SYM[e]` (both kernels are symmetric, `K_ab = K_ba`; `6` functions on the order-`q`
+/// grid, the layout of a transform batch).
 #[allow(clippy::too_many_arguments)]
 fn kernel_rows_by_entry(
     kernel: LayerKernel,
@@ -829,8 +837,8 @@ fn kernel_rows_by_entry(
 ) {
     let nq = y.len() / 3;
     for_each_kernel_column(kernel, xt, y, yt, yp, gs, sin_q, |j, col| {
-        for (c, v) in col.into_iter().enumerate() {
-            kern[c * nq + j] = v;
+        for (e, &(a, b)) in SYM.iter().enumerate() {
+            kern[e * nq + j] = col[3 * a + b];
         }
     });
 }
