@@ -91,9 +91,9 @@ impl MaterialLabels {
                 });
             }
             let (theta, phi) = ((x * x + y * y).sqrt().atan2(z), y.atan2(x));
-            let at = pe.eval(lay, &self.original, theta, phi);
+            let at = pe.eval_values(lay, &self.original, theta, phi);
             for c in 0..3 {
-                grid[c * n + j] = at.x[c];
+                grid[c * n + j] = at[c];
             }
         }
         sht.forward(&grid, out, ws)?;

@@ -4,7 +4,7 @@
 use std::f64::consts::PI;
 
 use super::dot;
-use crate::sph_harmonics::legendre::{legendre_derivative_tables, tri_index, tri_len};
+use crate::sph_harmonics::legendre::{tri_index, tri_len, LegendreRecurrence};
 use crate::sph_harmonics::CoefLayout;
 
 /// Values and derivatives of a surface at one parameter point.
@@ -20,18 +20,77 @@ pub(crate) struct PointDerivs {
 
 /// Scratch for evaluating expansions at arbitrary points.
 pub(crate) struct PointEval {
+    rec: LegendreRecurrence,
     val: Vec<f64>,
     d1: Vec<f64>,
     d2: Vec<f64>,
+    /// `(sin mφ, cos mφ)` for `m = 0 … p`.
+    trig: Vec<(f64, f64)>,
 }
 
 impl PointEval {
     pub(crate) fn new(p: usize) -> Self {
         PointEval {
+            rec: LegendreRecurrence::new(p),
             val: vec![0.0; tri_len(p)],
             d1: vec![0.0; tri_len(p)],
             d2: vec![0.0; tri_len(p)],
+            trig: vec![(0.0, 1.0); p + 1],
         }
+    }
+
+    /// `(sin mφ, cos mφ)` for `m = 0 … p` into `self.trig`, by the angle-addition recurrence
+    /// from one `sin_cos` (accurate to a few ulps at these orders).
+    fn fill_trig(&mut self, p: usize, phi: f64) {
+        let (s1, c1) = phi.sin_cos();
+        let (mut s, mut c) = (0.0, 1.0);
+        for t in self.trig[..=p].iter_mut() {
+            *t = (s, c);
+            (s, c) = (s * c1 + c * s1, c * c1 - s * s1);
+        }
+    }
+
+    /// The three values `X(θ, φ)` alone of `x, y, z` coefficients (what a relabelling needs).
+    pub(crate) fn eval_values(
+        &mut self,
+        lay: &CoefLayout,
+        coefs: &[f64],
+        theta: f64,
+        phi: f64,
+    ) -> [f64; 3] {
+        let p = lay.order();
+        debug_assert_eq!(p, self.rec.order());
+        let nc = lay.len();
+        let (s, c) = theta.sin_cos();
+        self.rec.table(c, s, &mut self.val);
+        self.fill_trig(p, phi);
+        let mut out = [0.0; 3];
+        for m in 0..=p {
+            let norm = if m == 0 {
+                1.0 / (2.0 * PI).sqrt()
+            } else {
+                1.0 / PI.sqrt()
+            };
+            let (sm, cm) = self.trig[m];
+            let base = tri_index(p, m, m);
+            let val = &self.val[base..base + p + 1 - m];
+            let cb = lay.cos_block(m);
+            for (comp, o) in out.iter_mut().enumerate() {
+                let cos_part: f64 = val
+                    .iter()
+                    .zip(&coefs[comp * nc + cb..comp * nc + cb + p + 1 - m])
+                    .map(|(v, a)| v * a)
+                    .sum();
+                let sin_part: f64 = lay.sin_block(m).map_or(0.0, |sb| {
+                    val.iter()
+                        .zip(&coefs[comp * nc + sb..comp * nc + sb + p + 1 - m])
+                        .map(|(v, b)| v * b)
+                        .sum()
+                });
+                *o += norm * (cos_part * cm + sin_part * sm);
+            }
+        }
+        out
     }
 
     /// `X` and its first and second derivatives at `(θ, φ)` for `x, y, z` coefficients.
@@ -43,14 +102,17 @@ impl PointEval {
         phi: f64,
     ) -> PointDerivs {
         let p = lay.order();
+        debug_assert_eq!(p, self.rec.order());
         let nc = lay.len();
         let (s, c) = theta.sin_cos();
-        legendre_derivative_tables(p, c, s, &mut self.val, &mut self.d1, &mut self.d2);
+        self.rec
+            .derivative_tables(c, s, &mut self.val, &mut self.d1, &mut self.d2);
+        self.fill_trig(p, phi);
         let mut out = PointDerivs::default();
         for m in 0..=p {
             let norm = if m == 0 { (2.0 * PI).sqrt() } else { PI.sqrt() };
             let mf = m as f64;
-            let (sm, cm) = (mf * phi).sin_cos();
+            let (sm, cm) = self.trig[m];
             for n in m..=p {
                 let t = tri_index(p, n, m);
                 let (v, d1, d2) = (self.val[t] / norm, self.d1[t] / norm, self.d2[t] / norm);
@@ -115,4 +177,49 @@ pub(crate) fn closest_point(
         }
     }
     ((t, f), pd)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `eval_values` (the values alone) is `eval`'s `x`, also near and at the poles; and `eval`
+    /// with the precomputed recurrence and trigonometric recurrence matches the closed-form
+    /// basis of the reference module.
+    #[test]
+    fn values_alone_equal_the_full_evaluation() {
+        for p in [3usize, 12, 24] {
+            let lay = CoefLayout::new(p);
+            let nc = lay.len();
+            let mut s = 7u64;
+            let coefs: Vec<f64> = (0..3 * nc)
+                .map(|_| {
+                    s = s
+                        .wrapping_mul(6364136223846793005)
+                        .wrapping_add(1442695040888963407);
+                    (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+                })
+                .collect();
+            let mut pe = PointEval::new(p);
+            for (theta, phi) in [(0.3, 1.1), (1e-9, -2.0), (PI - 1e-7, 0.4), (1.9, 5.9)] {
+                let full = pe.eval(&lay, &coefs, theta, phi);
+                let x = pe.eval_values(&lay, &coefs, theta, phi);
+                let mut want = [0.0; 3];
+                for (k, &(n, m)) in lay.modes().iter().enumerate() {
+                    let y = crate::sph_harmonics::reference::ylm(n, m, theta, phi);
+                    for c in 0..3 {
+                        want[c] += coefs[c * nc + k] * y;
+                    }
+                }
+                for c in 0..3 {
+                    assert!(
+                        (x[c] - full.x[c]).abs() < 1e-13,
+                        "p = {p}: {x:?} vs {:?}",
+                        full.x
+                    );
+                    assert!((x[c] - want[c]).abs() < 1e-12, "p = {p}: {x:?} vs {want:?}");
+                }
+            }
+        }
+    }
 }

@@ -181,9 +181,9 @@ impl Reparametrizer {
         let np = self.sht.n_points();
         let lay = self.sht.layout();
         for (j, &(t, f)) in self.shifts.iter().enumerate() {
-            let pd = self.pe.eval(lay, coefs, t, f);
+            let x = self.pe.eval_values(lay, coefs, t, f);
             for c in 0..3 {
-                self.moved[c * np + j] = pd.x[c];
+                self.moved[c * np + j] = x[c];
             }
         }
         self.sht
