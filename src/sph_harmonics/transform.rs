@@ -587,44 +587,54 @@ impl ShTransform {
         for (d, out) in derivs.iter().zip(outs.iter_mut()) {
             let spec = &ws.spec[d.theta_order()];
             let k = d.phi_order();
-            // Spectrum of ring r (column r of the spectral matrices) at order m, with the
-            // φ-derivative applied; the Nyquist term of an odd φ-derivative is ∝ sin(pφ) and
-            // vanishes at every node.
-            let coef = |r: usize, m: usize| -> Complex<f64> {
-                if r >= rings || (k == 1 && m == p) {
-                    return Complex::new(0.0, 0.0);
-                }
-                let off = 2 * m * level + r;
-                let z = Complex::new(spec[off], -spec[off + level]);
+            // Spectrum of ring r (column r of the spectral matrices) at order m: the complex
+            // value (C_m, −S_m) times the φ-derivative's factor (i m)^k; the Nyquist term of an
+            // odd φ-derivative is ∝ sin(pφ) and vanishes at every node.
+            let factor = |m: usize| -> (f64, f64) {
                 let mf = m as f64;
                 match k {
-                    0 => z,
-                    1 => Complex::new(-mf * z.im, mf * z.re),
-                    _ => z * (-mf * mf),
+                    0 => (1.0, 0.0),
+                    1 => (0.0, mf),
+                    _ => (-mf * mf, 0.0),
                 }
             };
+            let nyquist = match k {
+                1 => 0.0,
+                _ => factor(p).0,
+            };
+            let mtop = pt.min(p - 1);
             let buf = &mut ws.fft_buf[..pairs * nlon];
             for (pr, z) in buf.chunks_exact_mut(nlon).enumerate() {
                 // Z = X_a + i X_b with Hermitian X_a, X_b: x_a = Re ifft(Z), x_b = Im ifft(Z).
                 let (ra, rb) = (2 * pr, 2 * pr + 1);
-                let i = Complex::new(0.0, 1.0);
-                let (mut a0, mut b0) = (coef(ra, 0), coef(rb, 0));
-                a0.im = 0.0;
-                b0.im = 0.0;
-                z[0] = a0 + i * b0;
+                let has_b = rb < rings;
+                let real = |off: usize| -> (f64, f64) {
+                    (spec[off + ra], if has_b { spec[off + rb] } else { 0.0 })
+                };
+                // Order 0 (real; zero under a φ-derivative).
+                let (a0, b0) = if k == 0 { real(0) } else { (0.0, 0.0) };
+                z[0] = Complex::new(a0, b0);
                 if pt < p {
                     // Orders above the expansion's are zero.
                     z[pt + 1..nlon - pt].fill(Complex::new(0.0, 0.0));
                 } else {
-                    let (mut an, mut bn) = (coef(ra, p), coef(rb, p));
-                    an.im = 0.0;
-                    bn.im = 0.0;
-                    z[p] = an + i * bn;
+                    let (an, bn) = real(2 * p * level);
+                    z[p] = Complex::new(nyquist * an, nyquist * bn);
                 }
-                for m in 1..pt.min(p - 1) + 1 {
-                    let (a, bb) = (coef(ra, m), coef(rb, m));
-                    z[m] = a + i * bb;
-                    z[nlon - m] = a.conj() + i * bb.conj();
+                for m in 1..mtop + 1 {
+                    let off = 2 * m * level;
+                    let (fr, fi) = factor(m);
+                    let (cr, ci) = (spec[off + ra], -spec[off + level + ra]);
+                    let (dr, di) = if has_b {
+                        (spec[off + rb], -spec[off + level + rb])
+                    } else {
+                        (0.0, 0.0)
+                    };
+                    let (ar, ai) = (cr * fr - ci * fi, cr * fi + ci * fr);
+                    let (br, bi) = (dr * fr - di * fi, dr * fi + di * fr);
+                    // z_m = a + i b, z_{N−m} = conj(a) + i conj(b).
+                    z[m] = Complex::new(ar - bi, ai + br);
+                    z[nlon - m] = Complex::new(ar + bi, br - ai);
                 }
             }
             self.fft_inv.process_with_scratch(buf, &mut ws.fft_scratch);

@@ -485,7 +485,7 @@ impl SurfaceCalculus {
 }
 
 /// `∇_s f` at point `j` from `f_θ, f_φ`.
-#[inline]
+#[inline(always)]
 pub(crate) fn grad_at(geom: &Geometry, j: usize, ft: f64, fp: f64) -> [f64; 3] {
     let gi = geom.ginv[j];
     let a = gi[0] * ft + gi[1] * fp;
@@ -495,7 +495,7 @@ pub(crate) fn grad_at(geom: &Geometry, j: usize, ft: f64, fp: f64) -> [f64; 3] {
 }
 
 /// `∇_s·v` at point `j` from `v_θ, v_φ`.
-#[inline]
+#[inline(always)]
 pub(crate) fn div_at(geom: &Geometry, j: usize, vt: [f64; 3], vp: [f64; 3]) -> f64 {
     let gi = geom.ginv[j];
     let (xt, xp) = (geom.xt[j], geom.xp[j]);
@@ -503,7 +503,7 @@ pub(crate) fn div_at(geom: &Geometry, j: usize, vt: [f64; 3], vp: [f64; 3]) -> f
 }
 
 /// `Δ_s f` at point `j` from `[f_θ, f_φ, f_θθ, f_θφ, f_φφ]`.
-#[inline]
+#[inline(always)]
 pub(crate) fn lap_at(geom: &Geometry, j: usize, fd: [f64; 5]) -> f64 {
     let gi = geom.ginv[j];
     let second = gi[0] * fd[2] + 2.0 * gi[1] * fd[3] + gi[2] * fd[4];
