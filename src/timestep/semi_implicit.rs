@@ -358,9 +358,11 @@ pub enum OperatorStorage {
     /// the same step (the band-limited part of the solution, hence the new surface, is the
     /// same), 3.4× less memory, for a compression per assembly and two transforms per product.
     Coefficients,
-    /// On the grid, `A` (`(3n)²` entries, 7.0 MB per operator at `p = 12`), in the buffers of
-    /// the step engine the cell's step holds: the fast path, one operator (two with a viscosity
-    /// contrast) per thread, none per cell.
+    /// On the grid: `A = P F`, kept as the rows `P` over the density's coefficients
+    /// (`3n × 3n_c` entries, 3.8 MB per operator at `p = 12`;
+    /// [`SelfInteraction::assemble_rows`]) and applied as `P (F x)` (the full `A`, `(3n)²`,
+    /// without upsampling), in the buffers of the step engine the cell's step holds: the fast
+    /// path, one operator (two with a viscosity contrast) per thread, none per cell.
     #[default]
     Grid,
     /// Not stored: every GMRES iteration applies `A` matrix-free, batched per latitude
@@ -388,7 +390,8 @@ impl OperatorStorage {
     pub fn bytes_per_thread(self, p: usize, operators: usize) -> usize {
         let n = 2 * p * (p + 1);
         match self {
-            OperatorStorage::Grid => operators * 8 * 9 * n * n,
+            // The rows over coefficients (with upsampling, the default).
+            OperatorStorage::Grid => operators * 8 * 9 * n * ((p + 1) * (p + 1) - 1),
             OperatorStorage::Coefficients => 8 * 9 * n * n,
             OperatorStorage::MatrixFree => 0,
         }
@@ -1868,6 +1871,11 @@ fn assemble_operator(
     let (n, nc) = (engine.sht.n_points(), engine.sht.n_coefs());
     let layer = &mut engine.work.get_mut().expect("operator lock").products.layer;
     match storage {
+        OperatorStorage::Grid if layer.quadrature_order() > layer.order() => {
+            // The rows over the density's coefficients: A = P F (half of A's entries at p = 12).
+            out.resize(9 * n * nc, 0.0);
+            layer.assemble_rows(kernel, coefs, out)?;
+        }
         OperatorStorage::Grid => {
             out.resize(9 * n * n, 0.0);
             layer.assemble(kernel, coefs, out)?;

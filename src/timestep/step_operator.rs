@@ -69,7 +69,7 @@ pub(crate) fn apply_operators(
         OperatorStorage::Grid | OperatorStorage::MatrixFree => {
             for (k, x, beta) in terms {
                 match k {
-                    StepOperator::Dense(k) => add_product(k, x, y, beta),
+                    StepOperator::Dense(k) => add_grid_product(sht, ws, xc, k, x, y, beta)?,
                     StepOperator::Kernel(kernel) => {
                         layer.apply(kernel, surface, x, yg)?;
                         for (a, b) in y.iter_mut().zip(yg.iter()) {
@@ -79,6 +79,36 @@ pub(crate) fn apply_operators(
                 }
             }
         }
+    }
+    Ok(())
+}
+
+/// `y ← y + β A x` for a grid operator as [`OperatorStorage::Grid`] keeps it: the rows `P`
+/// over the density's coefficients (`3n × 3n_c`, row-major;
+/// [`crate::vesicle::SelfInteraction::assemble_rows`]), applied as `P (F x)`, or, without
+/// upsampling (`q = p`), the full `A` (`3n × 3n`). `xc` is `3n_c` of scratch.
+pub(crate) fn add_grid_product(
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    xc: &mut [f64],
+    k: &[f64],
+    x: &[f64],
+    y: &mut [f64],
+    beta: f64,
+) -> Result<(), VesicleError> {
+    let (n3, nc3) = (x.len(), 3 * sht.n_coefs());
+    if k.len() == n3 * nc3 {
+        sht.forward(x, xc, ws)?;
+        matmul(
+            MatMut::from_column_major_slice_mut(y, n3, 1),
+            Accum::Add,
+            MatRef::from_row_major_slice(k, n3, nc3),
+            MatRef::from_column_major_slice(xc, nc3, 1),
+            beta,
+            Par::Seq,
+        );
+    } else {
+        add_product(k, x, y, beta);
     }
     Ok(())
 }
@@ -305,21 +335,46 @@ impl<'a> InextensibleOperator<'a> {
         let d = self.d_op.and_then(dense);
         match self.storage {
             OperatorStorage::Grid => {
-                let gemm = |op: &[f64], rhs: MatRef<'_, f64>, y: &mut [f64], beta: f64| {
+                let nc = self.sht.n_coefs();
+                let gemm = |op: MatRef<'_, f64>, rhs: MatRef<'_, f64>, y: &mut [f64], beta: f64| {
                     matmul(
                         MatMut::from_column_major_slice_with_stride_mut(y, n3, k, n4),
                         Accum::Add,
-                        MatRef::from_column_major_slice(op, n3, n3),
+                        op,
                         rhs,
                         beta,
                         Par::Seq,
                     );
                 };
-                let fm = MatRef::from_column_major_slice(&forces, n3, k);
-                gemm(s, fm, y, -self.tau);
-                if let Some(d) = d {
-                    let xm = MatRef::from_column_major_slice_with_stride(z, n3, k, n4);
-                    gemm(d, xm, y, -self.c_d);
+                if s.len() == n3 * 3 * nc {
+                    // The rows over coefficients (the upsampled default): A x = P (F x).
+                    let ws = &mut w.products.ws;
+                    fn rows(op: &[f64], n3: usize, nc3: usize) -> MatRef<'_, f64> {
+                        MatRef::from_row_major_slice(op, n3, nc3)
+                    }
+                    let mut fc = vec![0.0; 3 * nc * k];
+                    self.sht.forward(&forces, &mut fc, ws)?;
+                    gemm(
+                        rows(s, n3, 3 * nc),
+                        MatRef::from_column_major_slice(&fc, 3 * nc, k),
+                        y,
+                        -self.tau,
+                    );
+                    if let Some(d) = d {
+                        // F X of every column: the first three of its four fields.
+                        let mut xc = vec![0.0; 4 * nc * k];
+                        self.sht.forward(z, &mut xc, ws)?;
+                        let xm =
+                            MatRef::from_column_major_slice_with_stride(&xc, 3 * nc, k, 4 * nc);
+                        gemm(rows(d, n3, 3 * nc), xm, y, -self.c_d);
+                    }
+                } else {
+                    let fm = MatRef::from_column_major_slice(&forces, n3, k);
+                    gemm(MatRef::from_column_major_slice(s, n3, n3), fm, y, -self.tau);
+                    if let Some(d) = d {
+                        let xm = MatRef::from_column_major_slice_with_stride(z, n3, k, n4);
+                        gemm(MatRef::from_column_major_slice(d, n3, n3), xm, y, -self.c_d);
+                    }
                 }
             }
             OperatorStorage::Coefficients => {

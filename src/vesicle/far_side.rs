@@ -434,14 +434,15 @@ impl FarSide {
         })
     }
 
-    /// Add the far rows of every flagged target in coefficient space: `rows[b]`
-    /// (`3n_p × n_c(p)`, row-major, row `a·n_p + t`) gains `Y_Qᵀ W k E` for the kernel entry
-    /// `(a, b)` of target `t`, so that `rows[b] · F_p` are the grid rows of [`Self::add_rows`].
+    /// Add the far rows of every flagged target in coefficient space: `rows` (`3n_p × 3n_c(p)`,
+    /// row-major, row `a·n_p + t`, column `b·n_c + k`; [`super::SelfInteraction::assemble_rows`])
+    /// gains `Y_Qᵀ W k E` for the kernel entry `(a, b)` of target `t`, so that
+    /// `rows · blockdiag(F_p)` are the grid rows of [`Self::add_rows`].
     pub(crate) fn add_coefficient_rows(
         &mut self,
         kernel: LayerKernel,
         x_grid: &[f64],
-        rows: &mut [Vec<f64>; 3],
+        rows: &mut [f64],
     ) -> Result<(), VesicleError> {
         let np = self.sht_p.n_points();
         let ncp = self.sht_p.n_coefs();
@@ -449,13 +450,13 @@ impl FarSide {
             for (ti, &t) in chunk.iter().enumerate() {
                 for (e, &(a, b)) in SYM.iter().enumerate() {
                     let c = &cp[(SYM.len() * ti + e) * ncp..(SYM.len() * ti + e + 1) * ncp];
-                    let row = a * np + t;
-                    for (x, v) in rows[b][row * ncp..(row + 1) * ncp].iter_mut().zip(c) {
+                    let ra = (a * np + t) * 3 * ncp + b * ncp;
+                    for (x, v) in rows[ra..ra + ncp].iter_mut().zip(c) {
                         *x += v;
                     }
                     if a != b {
-                        let row = b * np + t;
-                        for (x, v) in rows[a][row * ncp..(row + 1) * ncp].iter_mut().zip(c) {
+                        let rb = (b * np + t) * 3 * ncp + a * ncp;
+                        for (x, v) in rows[rb..rb + ncp].iter_mut().zip(c) {
                             *x += v;
                         }
                     }

@@ -364,10 +364,60 @@ impl SelfInteraction {
             // F_q = Y_qᵀ W fails for the Nyquist order m = q; nothing to gain without upsampling.
             return self.assemble_by_rotation_matrices(kernel, coefs, out);
         }
-        kernel.check()?;
         let np = self.n_points();
         let n3 = 3 * np;
         check_len("operator", out.len(), n3 * n3)?;
+        let lp = self.sht_p.n_coefs();
+        let mut rows = self
+            .adjoint
+            .as_mut()
+            .map(|ad| std::mem::take(&mut ad.rows))
+            .unwrap_or_default();
+        rows.resize(n3 * 3 * lp, 0.0);
+        let r = self.assemble_rows(kernel, coefs, &mut rows);
+        if r.is_ok() {
+            let forward = &self.adjoint.as_ref().expect("built by the rows").forward;
+            let rows = MatRef::from_row_major_slice(&rows, n3, 3 * lp);
+            for b in 0..3 {
+                matmul(
+                    MatMut::from_column_major_slice_mut(
+                        &mut out[b * np * n3..(b + 1) * np * n3],
+                        n3,
+                        np,
+                    ),
+                    Accum::Replace,
+                    rows.submatrix(0, b * lp, n3, lp),
+                    MatRef::from_column_major_slice(forward, lp, np),
+                    1.0,
+                    Par::Seq,
+                );
+            }
+        }
+        if let Some(ad) = self.adjoint.as_mut() {
+            ad.rows = rows;
+        }
+        r
+    }
+
+    /// The operator of [`Self::assemble`] before its last product: the rows `P` over the
+    /// density's coefficients (`3n_p × 3n_c`, **row-major**, row `a·n_p + t`, column
+    /// `b·n_c + k` for coefficient `k` of density component `b`), so that
+    /// `A = P · blockdiag(F, F, F)` and `A f = P (F f)`: half the entries of `A` at `p = 12`,
+    /// applied after a forward transform of the density. Needs `q > p`
+    /// ([`VesicleError::NotUpsampled`] otherwise).
+    pub fn assemble_rows(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        if self.q == self.p {
+            return Err(VesicleError::NotUpsampled { p: self.p });
+        }
+        kernel.check()?;
+        let np = self.n_points();
+        let lp = self.sht_p.n_coefs();
+        check_len("operator rows", out.len(), 9 * np * lp)?;
         self.set_surface(coefs)?;
         if matches!(self.rot, Rotator::Direct(_)) && self.sh_rot.is_none() {
             self.sh_rot = Some(Box::new(ShRotation::new(self.p, self.q)?));
@@ -383,41 +433,20 @@ impl SelfInteraction {
             )?),
         };
         let r = self
-            .coefficient_rows(kernel, &mut sc, &mut ad)
-            .and_then(|()| {
-                self.far
-                    .add_coefficient_rows(kernel, &self.x_grid, &mut ad.rows)
-            });
+            .coefficient_rows(kernel, &mut sc, &mut ad, out)
+            .and_then(|()| self.far.add_coefficient_rows(kernel, &self.x_grid, out));
         self.scratch = Some(sc);
-        if let Err(e) = r {
-            self.adjoint = Some(ad);
-            return Err(e);
-        }
-        let lp = self.sht_p.n_coefs();
-        for (b, rows) in ad.rows.iter().enumerate() {
-            matmul(
-                MatMut::from_column_major_slice_mut(
-                    &mut out[b * np * n3..(b + 1) * np * n3],
-                    n3,
-                    np,
-                ),
-                Accum::Replace,
-                MatRef::from_row_major_slice(rows, n3, lp),
-                MatRef::from_column_major_slice(&ad.forward, lp, np),
-                1.0,
-                Par::Seq,
-            );
-        }
         self.adjoint = Some(ad);
-        Ok(())
+        r
     }
 
-    /// The rows `ρ` of [`Self::assemble`] for every target into `ad.rows`.
+    /// The rows `ρ` of [`Self::assemble_rows`] for every target into `rows`.
     fn coefficient_rows(
         &mut self,
         kernel: LayerKernel,
         sc: &mut LatitudeScratch,
         ad: &mut AdjointScratch,
+        rows: &mut [f64],
     ) -> Result<(), VesicleError> {
         let (np, nq, lp) = (
             self.sht_p.n_points(),
@@ -472,9 +501,10 @@ impl SelfInteraction {
                 for (e, &(a, b)) in SYM.iter().enumerate() {
                     let g = 6 * lon + e;
                     let rho = &ad.rho[g * lp..(g + 1) * lp];
-                    ad.rows[b][(a * np + t) * lp..(a * np + t + 1) * lp].copy_from_slice(rho);
+                    let (ra, rb) = ((a * np + t) * 3 * lp, (b * np + t) * 3 * lp);
+                    rows[ra + b * lp..ra + (b + 1) * lp].copy_from_slice(rho);
                     if a != b {
-                        ad.rows[a][(b * np + t) * lp..(b * np + t + 1) * lp].copy_from_slice(rho);
+                        rows[rb + a * lp..rb + (a + 1) * lp].copy_from_slice(rho);
                     }
                 }
             }
@@ -747,9 +777,9 @@ struct AdjointScratch {
     kcoef: Vec<f64>,
     /// Their rows `ρ` (order-`p` layout, `6·2p` functions).
     rho: Vec<f64>,
-    /// Per source component `b`: the rows `ρ` of every target component (`3n_p × n_c(p)`,
-    /// row-major, row `a·n_p + t`).
-    rows: [Vec<f64>; 3],
+    /// The rows of [`SelfInteraction::assemble`] (as [`SelfInteraction::assemble_rows`] lays
+    /// them out; moved out while they are filled).
+    rows: Vec<f64>,
 }
 
 impl AdjointScratch {
@@ -767,7 +797,7 @@ impl AdjointScratch {
             wide,
             kcoef: vec![0.0; 6 * nlon * lw],
             rho: vec![0.0; 6 * nlon * lp],
-            rows: std::array::from_fn(|_| vec![0.0; n3 * lp]),
+            rows: vec![0.0; n3 * 3 * lp],
         })
     }
 }

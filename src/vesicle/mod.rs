@@ -125,6 +125,14 @@ pub enum VesicleError {
         /// The domain it is outside of.
         reason: &'static str,
     },
+    /// The operator rows over coefficients need a quadrature order above the surface order.
+    #[error(
+        "the operator rows over coefficients need an upsampled order q > p (here q = p = {p})"
+    )]
+    NotUpsampled {
+        /// Surface order (= quadrature order).
+        p: usize,
+    },
     /// The quadrature (upsampled) order is below the surface order.
     #[error("upsampled order q = {q} is below the surface order p = {p}")]
     Order {
