@@ -80,8 +80,9 @@ fn a_full_scene_parses_with_its_values_and_effects() {
     let default = parse(file(), "[[cells]]\nshape = \"rbc\"\n").unwrap();
     assert_eq!(default.numerics.operator_storage, None);
     // "auto": the fastest storage whose operators fit the budget. On the grid a cell keeps no
-    // operator (the threads hold one each, 7.0 MB at p = 12): 10⁴ RBCs at p = 12 fit in any
-    // budget that holds the threads' operators; coefficient space keeps 2.0 MB per cell.
+    // operator (the threads hold one each, its rows over coefficients: 3.8 MB at p = 12): 10⁴
+    // RBCs at p = 12 fit in any budget that holds the threads' operators; coefficient space
+    // keeps 2.0 MB per cell.
     let gib = 1u64 << 30;
     let mib = 1u64 << 20;
     assert_eq!(
@@ -92,22 +93,22 @@ fn a_full_scene_parses_with_its_values_and_effects() {
         OperatorStorage::for_budget(10_000, 16, 12, 2, 24 * gib),
         OperatorStorage::Grid
     );
-    // 13 MiB: too little for two threads' grid operators (14.0 MB), or for 30 cells in
-    // coefficient space (61 MB) beside them; with a viscosity contrast one thread's two grid
-    // operators (14.0 MB) do not fit either, but one cell's two compressed ones (4.1 MB) and
-    // the grid operator it is compressed from (7.0 MB) do.
+    // 7 MiB (7.3 MB): too little for two threads' grid operators (7.5 MB), or for 30 cells in
+    // coefficient space (61 MB) beside the rows they are compressed from; with a viscosity
+    // contrast, 13 MiB (13.6 MB) do not hold two threads' two grid operators (15.1 MB), but one
+    // cell's two compressed ones (4.1 MB) and each thread's rows (7.5 MB) fit.
     assert_eq!(
-        OperatorStorage::for_budget(30, 2, 12, 1, 13 * mib),
+        OperatorStorage::for_budget(30, 2, 12, 1, 7 * mib),
         OperatorStorage::MatrixFree
     );
     assert_eq!(
-        OperatorStorage::for_budget(1, 1, 12, 2, 13 * mib),
+        OperatorStorage::for_budget(1, 2, 12, 2, 13 * mib),
         OperatorStorage::Coefficients
     );
     assert_eq!(OperatorStorage::Grid.bytes_per_cell(12, 1), 0);
     assert_eq!(
         OperatorStorage::Grid.bytes_per_thread(12, 2),
-        2 * 9 * 312 * 312 * 8
+        2 * 9 * 312 * 168 * 8
     );
     assert_eq!(
         OperatorStorage::Coefficients.bytes_per_cell(12, 1),

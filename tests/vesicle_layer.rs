@@ -329,7 +329,7 @@ fn convergence_table() {
 fn dense_operator_equals_matrix_free_evaluation_for_both_rotations() {
     // p = 6, q = 12: plain Graham–Sloan; p = 8, q = 24: the dimple targets are split; q = p + 3
     // and q = p (no upsampling: the assembly by rotation matrices) are checked too.
-    for (p, q) in [(6, 12), (8, 24), (7, 10), (5, 5)] {
+    for (p, q) in [(6, 12), (8, 24), (7, 10), (6, 7), (5, 5)] {
         dense_equals_matrix_free(p, q);
     }
 }
@@ -365,6 +365,33 @@ fn dense_equals_matrix_free(p: usize, q: usize) {
                 1e-12,
             );
             println!("{kernel:?} {algo:?}, p = {p}, q = {q}: coefficient rows vs rotation matrices {e:.2e}");
+            // The rows over coefficients times F are the operator (q > p), else an error.
+            let nc = ShTransform::new(p).unwrap().n_coefs();
+            let mut rows = vec![0.0; 9 * np * nc];
+            if q > p {
+                si.assemble_rows(kernel, s.coefs(), &mut rows).unwrap();
+                let sht = ShTransform::new(p).unwrap();
+                let mut ws = sht.workspace();
+                let mut fc = vec![0.0; 3 * nc];
+                sht.forward(&f, &mut fc, &mut ws).unwrap();
+                let by_rows: Vec<f64> = (0..n3)
+                    .map(|r| (0..3 * nc).map(|c| rows[r * 3 * nc + c] * fc[c]).sum())
+                    .collect();
+                let want: Vec<f64> = (0..n3)
+                    .map(|r| (0..n3).map(|c| a[c * n3 + r] * f[c]).sum())
+                    .collect();
+                assert_close(
+                    &format!("{kernel:?} {algo:?}, p = {p}: P F f vs A f"),
+                    &by_rows,
+                    &want,
+                    1e-13,
+                );
+            } else {
+                assert!(matches!(
+                    si.assemble_rows(kernel, s.coefs(), &mut rows),
+                    Err(VesicleError::NotUpsampled { p: 5 })
+                ));
+            }
             let mut direct = vec![0.0; n3];
             si.evaluate(kernel, s.coefs(), &f, &mut direct).unwrap();
             let applied: Vec<f64> = (0..n3)
@@ -709,6 +736,12 @@ fn coefficient_space_operator_is_the_projected_grid_operator() {
         si.assemble(kernel, s.coefs(), &mut a).unwrap();
         let mut ac = vec![0.0; 9 * nc * nc];
         comp.compress(&a, &mut ac).unwrap();
+        // The same from the rows over coefficients: A_c = F P.
+        let mut rows = vec![0.0; 9 * n * nc];
+        si.assemble_rows(kernel, s.coefs(), &mut rows).unwrap();
+        let mut ac_rows = vec![0.0; 9 * nc * nc];
+        comp.compress_rows(&rows, &mut ac_rows).unwrap();
+        assert_close(&format!("{kernel:?}: F P vs F A I"), &ac_rows, &ac, 1e-12);
         let ax = matvec(&a, &x, 3 * n);
         let px = project(&x, &mut ws);
         let apx = matvec(&a, &px, 3 * n);

@@ -232,11 +232,16 @@ pub struct ShRotation {
     /// The layout of order `p + 1`: every degree `n ≤ p` with all its orders (`Y_p^{-p}`
     /// included), the output of the rotations of a whole latitude.
     wide: CoefLayout,
+    /// `(sin mφ_k, cos mφ_k)`, `m = 0 … p` for every longitude `k` (row `k`).
+    phase: Vec<(f64, f64)>,
+    /// (degree-major local index, layout index) of every `Y_n^m`, `n ≤ p`, in the order-`q`
+    /// layout and in `wide`.
+    map_q: Vec<(usize, usize)>,
+    map_wide: Vec<(usize, usize)>,
     dst: ShTransform,
     dst_ws: ShWorkspace,
     /// Per source latitude: all degree blocks of `[U_{θ_i}]`.
     blocks: Vec<Vec<f64>>,
-    src_phi: Vec<f64>,
     buf_in: Vec<f64>,
     buf_out: Vec<f64>,
     coefs_q: Vec<f64>,
@@ -283,15 +288,23 @@ impl ShRotation {
         }
         let dst = ShTransform::new(q)?;
         let dst_ws = dst.workspace();
+        let wide = CoefLayout::new(p + 1);
+        let phase = src_grid
+            .phi
+            .iter()
+            .flat_map(|&phi| (0..=p).map(move |m| (m as f64 * phi).sin_cos()))
+            .collect();
         Ok(ShRotation {
             p,
             q,
             layout,
-            wide: CoefLayout::new(p + 1),
+            map_q: local_to(p, dst.layout()),
+            map_wide: local_to(p, &wide),
+            wide,
+            phase,
             dst,
             dst_ws,
             blocks,
-            src_phi: src_grid.phi,
             buf_in: Vec::new(),
             buf_out: Vec::new(),
             coefs_q: Vec::new(),
@@ -311,8 +324,7 @@ impl ShRotation {
         coefs: &[f64],
         out: &mut [f64],
     ) -> Result<(), SphError> {
-        let lay = self.dst.layout().clone();
-        self.rotate_coefs_at(lat, &[lon], coefs, &lay, out)
+        self.rotate_coefs_at(lat, lon..lon + 1, coefs, false, out)
     }
 
     /// [`Self::rotate_coefs`] for every longitude `k = 0 … 2p−1` of latitude `lat` at once:
@@ -326,9 +338,7 @@ impl ShRotation {
         coefs: &[f64],
         out: &mut [f64],
     ) -> Result<(), SphError> {
-        let lons: Vec<usize> = (0..2 * self.p).collect();
-        let lay = self.wide.clone();
-        self.rotate_coefs_at(lat, &lons, coefs, &lay, out)
+        self.rotate_coefs_at(lat, 0..2 * self.p, coefs, true, out)
     }
 
     /// The transpose of [`Self::rotate_coefs_every_longitude`], per function: `coefs_q`
@@ -372,13 +382,12 @@ impl ShRotation {
         self.buf_in.resize(nloc * nf, 0.0);
         self.buf_out.resize(nloc * nf, 0.0);
         // Lᵀ: gather the degrees n ≤ p into the degree-major local order.
-        let map = local_to(self.p, &self.wide);
         for (c, col) in coefs_q
             .chunks_exact(lq)
             .zip(self.buf_in.chunks_exact_mut(nloc))
         {
             col.fill(0.0);
-            for &(l, ix) in &map {
+            for &(l, ix) in &self.map_wide {
                 col[l] = c[ix];
             }
         }
@@ -386,7 +395,7 @@ impl ShRotation {
         self.blocks_times(lat, nf, true);
         // Φ_kᵀ: the transposed phase shift into the order-p layout.
         for k in 0..2 * p {
-            let phase = self.phases(k);
+            let phase = &self.phase[k * (p + 1)..(k + 1) * (p + 1)];
             for f in k * per_lon..(k + 1) * per_lon {
                 let h = &self.buf_out[f * nloc..(f + 1) * nloc];
                 let o = &mut out[f * lp..(f + 1) * lp];
@@ -411,12 +420,6 @@ impl ShRotation {
     /// [`Self::adjoint_every_longitude`]'s input.
     pub fn wide_layout(&self) -> &CoefLayout {
         &self.wide
-    }
-
-    /// `(sin mφ_k, cos mφ_k)` for `m = 0 … p`.
-    fn phases(&self, lon: usize) -> Vec<(f64, f64)> {
-        let phi = self.src_phi[lon];
-        (0..=self.p).map(|m| (m as f64 * phi).sin_cos()).collect()
     }
 
     /// `buf_out = U · buf_in` (or `Uᵀ · buf_in`) per degree for `nf` functions in the
@@ -454,18 +457,23 @@ impl ShRotation {
         }
     }
 
-    /// [`Self::rotate_coefs`] for the listed longitudes of one latitude (longitude `lons[j]`
-    /// into functions `j·nf …`).
+    /// [`Self::rotate_coefs`] for a range of longitudes of one latitude (the `j`-th longitude
+    /// of the range into functions `j·nf …`), into the layout `wide` or (`false`) that of
+    /// order `q`.
     fn rotate_coefs_at(
         &mut self,
         lat: usize,
-        lons: &[usize],
+        lons: std::ops::Range<usize>,
         coefs: &[f64],
-        lay_out: &CoefLayout,
+        wide: bool,
         out: &mut [f64],
     ) -> Result<(), SphError> {
         let (p, lp) = (self.p, self.layout.len());
-        let lq = lay_out.len();
+        let lq = if wide {
+            self.wide.len()
+        } else {
+            self.dst.n_coefs()
+        };
         let nf = coefs.len() / lp;
         let nt = nf * lons.len();
         if coefs.len() != nf * lp || out.len() != nt * lq {
@@ -474,7 +482,7 @@ impl ShRotation {
                 expected: nf * lp,
             });
         }
-        if lat > p || lons.iter().any(|&k| k >= 2 * p) {
+        if lat > p || lons.end > 2 * p {
             return Err(SphError::Latitude { lat, p });
         }
         if nt == 0 {
@@ -485,8 +493,8 @@ impl ShRotation {
         self.buf_out.resize(nloc * nt, 0.0);
         // Gather into degree-major blocks: degree n occupies rows n²..(n+1)² of a
         // (p+1)² × nt matrix, phase-shifted by R_z(φ_k) ((sin mφ, cos mφ) once per longitude).
-        for (j, &lon) in lons.iter().enumerate() {
-            let phase = self.phases(lon);
+        for (j, lon) in lons.enumerate() {
+            let phase = &self.phase[lon * (p + 1)..(lon + 1) * (p + 1)];
             for (f, c) in coefs.chunks_exact(lp).enumerate() {
                 let g = j * nf + f;
                 let col = &mut self.buf_in[g * nloc..(g + 1) * nloc];
@@ -504,14 +512,14 @@ impl ShRotation {
             }
         }
         self.blocks_times(lat, nt, false);
-        // Scatter: local (degree-major) index → output layout index, found once per call.
-        let map = local_to(p, lay_out);
+        // Scatter: local (degree-major) index → output layout index.
+        let map = if wide { &self.map_wide } else { &self.map_q };
         for (o, col) in out
             .chunks_exact_mut(lq)
             .zip(self.buf_out.chunks_exact(nloc))
         {
             o.fill(0.0);
-            for &(l, ix) in &map {
+            for &(l, ix) in map {
                 o[ix] = col[l];
             }
         }

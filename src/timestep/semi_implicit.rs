@@ -350,13 +350,14 @@ pub struct StepReport {
 /// the cell's own step, so the grid's live in the step engine (one per thread that steps):
 /// it is the fastest and keeps nothing per cell. Coefficient space keeps its compressed
 /// operators per cell (2.0 MB each at `p = 12`); matrix-free keeps none and needs no
-/// `3n × 3n` buffer at all.
+/// dense buffer at all.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum OperatorStorage {
     /// In coefficient space, `A_c = F A I` (`(3n_c)²` entries, 2.0 MB per operator at
     /// `p = 12`; [`crate::vesicle::coefficient_operator`]), applied as `P A x = I A_c F x`:
     /// the same step (the band-limited part of the solution, hence the new surface, is the
-    /// same), 3.4× less memory, for a compression per assembly and two transforms per product.
+    /// same), 3.4× less memory than the full grid operator (1.9× less than the grid's rows),
+    /// for a compression per assembly and two transforms per product.
     Coefficients,
     /// On the grid: `A = P F`, kept as the rows `P` over the density's coefficients
     /// (`3n × 3n_c` entries, 3.8 MB per operator at `p = 12`;
@@ -385,14 +386,15 @@ impl OperatorStorage {
             }
     }
 
-    /// Bytes of the operators a thread that steps cells holds: the grid operators, also
-    /// assembled there before the compression to coefficient space.
+    /// Bytes of the operators a thread that steps cells holds: the grid operators' rows over
+    /// coefficients (`3n × 3n_c`), also assembled there before the compression to coefficient
+    /// space. This assumes upsampling (`q > p`, the default); without it the grid operators
+    /// are the full `3n × 3n`, `n / n_c` (about 1.9) times more.
     pub fn bytes_per_thread(self, p: usize, operators: usize) -> usize {
-        let n = 2 * p * (p + 1);
+        let (n, nc) = (2 * p * (p + 1), (p + 1) * (p + 1) - 1);
         match self {
-            // The rows over coefficients (with upsampling, the default).
-            OperatorStorage::Grid => operators * 8 * 9 * n * ((p + 1) * (p + 1) - 1),
-            OperatorStorage::Coefficients => 8 * 9 * n * n,
+            OperatorStorage::Grid => operators * 8 * 9 * n * nc,
+            OperatorStorage::Coefficients => 8 * 9 * n * nc,
             OperatorStorage::MatrixFree => 0,
         }
     }
@@ -433,8 +435,9 @@ pub struct VesicleStepper {
     pool: Arc<EnginePool>,
     far_side: FarSideParams,
     storage: OperatorStorage,
-    /// Dense single layer: `3n_c × 3n_c` in coefficient space or `3n × 3n` on the grid,
-    /// column-major (empty before the first step).
+    /// Dense single layer: `3n_c × 3n_c` in coefficient space (column-major), or on the grid
+    /// its rows over coefficients, `3n × 3n_c` row-major (`3n × 3n` column-major without
+    /// upsampling) (empty before the first step).
     s_op: Vec<f64>,
     /// Dense double layer, the same (empty when `λ = 1`).
     d_op: Vec<f64>,
@@ -1880,10 +1883,15 @@ fn assemble_operator(
             out.resize(9 * n * n, 0.0);
             layer.assemble(kernel, coefs, out)?;
         }
+        OperatorStorage::Coefficients if layer.quadrature_order() > layer.order() => {
+            // A_c = F P from the rows over coefficients.
+            engine.grid_op.resize(9 * n * nc, 0.0);
+            layer.assemble_rows(kernel, coefs, &mut engine.grid_op)?;
+            out.resize(9 * nc * nc, 0.0);
+            engine.compressor.compress_rows(&engine.grid_op, out)?;
+        }
         OperatorStorage::Coefficients => {
-            if engine.grid_op.len() != 9 * n * n {
-                engine.grid_op = vec![0.0; 9 * n * n];
-            }
+            engine.grid_op.resize(9 * n * n, 0.0);
             layer.assemble(kernel, coefs, &mut engine.grid_op)?;
             out.resize(9 * nc * nc, 0.0);
             engine.compressor.compress(&engine.grid_op, out)?;

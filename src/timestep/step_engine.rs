@@ -6,8 +6,9 @@
 //! preconditioners) stays in its [`super::semi_implicit::VesicleStepper`]; everything here is
 //! either a plan that depends only on `(p, q)` or scratch that a call fills before it reads it.
 //! A suspension therefore holds as many engines as cells step at once (the threads), not one
-//! per cell: at `p = 12` an engine is several MB (plans and workspaces at `q = 24`, the `3n × 3n`
-//! grid operators of the step, 7.0 MB each), which per cell would rule out 10⁴ cells in 24 GiB.
+//! per cell: at `p = 12` an engine is several MB (plans and workspaces at `q = 24`, the grid
+//! operators of the step as rows over coefficients, `3n × 3n_c`, 3.8 MB each), which per cell
+//! would rule out 10⁴ cells in 24 GiB.
 //!
 //! Results do not depend on which engine a cell gets: every call sets the geometry it uses
 //! (and the cell's far-side settings and Skalak reference) before reading anything.
@@ -83,9 +84,11 @@ pub(crate) struct StepEngine {
     pub calc: SurfaceCalculus,
     pub reparametrizer: Option<Reparametrizer>,
     pub compressor: CoefficientOperator,
-    /// A grid operator, `3n × 3n` (assembled here, then compressed into the cell's storage).
+    /// A grid operator's rows over coefficients, `3n × 3n_c` (`3n × 3n` without upsampling),
+    /// assembled here, then compressed into the cell's storage.
     pub grid_op: Vec<f64>,
-    /// The grid operators (`3n × 3n`) of the step that holds this engine, with
+    /// The grid operators (rows over coefficients, `3n × 3n_c`; `3n × 3n` without
+    /// upsampling) of the step that holds this engine, with
     /// [`super::semi_implicit::OperatorStorage::Grid`]: the single layer, and the double layer
     /// with a viscosity contrast. A cell's operators are assembled at its step and read only
     /// within it, so they are lent with the engine: one pair per thread, not per cell.

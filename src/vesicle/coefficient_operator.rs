@@ -112,6 +112,31 @@ impl CoefficientOperator {
     }
 }
 
+impl CoefficientOperator {
+    /// `out = F A I` from the rows `P` of `A = P F` ([`super::SelfInteraction::assemble_rows`]:
+    /// `3n × 3n_c`, row-major): since `F I` is the identity on coefficients, `A_c = F P`, three
+    /// GEMMs of `n_c × n × 3n_c` and no grid operator.
+    pub fn compress_rows(&self, rows: &[f64], out: &mut [f64]) -> Result<(), VesicleError> {
+        let (n, nc) = (self.n, self.nc);
+        check_len("operator rows", rows.len(), 9 * n * nc)?;
+        check_len("coefficient-space operator", out.len(), 9 * nc * nc)?;
+        let rows = MatRef::from_row_major_slice(rows, 3 * n, 3 * nc);
+        let fwd = MatRef::from_column_major_slice(&self.forward, nc, n);
+        let mut out = MatMut::from_column_major_slice_mut(out, 3 * nc, 3 * nc);
+        for c in 0..3 {
+            matmul(
+                out.as_mut().submatrix_mut(c * nc, 0, nc, 3 * nc),
+                Accum::Replace,
+                fwd,
+                rows.submatrix(c * n, 0, n, 3 * nc),
+                1.0,
+                Par::Seq,
+            );
+        }
+        Ok(())
+    }
+}
+
 /// The forward transform `F` of `sht` as a matrix (`n_c × n`, column-major: column `j` holds
 /// the coefficients of grid value `j`).
 pub(crate) fn forward_matrix(

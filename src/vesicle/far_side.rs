@@ -403,23 +403,30 @@ impl FarSide {
         let np = self.sht_p.n_points();
         let ncp = self.sht_p.n_coefs();
         let n3 = 3 * np;
-        let mut batch = Vec::new();
+        if self.forward_p.is_empty() && !self.targets.is_empty() {
+            let mut eye = vec![0.0; np * np];
+            for j in 0..np {
+                eye[j * np + j] = 1.0;
+            }
+            self.forward_p = vec![0.0; ncp * np];
+            self.sht_p
+                .forward(&eye, &mut self.forward_p, &mut self.ws_p)?;
+        }
+        let fwd = std::mem::take(&mut self.forward_p);
         let mut r = Vec::new();
-        self.coefficient_rows(kernel, x_grid, |fwd, chunk, cp| {
+        let result = self.coefficient_rows(kernel, x_grid, |chunk, cp| {
             let nf = SYM.len() * chunk.len();
             r.resize(nf * np, 0.0);
-            batch.clear();
-            batch.extend_from_slice(chunk);
             // R = Cᵀ F_p: row (target, a, b) over the order-p grid.
             matmul(
                 MatMut::from_column_major_slice_mut(&mut r, nf, np),
                 Accum::Replace,
                 MatRef::from_column_major_slice(cp, ncp, nf).transpose(),
-                MatRef::from_column_major_slice(fwd, ncp, np),
+                MatRef::from_column_major_slice(&fwd, ncp, np),
                 1.0,
                 Par::Seq,
             );
-            for (ti, &t) in batch.iter().enumerate() {
+            for (ti, &t) in chunk.iter().enumerate() {
                 for (e, &(a, b)) in SYM.iter().enumerate() {
                     let f = SYM.len() * ti + e;
                     for c in 0..np {
@@ -431,7 +438,9 @@ impl FarSide {
                     }
                 }
             }
-        })
+        });
+        self.forward_p = fwd;
+        result
     }
 
     /// Add the far rows of every flagged target in coefficient space: `rows` (`3n_p × 3n_c(p)`,
@@ -446,7 +455,7 @@ impl FarSide {
     ) -> Result<(), VesicleError> {
         let np = self.sht_p.n_points();
         let ncp = self.sht_p.n_coefs();
-        self.coefficient_rows(kernel, x_grid, |_, chunk, cp| {
+        self.coefficient_rows(kernel, x_grid, |chunk, cp| {
             for (ti, &t) in chunk.iter().enumerate() {
                 for (e, &(a, b)) in SYM.iter().enumerate() {
                     let c = &cp[(SYM.len() * ti + e) * ncp..(SYM.len() * ti + e + 1) * ncp];
@@ -466,27 +475,20 @@ impl FarSide {
     }
 
     /// The far rows of the flagged targets in coefficient space, a batch of targets at a time:
-    /// `put(F_p, targets, C)` with `C` (`n_c(p) × 6·targets`, column `6·i + e` the symmetric
-    /// kernel entry `SYM[e]` of `targets[i]`) and the forward matrix `F_p` (`n_c(p) × n_p`).
+    /// `put(targets, C)` with `C` (`n_c(p) × 6·targets`, column `6·i + e` the symmetric
+    /// kernel entry `SYM[e]` of `targets[i]`).
     fn coefficient_rows(
         &mut self,
         kernel: LayerKernel,
         x_grid: &[f64],
-        mut put: impl FnMut(&[f64], &[usize], &[f64]),
+        mut put: impl FnMut(&[usize], &[f64]),
     ) -> Result<(), VesicleError> {
         let Some(far) = self.far.as_mut().filter(|_| !self.targets.is_empty()) else {
             return Ok(());
         };
         let np = self.sht_p.n_points();
         let ncp = self.sht_p.n_coefs();
-        if self.forward_p.is_empty() {
-            let mut eye = vec![0.0; np * np];
-            for j in 0..np {
-                eye[j * np + j] = 1.0;
-            }
-            self.forward_p = vec![0.0; ncp * np];
-            self.sht_p
-                .forward(&eye, &mut self.forward_p, &mut self.ws_p)?;
+        if self.norms.is_empty() {
             // N_l = ∫ Y_l² dΩ, by the Gauss rule of order 2p + 1 (exact for the products).
             let big = ShTransform::new(2 * self.p + 1)?;
             let mut ws = big.workspace();
@@ -541,7 +543,7 @@ impl FarSide {
                     *c *= nl;
                 }
             }
-            put(&self.forward_p, chunk, &cp[..nf * ncp]);
+            put(chunk, &cp[..nf * ncp]);
         }
         Ok(())
     }

@@ -14,20 +14,27 @@
 //! band-limited, surface: exact). On a sphere of radius `a`: `S[3μΩ×n/a] = Ω×x`,
 //! `S[f] = 2af/3μ` for a uniform `f`, and `D[c] = −c/2` for a constant `c`.
 //!
-//! Both rotation algorithms are selectable ([`RotationAlgorithm`]). The dense self-interaction
-//! operator ([`SelfInteraction::assemble`]) uses that the rotation of target `(i, k)` is the
-//! rotation of target `(i, 0)` composed with a cyclic shift of the longitudes by `k`: per latitude
-//! one rotation matrix `B_i` (`n_q × n_p`; [`DirectRotation`]'s `M_i`, or the same matrix built
-//! through [`ShRotation`]), and one GEMM `(9·2p × n_q) · (n_q × n_p)` for the kernel rows of all
-//! `2p` targets of the latitude; the shift is applied when the rows are scattered. The
-//! matrix-free [`SelfInteraction::evaluate_at`] instead rotates the density per target with the
-//! rotation's own `apply`, so the two paths check each other.
+//! Both rotation algorithms are selectable ([`RotationAlgorithm`]) for the matrix-free
+//! [`SelfInteraction::evaluate_at`], which rotates the density per target with the rotation's
+//! own `apply`. The dense self-interaction operator ([`SelfInteraction::assemble`], and its rows
+//! over the density's coefficients, [`SelfInteraction::assemble_rows`]) is built in coefficient
+//! space: a kernel row `K` of target `(i, k)` meets the density through the rotation
+//! `Y_q L U_i Φ_k F`, so its row over the coefficients is `K Y_q L U_i Φ_k`, computed for all
+//! `2p` targets of a latitude by one truncated forward transform (`Y_qᵀ = F_q W⁻¹`) and the
+//! transposed rotation ([`ShRotation::adjoint_every_longitude`]): `O(p⁴ log p)` per latitude.
+//! MOBO's way (Veerapaneni et al. 2011), one rotation matrix `B_i` per latitude (`n_q × n_p`;
+//! [`DirectRotation`]'s `M_i`, or the same matrix built through [`ShRotation`]) and one GEMM
+//! `(9·2p × n_q) · (n_q × n_p)`, `O(p⁵)`, is kept as
+//! [`SelfInteraction::assemble_by_rotation_matrices`], the reference the tests hold the faster
+//! assembly to (1e-12 relative; 1e-13 measured), beside the matrix-free evaluation. Without
+//! upsampling (`q = p`) `assemble` is that reference method.
 //!
 //! Targets whose own far side comes close (the dimples of a red blood cell) split the integral
 //! with a partition of unity on the parameter sphere ([`super::far_side`]): the Graham–Sloan rule
 //! takes the windowed local part and a smooth rule of a higher order `Q` on the unrotated grid
-//! the rest (on an RBC at `p = 16`: `q = 32` 9.8e-6 → 2.8e-7). Both paths include it; the dense
-//! rows of the far part are folded in after the latitude loop
+//! the rest (on an RBC at `p = 16`: `q = 32` 9.8e-6 → 2.8e-7). Every path includes it; the
+//! rows of the far part are folded in after the latitude loop (in coefficient space for
+//! [`SelfInteraction::assemble`])
 //! ([`SelfInteraction::set_far_side_params`] turns it off or tunes it).
 
 use std::f64::consts::PI;
@@ -349,8 +356,8 @@ impl SelfInteraction {
     /// transform of `K / w`, truncated to the degrees `≤ p + 1`; `w` the grid's
     /// quadrature weights: `F_q = Y_qᵀ W`) and the transposed rotation
     /// ([`ShRotation::adjoint_every_longitude`]); the far side of flagged targets adds its rows
-    /// in the same coefficient space ([`super::far_side`]); the rows `ρ` of all targets, per
-    /// source component, are then multiplied by `F` in one GEMM. That is `O(p⁴ log p)` work per
+    /// in the same coefficient space ([`super::far_side`]); the rows `ρ` of all targets are
+    /// then multiplied by `F`, one GEMM per source component. That is `O(p⁴ log p)` work per
     /// latitude where [`Self::assemble_by_rotation_matrices`] spends the `O(p⁵)` GEMM
     /// `K · B_i`; both give the same operator to round-off. Needs `q > p` (else it is that
     /// method).
@@ -564,12 +571,12 @@ impl SelfInteraction {
     }
 
     /// Matrix-free application at every grid point, batched per latitude like
-    /// [`Self::assemble`] (memory linear in the points per cell, time per call about half an
-    /// assembly): `out = A · density` (component-major, `3n_p` each), the same numbers as the
-    /// dense operator's product to round-off.
+    /// [`Self::assemble_by_rotation_matrices`] (memory linear in the points per cell, time per
+    /// call about half such an assembly): `out = A · density` (component-major, `3n_p` each),
+    /// the same numbers as the dense operator's product to round-off.
     ///
     /// Per latitude `i`: the rotated surfaces of its `2p` targets and their kernel rows `K`
-    /// (as in the assembly), the rotated densities `B_i S_k f` of all targets in one GEMM, and
+    /// (as in that assembly), the rotated densities `B_i S_k f` of all targets in one GEMM, and
     /// per target the contraction `Σ_j K(j) (B_i S_k f)(j)`; flagged targets add their far
     /// side ([`super::far_side`]).
     pub fn apply(
@@ -790,14 +797,15 @@ impl AdjointScratch {
         nlon: usize,
     ) -> Result<Self, VesicleError> {
         let wide = CoefLayout::new(sht_p.order() + 1);
-        let (lp, lw, n3) = (sht_p.n_coefs(), wide.len(), 3 * sht_p.n_points());
+        let (lp, lw) = (sht_p.n_coefs(), wide.len());
         debug_assert!(wide.order() <= sht_q.order());
         Ok(AdjointScratch {
             forward: forward_matrix(sht_p, ws_p)?,
             wide,
             kcoef: vec![0.0; 6 * nlon * lw],
             rho: vec![0.0; 6 * nlon * lp],
-            rows: vec![0.0; n3 * 3 * lp],
+            // Filled by `assemble` only (`assemble_rows` writes the caller's buffer).
+            rows: Vec::new(),
         })
     }
 }

@@ -59,7 +59,11 @@ impl PointEval {
         phi: f64,
     ) -> [f64; 3] {
         let p = lay.order();
-        debug_assert_eq!(p, self.rec.order());
+        assert_eq!(
+            p,
+            self.rec.order(),
+            "point evaluation planned for another order"
+        );
         let nc = lay.len();
         let (s, c) = theta.sin_cos();
         self.rec.table(c, s, &mut self.val);
@@ -102,7 +106,11 @@ impl PointEval {
         phi: f64,
     ) -> PointDerivs {
         let p = lay.order();
-        debug_assert_eq!(p, self.rec.order());
+        assert_eq!(
+            p,
+            self.rec.order(),
+            "point evaluation planned for another order"
+        );
         let nc = lay.len();
         let (s, c) = theta.sin_cos();
         self.rec
