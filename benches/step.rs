@@ -23,10 +23,12 @@
 //! "cells" is the rest of the step (per-cell tractions for the coupling, operator assembly,
 //! GMRES, reparametrisation, drift correction). No output is written (I/O: none). The part of
 //! it spent assembling the dense self-interaction operators (once per cell and step) is
-//! estimated from a separate timing of `SelfInteraction::assemble` on an RBC at the same
+//! estimated from a separate timing of `SelfInteraction::assemble_rows` on an RBC at the same
 //! `(p, 2p)`, times the cell-steps, over the CPU time of the steps (in parentheses, % of CPU).
 //! "core-s" is the CPU time of the process (user + system, /proc/self/stat) over the timed
-//! steps, so cell-steps per core-second is cells × steps / core-s.
+//! steps, so cell-steps per core-second is cells × steps / core-s; the GEMM-equivalent flops
+//! per cell-step are the CPU seconds per cell-step times the GEMM rate of the same run (the
+//! machine-independent cost the step-speed targets are stated in).
 
 use std::path::Path;
 use std::process::Command;
@@ -126,18 +128,21 @@ fn scene_text(p: usize, cells: usize) -> String {
 }
 
 /// CPU seconds of one assembly of the dense single-layer operator of an RBC at `(p, 2p)` (what
-/// every cell does once per step), the mean of a few after a warm-up.
+/// every cell does once per step: its rows over coefficients, as the grid storage keeps it),
+/// the mean of a few after a warm-up.
 fn assembly_seconds(p: usize) -> f64 {
     let rbc = shapes::rbc(p).expect("RBC");
     let n3 = 3 * 2 * p * (p + 1);
     let mut si = SelfInteraction::new(p, 2 * p, RotationAlgorithm::Direct).expect("layer");
-    let mut a = vec![0.0; n3 * n3];
+    let mut a = vec![0.0; n3 * 3 * ((p + 1) * (p + 1) - 1)];
     let kernel = LayerKernel::SingleLayer { viscosity: 1.0 };
-    si.assemble(kernel, rbc.coefs(), &mut a).expect("assemble");
+    si.assemble_rows(kernel, rbc.coefs(), &mut a)
+        .expect("assemble");
     let reps = if p <= 8 { 20 } else { 3 };
     let c0 = cpu_seconds();
     for _ in 0..reps {
-        si.assemble(kernel, rbc.coefs(), &mut a).expect("assemble");
+        si.assemble_rows(kernel, rbc.coefs(), &mut a)
+            .expect("assemble");
     }
     (cpu_seconds() - c0) / reps as f64
 }
@@ -263,11 +268,12 @@ fn main() {
          p = 6 for 1000 cells\n"
     );
     println!(
-        "| p | cells | threads | timed steps | s per step (wall / CPU) | cell-steps per core-s | vs MOBO p=6 \
+        "| p | cells | threads | timed steps | s per step (wall / CPU) | cell-steps per core-s \
+         | GEMM-equivalent flops per cell-step | vs MOBO p=6 \
          | coupling % (setup/FMM/self/near) | cells % (of it: operator assembly) | GMRES it per cell-step (warm-up) \
          | build s | RSS after build MB per cell | peak RSS MB |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     let exe = std::env::current_exe().expect("own path");
     for (p, cells) in configs {
         let out = Command::new(&exe)
@@ -293,11 +299,13 @@ fn main() {
         let coupling = f("setup_s") + f("fmm_s") + f("self_s") + f("near_s");
         let pc = |x: f64| 100.0 * x / wall;
         println!(
-            "| {p} | {cells} | {} | {steps} | {:.3} / {:.3} | {rate:.1} | {:.2}× | {:.1} ({:.1}/{:.1}/{:.1}/{:.1}) \
+            "| {p} | {cells} | {} | {steps} | {:.3} / {:.3} | {rate:.1} | {:.2e} | {:.2}× | {:.1} ({:.1}/{:.1}/{:.1}/{:.1}) \
              | {:.1} ({:.0}) | {:.1} ({:.1}) | {:.2} | {:.2} | {:.0} |",
             v["threads"],
             wall / steps,
             f("cpu_s") / steps,
+            // CPU seconds per cell-step × the GEMM rate of this run (issue 20's measure).
+            gemm_cpu * 1e9 / rate,
             rate / MOBO_P6,
             pc(coupling),
             pc(f("setup_s")),
