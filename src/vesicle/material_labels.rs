@@ -92,8 +92,8 @@ impl MaterialLabels {
             }
             let (theta, phi) = ((x * x + y * y).sqrt().atan2(z), y.atan2(x));
             let at = pe.eval_values(lay, &self.original, theta, phi);
-            for c in 0..3 {
-                grid[c * n + j] = at[c];
+            for (c, xc) in at.into_iter().enumerate() {
+                grid[c * n + j] = xc;
             }
         }
         sht.forward(&grid, out, ws)?;

@@ -182,8 +182,8 @@ impl Reparametrizer {
         let lay = self.sht.layout();
         for (j, &(t, f)) in self.shifts.iter().enumerate() {
             let x = self.pe.eval_values(lay, coefs, t, f);
-            for c in 0..3 {
-                self.moved[c * np + j] = x[c];
+            for (c, xc) in x.into_iter().enumerate() {
+                self.moved[c * np + j] = xc;
             }
         }
         self.sht
