@@ -82,7 +82,6 @@ impl CoefficientOperator {
         check_len("coefficient-space operator", out.len(), 9 * nc * nc)?;
         let a = MatRef::from_column_major_slice(a, 3 * n, 3 * n);
         let inv = MatRef::from_column_major_slice(&self.inverse, n, nc);
-        let fwd = MatRef::from_column_major_slice(&self.forward, nc, n);
         {
             let mut half = MatMut::from_column_major_slice_mut(&mut self.half, 3 * n, 3 * nc);
             for b in 0..3 {
@@ -97,22 +96,10 @@ impl CoefficientOperator {
             }
         }
         let half = MatRef::from_column_major_slice(&self.half, 3 * n, 3 * nc);
-        let mut out = MatMut::from_column_major_slice_mut(out, 3 * nc, 3 * nc);
-        for c in 0..3 {
-            matmul(
-                out.as_mut().submatrix_mut(c * nc, 0, nc, 3 * nc),
-                Accum::Replace,
-                fwd,
-                half.submatrix(c * n, 0, n, 3 * nc),
-                1.0,
-                Par::Seq,
-            );
-        }
+        self.forward_blocks(half, out);
         Ok(())
     }
-}
 
-impl CoefficientOperator {
     /// `out = F A I` from the rows `P` of `A = P F` ([`super::SelfInteraction::assemble_rows`]:
     /// `3n × 3n_c`, row-major): since `F I` is the identity on coefficients, `A_c = F P`, three
     /// GEMMs of `n_c × n × 3n_c` and no grid operator.
@@ -120,7 +107,13 @@ impl CoefficientOperator {
         let (n, nc) = (self.n, self.nc);
         check_len("operator rows", rows.len(), 9 * n * nc)?;
         check_len("coefficient-space operator", out.len(), 9 * nc * nc)?;
-        let rows = MatRef::from_row_major_slice(rows, 3 * n, 3 * nc);
+        self.forward_blocks(MatRef::from_row_major_slice(rows, 3 * n, 3 * nc), out);
+        Ok(())
+    }
+
+    /// `out = blockdiag(F, F, F) · m` (`3n_c × 3n_c`, column-major) for `m` of `3n × 3n_c`.
+    fn forward_blocks(&self, m: MatRef<'_, f64>, out: &mut [f64]) {
+        let (n, nc) = (self.n, self.nc);
         let fwd = MatRef::from_column_major_slice(&self.forward, nc, n);
         let mut out = MatMut::from_column_major_slice_mut(out, 3 * nc, 3 * nc);
         for c in 0..3 {
@@ -128,12 +121,11 @@ impl CoefficientOperator {
                 out.as_mut().submatrix_mut(c * nc, 0, nc, 3 * nc),
                 Accum::Replace,
                 fwd,
-                rows.submatrix(c * n, 0, n, 3 * nc),
+                m.submatrix(c * n, 0, n, 3 * nc),
                 1.0,
                 Par::Seq,
             );
         }
-        Ok(())
     }
 }
 

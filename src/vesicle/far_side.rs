@@ -55,6 +55,7 @@ use std::f64::consts::PI;
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
+use super::coefficient_operator::forward_matrix;
 use super::layer::{kernel_entries, LayerKernel};
 use super::{cross, dot, get3, VesicleError};
 use crate::sph_harmonics::{resample_coefs, Deriv, Grid, ShTransform, ShWorkspace};
@@ -404,13 +405,7 @@ impl FarSide {
         let ncp = self.sht_p.n_coefs();
         let n3 = 3 * np;
         if self.forward_p.is_empty() && !self.targets.is_empty() {
-            let mut eye = vec![0.0; np * np];
-            for j in 0..np {
-                eye[j * np + j] = 1.0;
-            }
-            self.forward_p = vec![0.0; ncp * np];
-            self.sht_p
-                .forward(&eye, &mut self.forward_p, &mut self.ws_p)?;
+            self.forward_p = forward_matrix(&self.sht_p, &mut self.ws_p)?;
         }
         let fwd = std::mem::take(&mut self.forward_p);
         let mut r = Vec::new();
