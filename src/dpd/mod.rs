@@ -43,6 +43,7 @@
 //! ```
 
 pub mod cell_list;
+pub mod contact;
 pub mod crossing;
 #[cfg(feature = "gpu")]
 pub mod gpu_fluid;

@@ -9,7 +9,7 @@
 //!   solvent. Their forces: the membrane's own ([`Membrane::add_forces`] and its viscosity,
 //!   [`Membrane::add_viscous_forces`]), the solvent coupling below, the body force of the fluid
 //!   (the same force per particle as the solvent), a contact repulsion from the vertices of
-//!   other cells and an optional external force per cell.
+//!   other cells ([`super::contact`]) and an optional external force per cell.
 //! * **Solvent–vertex pairs** (`r < r_c`, `w = 1 − r/r_c`, `e = (x_v − x_s)/r`) interact by the
 //!   dissipative and random parts of the DPD force only:
 //!
@@ -72,6 +72,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::cell_list::CellList;
+use super::contact::{add_contact_forces, bbox, VertexForces, Vertices};
 use super::crossing::{first_crossing, inside};
 use super::membrane::{Membrane, MembraneParams, MembraneTopology};
 use super::pair_force::{minimum_image, Particles};
@@ -1051,43 +1052,15 @@ impl DpdSuspension {
                 });
             add_kicks(&self.solvent_kicks, [&mut fx[..], &mut fy[..], &mut fz[..]]);
         }
-        // Contact repulsion between vertices of different cells.
+        // Contact repulsion between vertices of different cells (pairs of cells in parallel,
+        // added in the order of a serial loop).
         if cp.contact_a > 0.0 && self.cells.len() > 1 {
-            let nc = self.cells.len();
-            let boxes: Vec<([f64; 3], [f64; 3])> = self.cells.iter().map(|c| bbox(&c.x)).collect();
-            for a in 0..nc {
-                for b in a + 1..nc {
-                    // Skip pairs whose boxes (nearest images) are farther apart than r_c.
-                    let ca = [0, 1, 2].map(|k| 0.5 * (boxes[a].0[k] + boxes[a].1[k]));
-                    let cb = [0, 1, 2].map(|k| 0.5 * (boxes[b].0[k] + boxes[b].1[k]));
-                    let dc = minimum_image(ca, cb, l);
-                    let far = (0..3).any(|k| {
-                        dc[k].abs()
-                            > 0.5 * (boxes[a].1[k] - boxes[a].0[k] + boxes[b].1[k] - boxes[b].0[k])
-                                + rc
-                    });
-                    if far {
-                        continue;
-                    }
-                    let (left, right) = self.cells.split_at_mut(b);
-                    let (ca, cb) = (&mut left[a], &mut right[0]);
-                    for (xa, fa) in ca.x.iter().zip(ca.f.iter_mut()) {
-                        for (xb, fb) in cb.x.iter().zip(cb.f.iter_mut()) {
-                            let d = minimum_image(*xa, *xb, l);
-                            let r2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-                            if r2 >= rc * rc || r2 == 0.0 {
-                                continue;
-                            }
-                            let r = r2.sqrt();
-                            let fm = cp.contact_a * (1.0 - r / rc) / r;
-                            for k in 0..3 {
-                                fa[k] += fm * d[k];
-                                fb[k] -= fm * d[k];
-                            }
-                        }
-                    }
-                }
-            }
+            let (xs, mut fs): (Vec<Vertices<'_>>, Vec<VertexForces<'_>>) = self
+                .cells
+                .iter_mut()
+                .map(|c| (c.x.as_slice(), c.f.as_mut_slice()))
+                .unzip();
+            add_contact_forces(&xs, &mut fs, l, rc, cp.contact_a);
         }
         if let Some((ci, vi)) = self.cells.iter().enumerate().find_map(|(ci, c)| {
             c.f.iter()
@@ -1399,19 +1372,6 @@ fn particles_near(cells: &CellList, lo: [f64; 3], hi: [f64; 3], out: &mut Vec<us
             }
         }
     }
-}
-
-/// Axis-aligned bounding box.
-fn bbox(x: &[[f64; 3]]) -> ([f64; 3], [f64; 3]) {
-    let mut lo = [f64::INFINITY; 3];
-    let mut hi = [f64::NEG_INFINITY; 3];
-    for p in x {
-        for k in 0..3 {
-            lo[k] = lo[k].min(p[k]);
-            hi[k] = hi[k].max(p[k]);
-        }
-    }
-    (lo, hi)
 }
 
 /// `p` wrapped into `[0, L)`.
