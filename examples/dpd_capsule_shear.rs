@@ -94,21 +94,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for s in 1..=steps {
         sim.step()?;
         if s > settle && s % 50 == 0 {
-            let (semi, axes) = sim.cells()[0].equivalent_ellipsoid();
-            // The axis closest to the vorticity (y) is left out.
-            let k_vort = (0..3)
-                .max_by(|&i, &j| axes[i][1].abs().total_cmp(&axes[j][1].abs()))
-                .unwrap_or(1);
-            let inplane: Vec<usize> = (0..3).filter(|&k| k != k_vort).collect();
-            let (l, b) = (semi[inplane[0]], semi[inplane[1]]);
-            ds.push((l - b) / (l + b));
-            let ax = axes[inplane[0]];
-            let mut th = ax[2].atan2(ax[0]).to_degrees();
-            if th > 90.0 {
-                th -= 180.0;
-            } else if th < -90.0 {
-                th += 180.0;
-            }
+            let (d, th) = sim.cells()[0].shear_plane_deformation();
+            ds.push(d);
             thetas.push(th);
             let p = &sim.fluid.particles;
             for i in 0..p.len() {

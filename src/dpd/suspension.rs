@@ -294,6 +294,28 @@ impl FluidCell {
         (semi, axes)
     }
 
+    /// Taylor deformation and inclination in the shear plane `x`–`z` (vorticity along `y`, as
+    /// in Couette flow between plane walls normal to `z` and in periodic Poiseuille flow):
+    /// of the [`Self::equivalent_ellipsoid`]'s semi-axes, the one whose axis is closest to
+    /// `y` is left out, and of the other two, `L ≥ B`, `D = (L − B)/(L + B)`; the inclination
+    /// is the angle of `L`'s axis from `x` towards `z`, in degrees in `[−90, 90]`.
+    pub fn shear_plane_deformation(&self) -> (f64, f64) {
+        let (semi, axes) = self.equivalent_ellipsoid();
+        let vorticity = (0..3)
+            .max_by(|&i, &j| axes[i][1].abs().total_cmp(&axes[j][1].abs()))
+            .unwrap_or(1);
+        let inplane: Vec<usize> = (0..3).filter(|&k| k != vorticity).collect();
+        let (l, b) = (semi[inplane[0]], semi[inplane[1]]);
+        let ax = axes[inplane[0]];
+        let mut theta = ax[2].atan2(ax[0]).to_degrees();
+        if theta > 90.0 {
+            theta -= 180.0;
+        } else if theta < -90.0 {
+            theta += 180.0;
+        }
+        ((l - b) / (l + b), theta)
+    }
+
     /// Area and volume now, relative to the reference (stress-free) ones, minus one.
     pub fn area_volume_change(&self) -> Result<(f64, f64), DpdError> {
         let m = &self.membrane;

@@ -90,6 +90,10 @@ struct File {
     cells: Option<Vec<CellSection>>,
     numerics: Option<NumericsSection>,
     output: Option<OutputSection>,
+    /// `mobo dpd`'s section: the same file runs both ways (its `[dpd.from_cells]` maps these
+    /// cells into the DPD fluid); `mobo run` does not read it.
+    #[serde(rename = "dpd")]
+    _dpd: Option<serde::de::IgnoredAny>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -438,7 +442,7 @@ fn unit_shape(shape: &Shape, p: usize) -> Result<Surface, crate::vesicle::Vesicl
 }
 
 /// Rotation matrix about `axis` by `deg` degrees (Rodrigues).
-fn rotation(axis: [f64; 3], deg: f64) -> Option<[[f64; 3]; 3]> {
+pub(crate) fn rotation(axis: [f64; 3], deg: f64) -> Option<[[f64; 3]; 3]> {
     let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
     if !(n > 0.0 && n.is_finite() && deg.is_finite()) {
         return None;

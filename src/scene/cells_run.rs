@@ -112,6 +112,9 @@ pub struct CellSummary {
     /// its smallest moment of inertia) in the x–y plane, `atan(a_y / a_x)`, in `[−90, 90]`
     /// (in shear, the angle to the flow direction in the shear plane).
     pub inclination_deg: f64,
+    /// Taylor deformation `D = (L − B)/(L + B)` of the equivalent ellipsoid in the `x`–`y`
+    /// plane ([`crate::vesicle::Geometry::shear_plane_deformation`]).
+    pub taylor_deformation: f64,
 }
 
 /// What `summary.json` holds. The top-level drifts are the largest over the cells; centroid,
@@ -1007,20 +1010,22 @@ pub fn run_on(
         agreed(comm, finished.map_err(CellRunError::from))?;
     }
     prog.wall_s = wall0 + start.elapsed().as_secs_f64();
-    // Per cell: centre, area, volume, inclination and the centre before the last step.
+    // Per cell: centre, area, volume, inclination, the centre before the last step and the
+    // Taylor deformation.
     let local = (0..susp.len())
         .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
             let id = susp.ids()[i];
             let (x, a, v, inc) = observe(&mut calc, &susp.coefs()[i])?;
+            let d = calc.geometry(&susp.coefs()[i])?.shear_plane_deformation();
             let b = before_last
                 .iter()
                 .find(|(j, _)| *j == id)
                 .map_or([f64::NAN; 3], |(_, b)| *b);
-            Ok((id, vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2]]))
+            Ok((id, vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2], d]))
         })
         .collect::<Result<Vec<_>, _>>();
     let local = agreed(comm, local)?;
-    let rows = gather_rows(comm, local, nc, 9)?;
+    let rows = gather_rows(comm, local, nc, 10)?;
     let split = split_summary(comm, &susp, &clock, &log, k + 1 - first)?;
     let stats = susp.coupling_stats().unwrap_or_default();
     let now = counts(&susp);
@@ -1039,6 +1044,7 @@ pub fn run_on(
             centroid,
             centroid_velocity: std::array::from_fn(|d| (centroid[d] - r[6 + d]) / prog.last_dt),
             inclination_deg: r[5],
+            taylor_deformation: r[9],
         });
     }
     let worst = |f: fn(&CellSummary) -> f64| {

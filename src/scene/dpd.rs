@@ -66,11 +66,36 @@
 //! vertex_mass = 1.0
 //! check_every = 100          # steps between leak counts
 //! ```
+//!
+//! **One scene, both solvers.** The same file may hold a cell scene (`[[cells]]`, `[fluid]`,
+//! `[flow]`, `[numerics]`, `[output]`: the input of `mobo run`, [`super::cells`]) beside
+//! `[dpd]`: `mobo run` ignores `[dpd]`, and `mobo dpd` reads the `[[cells]]` entries, placed
+//! and checked as `mobo run` does (count, lattice or random placement, orientation, every
+//! shape), and puts them into the fluid by the map of `[dpd.from_cells]` ([`CellMapping`]):
+//!
+//! ```toml
+//! [dpd.from_cells]
+//! length = 3.0               # r_c per length unit of the cell scene (R = 1 → 3 r_c)
+//! energy = 500.0             # k_BT per energy unit: μ0 = G_s·energy/length², κ = κ_b·energy
+//! origin = [12.0, 8.0, 10.0] # where the cell scene's origin sits (default: the box's centre)
+//! rotate = [1, 0, 0, 90]     # turn the cell scene's frame (axis, degrees): its shear plane
+//!                            # x–y (u = γ̇y) onto the fluid's x–z (Couette walls along z)
+//! subdivisions = 3           # and ka, kd, kv, gamma_t, gamma_c as in [[dpd.cells]]
+//! ```
+//!
+//! Vesicles and RBCs (locally inextensible there) keep Fedosov's area penalties; a capsule's
+//! area modulus (`G_s (1 + 2C)` for Skalak, `3 G_s` neo-Hookean) becomes the network's
+//! `2μ0 + k_a + k_d`. The cell scene's flow and numerics are not mapped: the fluid's flow is
+//! `[dpd]`'s own, so matching the capillary number `Ca = η γ̇ R / μ0` is the user's choice of
+//! `energy`, the walls' speed and the fluid's viscosity (`docs/dpd_vs_bie.md`). Without
+//! `[dpd.from_cells]`, `mobo dpd` refuses a file with `[[cells]]` rather than leave them out.
 
 use std::path::Path;
 
+use serde::de::IgnoredAny;
 use serde::Deserialize;
 
+use super::cells::{CellSpec as SceneCell, Shape};
 use super::{parse_toml, read_scene_file, GpuFlag, SceneError};
 use crate::dpd::membrane::{BendingModel, MembraneParams, Moduli};
 use crate::dpd::pair_force::PairParams;
@@ -78,12 +103,25 @@ use crate::dpd::suspension::{CellSpec, CouplingParams};
 use crate::dpd::system::{BodyForce, DpdParams};
 use crate::dpd::walls::Wall;
 use crate::gpu::{GpuChoice, GpuPrecision};
-use crate::vesicle::{shapes, CellMesh};
+use crate::vesicle::skalak::ElasticLaw;
+use crate::vesicle::{shapes, CellMesh, Surface};
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct File {
     dpd: DpdSection,
+    /// The cell scene's sections (`mobo run`'s): `[[cells]]` enters the DPD run through
+    /// `[dpd.from_cells]`; the others are `mobo run`'s alone.
+    #[serde(rename = "cells")]
+    _cells: Option<IgnoredAny>,
+    #[serde(rename = "fluid")]
+    _fluid: Option<IgnoredAny>,
+    #[serde(rename = "flow")]
+    _flow: Option<IgnoredAny>,
+    #[serde(rename = "numerics")]
+    _numerics: Option<IgnoredAny>,
+    #[serde(rename = "output")]
+    _output: Option<IgnoredAny>,
 }
 
 /// A number (a cube) or three side lengths.
@@ -133,8 +171,26 @@ struct DpdSection {
     #[serde(default)]
     cells: Vec<CellSection>,
     coupling: Option<CouplingSection>,
+    from_cells: Option<FromCellsSection>,
     gpu: Option<GpuFlag>,
     gpu_precision: Option<String>,
+}
+
+/// `[dpd.from_cells]`: the scene's `[[cells]]` (the cell scene of `mobo run`) in the fluid.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FromCellsSection {
+    length: f64,
+    energy: f64,
+    origin: Option<[f64; 3]>,
+    rotate: Option<[f64; 4]>,
+    #[serde(default = "three_u32")]
+    subdivisions: u32,
+    ka: Option<f64>,
+    kd: Option<f64>,
+    kv: Option<f64>,
+    gamma_t: Option<f64>,
+    gamma_c: Option<f64>,
 }
 
 /// One `[[dpd.cells]]` entry.
@@ -194,6 +250,25 @@ pub struct DpdCell {
     pub force: [f64; 3],
 }
 
+/// The map from the cell scene's units to the fluid's (`[dpd.from_cells]`): a point `x` of
+/// the cell scene goes to `origin + length · R x` (`R` the rotation `rotate`, the identity by
+/// default), a shear modulus `G_s` to
+/// `μ0 = G_s · energy / length²`, a bending modulus `κ_b` to `κ = κ_b · energy`, a force `F` to
+/// `F · energy / length`.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct CellMapping {
+    /// Fluid lengths (r_c) per length unit of the cell scene.
+    pub length: f64,
+    /// Fluid energies (k_BT) per energy unit of the cell scene.
+    pub energy: f64,
+    /// Where the cell scene's origin sits in the box.
+    pub origin: [f64; 3],
+    /// The rotation `R` of the cell scene's frame (rows).
+    pub rotation: [[f64; 3]; 3],
+    /// Cells mapped.
+    pub cells: usize,
+}
+
 /// `walls = { kind = "planes", gap = 10.0 }` or `{ kind = "cylinder", radius = 5.0 }`.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -250,8 +325,11 @@ pub struct DpdScene {
     pub wall_warmup: u64,
     /// Speed of the sliding plane walls (`flow = "couette"`; 0 otherwise).
     pub wall_speed: f64,
-    /// Cells in the fluid (`[[dpd.cells]]`).
+    /// Cells in the fluid (`[[dpd.cells]]`, then the scene's `[[cells]]` mapped by
+    /// `[dpd.from_cells]`).
     pub cells: Vec<DpdCell>,
+    /// How the scene's `[[cells]]` were mapped (`None`: no `[dpd.from_cells]`).
+    pub from_cells: Option<CellMapping>,
     /// Their coupling to the solvent (`[dpd.coupling]`).
     pub coupling: CouplingParams,
     /// The fluid's step on a GPU (`gpu`, default `"auto"`).
@@ -554,6 +632,48 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         }
         cells.push(built);
     }
+    let from_cells = match &d.from_cells {
+        Some(fc) => {
+            let n_own = cells.len();
+            let (mapping, mapped) =
+                mapped_cells(file, text, fc, &params, wall.as_ref(), d.coupling.as_ref())?;
+            for (line, built) in mapped {
+                if let Some(j) = cells
+                    .iter()
+                    .position(|other| other.spec.overlaps(&built.spec, box_len))
+                {
+                    let other = if j < n_own {
+                        format!("[[dpd.cells]] entry {}", j + 1)
+                    } else {
+                        "another mapped cell".into()
+                    };
+                    return Err(SceneError {
+                        file: file.to_path_buf(),
+                        place: Some((line, 1)),
+                        message: format!(
+                            "[[cells]] entry at line {line}, mapped by [dpd.from_cells]: the cell \
+                             overlaps {other} (a vertex of one is inside the other)"
+                        ),
+                    });
+                }
+                cells.push(built);
+            }
+            Some(mapping)
+        }
+        None => {
+            if let Some(place) = section_place(text, "[[cells]]", 0) {
+                return Err(SceneError {
+                    file: file.to_path_buf(),
+                    place: Some(place),
+                    message: "[[cells]]: the scene's cells (mobo run's) are not in the DPD run \
+                              unless [dpd.from_cells] maps them: give it length (r_c per scene \
+                              length unit) and energy (k_BT per scene energy unit)"
+                        .into(),
+                });
+            }
+            None
+        }
+    };
     Ok(DpdScene {
         params,
         density: d.density,
@@ -568,10 +688,199 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         wall_warmup: d.wall_warmup,
         wall_speed,
         cells,
+        from_cells,
         coupling,
         gpu,
         gpu_precision,
     })
+}
+
+/// The cell scene's `[[cells]]` of this file (read as `mobo run` reads it, with its
+/// placement and checks) mapped into the fluid by `[dpd.from_cells]`, each with the line of its
+/// entry.
+///
+/// A vesicle or RBC (`membrane = "vesicle"`, locally inextensible) keeps Fedosov's nearly
+/// incompressible area penalties; a capsule's area modulus `K = G_s (1 + 2C)` (Skalak) or
+/// `3 G_s` (neo-Hookean) is the network's `2μ0 + k_a + k_d`, with `k_a = k_d`. A fluid membrane
+/// (`shear_modulus = 0`) has no counterpart in the spring network and is refused, and so is a
+/// viscosity ratio other than 1 unless `[dpd.coupling] inner_gamma` sets the inner fluid.
+fn mapped_cells(
+    file: &Path,
+    text: &str,
+    fc: &FromCellsSection,
+    params: &DpdParams,
+    wall: Option<&Wall>,
+    coupling: Option<&CouplingSection>,
+) -> Result<(CellMapping, Vec<(usize, DpdCell)>), SceneError> {
+    let section = |key: &str, why: String| {
+        let mut e = SceneError::new(file, format!("[dpd.from_cells] {key}: {why}"));
+        e.place = key_place_in(text, "[dpd.from_cells]", key)
+            .or_else(|| section_place(text, "[dpd.from_cells]", 0));
+        e
+    };
+    for (key, v) in [("length", fc.length), ("energy", fc.energy)] {
+        if !(v.is_finite() && v > 0.0) {
+            return Err(section(key, format!("must be a positive number, got {v}")));
+        }
+    }
+    for (key, v) in [
+        ("ka", fc.ka),
+        ("kd", fc.kd),
+        ("kv", fc.kv),
+        ("gamma_t", fc.gamma_t),
+        ("gamma_c", fc.gamma_c),
+    ] {
+        if let Some(v) = v {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(section(key, format!("must be a number ≥ 0, got {v}")));
+            }
+        }
+    }
+    if !(1..=6).contains(&fc.subdivisions) {
+        return Err(section(
+            "subdivisions",
+            format!(
+                "must be 1 to 6 (10·4^s + 2 vertices), got {}",
+                fc.subdivisions
+            ),
+        ));
+    }
+    let l = params.box_len;
+    let origin = fc.origin.unwrap_or([0.5 * l[0], 0.5 * l[1], 0.5 * l[2]]);
+    if origin.iter().any(|v| !v.is_finite()) {
+        return Err(section("origin", format!("must be finite, got {origin:?}")));
+    }
+    let rot = match fc.rotate {
+        None => [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        Some([x, y, z, deg]) => super::cells::rotation([x, y, z], deg).ok_or_else(|| {
+            section(
+                "rotate",
+                format!(
+                    "must be a non-zero axis and an angle in degrees, got {:?}",
+                    [x, y, z, deg]
+                ),
+            )
+        })?,
+    };
+    let turn = |v: [f64; 3]| -> [f64; 3] {
+        std::array::from_fn(|i| rot[i][0] * v[0] + rot[i][1] * v[1] + rot[i][2] * v[2])
+    };
+    let scene = super::cells::parse(file, text)?;
+    let (s, e) = (fc.length, fc.energy);
+    let inner_gamma = coupling.and_then(|c| c.inner_gamma).is_some();
+    let mut out = Vec::with_capacity(scene.cells.len());
+    for spec in &scene.cells {
+        let line = spec.line;
+        let located = |key: &str, why: String| SceneError {
+            file: file.to_path_buf(),
+            place: Some((line, 1)),
+            message: format!(
+                "[[cells]] entry at line {line}, mapped by [dpd.from_cells]: {key}: {why}"
+            ),
+        };
+        if spec.shear_modulus <= 0.0 {
+            return Err(located(
+                "shear_modulus",
+                "0 is a fluid membrane, which the DPD spring network cannot model (it needs \
+                 a shear modulus μ0 > 0): give the cell a shear_modulus"
+                    .into(),
+            ));
+        }
+        if spec.viscosity_ratio != 1.0 && !inner_gamma {
+            return Err(located(
+                "viscosity_ratio",
+                format!(
+                    "{} is not mapped by itself: set [dpd.coupling] inner_gamma for the inner \
+                     fluid of the DPD cells (docs/dpd_inner_viscosity.md gives the ratio it makes)",
+                    spec.viscosity_ratio
+                ),
+            ));
+        }
+        let mu0 = spec.shear_modulus * e / (s * s);
+        let (ka, kd) = if spec.inextensible {
+            (fc.ka, fc.kd)
+        } else {
+            let k_area = match spec.elastic_law {
+                ElasticLaw::Skalak => spec.shear_modulus * (1.0 + 2.0 * spec.skalak_c),
+                ElasticLaw::NeoHookean => 3.0 * spec.shear_modulus,
+            } * e
+                / (s * s);
+            if k_area < 2.0 * mu0 && (fc.ka.is_none() || fc.kd.is_none()) {
+                return Err(located(
+                    "skalak_c",
+                    format!(
+                        "{}: the capsule's area modulus G_s (1 + 2C) is below the spring \
+                         network's own 2μ0 (C < 1/2); give [dpd.from_cells] ka and kd",
+                        spec.skalak_c
+                    ),
+                ));
+            }
+            let half = 0.5 * (k_area - 2.0 * mu0);
+            (Some(fc.ka.unwrap_or(half)), Some(fc.kd.unwrap_or(half)))
+        };
+        let membrane = MembraneInputs {
+            shear_modulus: mu0,
+            bending_rigidity: spec.bending_modulus * e,
+            bending: BendingModel::Juelicher { c0: 0.0 },
+            ka,
+            kd,
+            kv: fc.kv,
+            gamma_t: fc.gamma_t,
+            gamma_c: fc.gamma_c,
+        };
+        let shape_err = |err: crate::vesicle::VesicleError| located("shape", err.to_string());
+        let at_origin = SceneCell {
+            center: [0.0; 3],
+            rotation: mat_mul(rot, spec.rotation),
+            ..spec.clone()
+        };
+        let mut surface = at_origin.surface(16).map_err(shape_err)?;
+        surface
+            .scale_to_equivalent_radius(spec.radius * s)
+            .map_err(shape_err)?;
+        let placed = Placed {
+            shape: shape_name(&spec.shape),
+            radius: spec.radius * s,
+            surface: &surface,
+            center: {
+                let c = turn(spec.center);
+                [0, 1, 2].map(|k| origin[k] + s * c[k])
+            },
+            subdivisions: fc.subdivisions,
+            force: turn(spec.force).map(|f| f * e / s),
+        };
+        out.push((
+            line,
+            build_cell(&located, &placed, &membrane, params, wall)?,
+        ));
+    }
+    let mapping = CellMapping {
+        length: s,
+        energy: e,
+        origin,
+        rotation: rot,
+        cells: out.len(),
+    };
+    Ok((mapping, out))
+}
+
+/// `a b` of 3 × 3 matrices.
+fn mat_mul(a: [[f64; 3]; 3], b: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
+}
+
+/// The scene-file name of a cell scene's shape.
+fn shape_name(shape: &Shape) -> &'static str {
+    match shape {
+        Shape::Sphere => "sphere",
+        Shape::Ellipsoid { .. } => "ellipsoid",
+        Shape::Rbc => "rbc",
+        Shape::Spheroid {
+            kind: shapes::Spheroid::Prolate,
+            ..
+        } => "prolate",
+        Shape::Spheroid { .. } => "oblate",
+    }
 }
 
 /// `[dpd.coupling]` with its defaults ([`CouplingParams::default`]).
@@ -685,9 +994,6 @@ fn cell(
     surface
         .scale_to_equivalent_radius(c.radius)
         .map_err(shape_err)?;
-    let mesh = CellMesh::icosphere(&surface, c.subdivisions).map_err(shape_err)?;
-    let lengths = mesh.edge_lengths();
-    let l0 = lengths.iter().sum::<f64>() / lengths.len() as f64;
     let bending = match (c.bending.as_str(), c.c0, c.theta0) {
         ("juelicher", c0, None) => BendingModel::Juelicher {
             c0: c0.unwrap_or(0.0),
@@ -714,15 +1020,74 @@ fn cell(
             ))
         }
     };
-    // Fedosov's values (`Moduli::new`) where the entry gives none.
-    let base = Moduli::new(c.shear_modulus, c.bending_rigidity, bending, l0);
-    let membrane = MembraneParams::from_moduli(&Moduli {
-        ka: c.ka.unwrap_or(base.ka),
-        kd: c.kd.unwrap_or(base.kd),
-        kv: c.kv.unwrap_or(base.kv),
-        kbt: params.pair.kbt.max(f64::MIN_POSITIVE),
-        gamma_t: c.gamma_t.unwrap_or(base.gamma_t),
+    let membrane = MembraneInputs {
+        shear_modulus: c.shear_modulus,
+        bending_rigidity: c.bending_rigidity,
+        bending,
+        ka: c.ka,
+        kd: c.kd,
+        kv: c.kv,
+        gamma_t: c.gamma_t,
         gamma_c: c.gamma_c,
+    };
+    let force = c.force.unwrap_or([0.0; 3]);
+    let placed = Placed {
+        shape: &c.shape,
+        radius: c.radius,
+        surface: &surface,
+        center: c.center,
+        subdivisions: c.subdivisions,
+        force,
+    };
+    build_cell(&located, &placed, &membrane, params, wall)
+}
+
+/// The membrane of a cell before its mesh is known: the moduli and the values that override
+/// Fedosov's defaults ([`Moduli::new`]).
+struct MembraneInputs {
+    shear_modulus: f64,
+    bending_rigidity: f64,
+    bending: BendingModel,
+    ka: Option<f64>,
+    kd: Option<f64>,
+    kv: Option<f64>,
+    gamma_t: Option<f64>,
+    gamma_c: Option<f64>,
+}
+
+/// A cell's shape at its size (centroid at the origin) and where it goes.
+struct Placed<'a> {
+    shape: &'a str,
+    radius: f64,
+    surface: &'a Surface,
+    center: [f64; 3],
+    subdivisions: u32,
+    force: [f64; 3],
+}
+
+/// A cell built from its placed shape and membrane: the icosphere mapped onto the surface,
+/// the membrane's parameters from the moduli, checked against the box and the walls
+/// (`located(key, why)` makes the error of a key of the cell's entry).
+fn build_cell(
+    located: &dyn Fn(&str, String) -> SceneError,
+    c: &Placed<'_>,
+    m: &MembraneInputs,
+    params: &DpdParams,
+    wall: Option<&Wall>,
+) -> Result<DpdCell, SceneError> {
+    let shape_err = |e: crate::vesicle::VesicleError| located("shape", e.to_string());
+    let mesh = CellMesh::icosphere(c.surface, c.subdivisions).map_err(shape_err)?;
+    let lengths = mesh.edge_lengths();
+    let l0 = lengths.iter().sum::<f64>() / lengths.len() as f64;
+    // Fedosov's values (`Moduli::new`) where the entry gives none.
+    let base = Moduli::new(m.shear_modulus, m.bending_rigidity, m.bending, l0);
+    let membrane = MembraneParams::from_moduli(&Moduli {
+        ka: m.ka.unwrap_or(base.ka),
+        kd: m.kd.unwrap_or(base.kd),
+        kv: m.kv.unwrap_or(base.kv),
+        kbt: params.pair.kbt.max(f64::MIN_POSITIVE),
+        gamma_t: m.gamma_t.unwrap_or(base.gamma_t),
+        gamma_c: m.gamma_c,
         ..base
     })
     .map_err(|e| located("membrane moduli", e.to_string()))?;
@@ -778,12 +1143,12 @@ fn cell(
             ));
         }
     }
-    let force = c.force.unwrap_or([0.0; 3]);
+    let force = c.force;
     if force.iter().any(|f| !f.is_finite()) {
         return Err(located("force", format!("must be finite, got {force:?}")));
     }
     Ok(DpdCell {
-        shape: c.shape.clone(),
+        shape: c.shape.to_string(),
         radius: c.radius,
         spec: CellSpec {
             vertices,
@@ -805,7 +1170,17 @@ fn section_place(text: &str, header: &str, k: usize) -> Option<(usize, usize)> {
 
 /// Line and column of `key = …` inside the `k`-th `[[dpd.cells]]` entry.
 fn cell_key_place(text: &str, k: usize, key: &str) -> Option<(usize, usize)> {
-    let (start, _) = section_place(text, "[[dpd.cells]]", k)?;
+    section_key_place(text, "[[dpd.cells]]", k, key)
+}
+
+/// Line and column of `key = …` inside the section `header` (its first occurrence).
+fn key_place_in(text: &str, header: &str, key: &str) -> Option<(usize, usize)> {
+    section_key_place(text, header, 0, key)
+}
+
+/// Line and column of `key = …` inside the `k`-th section `header`.
+fn section_key_place(text: &str, header: &str, k: usize, key: &str) -> Option<(usize, usize)> {
+    let (start, _) = section_place(text, header, k)?;
     let body: Vec<&str> = text
         .lines()
         .skip(start)

@@ -267,6 +267,12 @@ pub struct CellSummary {
     pub area_change: f64,
     /// Volume now over the reference volume, minus one.
     pub volume_change: f64,
+    /// Taylor deformation `D = (L − B)/(L + B)` of the equivalent ellipsoid in the shear
+    /// plane `x`–`z` ([`crate::dpd::suspension::FluidCell::shear_plane_deformation`]); the
+    /// thermal fluctuations of the membrane make it positive even at rest.
+    pub taylor_deformation: f64,
+    /// Inclination of the long axis in the `x`–`z` plane, from `x` towards `z`, degrees.
+    pub inclination_deg: f64,
 }
 
 /// What a run steps: the fluid alone, or cells in it, or the fluid on the GPU.
@@ -597,6 +603,7 @@ fn membrane_summary(scene: &DpdScene, sim: &DpdSuspension) -> MembraneSummary {
             .enumerate()
             .map(|(k, (c, sc))| {
                 let (da, dv) = c.area_volume_change().unwrap_or((f64::NAN, f64::NAN));
+                let (deformation, inclination) = c.shear_plane_deformation();
                 CellSummary {
                     shape: sc.shape.clone(),
                     radius: sc.radius,
@@ -607,6 +614,8 @@ fn membrane_summary(scene: &DpdScene, sim: &DpdSuspension) -> MembraneSummary {
                     force: c.external_force(),
                     area_change: da,
                     volume_change: dv,
+                    taylor_deformation: deformation,
+                    inclination_deg: inclination,
                 }
             })
             .collect(),
@@ -667,6 +676,27 @@ pub fn effects(scene: &DpdScene) -> Vec<Effect> {
                         String::new()
                     }
                 )
+            },
+        },
+        Effect {
+            name: "cells of the cell scene ([[cells]])",
+            enabled: scene.from_cells.is_some(),
+            reason: match &scene.from_cells {
+                None => "no [dpd.from_cells]".into(),
+                Some(m) => format!(
+                    "{} cell(s) mapped by [dpd.from_cells]: x → {:?} + {}·R x (R = {:?}), \
+                     G_s → μ0 = G_s·{}/{}², κ_b → κ = κ_b·{}, forces ·{}/{}; the cell scene's \
+                     flow is not mapped",
+                    m.cells,
+                    m.origin,
+                    m.length,
+                    m.rotation,
+                    m.energy,
+                    m.length,
+                    m.energy,
+                    m.energy,
+                    m.length
+                ),
             },
         },
         Effect {

@@ -436,13 +436,18 @@ impl SceneSpec {
         })
     }
 
-    /// A scene file's text as a spec (the schema only: [`SceneSpec::build`] validates).
+    /// A scene file's text as a spec (the schema only: [`SceneSpec::build`] validates; a
+    /// `[dpd]` section, `mobo dpd`'s part of the file, is left out).
     pub fn from_toml(text: &str) -> Result<Self, SceneError> {
-        toml::from_str(text).map_err(|e| SceneError {
+        let err = |e: toml::de::Error| SceneError {
             file: SOURCE.into(),
             place: None,
             message: e.message().to_string(),
-        })
+        };
+        let mut table: toml::Table = toml::from_str(text).map_err(err)?;
+        // `[dpd]` is `mobo dpd`'s part of a file that runs both ways (`crate::scene::dpd`).
+        table.remove("dpd");
+        table.try_into().map_err(err)
     }
 
     /// Validate into a [`CellScene`], with the scene file's validation: the same checks and

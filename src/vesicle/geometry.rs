@@ -167,6 +167,22 @@ impl Geometry {
         });
         (semi, axes)
     }
+
+    /// Taylor deformation `D = (L − B)/(L + B)` in the shear plane `x`–`y` (vorticity along
+    /// `z`, as in the shear flow `u = (γ̇ y, 0, 0)`): of the [`Self::equivalent_ellipsoid`]'s
+    /// semi-axes, the one whose axis is closest to `z` is left out, `L ≥ B` are the other two.
+    pub fn shear_plane_deformation(&self) -> f64 {
+        let (semi, axes) = self.equivalent_ellipsoid();
+        let vorticity = (0..3)
+            .max_by(|&i, &j| axes[i][2].abs().total_cmp(&axes[j][2].abs()))
+            .unwrap_or(2);
+        let (mut l, mut b) = (f64::NEG_INFINITY, f64::INFINITY);
+        for k in (0..3).filter(|&k| k != vorticity) {
+            l = l.max(semi[k]);
+            b = b.min(semi[k]);
+        }
+        (l - b) / (l + b)
+    }
     /// Taylor deformation `D = (L − B)/(L + B)` in the plane normal to `vorticity`: `L` and `B`
     /// are the semi-axes of the [equivalent ellipsoid](Self::equivalent_ellipsoid) other than
     /// the one closest to the vorticity direction (the shear plane of a cell in simple shear).
