@@ -195,6 +195,30 @@ fn a_run_writes_its_files_and_a_resumed_run_continues_bit_for_bit() {
             .collect()
     };
     assert_eq!(rows(&a), rows(&b));
+    // A stop at a save step (40) adds no row of its own: the resumed run's observables are the
+    // whole run's, byte for byte.
+    let at_save = dir.join("at_save");
+    ok(
+        &mobo(&[
+            "dpd",
+            s,
+            "--out",
+            at_save.to_str().unwrap(),
+            "--quiet",
+            "--max-steps",
+            "40",
+        ]),
+        "stopped at a save",
+    );
+    ok(
+        &mobo(&["dpd", "--resume", at_save.to_str().unwrap(), "--quiet"]),
+        "resume from a save",
+    );
+    assert_eq!(
+        std::fs::read_to_string(at_save.join("observables.csv")).unwrap(),
+        b,
+        "a stop at a save step duplicated its row"
+    );
 }
 
 #[test]

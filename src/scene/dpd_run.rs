@@ -858,7 +858,9 @@ pub fn run(
     let done = model.fluid().step - first;
     let this_wall = start.elapsed().as_secs_f64();
     wall_before += this_wall;
-    if !completed {
+    // A stop between saves adds a row at its step; one at a save has it already.
+    let last_row_step = rows.chunks_exact(OBS_COLS).last().map(|r| r[0] as u64);
+    if !completed && last_row_step != Some(model.step_count()) {
         push_row(&mut rows, &model);
     }
     checkpoint(&model, &sampler, &rows, wall_before, p0, &placed).write(&ckpt_path)?;
