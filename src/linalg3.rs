@@ -1,6 +1,33 @@
 //! 3 × 3 linear algebra shared by the geometry of spherical-harmonic cells
 //! ([`crate::vesicle::geometry`]) and of DPD membranes ([`crate::dpd::suspension`]).
 
+/// Of an ellipsoid's semi-axes `semi` with unit directions `axes` (`axes[i]` belongs to
+/// `semi[i]`), the two in the plane most nearly normal to `vorticity`: the one whose axis is
+/// closest to `vorticity` (largest `|axes[i] · vorticity|`) is left out. Returns `(L, B, a_L)`,
+/// `L ≥ B` and the direction of `L` (on a tie, the lower index's). The Taylor deformation in
+/// that plane (the shear plane of a cell in simple shear) is `(L − B)/(L + B)`.
+pub fn shear_plane_semi_axes(
+    semi: [f64; 3],
+    axes: [[f64; 3]; 3],
+    vorticity: [f64; 3],
+) -> (f64, f64, [f64; 3]) {
+    let along =
+        |a: [f64; 3]| (a[0] * vorticity[0] + a[1] * vorticity[1] + a[2] * vorticity[2]).abs();
+    let k = (0..3)
+        .max_by(|&i, &j| along(axes[i]).total_cmp(&along(axes[j])))
+        .unwrap_or(2);
+    let (i, j) = match k {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    if semi[i] >= semi[j] {
+        (semi[i], semi[j], axes[i])
+    } else {
+        (semi[j], semi[i], axes[j])
+    }
+}
+
 /// Eigen-decomposition of a symmetric 3 × 3 matrix by cyclic Jacobi rotations: eigenvalues in
 /// ascending order and unit eigenvectors (`vecs[i]` belongs to `vals[i]`).
 #[allow(clippy::needless_range_loop)] // index-heavy 3 × 3 linear algebra

@@ -158,10 +158,10 @@ fn pair_forces(
             let b = bins.bin_of(di);
             let mut fi = [0.0; 3];
             let mut touched = false;
-            for bz in b[2].saturating_sub(1)..(b[2] + 2).min(bins.n[2]) {
-                for by in b[1].saturating_sub(1)..(b[1] + 2).min(bins.n[1]) {
-                    for bx in b[0].saturating_sub(1)..(b[0] + 2).min(bins.n[0]) {
-                        let cell = (bz * bins.n[1] + by) * bins.n[0] + bx;
+            for iz in b[2].saturating_sub(1)..(b[2] + 2).min(bins.n[2]) {
+                for iy in b[1].saturating_sub(1)..(b[1] + 2).min(bins.n[1]) {
+                    for ix in b[0].saturating_sub(1)..(b[0] + 2).min(bins.n[0]) {
+                        let cell = (iz * bins.n[1] + iy) * bins.n[0] + ix;
                         for &t in &bins.order[bins.starts[cell]..bins.starts[cell + 1]] {
                             let e = bins.local[t as usize];
                             let d = [di[0] - e[0], di[1] - e[1], di[2] - e[2]];

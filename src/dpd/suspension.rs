@@ -301,12 +301,7 @@ impl FluidCell {
     /// is the angle of `L`'s axis from `x` towards `z`, in degrees in `[−90, 90]`.
     pub fn shear_plane_deformation(&self) -> (f64, f64) {
         let (semi, axes) = self.equivalent_ellipsoid();
-        let vorticity = (0..3)
-            .max_by(|&i, &j| axes[i][1].abs().total_cmp(&axes[j][1].abs()))
-            .unwrap_or(1);
-        let inplane: Vec<usize> = (0..3).filter(|&k| k != vorticity).collect();
-        let (l, b) = (semi[inplane[0]], semi[inplane[1]]);
-        let ax = axes[inplane[0]];
+        let (l, b, ax) = crate::linalg3::shear_plane_semi_axes(semi, axes, [0.0, 1.0, 0.0]);
         let mut theta = ax[2].atan2(ax[0]).to_degrees();
         if theta > 90.0 {
             theta -= 180.0;

@@ -113,7 +113,7 @@ pub struct CellSummary {
     /// (in shear, the angle to the flow direction in the shear plane).
     pub inclination_deg: f64,
     /// Taylor deformation `D = (L − B)/(L + B)` of the equivalent ellipsoid in the `x`–`y`
-    /// plane ([`crate::vesicle::Geometry::shear_plane_deformation`]).
+    /// plane ([`crate::vesicle::Geometry::taylor_deformation`] about `z`).
     pub taylor_deformation: f64,
 }
 
@@ -1016,7 +1016,9 @@ pub fn run_on(
         .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
             let id = susp.ids()[i];
             let (x, a, v, inc) = observe(&mut calc, &susp.coefs()[i])?;
-            let d = calc.geometry(&susp.coefs()[i])?.shear_plane_deformation();
+            let d = calc
+                .geometry(&susp.coefs()[i])?
+                .taylor_deformation([0.0, 0.0, 1.0]);
             let b = before_last
                 .iter()
                 .find(|(j, _)| *j == id)

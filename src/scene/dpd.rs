@@ -112,8 +112,7 @@ struct File {
     dpd: DpdSection,
     /// The cell scene's sections (`mobo run`'s): `[[cells]]` enters the DPD run through
     /// `[dpd.from_cells]`; the others are `mobo run`'s alone.
-    #[serde(rename = "cells")]
-    _cells: Option<IgnoredAny>,
+    cells: Option<IgnoredAny>,
     #[serde(rename = "fluid")]
     _fluid: Option<IgnoredAny>,
     #[serde(rename = "flow")]
@@ -367,22 +366,24 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         BoxLen::Cube(l) => [l; 3],
         BoxLen::Sides(s) => s,
     };
-    for (key, v) in [
-        ("density", d.density),
-        ("dt", d.dt),
-        ("rc", d.rc),
-        ("mass", d.mass),
-        ("power", d.power),
-    ] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(located(key, format!("must be a positive number, got {v}")));
-        }
-    }
-    for (key, v) in [("a", d.a), ("gamma", d.gamma), ("kbt", d.kbt)] {
-        if !(v.is_finite() && v >= 0.0) {
-            return Err(located(key, format!("must be a number ≥ 0, got {v}")));
-        }
-    }
+    check_positive(
+        &located,
+        &[
+            ("density", d.density),
+            ("dt", d.dt),
+            ("rc", d.rc),
+            ("mass", d.mass),
+            ("power", d.power),
+        ],
+    )?;
+    check_nonnegative(
+        &located,
+        &[
+            ("a", Some(d.a)),
+            ("gamma", Some(d.gamma)),
+            ("kbt", Some(d.kbt)),
+        ],
+    )?;
     for (k, l) in box_len.iter().enumerate() {
         if !(l.is_finite() && *l >= 3.0 * d.rc) {
             return Err(located(
@@ -661,10 +662,10 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
             Some(mapping)
         }
         None => {
-            if let Some(place) = section_place(text, "[[cells]]", 0) {
+            if f.cells.is_some() {
                 return Err(SceneError {
                     file: file.to_path_buf(),
-                    place: Some(place),
+                    place: section_place(text, "[[cells]]", 0),
                     message: "[[cells]]: the scene's cells (mobo run's) are not in the DPD run \
                               unless [dpd.from_cells] maps them: give it length (r_c per scene \
                               length unit) and energy (k_BT per scene energy unit)"
@@ -695,6 +696,48 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
     })
 }
 
+/// The error `located(key, why)` of the first value that is not a positive finite number.
+fn check_positive(
+    located: &dyn Fn(&str, String) -> SceneError,
+    values: &[(&str, f64)],
+) -> Result<(), SceneError> {
+    match values.iter().find(|(_, v)| !(v.is_finite() && *v > 0.0)) {
+        Some(&(key, v)) => Err(located(key, format!("must be a positive number, got {v}"))),
+        None => Ok(()),
+    }
+}
+
+/// The error `located(key, why)` of the first given value that is not a finite number ≥ 0
+/// (`None`: not given).
+fn check_nonnegative(
+    located: &dyn Fn(&str, String) -> SceneError,
+    values: &[(&str, Option<f64>)],
+) -> Result<(), SceneError> {
+    let bad = values.iter().find_map(|&(key, v)| {
+        let v = v?;
+        (!(v.is_finite() && v >= 0.0)).then_some((key, v))
+    });
+    match bad {
+        Some((key, v)) => Err(located(key, format!("must be a number ≥ 0, got {v}"))),
+        None => Ok(()),
+    }
+}
+
+/// Icosphere subdivisions of a cell's mesh: 1 to 6.
+fn check_subdivisions(
+    located: &dyn Fn(&str, String) -> SceneError,
+    subdivisions: u32,
+) -> Result<(), SceneError> {
+    if (1..=6).contains(&subdivisions) {
+        Ok(())
+    } else {
+        Err(located(
+            "subdivisions",
+            format!("must be 1 to 6 (10·4^s + 2 vertices), got {subdivisions}"),
+        ))
+    }
+}
+
 /// The cell scene's `[[cells]]` of this file (read as `mobo run` reads it, with its
 /// placement and checks) mapped into the fluid by `[dpd.from_cells]`, each with the line of its
 /// entry.
@@ -718,33 +761,18 @@ fn mapped_cells(
             .or_else(|| section_place(text, "[dpd.from_cells]", 0));
         e
     };
-    for (key, v) in [("length", fc.length), ("energy", fc.energy)] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(section(key, format!("must be a positive number, got {v}")));
-        }
-    }
-    for (key, v) in [
-        ("ka", fc.ka),
-        ("kd", fc.kd),
-        ("kv", fc.kv),
-        ("gamma_t", fc.gamma_t),
-        ("gamma_c", fc.gamma_c),
-    ] {
-        if let Some(v) = v {
-            if !(v.is_finite() && v >= 0.0) {
-                return Err(section(key, format!("must be a number ≥ 0, got {v}")));
-            }
-        }
-    }
-    if !(1..=6).contains(&fc.subdivisions) {
-        return Err(section(
-            "subdivisions",
-            format!(
-                "must be 1 to 6 (10·4^s + 2 vertices), got {}",
-                fc.subdivisions
-            ),
-        ));
-    }
+    check_positive(&section, &[("length", fc.length), ("energy", fc.energy)])?;
+    check_nonnegative(
+        &section,
+        &[
+            ("ka", fc.ka),
+            ("kd", fc.kd),
+            ("kv", fc.kv),
+            ("gamma_t", fc.gamma_t),
+            ("gamma_c", fc.gamma_c),
+        ],
+    )?;
+    check_subdivisions(&section, fc.subdivisions)?;
     let l = params.box_len;
     let origin = fc.origin.unwrap_or([0.5 * l[0], 0.5 * l[1], 0.5 * l[2]]);
     if origin.iter().any(|v| !v.is_finite()) {
@@ -921,36 +949,21 @@ fn cell(
         e.place = cell_key_place(text, k, key).or_else(|| section_place(text, "[[dpd.cells]]", k));
         e
     };
-    let positive = |key: &str, v: f64| {
-        if v.is_finite() && v > 0.0 {
-            Ok(())
-        } else {
-            Err(located(key, format!("must be a positive number, got {v}")))
-        }
-    };
-    positive("radius", c.radius)?;
-    positive("shear_modulus", c.shear_modulus)?;
-    for (key, v) in [
-        ("bending_rigidity", Some(c.bending_rigidity)),
-        ("ka", c.ka),
-        ("kd", c.kd),
-        ("kv", c.kv),
-        ("gamma_t", c.gamma_t),
-    ] {
-        let Some(v) = v else { continue };
-        if !(v.is_finite() && v >= 0.0) {
-            return Err(located(key, format!("must be a number ≥ 0, got {v}")));
-        }
-    }
-    if !(1..=6).contains(&c.subdivisions) {
-        return Err(located(
-            "subdivisions",
-            format!(
-                "must be 1 to 6 (10·4^s + 2 vertices), got {}",
-                c.subdivisions
-            ),
-        ));
-    }
+    check_positive(
+        &located,
+        &[("radius", c.radius), ("shear_modulus", c.shear_modulus)],
+    )?;
+    check_nonnegative(
+        &located,
+        &[
+            ("bending_rigidity", Some(c.bending_rigidity)),
+            ("ka", c.ka),
+            ("kd", c.kd),
+            ("kv", c.kv),
+            ("gamma_t", c.gamma_t),
+        ],
+    )?;
+    check_subdivisions(&located, c.subdivisions)?;
     let order = 16;
     let shape_err = |e: crate::vesicle::VesicleError| located("shape", e.to_string());
     let mut surface = match (c.shape.as_str(), c.reduced_volume) {

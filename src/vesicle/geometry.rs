@@ -168,37 +168,12 @@ impl Geometry {
         (semi, axes)
     }
 
-    /// Taylor deformation `D = (L − B)/(L + B)` in the shear plane `x`–`y` (vorticity along
-    /// `z`, as in the shear flow `u = (γ̇ y, 0, 0)`): of the [`Self::equivalent_ellipsoid`]'s
-    /// semi-axes, the one whose axis is closest to `z` is left out, `L ≥ B` are the other two.
-    pub fn shear_plane_deformation(&self) -> f64 {
-        let (semi, axes) = self.equivalent_ellipsoid();
-        let vorticity = (0..3)
-            .max_by(|&i, &j| axes[i][2].abs().total_cmp(&axes[j][2].abs()))
-            .unwrap_or(2);
-        let (mut l, mut b) = (f64::NEG_INFINITY, f64::INFINITY);
-        for k in (0..3).filter(|&k| k != vorticity) {
-            l = l.max(semi[k]);
-            b = b.min(semi[k]);
-        }
-        (l - b) / (l + b)
-    }
     /// Taylor deformation `D = (L − B)/(L + B)` in the plane normal to `vorticity`: `L` and `B`
     /// are the semi-axes of the [equivalent ellipsoid](Self::equivalent_ellipsoid) other than
     /// the one closest to the vorticity direction (the shear plane of a cell in simple shear).
     pub fn taylor_deformation(&self, vorticity: [f64; 3]) -> f64 {
         let (semi, axes) = self.equivalent_ellipsoid();
-        let k = (0..3)
-            .max_by(|&i, &j| {
-                dot(axes[i], vorticity)
-                    .abs()
-                    .total_cmp(&dot(axes[j], vorticity).abs())
-            })
-            .expect("three axes");
-        let (l, b) = {
-            let (x, y) = (semi[(k + 1) % 3], semi[(k + 2) % 3]);
-            (x.max(y), x.min(y))
-        };
+        let (l, b, _) = crate::linalg3::shear_plane_semi_axes(semi, axes, vorticity);
         (l - b) / (l + b)
     }
     /// Reduced volume `6√π V / A^{3/2}`.
