@@ -22,6 +22,8 @@
 //! * [`durable`]: atomic file replacement and the FNV-1a checksum, below every other layer.
 //! * [`check`]: relative max-norm errors of a fast routine against its reference (tests).
 //! * [`linalg3`]: the eigen-decomposition of symmetric 3 × 3 matrices.
+//! * [`tank_treading`]: the mean rate at which a membrane's material turns about an axis,
+//!   shared by the spherical-harmonic cells and the DPD membranes.
 //! * [`comm`]: the communicator the distributed algorithms are written against (one rank, or
 //!   MPI ranks with the `mpi` feature).
 //! * [`gpu`]: one wgpu device per process, batched pair sums on it, and the DPD fluid's whole
@@ -69,5 +71,6 @@ pub mod linalg3;
 pub mod report;
 pub mod scene;
 pub mod sph_harmonics;
+pub mod tank_treading;
 pub mod timestep;
 pub mod vesicle;

@@ -311,6 +311,44 @@ impl FluidCell {
         ((l - b) / (l + b), theta)
     }
 
+    /// The area of each vertex: a third of the areas of the triangles around it.
+    pub fn vertex_areas(&self) -> Vec<f64> {
+        let mut a = vec![0.0; self.x.len()];
+        for t in self.membrane.topology().triangles() {
+            let p = t.map(|j| self.x[j]);
+            let n = cross3(sub3(p[1], p[0]), sub3(p[2], p[0]));
+            let third = dot3(n, n).sqrt() / 6.0;
+            for &j in t {
+                a[j] += third;
+            }
+        }
+        a
+    }
+
+    /// The membrane's mean phase advance about `axis` since the vertex positions `before`
+    /// (an earlier [`Self::positions`]), weighted by today's [`Self::vertex_areas`]
+    /// ([`crate::tank_treading::phase_advance`]): divided by the time between, the
+    /// tank-treading rate over that interval, counter-clockwise about `axis` (pass
+    /// `[0, 1, 0]` for the sense of the Couette flow `u = (γ̇z, 0, 0)`).
+    ///
+    /// # Errors
+    /// [`DpdError::Length`] when `before` has a different number of vertices.
+    pub fn phase_advance(&self, before: &[[f64; 3]], axis: [f64; 3]) -> Result<f64, DpdError> {
+        if before.len() != self.x.len() {
+            return Err(DpdError::Length {
+                what: "earlier vertex positions",
+                len: before.len(),
+                expected: self.x.len(),
+            });
+        }
+        Ok(crate::tank_treading::phase_advance(
+            before,
+            &self.x,
+            &self.vertex_areas(),
+            axis,
+        ))
+    }
+
     /// Area and volume now, relative to the reference (stress-free) ones, minus one.
     pub fn area_volume_change(&self) -> Result<(f64, f64), DpdError> {
         let m = &self.membrane;

@@ -115,6 +115,12 @@ pub struct CellSummary {
     /// Taylor deformation `D = (L − B)/(L + B)` of the equivalent ellipsoid in the `x`–`y`
     /// plane ([`crate::vesicle::Geometry::taylor_deformation`] about `z`).
     pub taylor_deformation: f64,
+    /// Tank-treading rate: the membrane's mean phase rate about the `z` axis through its
+    /// centre in the last step ([`crate::vesicle::Geometry::tank_treading_rate`]), clockwise
+    /// seen from `+z` (the sense of the shear `u = (γ̇y, 0, 0)`). For a cell tank-treading
+    /// steadily, `2π` over the period of its material points; a rigid sphere in that shear
+    /// turns at `γ̇/2`. NaN (`null`) before the first step.
+    pub tank_treading_rate: f64,
 }
 
 /// What `summary.json` holds. The top-level drifts are the largest over the cells; centroid,
@@ -1010,24 +1016,29 @@ pub fn run_on(
         agreed(comm, finished.map_err(CellRunError::from))?;
     }
     prog.wall_s = wall0 + start.elapsed().as_secs_f64();
-    // Per cell: centre, area, volume, inclination, the centre before the last step and the
-    // Taylor deformation.
+    // Per cell: centre, area, volume, inclination, the centre before the last step, the
+    // Taylor deformation and the tank-treading rate.
     let local = (0..susp.len())
         .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
             let id = susp.ids()[i];
             let (x, a, v, inc) = observe(&mut calc, &susp.coefs()[i])?;
-            let d = calc
-                .geometry(&susp.coefs()[i])?
-                .taylor_deformation([0.0, 0.0, 1.0]);
+            let g = calc.geometry(&susp.coefs()[i])?;
+            let d = g.taylor_deformation([0.0, 0.0, 1.0]);
+            let tt = susp.steppers()[i]
+                .velocity()
+                .map_or(f64::NAN, |u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]));
             let b = before_last
                 .iter()
                 .find(|(j, _)| *j == id)
                 .map_or([f64::NAN; 3], |(_, b)| *b);
-            Ok((id, vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2], d]))
+            Ok((
+                id,
+                vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2], d, tt],
+            ))
         })
         .collect::<Result<Vec<_>, _>>();
     let local = agreed(comm, local)?;
-    let rows = gather_rows(comm, local, nc, 10)?;
+    let rows = gather_rows(comm, local, nc, 11)?;
     let split = split_summary(comm, &susp, &clock, &log, k + 1 - first)?;
     let stats = susp.coupling_stats().unwrap_or_default();
     let now = counts(&susp);
@@ -1047,6 +1058,7 @@ pub fn run_on(
             centroid_velocity: std::array::from_fn(|d| (centroid[d] - r[6 + d]) / prog.last_dt),
             inclination_deg: r[5],
             taylor_deformation: r[9],
+            tank_treading_rate: r[10],
         });
     }
     let worst = |f: fn(&CellSummary) -> f64| {

@@ -504,7 +504,19 @@ impl Events {
 
 /// The fluid of a new run, with the scene's cells put into it.
 fn build_model(scene: &DpdScene) -> Result<Model, DpdRunError> {
-    let sys = match scene.wall {
+    if scene.cells.is_empty() {
+        return Ok(Model::Fluid(Box::new(build_fluid(scene)?)));
+    }
+    Ok(Model::Cells(Box::new(build_suspension(scene)?)))
+}
+
+/// The fluid of a scene as `mobo dpd` starts it (random particles, or the walls warmed up;
+/// the walls sliding for Couette flow), without its cells.
+///
+/// # Errors
+/// [`DpdRunError::Dynamics`] for parameters the fluid refuses.
+pub fn build_fluid(scene: &DpdScene) -> Result<DpdSystem, DpdRunError> {
+    let mut sys = match scene.wall {
         None => DpdSystem::random_fluid(scene.params, scene.density, scene.body)?,
         Some(w) => DpdSystem::with_wall(
             scene.params,
@@ -514,13 +526,31 @@ fn build_model(scene: &DpdScene) -> Result<Model, DpdRunError> {
             scene.wall_warmup,
         )?,
     };
-    let mut sys = sys;
     if scene.wall_speed != 0.0 {
         sys.start_couette(scene.wall_speed)?;
     }
-    if scene.cells.is_empty() {
-        return Ok(Model::Fluid(Box::new(sys)));
-    }
+    Ok(sys)
+}
+
+/// The scene's fluid ([`build_fluid`]) with its cells (`[[dpd.cells]]` or the cells mapped by
+/// `[dpd.from_cells]`) and their external forces, as `mobo dpd` starts it: for a program that
+/// steps a DPD scene itself and reads the cells between steps.
+///
+/// ```no_run
+/// use mobo::scene::{dpd, dpd_run};
+/// let scene = dpd::load(std::path::Path::new("examples/scenes/capsule_shear_bie_and_dpd.toml"))?;
+/// let mut sim = dpd_run::build_suspension(&scene)?;
+/// for _ in 0..100 {
+///     sim.step()?;
+/// }
+/// let (d, inclination) = sim.cells()[0].shear_plane_deformation();
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+///
+/// # Errors
+/// [`DpdRunError::Dynamics`] for parameters the fluid or a membrane refuses.
+pub fn build_suspension(scene: &DpdScene) -> Result<DpdSuspension, DpdRunError> {
+    let sys = build_fluid(scene)?;
     let specs = scene.cells.iter().map(|c| c.spec.clone()).collect();
     let mut sim = DpdSuspension::new(sys, specs, scene.coupling)?;
     for (k, c) in scene.cells.iter().enumerate() {
@@ -528,7 +558,7 @@ fn build_model(scene: &DpdScene) -> Result<Model, DpdRunError> {
             sim.set_external_force(k, c.force)?;
         }
     }
-    Ok(Model::Cells(Box::new(sim)))
+    Ok(sim)
 }
 
 /// Write the membranes of step `step` (`membranes_SSSSSSSS.vtp`) and the collection of every

@@ -176,6 +176,21 @@ impl Geometry {
         let (l, b, _) = crate::linalg3::shear_plane_semi_axes(semi, axes, vorticity);
         (l - b) / (l + b)
     }
+    /// The membrane phase rate about `axis` ([`crate::tank_treading::phase_rate`], weights
+    /// `da`) of the grid velocity `velocity` (`3n`, component-major, as
+    /// [`crate::timestep::semi_implicit::VesicleStepper::velocity`]): for a steadily
+    /// tank-treading cell, `2π` over the period of its material points, counter-clockwise
+    /// about `axis` (pass `[0, 0, −1]` for the sense of the shear `u = (γ̇y, 0, 0)`).
+    ///
+    /// # Panics
+    /// If `velocity` is shorter than `3n`.
+    pub fn tank_treading_rate(&self, velocity: &[f64], axis: [f64; 3]) -> f64 {
+        let n = self.n_points();
+        let u: Vec<[f64; 3]> = (0..n)
+            .map(|j| [velocity[j], velocity[n + j], velocity[2 * n + j]])
+            .collect();
+        crate::tank_treading::phase_rate(&self.x, &u, &self.da, axis)
+    }
     /// Reduced volume `6√π V / A^{3/2}`.
     pub fn reduced_volume(&self) -> f64 {
         6.0 * PI.sqrt() * self.volume() / self.area().powf(1.5)
