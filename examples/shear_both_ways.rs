@@ -13,12 +13,13 @@
 //!   channel at every sample.
 //!
 //! Every `EVERY` steps (default 25 for `bie`, 100 for `dpd`) it prints
-//! `t strain D inclination tank_treading_rate/γ̇` of cell 0: the Taylor deformation and the
+//! `t strain D inclination tank_treading_rate/γ̇ γ̇` of cell 0: the Taylor deformation and the
 //! inclination (degrees, from the flow direction towards the gradient) of the equivalent
 //! ellipsoid in the shear plane, and the membrane's mean phase rate about the vorticity axis
 //! (`mobo::tank_treading`; the boundary-integral cell from its membrane velocity, the DPD cell
 //! from its vertices' phase advance since the last sample). The last line averages them over
-//! the samples after the strain `SETTLE` (default 5), with the standard error of 10 blocks,
+//! the samples after the strain `SETTLE` (default 5), with the standard error of 10 blocks
+//! (the tank-treading rate as the ratio of its mean to the shear rate's mean),
 //! the inclination's range (a swinging cell oscillates), the drifts, and the CPU cost per unit
 //! of strain. `RAYON_NUM_THREADS` sets the threads.
 use std::path::Path;
@@ -27,8 +28,8 @@ use mobo::scene::cells::{self, Flow};
 use mobo::scene::simulation::Simulation;
 use mobo::scene::{dpd, dpd_run};
 
-/// One sample: time, strain, D, inclination (degrees), tank-treading rate / γ̇.
-type Sample = [f64; 5];
+/// One sample: time, strain, D, inclination (degrees), tank-treading rate, shear rate.
+type Sample = [f64; 6];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
@@ -60,8 +61,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         stderr(&col(2)),
         mean(&col(3)),
         stderr(&col(3)),
-        mean(&col(4)),
-        stderr(&col(4)),
+        mean(&col(4)) / mean(&col(5)),
+        stderr(&col(4)) / mean(&col(5)),
         after.len(),
         cpu / strain
     );
@@ -97,12 +98,10 @@ fn bie(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn std::
                 rate.abs() * sim.time(),
                 (l - b) / (l + b),
                 fold_angle(ax[1].atan2(ax[0]).to_degrees()),
-                tt / rate.abs(),
+                tt,
+                rate.abs(),
             ];
-            println!(
-                "{:.3} {:.3} {:.5} {:.2} {:.5}",
-                s[0], s[1], s[2], s[3], s[4]
-            );
+            print_sample(&s);
             out.push(s);
         }
     }
@@ -158,11 +157,8 @@ fn run_dpd(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn s
         let cell = &sim.cells()[0];
         let (d, incl) = cell.shear_plane_deformation();
         let tt = cell.phase_advance(&before, [0.0, 1.0, 0.0])? / dt;
-        let sample = [t, strain, d, incl, tt / rate];
-        println!(
-            "{:.3} {:.3} {:.5} {:.2} {:.5}",
-            sample[0], sample[1], sample[2], sample[3], sample[4]
-        );
+        let sample = [t, strain, d, incl, tt, rate];
+        print_sample(&sample);
         out.push(sample);
         before.clear();
         before.extend_from_slice(cell.positions());
@@ -179,6 +175,18 @@ fn run_dpd(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn s
             sim.max_leaked()
         ),
     ))
+}
+
+fn print_sample(s: &Sample) {
+    println!(
+        "{:.3} {:.3} {:.5} {:.2} {:.5} {:.5}",
+        s[0],
+        s[1],
+        s[2],
+        s[3],
+        s[4] / s[5],
+        s[5]
+    );
 }
 
 /// An axis's angle folded into `[−90, 90]` degrees.
