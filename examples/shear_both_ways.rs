@@ -13,11 +13,13 @@
 //!   channel at every sample.
 //!
 //! Every `EVERY` steps (default 25 for `bie`, 100 for `dpd`) it prints
-//! `t strain D inclination tank_treading_rate/γ̇ γ̇` of cell 0: the Taylor deformation and the
+//! `t strain D inclination tank_treading_rate/γ̇ γ̇ |n·ω̂|` of cell 0: the Taylor deformation and the
 //! inclination (degrees, from the flow direction towards the gradient) of the equivalent
 //! ellipsoid in the shear plane, and the membrane's mean phase rate about the vorticity axis
 //! (`mobo::tank_treading`; the boundary-integral cell from its membrane velocity, the DPD cell
-//! from its vertices' phase advance since the last sample). The last line averages them over
+//! from its vertices' phase advance since the last sample), and the cosine of the angle
+//! between the vorticity and the shortest axis of the equivalent ellipsoid (a disk's normal:
+//! 1 with the disk in the shear plane, 0 with its axis in it). The last line averages them over
 //! the samples after the strain `SETTLE` (default 5), with the standard error of 10 blocks
 //! (the tank-treading rate as the ratio of its mean to the shear rate's mean),
 //! the inclination's range (a swinging cell oscillates), the drifts, and the CPU cost per unit
@@ -28,8 +30,9 @@ use mobo::scene::cells::{self, Flow};
 use mobo::scene::simulation::Simulation;
 use mobo::scene::{dpd, dpd_run};
 
-/// One sample: time, strain, D, inclination (degrees), tank-treading rate, shear rate.
-type Sample = [f64; 6];
+/// One sample: time, strain, D, inclination (degrees), tank-treading rate, shear rate, and
+/// `|n·ω̂|`, `n` the shortest axis of the equivalent ellipsoid (a disk's normal).
+type Sample = [f64; 7];
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
@@ -52,17 +55,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (incl_lo, incl_hi) = col(3)
         .iter()
         .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
+    let (n_lo, n_hi) = col(6)
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(l, h), &v| (l.min(v), h.max(v)));
     println!(
         "{model}: D = {:.4} ± {:.4}, inclination {:.1} ± {:.1} deg (range {incl_lo:.1} to \
-         {incl_hi:.1}), tank-treading rate / shear rate = {:.4} ± {:.4} ({} samples after \
-         strain {settle}, to strain {strain:.1}); {extra}; {cpu:.0} CPU s, {:.1} CPU s per unit \
-         strain",
+         {incl_hi:.1}), tank-treading rate / shear rate = {:.4} ± {:.4}, |n·ω̂| = {:.3} (range \
+         {n_lo:.3} to {n_hi:.3}) ({} samples after strain {settle}, to strain {strain:.1}); \
+         {extra}; {cpu:.0} CPU s, {:.1} CPU s per unit strain",
         mean(&col(2)),
         stderr(&col(2)),
         mean(&col(3)),
         stderr(&col(3)),
         mean(&col(4)) / mean(&col(5)),
         stderr(&col(4)) / mean(&col(5)),
+        mean(&col(6)),
         after.len(),
         cpu / strain
     );
@@ -100,6 +107,7 @@ fn bie(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn std::
                 fold_angle(ax[1].atan2(ax[0]).to_degrees()),
                 tt,
                 rate.abs(),
+                axes[2][2].abs(),
             ];
             print_sample(&s);
             out.push(s);
@@ -157,7 +165,8 @@ fn run_dpd(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn s
         let cell = &sim.cells()[0];
         let (d, incl) = cell.shear_plane_deformation();
         let tt = cell.phase_advance(&before, [0.0, 1.0, 0.0])? / dt;
-        let sample = [t, strain, d, incl, tt, rate];
+        let normal = cell.equivalent_ellipsoid().1[2];
+        let sample = [t, strain, d, incl, tt, rate, normal[1].abs()];
         print_sample(&sample);
         out.push(sample);
         before.clear();
@@ -179,13 +188,14 @@ fn run_dpd(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn s
 
 fn print_sample(s: &Sample) {
     println!(
-        "{:.3} {:.3} {:.5} {:.2} {:.5} {:.5}",
+        "{:.3} {:.3} {:.5} {:.2} {:.5} {:.5} {:.3}",
         s[0],
         s[1],
         s[2],
         s[3],
         s[4] / s[5],
-        s[5]
+        s[5],
+        s[6]
     );
 }
 
