@@ -13,8 +13,8 @@
 //!   channel at every sample.
 //!
 //! Every `EVERY` steps (default 25 for `bie`, 100 for `dpd`) it prints
-//! `t strain D inclination tank_treading_rate/γ̇ γ̇ |n·ω̂|` of cell 0: the Taylor deformation and the
-//! inclination (degrees, from the flow direction towards the gradient) of the equivalent
+//! `t strain D inclination tank_treading_rate/γ̇ γ̇ |n·ω̂|` of cell 0: the Taylor deformation
+//! and the inclination (degrees, from the flow direction towards the gradient) of the equivalent
 //! ellipsoid in the shear plane, and the membrane's mean phase rate about the vorticity axis
 //! (`mobo::tank_treading`; the boundary-integral cell from its membrane velocity, the DPD cell
 //! from its vertices' phase advance since the last sample), and the cosine of the angle
@@ -97,9 +97,12 @@ fn bie(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn std::
             let g = &c.geometry;
             let (semi, axes) = g.equivalent_ellipsoid();
             let (l, b, ax) = mobo::linalg3::shear_plane_semi_axes(semi, axes, [0.0, 0.0, 1.0]);
-            let tt = c.membrane_velocity.as_deref().map_or(f64::NAN, |u| {
-                g.tank_treading_rate(u, [0.0, 0.0, -rate.signum()])
-            });
+            let tt = c
+                .membrane_velocity
+                .as_deref()
+                .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -rate.signum()]))
+                .transpose()?
+                .unwrap_or(f64::NAN);
             let s = [
                 sim.time(),
                 rate.abs() * sim.time(),

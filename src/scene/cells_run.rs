@@ -1026,7 +1026,9 @@ pub fn run_on(
             let d = g.taylor_deformation([0.0, 0.0, 1.0]);
             let tt = susp.steppers()[i]
                 .velocity()
-                .map_or(f64::NAN, |u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]));
+                .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]))
+                .transpose()?
+                .unwrap_or(f64::NAN);
             let b = before_last
                 .iter()
                 .find(|(j, _)| *j == id)

@@ -182,14 +182,21 @@ impl Geometry {
     /// tank-treading cell, `2π` over the period of its material points, counter-clockwise
     /// about `axis` (pass `[0, 0, −1]` for the sense of the shear `u = (γ̇y, 0, 0)`).
     ///
-    /// # Panics
-    /// If `velocity` is shorter than `3n`.
-    pub fn tank_treading_rate(&self, velocity: &[f64], axis: [f64; 3]) -> f64 {
+    /// # Errors
+    /// [`VesicleError::Length`] when `velocity` is not `3n` long.
+    pub fn tank_treading_rate(
+        &self,
+        velocity: &[f64],
+        axis: [f64; 3],
+    ) -> Result<f64, VesicleError> {
         let n = self.n_points();
+        check_len("membrane velocity", velocity.len(), 3 * n)?;
         let u: Vec<[f64; 3]> = (0..n)
             .map(|j| [velocity[j], velocity[n + j], velocity[2 * n + j]])
             .collect();
-        crate::tank_treading::phase_rate(&self.x, &u, &self.da, axis)
+        Ok(crate::tank_treading::phase_rate(
+            &self.x, &u, &self.da, axis,
+        ))
     }
     /// Reduced volume `6√π V / A^{3/2}`.
     pub fn reduced_volume(&self) -> f64 {
