@@ -109,12 +109,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .filter(|&k| axes[k][2].abs() < 0.7)
         .max_by(|&i, &j| semi[i].total_cmp(&semi[j]))
         .unwrap_or(0);
-    let mut theta = axes[long][1].atan2(axes[long][0]).to_degrees();
-    if theta > 90.0 {
-        theta -= 180.0;
-    } else if theta < -90.0 {
-        theta += 180.0;
-    }
+    let theta = mobo::linalg3::axis_inclination_deg(axes[long], 0, 1);
     println!(
         "D(t_end) {end:.5}, inclination {theta:.1} deg ({law}, Ca {ca}, p {p}, dt {dt}; {:.1} \
          iterations per step, {:.1} s)",

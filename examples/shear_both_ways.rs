@@ -107,7 +107,7 @@ fn bie(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn std::
                 sim.time(),
                 rate.abs() * sim.time(),
                 (l - b) / (l + b),
-                fold_angle(ax[1].atan2(ax[0]).to_degrees()),
+                mobo::linalg3::axis_inclination_deg(ax, 0, 1),
                 tt,
                 rate.abs(),
                 axes[2][2].abs(),
@@ -200,17 +200,6 @@ fn print_sample(s: &Sample) {
         s[5],
         s[6]
     );
-}
-
-/// An axis's angle folded into `[−90, 90]` degrees.
-fn fold_angle(deg: f64) -> f64 {
-    if deg > 90.0 {
-        deg - 180.0
-    } else if deg < -90.0 {
-        deg + 180.0
-    } else {
-        deg
-    }
 }
 
 fn mean(v: &[f64]) -> f64 {

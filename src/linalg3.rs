@@ -1,5 +1,28 @@
 //! 3 × 3 linear algebra shared by the geometry of spherical-harmonic cells
-//! ([`crate::vesicle::geometry`]) and of DPD membranes ([`crate::dpd::suspension`]).
+//! ([`crate::vesicle::geometry`]) and of DPD membranes ([`crate::dpd::suspension`]), and the
+//! 3-vector products they and [`crate::tank_treading`] use.
+
+/// `a · b`.
+#[inline]
+pub fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+/// `a − b`.
+#[inline]
+pub fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+/// `a × b`.
+#[inline]
+pub fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
 
 /// Of an ellipsoid's semi-axes `semi` with unit directions `axes` (`axes[i]` belongs to
 /// `semi[i]`), the two in the plane most nearly normal to `vorticity`: the one whose axis is
@@ -11,8 +34,7 @@ pub fn shear_plane_semi_axes(
     axes: [[f64; 3]; 3],
     vorticity: [f64; 3],
 ) -> (f64, f64, [f64; 3]) {
-    let along =
-        |a: [f64; 3]| (a[0] * vorticity[0] + a[1] * vorticity[1] + a[2] * vorticity[2]).abs();
+    let along = |a: [f64; 3]| dot3(a, vorticity).abs();
     let k = (0..3)
         .max_by(|&i, &j| along(axes[i]).total_cmp(&along(axes[j])))
         .unwrap_or(2);
@@ -25,6 +47,20 @@ pub fn shear_plane_semi_axes(
         (semi[i], semi[j], axes[i])
     } else {
         (semi[j], semi[i], axes[j])
+    }
+}
+
+/// The angle in degrees of the axis (a line: `axis` and `−axis` are the same) from the
+/// coordinate direction `from` towards `towards`, `atan2(axis[towards], axis[from])` folded into
+/// `[−90, 90]`: the inclination of a cell's long axis in a shear plane.
+pub fn axis_inclination_deg(axis: [f64; 3], from: usize, towards: usize) -> f64 {
+    let deg = axis[towards].atan2(axis[from]).to_degrees();
+    if deg > 90.0 {
+        deg - 180.0
+    } else if deg < -90.0 {
+        deg + 180.0
+    } else {
+        deg
     }
 }
 

@@ -23,6 +23,8 @@
 //! swamp an instant estimate; their displacement over an interval averages the noise).
 //! Points on the axis (`|r_⊥|` below `1e-9` of the largest) are left out of both.
 
+use crate::linalg3::{cross3, dot3, sub3};
+
 /// The membrane phase rate `Σ w φ̇ / Σ w` about the unit direction of `axis` (module docs),
 /// positive counter-clockwise about `axis`; `c` and `U` are the `w`-weighted means of `points`
 /// and `velocities`. NaN for empty input or zero weights.
@@ -50,12 +52,12 @@ pub fn phase_rate(
     let floor = axis_floor(points, c, a);
     let (mut sum, mut wsum) = (0.0, 0.0);
     for ((x, u), &w) in points.iter().zip(velocities).zip(weights) {
-        let r = perp(sub(*x, c), a);
-        let r2 = dot(r, r);
+        let r = perp(sub3(*x, c), a);
+        let r2 = dot3(r, r);
         if r2 <= floor {
             continue;
         }
-        sum += w * dot(cross(r, sub(*u, u0)), a) / r2;
+        sum += w * dot3(cross3(r, sub3(*u, u0)), a) / r2;
         wsum += w;
     }
     sum / wsum
@@ -82,11 +84,11 @@ pub fn phase_advance(
     let floor = axis_floor(before, c0, a).max(axis_floor(after, c1, a));
     let (mut sum, mut wsum) = (0.0, 0.0);
     for ((x0, x1), &w) in before.iter().zip(after).zip(weights) {
-        let (r0, r1) = (perp(sub(*x0, c0), a), perp(sub(*x1, c1), a));
-        if dot(r0, r0) <= floor || dot(r1, r1) <= floor {
+        let (r0, r1) = (perp(sub3(*x0, c0), a), perp(sub3(*x1, c1), a));
+        if dot3(r0, r0) <= floor || dot3(r1, r1) <= floor {
             continue;
         }
-        sum += w * dot(cross(r0, r1), a).atan2(dot(r0, r1));
+        sum += w * dot3(cross3(r0, r1), a).atan2(dot3(r0, r1));
         wsum += w;
     }
     sum / wsum
@@ -98,8 +100,8 @@ fn axis_floor(points: &[[f64; 3]], c: [f64; 3], a: [f64; 3]) -> f64 {
     let max = points
         .iter()
         .map(|x| {
-            let r = perp(sub(*x, c), a);
-            dot(r, r)
+            let r = perp(sub3(*x, c), a);
+            dot3(r, r)
         })
         .fold(0.0, f64::max);
     1e-18 * max
@@ -118,29 +120,13 @@ fn weighted_mean(v: &[[f64; 3]], w: &[f64]) -> [f64; 3] {
 }
 
 fn unit(a: [f64; 3]) -> [f64; 3] {
-    let n = dot(a, a).sqrt();
+    let n = dot3(a, a).sqrt();
     a.map(|v| v / n)
 }
 
 fn perp(r: [f64; 3], a: [f64; 3]) -> [f64; 3] {
-    let s = dot(r, a);
+    let s = dot3(r, a);
     [r[0] - s * a[0], r[1] - s * a[1], r[2] - s * a[2]]
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 #[cfg(test)]
@@ -150,8 +136,8 @@ mod tests {
     /// Rotation by `angle` about the unit axis `a` (Rodrigues).
     fn rotate(x: [f64; 3], a: [f64; 3], angle: f64) -> [f64; 3] {
         let (s, c) = angle.sin_cos();
-        let axr = cross(a, x);
-        let ad = dot(a, x);
+        let axr = cross3(a, x);
+        let ad = dot3(a, x);
         [0, 1, 2].map(|k| x[k] * c + axr[k] * s + a[k] * ad * (1.0 - c))
     }
 
@@ -206,7 +192,7 @@ mod tests {
         let vel: Vec<[f64; 3]> = pts
             .iter()
             .map(|&x| {
-                let v = cross(a.map(|k| omega * k), sub(x, c));
+                let v = cross3(a.map(|k| omega * k), sub3(x, c));
                 [v[0] + drift[0], v[1] + drift[1], v[2] + drift[2]]
             })
             .collect();
@@ -244,7 +230,7 @@ mod tests {
         let after: Vec<[f64; 3]> = pts
             .iter()
             .map(|&x| {
-                let r = rotate(sub(x, c), [0.0, 0.0, 1.0], 0.1);
+                let r = rotate(sub3(x, c), [0.0, 0.0, 1.0], 0.1);
                 [r[0] + c[0], r[1] + c[1], r[2] + c[2]]
             })
             .collect();

@@ -79,6 +79,7 @@ use super::pair_force::{minimum_image, Particles};
 use super::rng::{mix64, normal, pair_noise, step_key, stream};
 use super::system::{BodyForce, DpdSystem};
 use super::{require, DpdError};
+use crate::linalg3::{cross3, dot3, sub3};
 use rayon::prelude::*;
 
 /// Parameters of the coupling between membranes and solvent.
@@ -302,13 +303,10 @@ impl FluidCell {
     pub fn shear_plane_deformation(&self) -> (f64, f64) {
         let (semi, axes) = self.equivalent_ellipsoid();
         let (l, b, ax) = crate::linalg3::shear_plane_semi_axes(semi, axes, [0.0, 1.0, 0.0]);
-        let mut theta = ax[2].atan2(ax[0]).to_degrees();
-        if theta > 90.0 {
-            theta -= 180.0;
-        } else if theta < -90.0 {
-            theta += 180.0;
-        }
-        ((l - b) / (l + b), theta)
+        (
+            (l - b) / (l + b),
+            crate::linalg3::axis_inclination_deg(ax, 0, 2),
+        )
     }
 
     /// The area of each vertex: a third of the areas of the triangles around it.
@@ -1384,22 +1382,6 @@ fn collision_impulse(w: [f64; 3], lam: [f64; 3], ms: f64, mv: f64) -> [f64; 3] {
     let big_m = mv / lam2;
     let mu = ms * big_m / (ms + big_m);
     w.map(|c| -2.0 * mu * c)
-}
-
-fn dot3(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
 }
 
 /// The particles (indices into the sorted arrays) of the cells of `cells` that overlap the box

@@ -50,7 +50,7 @@ use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeSchem
 use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
 use crate::timestep::{GmresParams, TimestepError};
 use crate::vesicle::far_side::FarSideParams;
-use crate::vesicle::geometry::SurfaceCalculus;
+use crate::vesicle::geometry::{Geometry, SurfaceCalculus};
 use crate::vesicle::reparam::ReparamParams;
 use crate::vesicle::skalak::SkalakParams;
 use crate::vesicle::VesicleError;
@@ -251,14 +251,18 @@ fn observe(
     calc: &mut SurfaceCalculus,
     coefs: &[f64],
 ) -> Result<([f64; 3], f64, f64, f64), CellRunError> {
-    let g = calc.geometry(coefs)?;
+    Ok(observe_geometry(&calc.geometry(coefs)?))
+}
+
+/// One cell's observables from its geometry: centroid, area, volume, inclination (degrees).
+fn observe_geometry(g: &Geometry) -> ([f64; 3], f64, f64, f64) {
     let (_, axes) = g.principal_axes();
-    Ok((
+    (
         g.centroid(),
         g.area(),
         g.volume(),
         (axes[0][1] / axes[0][0]).atan().to_degrees(),
-    ))
+    )
 }
 
 /// How a run is started and when it stops early.
@@ -1021,8 +1025,8 @@ pub fn run_on(
     let local = (0..susp.len())
         .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
             let id = susp.ids()[i];
-            let (x, a, v, inc) = observe(&mut calc, &susp.coefs()[i])?;
             let g = calc.geometry(&susp.coefs()[i])?;
+            let (x, a, v, inc) = observe_geometry(&g);
             let d = g.taylor_deformation([0.0, 0.0, 1.0]);
             let tt = susp.steppers()[i]
                 .velocity()
