@@ -19,7 +19,9 @@
 //! over the two end patches (each a share `fraction` of the cell's area: the bead contact) and the cell is stepped until its axial diameter changes by less than 1e-4 µm per
 //! time unit (or `T_MAX`). Printed: axial diameter `D_A` (extent along x) and transverse
 //! diameter `D_T` (extent along y, the in-plane diameter seen in the microscope), in µm, with
-//! Mills' values and the relative errors, as a Markdown table.
+//! Mills' values and the relative errors, as a Markdown table. The environment variable
+//! `SHEAR_MODULUS` (µN/m, default 6.3) changes `G_s`; the progress lines on stderr also give
+//! the thickness `D_z` (extent along z).
 
 use std::path::Path;
 
@@ -33,7 +35,7 @@ use mobo::vesicle::shapes::RBC_ALPHA;
 const MILLS: [(f64, f64, f64); 3] = [(0.0, 7.78, 7.78), (88.0, 13.07, 4.78), (193.0, 15.29, 4.27)];
 /// Cell diameter (µm), shear modulus (N/m), bending rigidity (J).
 const DIAMETER_UM: f64 = 7.82;
-const SHEAR_N_PER_M: f64 = 6.3e-6;
+const SHEAR_UN_PER_M: f64 = 6.3;
 const BENDING_J: f64 = 2.4e-19;
 
 fn extent(g: &Geometry, d: usize) -> f64 {
@@ -65,11 +67,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             None => return Err(format!("MEMBRANE {m}: vesicle or capsule:C").into()),
         },
     };
+    let shear_un_per_m: f64 = match std::env::var("SHEAR_MODULUS") {
+        Ok(s) => s
+            .parse()
+            .map_err(|e| format!("SHEAR_MODULUS {s}: {e} (µN/m expected)"))?,
+        Err(_) => SHEAR_UN_PER_M,
+    };
+    if !(shear_un_per_m > 0.0 && shear_un_per_m.is_finite()) {
+        return Err(format!("SHEAR_MODULUS {shear_un_per_m}: must be positive").into());
+    }
+    let shear_n_per_m = shear_un_per_m * 1e-6;
     let r_um = DIAMETER_UM / (2.0 * RBC_ALPHA);
     let r_m = r_um * 1e-6;
-    let kappa = BENDING_J / (SHEAR_N_PER_M * r_m * r_m);
+    let kappa = BENDING_J / (shear_n_per_m * r_m * r_m);
     println!(
-        "RBC of diameter {DIAMETER_UM} µm (R = {r_um:.4} µm), G_s = 6.3 µN/m, κ = 2.4e-19 J: \
+        "RBC of diameter {DIAMETER_UM} µm (R = {r_um:.4} µm), G_s = {shear_un_per_m} µN/m, κ = 2.4e-19 J: \
          κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each \
          (edge {edge}), elasticity {elasticity}",
         100.0 * fraction
@@ -80,7 +92,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // PRECONDITIONER=cell: each cell's own operator inverted ([numerics] preconditioner).
     let preconditioner = std::env::var("PRECONDITIONER").unwrap_or_else(|_| "sphere".into());
     for &f_pn in &forces {
-        let f = f_pn * 1e-12 / (SHEAR_N_PER_M * r_m);
+        let f = f_pn * 1e-12 / (shear_n_per_m * r_m);
         let text = format!(
             "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
              bending_modulus = {kappa}\n{membrane}\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n\
@@ -108,10 +120,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let d = extent(&sim.cell(0)?.geometry, 0);
             let rate = (d - last).abs() * r_um / check;
             eprintln!(
-                "F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  D_T = {:.4} µm  rate {rate:.2e} µm/time",
+                "F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  D_T = {:.4} µm  D_z = {:.4} µm  \
+                 rate {rate:.2e} µm/time",
                 sim.time(),
                 d * r_um,
-                extent(&sim.cell(0)?.geometry, 1) * r_um
+                extent(&sim.cell(0)?.geometry, 1) * r_um,
+                extent(&sim.cell(0)?.geometry, 2) * r_um
             );
             last = d;
             if rate < 1e-4 {
