@@ -25,8 +25,8 @@ use mobo::timestep::cell_force::{PatchPair, SmoothPatchPair};
 use mobo::vesicle::membrane::Membrane;
 use mobo::vesicle::reparam::{ReparamParams, Reparametrizer};
 use mobo::vesicle::shapes::Surface;
-use mobo::vesicle::skalak::SkalakParams;
 use mobo::vesicle::shapes::RBC_ALPHA;
+use mobo::vesicle::skalak::SkalakParams;
 
 /// Share of the energy of three functions' coefficients above degree `cut`.
 fn tail_share(lay: &CoefLayout, coefs: &[f64], cut: usize) -> f64 {
@@ -86,7 +86,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let mut most = 0;
         let t = sim.time() + every;
         sim.advance_to(t, |_, r| {
-            most = most.max(r.cells.iter().map(|c| c.gmres.iterations).max().unwrap_or(0));
+            most = most.max(
+                r.cells
+                    .iter()
+                    .map(|c| c.gmres.iterations)
+                    .max()
+                    .unwrap_or(0),
+            );
         })?;
         let g = sim.cell(0)?.geometry;
         let (lo, hi) =
