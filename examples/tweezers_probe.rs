@@ -2,7 +2,7 @@
 //! time units, the axial diameter, the largest GMRES count since the last line, and the
 //! spectral make-up of the Skalak reference's material labels and of the reference composed
 //! from them (share of the energy above degree `p/2`), with the largest angle between a grid
-//! point's label and its own parameter direction.
+//! point's label and its own parameter direction, and the largest membrane speed.
 //!
 //! ```text
 //! cargo run --release --example tweezers_probe -- [ORDER FORCE_PN T_MAX DT EVERY CYCLES WEIGHTS]
@@ -81,7 +81,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sht = ShTransform::new(p)?;
     let lay = CoefLayout::new(p);
     let n = sht.n_points();
-    println!("t D_A max_gmres label_tail ref_tail max_label_angle_deg");
+    println!("t D_A max_gmres label_tail ref_tail max_label_angle_deg max_speed");
     while sim.time() < t_max {
         let mut most = 0;
         let t = sim.time() + every;
@@ -98,6 +98,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (lo, hi) =
             g.x.iter()
                 .fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x[0]), h.max(x[0])));
+        // The largest membrane speed of the last step (units of G_s/μ).
+        let speed = sim.cell(0)?.membrane_velocity.map_or(f64::NAN, |u| {
+            (0..n)
+                .map(|j| (u[j] * u[j] + u[n + j] * u[n + j] + u[2 * n + j] * u[2 * n + j]).sqrt())
+                .fold(0.0, f64::max)
+        });
         let st = &sim.suspension().steppers()[0];
         let labels = st.material_labels().ok_or("no labels")?;
         let reference = st.skalak_reference().ok_or("no reference")?;
@@ -112,7 +118,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             worst = worst.max(c.clamp(-1.0, 1.0).acos());
         }
         println!(
-            "{:.2} {:.4} {most} {:.3e} {:.3e} {:.2}",
+            "{:.2} {:.4} {most} {:.3e} {:.3e} {:.2} {speed:.2e}",
             sim.time(),
             (hi - lo) * r_um,
             tail_share(&lay, &labels.map, p / 2),
