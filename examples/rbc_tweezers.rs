@@ -22,6 +22,11 @@
 //! Mills' values and the relative errors, as a Markdown table. The environment variable
 //! `SHEAR_MODULUS` (µN/m, default 6.3) changes `G_s`; the progress lines on stderr also give
 //! the thickness `D_z` (extent along z).
+//!
+//! Known limits (docs/bie_rbc_stretch.md): the transverse diameter is 24–30 % above Mills'
+//! (the cell's volume holds it wide, in the DPD model too); at 193 pN the inextensible cell
+//! leaves its equilibrium after t ≈ 6 (an unstable mode of the run), while `capsule:100`
+//! (area resisted by `C` alone, no reparametrisation) holds it.
 
 use std::path::Path;
 
