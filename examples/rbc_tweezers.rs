@@ -24,9 +24,9 @@
 //! the thickness `D_z` (extent along z).
 //!
 //! Known limits (docs/bie_rbc_stretch.md): the transverse diameter is 24–30 % above Mills'
-//! (the cell's volume holds it wide, in the DPD model too); at 193 pN the inextensible cell
-//! leaves its equilibrium after t ≈ 6 (an unstable mode of the run), while `capsule:100`
-//! (area resisted by `C` alone, no reparametrisation) holds it.
+//! (the cell's volume holds it wide, in the DPD model too); at 193 pN and p = 12 the
+//! inextensible cell leaves its equilibrium after t ≈ 6 (an unstable mode that p = 16 does
+//! not have: run 193 pN at `ORDER` 16).
 
 use std::path::Path;
 

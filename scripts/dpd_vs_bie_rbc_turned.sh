@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# The turned red blood cell (axis in the shear plane) by DPD in wider channels and at a lower
+# temperature (docs/dpd_vs_bie.md, "The turned cell in wider channels and at a lower
+# temperature"), each run sampled by examples/shear_both_ways.rs, one thread per run:
+#   walls 30 apart (box 32 high, wall speed 1.77), k_BT 1 and 0.25;
+#   walls 40 apart (box 42 high, wall speed 2.36), k_BT 1.
+# The same nominal shear rate as examples/scenes/rbc_shear_bie_and_dpd.toml (2U/gap = 0.118),
+# 125 000 steps each. About 2 hours here with two runs at a time (the 40-wide run alone ~1.5 h).
+#   bash scripts/dpd_vs_bie_rbc_turned.sh > docs/dpd_vs_bie_rbc_turned_runs.txt
+set -euo pipefail
+cd "$(dirname "$0")/.."
+cargo build --release --example shear_both_ways >&2
+scene=examples/scenes/rbc_shear_bie_and_dpd.toml
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+turned() { # the scene turned by 90° about x, run to 125 000 steps
+    sed "s/^radius = 1.0/radius = 1.0\norientation = [1, 0, 0, 90]/; s/^steps = 60000/steps = 125000/; s/^t_end = 4.0/t_end = 40.0/" "$scene"
+}
+turned | sed 's/^box = \[20.0, 14.0, 22.0\]/box = [20.0, 14.0, 32.0]/; s/gap = 20.0/gap = 30.0/; s/^wall_speed = 1.18/wall_speed = 1.77/' \
+    > "$tmp/gap30.toml"
+sed 's/^kbt = 1.0/kbt = 0.25/' "$tmp/gap30.toml" > "$tmp/gap30_kbt0.25.toml"
+turned | sed 's/^box = \[20.0, 14.0, 22.0\]/box = [20.0, 14.0, 42.0]/; s/gap = 20.0/gap = 40.0/; s/^wall_speed = 1.18/wall_speed = 2.36/' \
+    > "$tmp/gap40.toml"
+run() { # $1: name
+    RAYON_NUM_THREADS=1 ./target/release/examples/shear_both_ways "$tmp/$1.toml" dpd 100 4 > "$tmp/$1.txt"
+}
+echo "# dpd_vs_bie_rbc_turned $(date -u +%Y-%m-%d), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
+run gap40 &
+run gap30 &
+wait -n
+run gap30_kbt0.25 &
+wait
+for f in gap30 gap30_kbt0.25 gap40; do
+    echo "## dpd_turned90_$f: t strain D inclination tank_treading_rate/shear_rate shear_rate |n.vorticity|"
+    cat "$tmp/$f.txt"
+done
