@@ -32,23 +32,12 @@ use std::path::Path;
 
 use mobo::scene::cells::parse;
 use mobo::scene::simulation::Simulation;
-use mobo::timestep::cell_force::{PatchPair, SmoothPatchPair};
-use mobo::vesicle::geometry::Geometry;
-use mobo::vesicle::shapes::RBC_ALPHA;
 
-/// Mills et al. (2004): force (pN), axial and transverse diameters (µm).
-const MILLS: [(f64, f64, f64); 3] = [(0.0, 7.78, 7.78), (88.0, 13.07, 4.78), (193.0, 15.29, 4.27)];
-/// Cell diameter (µm), shear modulus (N/m), bending rigidity (J).
-const DIAMETER_UM: f64 = 7.82;
-const SHEAR_UN_PER_M: f64 = 6.3;
-const BENDING_J: f64 = 2.4e-19;
-
-fn extent(g: &Geometry, d: usize) -> f64 {
-    let (lo, hi) =
-        g.x.iter()
-            .fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x[d]), h.max(x[d])));
-    hi - lo
-}
+/// Mills' data, the cell's moduli and units, the pull and the extent (shared with
+/// `tweezers_probe` and `tests/rbc_tweezers.rs`).
+#[path = "common/tweezers.rs"]
+mod tweezers;
+use tweezers::{extent, pull, Units, DIAMETER_UM, MILLS, SHEAR_UN_PER_M};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
@@ -81,10 +70,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     if !(shear_un_per_m > 0.0 && shear_un_per_m.is_finite()) {
         return Err(format!("SHEAR_MODULUS {shear_un_per_m}: must be positive").into());
     }
-    let shear_n_per_m = shear_un_per_m * 1e-6;
-    let r_um = DIAMETER_UM / (2.0 * RBC_ALPHA);
-    let r_m = r_um * 1e-6;
-    let kappa = BENDING_J / (shear_n_per_m * r_m * r_m);
+    let units = Units::new(shear_un_per_m);
+    let (r_um, kappa) = (units.r_um, units.kappa);
     println!(
         "RBC of diameter {DIAMETER_UM} µm (R = {r_um:.4} µm), G_s = {shear_un_per_m} µN/m, κ = 2.4e-19 J: \
          κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each \
@@ -97,25 +84,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // PRECONDITIONER=cell: each cell's own operator inverted ([numerics] preconditioner).
     let preconditioner = std::env::var("PRECONDITIONER").unwrap_or_else(|_| "sphere".into());
     for &f_pn in &forces {
-        let f = f_pn * 1e-12 / (shear_n_per_m * r_m);
-        let text = format!(
-            "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
-             bending_modulus = {kappa}\n{membrane}\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n\
-             elasticity = \"{elasticity}\"\npreconditioner = \"{preconditioner}\"\n"
+        let f = units.force(f_pn);
+        let text = units.scene_text(
+            p,
+            dt,
+            t_max,
+            &membrane,
+            &format!("elasticity = \"{elasticity}\"\npreconditioner = \"{preconditioner}\"\n"),
         );
         let scene = parse(Path::new("rbc_tweezers (in code)"), &text)?;
         let mut sim = Simulation::new(scene)?;
-        let pair = PatchPair {
-            cell: 0,
-            axis: [1.0, 0.0, 0.0],
-            fraction,
-            force: f,
-        };
-        if edge > 0.0 {
-            sim.add_force(SmoothPatchPair { pair, width: edge });
-        } else {
-            sim.add_force(pair);
-        }
+        pull(&mut sim, f, fraction, edge);
         let a0 = sim.cell(0)?.geometry.area();
         let mut last = extent(&sim.cell(0)?.geometry, 0);
         let check = 0.5;

@@ -21,12 +21,16 @@ use mobo::scene::cells::parse;
 use mobo::scene::simulation::Simulation;
 use mobo::sph_harmonics::layout::CoefLayout;
 use mobo::sph_harmonics::ShTransform;
-use mobo::timestep::cell_force::{PatchPair, SmoothPatchPair};
 use mobo::vesicle::membrane::Membrane;
 use mobo::vesicle::reparam::{ReparamParams, Reparametrizer};
 use mobo::vesicle::shapes::Surface;
-use mobo::vesicle::shapes::RBC_ALPHA;
 use mobo::vesicle::skalak::SkalakParams;
+
+/// The setup of `examples/rbc_tweezers.rs` (the cell's moduli and units, the pull, the extent).
+#[allow(dead_code)]
+#[path = "common/tweezers.rs"]
+mod tweezers;
+use tweezers::{extent, pull, Units, SHEAR_UN_PER_M};
 
 /// Share of the energy of three functions' coefficients above degree `cut`.
 fn tail_share(lay: &CoefLayout, coefs: &[f64], cut: usize) -> f64 {
@@ -61,23 +65,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .split(',')
         .map(|s| s.parse())
         .collect::<Result<_, _>>()?;
-    let r_um = 7.82 / (2.0 * RBC_ALPHA);
-    let r_m = r_um * 1e-6;
-    let kappa = 2.4e-19 / (6.3e-6 * r_m * r_m);
-    let force = f_pn * 1e-12 / (6.3e-6 * r_m);
-    let text = format!(
-        "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
-         bending_modulus = {kappa}\n\n[numerics]\norder = {p}\ndt = {dt}\nt_end = {t_max}\n\
-         elasticity = \"implicit\"\n"
-    );
+    let units = Units::new(SHEAR_UN_PER_M);
+    let r_um = units.r_um;
+    let text = units.scene_text(p, dt, t_max, "", "elasticity = \"implicit\"\n");
     let mut sim = Simulation::new(parse(Path::new("tweezers_probe"), &text)?)?;
-    let pair = PatchPair {
-        cell: 0,
-        axis: [1.0, 0.0, 0.0],
-        fraction: 0.025,
-        force,
-    };
-    sim.add_force(SmoothPatchPair { pair, width: 0.1 });
+    pull(&mut sim, units.force(f_pn), 0.025, 0.1);
     let sht = ShTransform::new(p)?;
     let lay = CoefLayout::new(p);
     let n = sht.n_points();
@@ -94,10 +86,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .unwrap_or(0),
             );
         })?;
-        let g = sim.cell(0)?.geometry;
-        let (lo, hi) =
-            g.x.iter()
-                .fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x[0]), h.max(x[0])));
+        let d_a = extent(&sim.cell(0)?.geometry, 0) * r_um;
         // The largest membrane speed of the last step (units of G_s/μ).
         let speed = sim.cell(0)?.membrane_velocity.map_or(f64::NAN, |u| {
             (0..n)
@@ -120,7 +109,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         println!(
             "{:.2} {:.4} {most} {:.3e} {:.3e} {:.2} {speed:.2e}",
             sim.time(),
-            (hi - lo) * r_um,
+            d_a,
             tail_share(&lay, &labels.map, p / 2),
             tail_share(&lay, reference, p / 2),
             worst.to_degrees()

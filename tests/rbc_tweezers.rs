@@ -19,56 +19,39 @@ use std::path::Path;
 
 use mobo::scene::cells::parse;
 use mobo::scene::simulation::Simulation;
-use mobo::timestep::cell_force::{PatchPair, SmoothPatchPair};
-use mobo::vesicle::geometry::Geometry;
-use mobo::vesicle::shapes::RBC_ALPHA;
 
-fn extent(g: &Geometry, d: usize) -> f64 {
-    let (lo, hi) =
-        g.x.iter()
-            .fold((f64::MAX, f64::MIN), |(l, h), x| (l.min(x[d]), h.max(x[d])));
-    hi - lo
-}
+/// The setup of `examples/rbc_tweezers.rs` (Mills' data, the cell's moduli and units, the
+/// pull, the extent).
+#[path = "../examples/common/tweezers.rs"]
+mod tweezers;
+use tweezers::{extent, pull, Units, DIAMETER_UM, MILLS, SHEAR_UN_PER_M};
 
 #[test]
 fn an_rbc_pulled_by_88_pn_reaches_mills_length_and_keeps_its_volume() {
-    let diameter_um = 7.82;
-    let r_um = diameter_um / (2.0 * RBC_ALPHA);
-    let (shear, bending) = (6.3e-6, 2.4e-19);
-    let r_m = r_um * 1e-6;
-    let kappa = bending / (shear * r_m * r_m);
-    let force = 88e-12 / (shear * r_m);
-    let text = format!(
-        "[flow]\nkind = \"none\"\n\n[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\
-         bending_modulus = {kappa}\n\n[numerics]\norder = 8\ndt = 0.01\nt_end = 6.0\n\
-         elasticity = \"implicit\"\n"
-    );
+    let units = Units::new(SHEAR_UN_PER_M);
+    let r_um = units.r_um;
+    let text = units.scene_text(8, 0.01, 6.0, "", "elasticity = \"implicit\"\n");
     let scene = parse(Path::new("rbc_tweezers test"), &text).unwrap();
     let mut sim = Simulation::new(scene).unwrap();
-    let pair = PatchPair {
-        cell: 0,
-        axis: [1.0, 0.0, 0.0],
-        fraction: 0.025,
-        force,
-    };
-    sim.add_force(SmoothPatchPair { pair, width: 0.1 });
+    pull(&mut sim, units.force(88.0), 0.025, 0.1);
+    let (_, mills_da, mills_dt) = MILLS[1];
     let g0 = sim.cell(0).unwrap().geometry;
     let (a0, v0) = (g0.area(), g0.volume());
-    assert!((extent(&g0, 0) * r_um - diameter_um).abs() < 0.05);
+    assert!((extent(&g0, 0) * r_um - DIAMETER_UM).abs() < 0.05);
     sim.advance_to(6.0, |_, _| {}).unwrap();
     let g = sim.cell(0).unwrap().geometry;
     let (da, dt) = (extent(&g, 0) * r_um, extent(&g, 1) * r_um);
     println!(
-        "88 pN, p = 8, t = 6: D_A = {da:.3} µm (Mills 13.07), D_T = {dt:.3} µm (Mills 4.78), \
-         area drift {:.1e}, volume drift {:.1e}",
+        "88 pN, p = 8, t = 6: D_A = {da:.3} µm (Mills {mills_da}), D_T = {dt:.3} µm \
+         (Mills {mills_dt}), area drift {:.1e}, volume drift {:.1e}",
         g.area() / a0 - 1.0,
         g.volume() / v0 - 1.0
     );
     // Measured 2026-11-27: D_A 12.21, D_T 6.22 µm at t = 6 (12.24 / 6.23 at t = 15; p = 12:
     // 12.48 / 6.17); area drift 3.5e-8, volume drift 1.1e-9.
-    assert!((da / 13.07 - 1.0).abs() < 0.1, "D_A = {da} µm");
+    assert!((da / mills_da - 1.0).abs() < 0.1, "D_A = {da} µm");
     assert!((g.area() / a0 - 1.0).abs() < 1e-6);
     assert!((g.volume() / v0 - 1.0).abs() < 1e-6);
     // The volume-conserving answer, 25–35 % above Mills' 4.78 µm.
-    assert!((5.9..6.5).contains(&dt), "D_T = {dt} µm");
+    assert!((5.9..6.5).contains(&dt), "D_T = {dt} µm (Mills {mills_dt})");
 }
