@@ -171,6 +171,7 @@ fn run_one(p: usize, cells: usize) {
         .ok()
         .and_then(|s| s.parse().ok());
     let c0 = susp.coupling_stats().unwrap_or_default();
+    let builds0 = susp.own_preconditioner_builds();
     let cpu0 = cpu_seconds();
     let t = Instant::now();
     let mut iters = 0usize;
@@ -219,6 +220,7 @@ fn run_one(p: usize, cells: usize) {
         "min_gap": if c1.min_gap.is_finite() { c1.min_gap } else { -1.0 },
         "iters": iters as f64 / (steps * cells) as f64,
         "iters_max": iters_max,
+        "own_builds": (susp.own_preconditioner_builds() - builds0) as f64 / (steps * cells) as f64,
         "unconverged": unconverged,
         "rss0_mb": rss0,
         "rss_built_mb": rss_built,

@@ -17,6 +17,13 @@
 //!   (defaults 0.7 20 100000 40000 1; U = 0 measures the thermal deformation at rest)
 //! ```
 //!
+//! Environment: `KBT` (default 1) sets the temperature of the fluid and of the solvent–membrane
+//! coupling, the membrane's moduli unchanged (`μ0R²/k_BT` grows as `k_BT` falls); `A` (default
+//! 25) the conservative force (`A = 25 KBT` keeps the fluid's structure, `a/k_BT`; at `a = 25`
+//! the fluid at `k_BT = 0.25` is 1.5 times as viscous); `ETA` (default 10.07, the viscosity at
+//! `k_BT = 1`, `a = 25`) the viscosity the capillary number uses, to be measured by periodic
+//! Poiseuille at that state.
+//!
 //! The capsule needs a strain γ̇t of a few to reach its steady shape (the boundary-integral
 //! capsule: 2.3 at Ca = 0.043, 5 at Ca = 0.09): at γ̇ ≈ 0.03–0.06 that is 40 000 steps.
 use mobo::dpd::membrane::{BendingModel, MembraneParams, Moduli};
@@ -26,7 +33,18 @@ use mobo::dpd::system::{BodyForce, DpdParams, DpdSystem};
 use mobo::dpd::walls::Wall;
 use mobo::vesicle::{shapes, CellMesh};
 
+/// The fluid's viscosity at `k_BT = 1` (periodic Poiseuille, docs/dpd_cells.md).
 const ETA: f64 = 10.07;
+
+/// A number from the environment variable `name`, or `default`.
+fn env_f64(name: &str, default: f64) -> Result<f64, Box<dyn std::error::Error>> {
+    match std::env::var(name) {
+        Ok(v) => v
+            .parse::<f64>()
+            .map_err(|e| format!("{name} = {v:?}: {e}").into()),
+        Err(_) => Ok(default),
+    }
+}
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
@@ -39,12 +57,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         arg(3, 40000.0)? as usize,
         arg(4, 1.0)? as u64,
     );
+    let (kbt, a_cons, eta) = (
+        env_f64("KBT", 1.0)?,
+        env_f64("A", 25.0)?,
+        env_f64("ETA", ETA)?,
+    );
     let (radius, gap) = (3.0, 20.0);
     let box_len = [20.0, 14.0, gap + 2.0];
     let pair = PairParams {
-        a: 25.0,
+        a: a_cons,
         gamma: 45.0,
-        kbt: 1.0,
+        kbt,
         rc: 1.0,
         power: 0.25,
     };
@@ -122,12 +145,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .sqrt()
     };
     let rate = (szv - sz * sv / n) / (szz - sz * sz / n);
-    let ca = ETA * rate * radius / mu0;
+    let ca = eta * rate * radius / mu0;
     let (da, dv) = sim.cells()[0].area_volume_change()?;
     let secs = t0.elapsed().as_secs_f64();
     let sim_time = steps as f64 * 0.002;
     println!(
-        "U {u_wall} mu0 {mu0}: shear rate {rate:.5} (nominal {:.5}), Ca = eta*rate*R/mu0 = {ca:.4}; \
+        "U {u_wall} mu0 {mu0} kbt {kbt} a {a_cons} eta {eta}: shear rate {rate:.5} (nominal {:.5}), Ca = eta*rate*R/mu0 = {ca:.4}; \
          D = {:.4} ± {:.4}, inclination {:.1} ± {:.1} deg ({} samples); area {da:+.4}, volume \
          {dv:+.4}; fluid k_BT (with the flow) {:.4}, vertex k_BT {:.4}; bounces {}, leaked max {}; {} solvent; \
          {secs:.0} s for t = {sim_time} ({:.1} s per unit time, {:.2} ms/step)",
