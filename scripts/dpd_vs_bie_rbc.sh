@@ -10,18 +10,11 @@
 #   bash scripts/dpd_vs_bie_rbc.sh > docs/dpd_vs_bie_rbc_runs.txt
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --example shear_both_ways >&2
-scene=examples/scenes/rbc_shear_bie_and_dpd.toml
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
-turned() { # $1: angle
-    sed "s/^radius = 1.0/radius = 1.0\norientation = [1, 0, 0, $1]/; s/^steps = 60000/steps = 125000/; s/^t_end = 4.0/t_end = 40.0/" "$scene"
-}
+. scripts/rbc_shear_common.sh
 turned 90 > "$tmp/turned90.toml"
 turned 80 > "$tmp/turned80.toml"
 sed 's/^order = 12/order = 16/' "$scene" > "$tmp/p16.toml"
-sed 's/^box = \[20.0, 14.0, 22.0\]/box = [20.0, 14.0, 32.0]/; s/gap = 20.0/gap = 30.0/; s/^wall_speed = 1.18/wall_speed = 1.77/' \
-    "$scene" > "$tmp/gap30.toml"
+widen 30 < "$scene" > "$tmp/gap30.toml"
 sed '/^wall_speed = /d; /^flow = "couette"/d; s/^steps = 60000/steps = 20000/' "$scene" > "$tmp/rest.toml"
 for ca in 0.104 0.108; do
     sed "s/^shear_modulus = 10.0/shear_modulus = $(python3 -c "print(1/$ca)")/; s/^bending_modulus = 0.5/bending_modulus = $(python3 -c "print(0.05/$ca)")/" \

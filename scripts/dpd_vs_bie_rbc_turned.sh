@@ -9,18 +9,10 @@
 #   bash scripts/dpd_vs_bie_rbc_turned.sh > docs/dpd_vs_bie_rbc_turned_runs.txt
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo build --release --example shear_both_ways >&2
-scene=examples/scenes/rbc_shear_bie_and_dpd.toml
-tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
-turned() { # the scene turned by 90° about x, run to 125 000 steps
-    sed "s/^radius = 1.0/radius = 1.0\norientation = [1, 0, 0, 90]/; s/^steps = 60000/steps = 125000/; s/^t_end = 4.0/t_end = 40.0/" "$scene"
-}
-turned | sed 's/^box = \[20.0, 14.0, 22.0\]/box = [20.0, 14.0, 32.0]/; s/gap = 20.0/gap = 30.0/; s/^wall_speed = 1.18/wall_speed = 1.77/' \
-    > "$tmp/gap30.toml"
+. scripts/rbc_shear_common.sh
+turned | widen 30 > "$tmp/gap30.toml"
 sed 's/^kbt = 1.0/kbt = 0.25/' "$tmp/gap30.toml" > "$tmp/gap30_kbt0.25.toml"
-turned | sed 's/^box = \[20.0, 14.0, 22.0\]/box = [20.0, 14.0, 42.0]/; s/gap = 20.0/gap = 40.0/; s/^wall_speed = 1.18/wall_speed = 2.36/' \
-    > "$tmp/gap40.toml"
+turned | widen 40 > "$tmp/gap40.toml"
 run() { # $1: name
     RAYON_NUM_THREADS=1 ./target/release/examples/shear_both_ways "$tmp/$1.toml" dpd 100 4 > "$tmp/$1.txt"
 }
