@@ -19,9 +19,8 @@ for kbt in ${KBTS:-1 0.25 0.1}; do
     a=$(python3 -c "print(25 * $kbt)")
     sed "s/^gamma = 4.5/gamma = 45.0/; s/^kbt = 1.0/kbt = $kbt/; s/^a = 25.0/a = $a/; s/^power = 1.0/power = 0.25/; s/^dt = 0.01/dt = 0.002/; s/^steps = 20000/steps = 40000/; s/^force = 0.05/force = 0.1/; s/^equilibrate = 4000/equilibrate = 15000/; s/^save_every = 1000/save_every = 40000/" \
         examples/scenes/dpd_poiseuille.toml > "$tmp/pois.toml"
-    ./target/release/mobo dpd "$tmp/pois.toml" --out "$tmp/pois" > /dev/null 2>&1
-    eta=$(python3 -c "import json; v = json.load(open('$tmp/pois/summary.json'))['viscosity']; print(round(v['value'], 2))")
-    stderr=$(python3 -c "import json; v = json.load(open('$tmp/pois/summary.json'))['viscosity']; print(round(v['stderr'], 2))")
+    ./target/release/mobo dpd "$tmp/pois.toml" --out "$tmp/pois_$kbt" > /dev/null 2>&1
+    read -r eta stderr < <(python3 -c "import json; v = json.load(open('$tmp/pois_$kbt/summary.json'))['viscosity']; print(round(v['value'], 2), round(v['stderr'], 2))")
     echo "viscosity at k_BT $kbt, a $a: $eta ± $stderr"
     line=$(KBT=$kbt A=$a ETA=$eta ./target/release/examples/dpd_capsule_shear 0.7 20 "${STEPS:-100000}" "${SETTLE:-40000}" 1)
     echo "DPD: $line"

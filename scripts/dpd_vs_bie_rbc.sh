@@ -25,7 +25,7 @@ run() { # $1: name, then the example's arguments
     shift
     RAYON_NUM_THREADS=1 ./target/release/examples/shear_both_ways "$@" > "$tmp/$name.txt"
 }
-echo "# dpd_vs_bie_rbc $(date -u +%Y-%m-%d), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
+header dpd_vs_bie_rbc
 run dpd_disk "$scene" dpd 100 4 &
 run dpd_turned90 "$tmp/turned90.toml" dpd 100 4 &
 wait
@@ -41,8 +41,5 @@ wait
 run bie_turned90 "$tmp/turned90.toml" bie 25 10 &
 run bie_turned80 "$tmp/turned80.toml" bie 25 10 &
 wait
-for f in bie_disk bie_disk_p16 bie_disk_ca0.104 bie_disk_ca0.108 dpd_disk dpd_disk_gap30 dpd_rest \
-    bie_turned90 bie_turned80 dpd_turned90; do
-    echo "## $f: t strain D inclination tank_treading_rate/shear_rate shear_rate |n.vorticity|"
-    cat "$tmp/$f.txt"
-done
+print_runs "" bie_disk bie_disk_p16 bie_disk_ca0.104 bie_disk_ca0.108 dpd_disk dpd_disk_gap30 dpd_rest \
+    bie_turned90 bie_turned80 dpd_turned90

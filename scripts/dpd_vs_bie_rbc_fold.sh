@@ -16,18 +16,12 @@ turned | local_area 1000.0 > "$tmp/gap20_kd1000.toml"
 turned | widen 30 | local_area 1000.0 > "$tmp/gap30_kd1000.toml"
 sed 's/^seed = 1/seed = 2/' "$tmp/gap30_kd1000.toml" > "$tmp/gap30_kd1000_seed2.toml"
 turned | widen 30 | sed 's/^kbt = 1.0/kbt = 0.25/; s/^a = 25.0/a = 6.25/' > "$tmp/gap30_kbt0.25_a6.25.toml"
-run() { # $1: name
-    RAYON_NUM_THREADS=1 ./target/release/examples/shear_both_ways "$tmp/$1.toml" dpd 100 4 > "$tmp/$1.txt"
-}
-echo "# dpd_vs_bie_rbc_fold $(date -u +%Y-%m-%d), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
-run gap30_kd1000 &
-run gap20_kd1000 &
+header dpd_vs_bie_rbc_fold
+run_dpd gap30_kd1000 &
+run_dpd gap20_kd1000 &
 wait -n
-run gap30_kbt0.25_a6.25 &
+run_dpd gap30_kbt0.25_a6.25 &
 wait -n
-run gap30_kd1000_seed2 &
+run_dpd gap30_kd1000_seed2 &
 wait
-for f in gap20_kd1000 gap30_kd1000 gap30_kd1000_seed2 gap30_kbt0.25_a6.25; do
-    echo "## dpd_turned90_$f: t strain D inclination tank_treading_rate/shear_rate shear_rate |n.vorticity|"
-    cat "$tmp/$f.txt"
-done
+print_runs dpd_turned90_ gap20_kd1000 gap30_kd1000 gap30_kd1000_seed2 gap30_kbt0.25_a6.25

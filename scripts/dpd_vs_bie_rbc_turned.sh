@@ -13,16 +13,10 @@ cd "$(dirname "$0")/.."
 turned | widen 30 > "$tmp/gap30.toml"
 sed 's/^kbt = 1.0/kbt = 0.25/' "$tmp/gap30.toml" > "$tmp/gap30_kbt0.25.toml"
 turned | widen 40 > "$tmp/gap40.toml"
-run() { # $1: name
-    RAYON_NUM_THREADS=1 ./target/release/examples/shear_both_ways "$tmp/$1.toml" dpd 100 4 > "$tmp/$1.txt"
-}
-echo "# dpd_vs_bie_rbc_turned $(date -u +%Y-%m-%d), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
-run gap40 &
-run gap30 &
+header dpd_vs_bie_rbc_turned
+run_dpd gap40 &
+run_dpd gap30 &
 wait -n
-run gap30_kbt0.25 &
+run_dpd gap30_kbt0.25 &
 wait
-for f in gap30 gap30_kbt0.25 gap40; do
-    echo "## dpd_turned90_$f: t strain D inclination tank_treading_rate/shear_rate shear_rate |n.vorticity|"
-    cat "$tmp/$f.txt"
-done
+print_runs dpd_turned90_ gap30 gap30_kbt0.25 gap40

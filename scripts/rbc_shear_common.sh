@@ -25,3 +25,24 @@ widen() {
 local_area() {
     sed "s/^gamma_c = 0.0/gamma_c = 0.0\nkd = $1/"
 }
+
+# The first line of a script's output: its name $1, the date and the machine.
+header() {
+    echo "# $1 $(date -u +%Y-%m-%d), $(nproc) cores, $(grep -m1 'model name' /proc/cpuinfo | cut -d: -f2 | xargs)"
+}
+
+# Run the DPD scene "$tmp/$1.toml" (one thread, a sample every 100 steps from strain 4) into
+# "$tmp/$1.txt".
+run_dpd() {
+    RAYON_NUM_THREADS=1 ./target/release/examples/shear_both_ways "$tmp/$1.toml" dpd 100 4 > "$tmp/$1.txt"
+}
+
+# Print the samples "$tmp/NAME.txt" of each NAME after $1, each under a heading "## $1NAME".
+print_runs() {
+    local prefix=$1 f
+    shift
+    for f in "$@"; do
+        echo "## $prefix$f: t strain D inclination tank_treading_rate/shear_rate shear_rate |n.vorticity|"
+        cat "$tmp/$f.txt"
+    done
+}
