@@ -20,16 +20,7 @@ use mobo::gpu::{Gpu, GpuPrecision};
 use common::{checkpoint_bits, mobo, ok, summary, tmpdir, write, DPD_PARTICLE_ARRAYS};
 
 fn gpu() -> Option<Arc<Gpu>> {
-    match Gpu::shared() {
-        Ok(g) => Some(g),
-        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
-            panic!("CI=true and no GPU adapter: {e}")
-        }
-        Err(e) => {
-            eprintln!("skipping the GPU DPD tests: {e}");
-            None
-        }
-    }
+    common::gpu_or_skip("the GPU DPD tests")
 }
 
 fn fluid(box_len: [f64; 3], power: f64, body: BodyForce, seed: u64) -> DpdSystem {

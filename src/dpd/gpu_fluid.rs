@@ -1,7 +1,8 @@
 //! The DPD fluid stepped on the GPU (feature `gpu`).
 //!
 //! [`GpuFluid`] takes a [`DpdSystem`] (periodic, or with a plane or cylinder wall of frozen
-//! particles, resting or sliding; cells in the fluid stay on the CPU), uploads it, and
+//! particles, resting or sliding; for cells in the fluid only the solvent's pair forces go to
+//! the GPU: [`super::gpu_pairs`]), uploads it, and
 //! advances it on the device with the same step as [`DpdSystem::step`] (see `crate::gpu::dpd`
 //! for the passes):
 //! velocity-Verlet, cell lists rebuilt every step, the pair force
@@ -62,32 +63,7 @@ impl GpuFluid {
     /// Upload `sys` (its particles, their current forces, the wall and its speed, and the step
     /// count).
     pub fn new(gpu: Arc<Gpu>, sys: &DpdSystem, precision: GpuPrecision) -> Result<Self, DpdError> {
-        let prm = &sys.params;
-        let grid = CellGrid::new(prm.box_len, prm.pair.rc)?;
-        let (reverse, body) = match sys.body {
-            BodyForce::None => (0.0, [0.0; 3]),
-            BodyForce::Constant(g) => (0.0, g),
-            BodyForce::ReversePoiseuille { force } => (force, [0.0; 3]),
-        };
-        let spec = DpdFluidSpec {
-            box_len: prm.box_len,
-            dims: grid.dims.map(|d| d as u32),
-            a: prm.pair.a,
-            gamma: prm.pair.gamma,
-            sigma: prm.pair.sigma(),
-            rc: prm.pair.rc,
-            power: prm.pair.power,
-            dt: prm.dt,
-            mass: prm.mass,
-            key0: mix64(prm.seed ^ super::rng::SEED_MIX),
-            body,
-            reverse_poiseuille: reverse,
-            wall: sys.wall.map(|w| match w {
-                Wall::Planes { lo, hi } => WallSpec::Planes { lo, hi },
-                Wall::Cylinder { radius, center } => WallSpec::Cylinder { radius, center },
-            }),
-            wall_speed: sys.wall_speed,
-        };
+        let spec = fluid_spec(sys)?;
         let p = &sys.particles;
         let zip3 = |a: &[f64], b: &[f64], c: &[f64]| -> Vec<[f64; 3]> {
             a.iter()
@@ -215,6 +191,37 @@ impl GpuFluid {
         );
         Ok(())
     }
+}
+
+/// The fluid's parameters as the GPU passes take them: its pair force, cell grid, noise key,
+/// body force and wall.
+pub(crate) fn fluid_spec(sys: &DpdSystem) -> Result<DpdFluidSpec, DpdError> {
+    let prm = &sys.params;
+    let grid = CellGrid::new(prm.box_len, prm.pair.rc)?;
+    let (reverse, body) = match sys.body {
+        BodyForce::None => (0.0, [0.0; 3]),
+        BodyForce::Constant(g) => (0.0, g),
+        BodyForce::ReversePoiseuille { force } => (force, [0.0; 3]),
+    };
+    Ok(DpdFluidSpec {
+        box_len: prm.box_len,
+        dims: grid.dims.map(|d| d as u32),
+        a: prm.pair.a,
+        gamma: prm.pair.gamma,
+        sigma: prm.pair.sigma(),
+        rc: prm.pair.rc,
+        power: prm.pair.power,
+        dt: prm.dt,
+        mass: prm.mass,
+        key0: mix64(prm.seed ^ super::rng::SEED_MIX),
+        body,
+        reverse_poiseuille: reverse,
+        wall: sys.wall.map(|w| match w {
+            Wall::Planes { lo, hi } => WallSpec::Planes { lo, hi },
+            Wall::Cylinder { radius, center } => WallSpec::Cylinder { radius, center },
+        }),
+        wall_speed: sys.wall_speed,
+    })
 }
 
 /// The instability of particle `id` found at device step `step`, with its position at the

@@ -47,6 +47,8 @@ pub mod contact;
 pub mod crossing;
 #[cfg(feature = "gpu")]
 pub mod gpu_fluid;
+#[cfg(feature = "gpu")]
+pub mod gpu_pairs;
 pub mod membrane;
 pub mod pair_force;
 pub mod poiseuille;

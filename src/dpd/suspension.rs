@@ -77,7 +77,7 @@ use super::crossing::{first_crossing, inside};
 use super::membrane::{Membrane, MembraneParams, MembraneTopology};
 use super::pair_force::{minimum_image, Particles};
 use super::rng::{mix64, normal, pair_noise, step_key, stream};
-use super::system::{BodyForce, DpdSystem};
+use super::system::{BodyForce, DpdSystem, PairForces};
 use super::{require, DpdError};
 use crate::linalg3::{cross3, dot3, sub3};
 use rayon::prelude::*;
@@ -736,6 +736,14 @@ impl DpdSuspension {
     /// One velocity-Verlet step of solvent and vertices, with the bounce-back off the moving
     /// membranes between the drift and the force evaluation.
     pub fn step(&mut self) -> Result<(), DpdError> {
+        self.step_with(None)
+    }
+
+    /// [`Self::step`] with the solvent's pair forces from `pairs` (the CPU loops if `None`;
+    /// on a GPU: `crate::dpd::gpu_pairs::GpuPairForces`). Everything else (membranes,
+    /// bounce-back, the solvent–vertex pairs, contacts, integration) runs on the CPU as in
+    /// [`Self::step`].
+    pub fn step_with(&mut self, pairs: Option<&mut dyn PairForces>) -> Result<(), DpdError> {
         let dt = self.fluid.params.dt;
         let h = 0.5 * dt / self.coupling.vertex_mass;
         self.fluid.kick_and_drift();
@@ -755,7 +763,7 @@ impl DpdSuspension {
         self.check_vertex_drift()?;
         self.bounce_vertices_off_wall();
         self.bounce_off_membranes();
-        self.fluid.settle()?;
+        self.fluid.settle_with(pairs)?;
         self.add_coupling_forces()?;
         self.fluid.kick();
         for c in &mut self.cells {

@@ -35,6 +35,24 @@ pub enum BodyForce {
     },
 }
 
+/// Where the solvent's pair forces are computed: by default the CPU loops
+/// ([`cell_forces`], the reference), or elsewhere through this seam, such as a GPU
+/// (`crate::dpd::gpu_pairs::GpuPairForces`, feature `gpu`), for the steps of cells in the fluid
+/// ([`super::suspension::DpdSuspension::step_with`]).
+pub trait PairForces {
+    /// Set `f` to the pair forces (conservative, dissipative and random, no body force) of
+    /// the particles `p`, sorted by `cells`, with the pair noise of step `step`
+    /// (`step_key(seed, step)`), and return the virial `Σ_{i<j} r_ij·F^C_ij`.
+    fn pair_forces(
+        &mut self,
+        pair: &PairParams,
+        p: &Particles,
+        cells: &CellList,
+        step: u64,
+        f: [&mut [f64]; 3],
+    ) -> Result<f64, DpdError>;
+}
+
 /// Fluid parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DpdParams {
@@ -345,13 +363,33 @@ impl DpdSystem {
     /// After the drift: the wall's bounce-back, wrapping into the box, the sort by cell and the
     /// pair and body forces at the new positions (noise of the current step).
     pub(crate) fn settle(&mut self) -> Result<(), DpdError> {
+        self.settle_with(None)
+    }
+
+    /// [`Self::settle`] with the pair forces from `pairs` (the CPU loops if `None`).
+    pub(crate) fn settle_with(
+        &mut self,
+        pairs: Option<&mut dyn PairForces>,
+    ) -> Result<(), DpdError> {
         let t1 = std::time::Instant::now();
         self.bounce_back();
         self.wrap_and_check(self.step)?;
         let t2 = std::time::Instant::now();
         self.sort();
         let t3 = std::time::Instant::now();
-        self.compute_forces();
+        match pairs {
+            None => self.compute_forces(),
+            Some(pairs) => {
+                self.virial = pairs.pair_forces(
+                    &self.params.pair,
+                    &self.particles,
+                    &self.cells,
+                    self.step,
+                    [&mut self.fx, &mut self.fy, &mut self.fz],
+                )?;
+                self.add_body_force();
+            }
+        }
         let t4 = std::time::Instant::now();
         self.timings.integrate_s += (t2 - t1).as_secs_f64();
         self.timings.sort_s += (t3 - t2).as_secs_f64();
@@ -572,6 +610,11 @@ impl DpdSystem {
             &mut self.fz,
             &mut self.virials,
         );
+        self.add_body_force();
+    }
+
+    /// Add the body force to the forces of the pair loops.
+    fn add_body_force(&mut self) {
         match self.body {
             BodyForce::None => {}
             BodyForce::Constant(g) => {

@@ -143,10 +143,75 @@ struct ProfilePass {
     staging: wgpu::Buffer,
 }
 
+/// The integer (`ipar`, a uniform block) and real (`rpar`, in the pass's precision) parameters
+/// of the passes, for `n` particles in `ncells` cells (`nblocks` scan blocks) and the dispatch
+/// grids `gn` (particles) and `gc` (cells).
+pub(super) fn parameters(
+    spec: &DpdFluidSpec,
+    precision: GpuPrecision,
+    n: usize,
+    ncells: usize,
+    nblocks: usize,
+    gn: (u32, u32),
+    gc: (u32, u32),
+) -> ([u32; IPAR_LEN], Vec<u8>) {
+    let mut ipar = [0u32; IPAR_LEN];
+    ipar[..10].copy_from_slice(&[
+        n as u32,
+        ncells as u32,
+        spec.dims[0],
+        spec.dims[1],
+        spec.dims[2],
+        nblocks as u32,
+        spec.key0 as u32,
+        (spec.key0 >> 32) as u32,
+        gn.0,
+        gc.0,
+    ]);
+    ipar[10] = match spec.wall {
+        None => WALL_NONE,
+        Some(WallSpec::Planes { .. }) => WALL_PLANES,
+        Some(WallSpec::Cylinder { .. }) => WALL_CYLINDER,
+    };
+    let mut r = [0.0f64; rpar::LEN];
+    for k in 0..3 {
+        // In f32 the box is the largest f32 not above L: positions the device wraps into
+        // [0, L_f32) are then inside [0, L) on the host too (a resumed run continues bit for
+        // bit, and the host never re-wraps them).
+        r[rpar::BOX + k] = match precision {
+            GpuPrecision::F64 => spec.box_len[k],
+            GpuPrecision::F32 => f32_not_above(spec.box_len[k]) as f64,
+        };
+        r[rpar::INV_CELL + k] = spec.dims[k] as f64 / spec.box_len[k];
+        r[rpar::BODY + k] = spec.body[k];
+    }
+    r[rpar::A] = spec.a;
+    r[rpar::GAMMA] = spec.gamma;
+    r[rpar::SIGMA] = spec.sigma;
+    r[rpar::RC] = spec.rc;
+    r[rpar::DT] = spec.dt;
+    r[rpar::HALF_DT_OVER_M] = 0.5 * spec.dt / spec.mass;
+    r[rpar::INV_SQRT_DT] = 1.0 / spec.dt.sqrt();
+    r[rpar::REVERSE] = spec.reverse_poiseuille;
+    r[rpar::HALF_LZ] = 0.5 * spec.box_len[2];
+    let w = match spec.wall {
+        None => [0.0; 3],
+        Some(WallSpec::Planes { lo, hi }) => [lo, hi, 0.0],
+        Some(WallSpec::Cylinder { radius, center }) => [radius, center[0], center[1]],
+    };
+    r[rpar::WALL..rpar::WALL + 3].copy_from_slice(&w);
+    r[rpar::WALL_SPEED] = spec.wall_speed;
+    let rpar_bytes = match precision {
+        GpuPrecision::F64 => bytes(&r).to_vec(),
+        GpuPrecision::F32 => bytes(&r.map(|c| c as f32)).to_vec(),
+    };
+    (ipar, rpar_bytes)
+}
+
 /// Steps per command buffer (one submission).
 pub const STEPS_PER_SUBMIT: u64 = 50;
 
-fn bytes<T: bytemuck::Pod>(v: &[T]) -> &[u8] {
+pub(super) fn bytes<T: bytemuck::Pod>(v: &[T]) -> &[u8] {
     bytemuck::cast_slice(v)
 }
 
@@ -196,7 +261,7 @@ fn f32_not_above(x: f64) -> f32 {
 }
 
 /// Split `items` threads of `WG` into a 2-D grid within the device's per-dimension limit.
-fn grid(items: usize, max_groups: u32) -> Result<(u32, u32), GpuError> {
+pub(super) fn grid(items: usize, max_groups: u32) -> Result<(u32, u32), GpuError> {
     split_groups(items.div_ceil(WG as usize), max_groups, || {
         format!("{items} threads")
     })
@@ -355,61 +420,12 @@ impl DpdFluidPass {
         let mut control = [0u32; CTL_LEN];
         control[..4].copy_from_slice(&[step as u32, (step >> 32) as u32, 0, u32::MAX]);
         let ctl = init("dpd control", bytes(&control));
-        let mut ipar = [0u32; IPAR_LEN];
-        ipar[..10].copy_from_slice(&[
-            n as u32,
-            ncells as u32,
-            spec.dims[0],
-            spec.dims[1],
-            spec.dims[2],
-            nblocks as u32,
-            spec.key0 as u32,
-            (spec.key0 >> 32) as u32,
-            gn.0,
-            gc.0,
-        ]);
-        ipar[10] = match spec.wall {
-            None => WALL_NONE,
-            Some(WallSpec::Planes { .. }) => WALL_PLANES,
-            Some(WallSpec::Cylinder { .. }) => WALL_CYLINDER,
-        };
+        let (ipar, rpar_bytes) = parameters(spec, precision, n, ncells, nblocks, gn, gc);
         let ipar = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("dpd integer parameters"),
             contents: bytes(&ipar),
             usage: wgpu::BufferUsages::UNIFORM,
         });
-        let mut r = [0.0f64; rpar::LEN];
-        for k in 0..3 {
-            // In f32 the box is the largest f32 not above L: positions the device wraps into
-            // [0, L_f32) are then inside [0, L) on the host too (a resumed run continues bit for
-            // bit, and the host never re-wraps them).
-            r[rpar::BOX + k] = match precision {
-                GpuPrecision::F64 => spec.box_len[k],
-                GpuPrecision::F32 => f32_not_above(spec.box_len[k]) as f64,
-            };
-            r[rpar::INV_CELL + k] = spec.dims[k] as f64 / spec.box_len[k];
-            r[rpar::BODY + k] = spec.body[k];
-        }
-        r[rpar::A] = spec.a;
-        r[rpar::GAMMA] = spec.gamma;
-        r[rpar::SIGMA] = spec.sigma;
-        r[rpar::RC] = spec.rc;
-        r[rpar::DT] = spec.dt;
-        r[rpar::HALF_DT_OVER_M] = 0.5 * spec.dt / spec.mass;
-        r[rpar::INV_SQRT_DT] = 1.0 / spec.dt.sqrt();
-        r[rpar::REVERSE] = spec.reverse_poiseuille;
-        r[rpar::HALF_LZ] = 0.5 * spec.box_len[2];
-        let w = match spec.wall {
-            None => [0.0; 3],
-            Some(WallSpec::Planes { lo, hi }) => [lo, hi, 0.0],
-            Some(WallSpec::Cylinder { radius, center }) => [radius, center[0], center[1]],
-        };
-        r[rpar::WALL..rpar::WALL + 3].copy_from_slice(&w);
-        r[rpar::WALL_SPEED] = spec.wall_speed;
-        let rpar_bytes = match precision {
-            GpuPrecision::F64 => bytes(&r).to_vec(),
-            GpuPrecision::F32 => bytes(&r.map(|c| c as f32)).to_vec(),
-        };
         let rparb = init("dpd real parameters", &rpar_bytes);
 
         // Each pass's bindings (the pipeline's layout is derived from its shader, so each bind

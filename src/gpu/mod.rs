@@ -31,6 +31,8 @@ mod context;
 #[cfg(feature = "gpu")]
 pub mod dpd;
 #[cfg(feature = "gpu")]
+pub mod dpd_pairs;
+#[cfg(feature = "gpu")]
 pub mod dpd_profile;
 #[cfg(feature = "gpu")]
 mod dpd_shader;

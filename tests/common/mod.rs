@@ -156,3 +156,19 @@ pub fn checkpoint_bits(dir: &std::path::Path, names: &[&str]) -> Vec<(String, Ve
         })
         .collect()
 }
+
+/// The shared GPU adapter, or `None` with a message that `what` is skipped; in CI (`CI=true`)
+/// a missing adapter is a failure.
+#[cfg(feature = "gpu")]
+pub fn gpu_or_skip(what: &str) -> Option<std::sync::Arc<mobo::gpu::Gpu>> {
+    match mobo::gpu::Gpu::shared() {
+        Ok(g) => Some(g),
+        Err(e) if std::env::var("CI").as_deref() == Ok("true") => {
+            panic!("CI=true and no GPU adapter: {e}")
+        }
+        Err(e) => {
+            eprintln!("skipping {what}: {e}");
+            None
+        }
+    }
+}

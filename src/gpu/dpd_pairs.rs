@@ -1,0 +1,306 @@
+//! The DPD solvent's pair forces on the GPU for particles the host sorted by cell: the force
+//! pass of [`super::dpd`] alone, fed every step from the host.
+//!
+//! [`super::dpd::DpdFluidPass`] keeps the whole fluid on the device. Cells in the fluid
+//! (`crate::dpd::suspension`) need the solvent on the host at every step (bounce-back off the
+//! moving membranes, the solvent–vertex pairs), so there the device computes only the solvent's
+//! pair forces: the host uploads positions, velocities, ids and its cell list's starts (cells
+//! numbered `x` fastest, as on the device), the pass sums each particle's pairs over its 27
+//! neighbour cells with the same force and the same counter-based noise as the CPU's
+//! `crate::dpd::pair_force::cell_forces`, and the forces with each particle's half of the
+//! virial come back. No body force is added here: the host adds it, as after the CPU loops.
+//!
+//! One call moves about `2·4·R + 4` bytes per particle up and `4·R` down (`R` the bytes of a
+//! real: 4 in `f32`, 8 in `f64`), plus 4 per cell.
+
+use std::sync::Arc;
+
+use wgpu::util::DeviceExt;
+
+use super::dpd::{bytes, grid, parameters, DpdFluidSpec};
+use super::dpd_shader::{self, CTL_LEN, SCAN_BLOCK};
+use super::{Gpu, GpuError, GpuPrecision};
+
+/// The pair-force pass (see the module docs).
+pub struct DpdPairPass {
+    gpu: Arc<Gpu>,
+    precision: GpuPrecision,
+    n: usize,
+    ncells: usize,
+    pipeline: wgpu::ComputePipeline,
+    bind_group: wgpu::BindGroup,
+    groups: (u32, u32),
+    pos: wgpu::Buffer,
+    vel: wgpu::Buffer,
+    frc: wgpu::Buffer,
+    ids: wgpu::Buffer,
+    start: wgpu::Buffer,
+    ctl: wgpu::Buffer,
+    staging: wgpu::Buffer,
+    /// Packing scratch (kept between calls).
+    pack: Vec<u8>,
+}
+
+/// One call's particles, sorted by cell: positions inside the box, velocities, ids and the
+/// cell list's starts (`ncells + 1` entries, the last the particle count).
+pub struct SortedParticles<'a> {
+    /// Positions `x`, `y`, `z`.
+    pub x: [&'a [f64]; 3],
+    /// Velocities.
+    pub v: [&'a [f64]; 3],
+    /// Permanent ids.
+    pub id: &'a [u32],
+    /// Cell `c` holds particles `starts[c]..starts[c + 1]`.
+    pub starts: &'a [usize],
+}
+
+impl DpdPairPass {
+    /// A pass for `n` particles of the fluid `spec` (its body force, wall and mass are not
+    /// used).
+    pub fn new(
+        gpu: Arc<Gpu>,
+        precision: GpuPrecision,
+        spec: &DpdFluidSpec,
+        n: usize,
+    ) -> Result<Self, GpuError> {
+        if precision == GpuPrecision::F64 && !gpu.has_f64() {
+            return Err(GpuError::NoF64(gpu.describe()));
+        }
+        if n == 0 || n >= (u32::MAX / 2) as usize {
+            return Err(GpuError::Shape(format!("{n} particles (1 to 2³¹)")));
+        }
+        if spec.dims.iter().any(|&d| d < 3) {
+            return Err(GpuError::Shape(format!(
+                "cell grid {:?}: at least 3 cells per axis",
+                spec.dims
+            )));
+        }
+        let ncells = spec.dims.iter().map(|&d| d as u64).product::<u64>();
+        if ncells >= (u32::MAX / 2) as u64 {
+            return Err(GpuError::Shape(format!("{ncells} cells (below 2³¹)")));
+        }
+        let ncells = ncells as usize;
+        let Some(sources) = dpd_shader::sources(precision, spec.power) else {
+            return Err(GpuError::Unsupported(format!(
+                "kernel exponent k = {} in {}: the f64 shaders take k = 1, 1/2 and 1/4 only \
+                 (WGSL has no f64 pow); use f32",
+                spec.power,
+                precision.name()
+            )));
+        };
+        let source = sources
+            .into_iter()
+            .find(|(name, _)| *name == "forces")
+            .map(|(_, s)| s)
+            .expect("the fluid's passes include the force pass");
+        let real = match precision {
+            GpuPrecision::F32 => 4usize,
+            GpuPrecision::F64 => 8,
+        };
+        let vec4 = n * 4 * real;
+        if vec4 as u64 > gpu.max_binding {
+            return Err(GpuError::TooLarge {
+                what: format!("{n} particles' positions"),
+                bytes: vec4 as u64,
+                limit: gpu.max_binding,
+            });
+        }
+        let gn = grid(n, gpu.max_groups)?;
+        let gc = grid(ncells, gpu.max_groups)?;
+        let nblocks = ncells.div_ceil(SCAN_BLOCK as usize);
+        let (ipar, rpar_bytes) = parameters(spec, precision, n, ncells, nblocks, gn, gc);
+        let dev = &gpu.device;
+        let storage = wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_SRC
+            | wgpu::BufferUsages::COPY_DST;
+        let pos = gpu.buffer("dpd pairs positions", vec4, storage);
+        let vel = gpu.buffer("dpd pairs velocities", vec4, storage);
+        let frc = gpu.buffer("dpd pairs forces", vec4, storage);
+        let ids = gpu.buffer("dpd pairs ids", n * 4, storage);
+        let start = gpu.buffer("dpd pairs cell starts", (ncells + 1) * 4, storage);
+        let ctl = gpu.buffer("dpd pairs control", CTL_LEN * 4, storage);
+        let ipar = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("dpd pairs integer parameters"),
+            contents: bytes(&ipar),
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+        let rpar = dev.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("dpd pairs real parameters"),
+            contents: &rpar_bytes,
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        // SAFETY: the pass indexes particles below `n` (the grid covers at least `n` threads,
+        // each checks `s < n`) and, through `start`, slots below `start[ncells] = n`; cell
+        // coordinates are clamped to the grid, so `row + cx + 1 ≤ ncells`; `rpar` is read up
+        // to 17 of `rpar::LEN`, `ctl` at 0 and 1 of `CTL_LEN`. [`Self::forces`] checks that
+        // `start` is a non-decreasing list of `ncells + 1` offsets ending at `n` before it is
+        // uploaded.
+        let pipeline = unsafe { gpu.trusted_pipeline("dpd pairs", &source) };
+        let bind_group = gpu.bind_group(
+            "dpd pairs",
+            &pipeline,
+            &[
+                (0, &pos),
+                (1, &vel),
+                (2, &frc),
+                (3, &ids),
+                (4, &start),
+                (10, &ctl),
+                (11, &ipar),
+                (12, &rpar),
+            ],
+        );
+        let staging = gpu.buffer(
+            "dpd pairs read-back",
+            vec4,
+            wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+        );
+        Ok(DpdPairPass {
+            gpu,
+            precision,
+            n,
+            ncells,
+            pipeline,
+            bind_group,
+            groups: gn,
+            pos,
+            vel,
+            frc,
+            ids,
+            start,
+            ctl,
+            staging,
+            pack: Vec::new(),
+        })
+    }
+
+    /// Particles.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// Whether there are none (never).
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// The precision of the pass.
+    pub fn precision(&self) -> GpuPrecision {
+        self.precision
+    }
+
+    /// The device.
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// The pair forces of `p` with the noise of step `step`: `f` gets each particle's force,
+    /// `virials` its half of the virial `Σ_j r_ij·F^C_ij / 2` (both in `p`'s order). Errors:
+    /// arrays of the wrong length or a cell list that is not one.
+    pub fn forces(
+        &mut self,
+        p: &SortedParticles<'_>,
+        step: u64,
+        f: [&mut [f64]; 3],
+        virials: &mut [f64],
+    ) -> Result<(), GpuError> {
+        let n = self.n;
+        let lens_ok = p.x.iter().chain(&p.v).all(|a| a.len() == n)
+            && p.id.len() == n
+            && f.iter().all(|a| a.len() == n)
+            && virials.len() == n;
+        if !lens_ok {
+            return Err(GpuError::Shape(format!(
+                "the pair pass holds {n} particles: positions, velocities, ids, forces and \
+                 virials must have one entry each"
+            )));
+        }
+        let s = p.starts;
+        if s.len() != self.ncells + 1
+            || s[0] != 0
+            || s[self.ncells] != n
+            || s.windows(2).any(|w| w[0] > w[1])
+        {
+            return Err(GpuError::Shape(format!(
+                "a cell list of {} starts for {} cells and {n} particles: not non-decreasing \
+                 from 0 to {n}",
+                s.len(),
+                self.ncells
+            )));
+        }
+        let queue = &self.gpu.queue;
+        pack_soa(&mut self.pack, p.x, self.precision);
+        queue.write_buffer(&self.pos, 0, &self.pack);
+        pack_soa(&mut self.pack, p.v, self.precision);
+        queue.write_buffer(&self.vel, 0, &self.pack);
+        queue.write_buffer(&self.ids, 0, bytes(p.id));
+        let starts: Vec<u32> = s.iter().map(|&c| c as u32).collect();
+        queue.write_buffer(&self.start, 0, bytes(&starts));
+        let mut control = [0u32; CTL_LEN];
+        control[..2].copy_from_slice(&[step as u32, (step >> 32) as u32]);
+        queue.write_buffer(&self.ctl, 0, bytes(&control));
+        let mut encoder = self.gpu.device.create_command_encoder(&Default::default());
+        {
+            let mut cp = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("dpd pairs"),
+                timestamp_writes: None,
+            });
+            cp.set_pipeline(&self.pipeline);
+            cp.set_bind_group(0, &self.bind_group, &[]);
+            cp.dispatch_workgroups(self.groups.0, self.groups.1, 1);
+        }
+        encoder.copy_buffer_to_buffer(&self.frc, 0, &self.staging, 0, self.frc.size());
+        queue.submit([encoder.finish()]);
+        let slice = self.staging.slice(..);
+        self.gpu.map_read(&slice)?;
+        {
+            let view = slice
+                .get_mapped_range()
+                .map_err(|e| GpuError::Execution(e.to_string()))?;
+            let [fx, fy, fz] = f;
+            let mut put = |i: usize, c: [f64; 4]| {
+                (fx[i], fy[i], fz[i], virials[i]) = (c[0], c[1], c[2], c[3]);
+            };
+            match self.precision {
+                GpuPrecision::F64 => {
+                    let v: &[f64] = bytemuck::cast_slice(&view[..n * 32]);
+                    for (i, c) in v.chunks_exact(4).enumerate() {
+                        put(i, [c[0], c[1], c[2], c[3]]);
+                    }
+                }
+                GpuPrecision::F32 => {
+                    let v: &[f32] = bytemuck::cast_slice(&view[..n * 16]);
+                    for (i, c) in v.chunks_exact(4).enumerate() {
+                        put(i, [c[0], c[1], c[2], c[3]].map(f64::from));
+                    }
+                }
+            }
+        }
+        self.staging.unmap();
+        Ok(())
+    }
+}
+
+/// Interleave three coordinate arrays as `vec4` in `prec` (the fourth component 0).
+fn pack_soa(out: &mut Vec<u8>, c: [&[f64]; 3], prec: GpuPrecision) {
+    out.clear();
+    let n = c[0].len();
+    match prec {
+        GpuPrecision::F64 => {
+            out.reserve(n * 32);
+            for i in 0..n {
+                for v in [c[0][i], c[1][i], c[2][i], 0.0] {
+                    out.extend_from_slice(&v.to_ne_bytes());
+                }
+            }
+        }
+        GpuPrecision::F32 => {
+            out.reserve(n * 16);
+            for i in 0..n {
+                for v in [c[0][i], c[1][i], c[2][i], 0.0] {
+                    out.extend_from_slice(&(v as f32).to_ne_bytes());
+                }
+            }
+        }
+    }
+}
