@@ -64,8 +64,8 @@ fn with_sphere(fluid: DpdSystem, centre: [f64; 3]) -> DpdSuspension {
 /// The periodic box and the channel between plane walls (with a body force), each with one
 /// cell.
 fn suspensions() -> Vec<(&'static str, DpdSuspension)> {
-    let periodic = DpdSystem::random_fluid(params([7.0, 7.5, 8.0], 5), 3.0, BodyForce::None)
-        .unwrap();
+    let periodic =
+        DpdSystem::random_fluid(params([7.0, 7.5, 8.0], 5), 3.0, BodyForce::None).unwrap();
     let channel = DpdSystem::with_wall(
         params([7.0, 7.0, 9.0], 6),
         3.0,
@@ -85,7 +85,12 @@ fn suspensions() -> Vec<(&'static str, DpdSuspension)> {
 fn max_diff(a: &DpdSuspension, b: &DpdSuspension) -> [f64; 4] {
     let l = a.fluid.params.box_len;
     let index = |s: &DpdSystem| -> HashMap<u32, usize> {
-        s.particles.id.iter().enumerate().map(|(i, &id)| (id, i)).collect()
+        s.particles
+            .id
+            .iter()
+            .enumerate()
+            .map(|(i, &id)| (id, i))
+            .collect()
     };
     let (pa, pb) = (&a.fluid.particles, &b.fluid.particles);
     let ib = index(&b.fluid);
@@ -128,7 +133,10 @@ fn f64_pair_forces_on_the_gpu_step_cells_as_the_cpu() {
         cpu.step().unwrap();
         dev.step_with(Some(&mut pairs)).unwrap();
         let d = max_diff(&cpu, &dev);
-        eprintln!("{name}: one step, solvent x {:.1e} v {:.1e}, vertices x {:.1e} v {:.1e}", d[0], d[1], d[2], d[3]);
+        eprintln!(
+            "{name}: one step, solvent x {:.1e} v {:.1e}, vertices x {:.1e} v {:.1e}",
+            d[0], d[1], d[2], d[3]
+        );
         assert!(d.iter().all(|&e| e < 1e-12), "{name}, one step: {d:?}");
         assert!(
             (cpu.fluid.virial - dev.fluid.virial).abs() < 1e-10 * cpu.fluid.virial.abs(),
@@ -183,4 +191,99 @@ fn f32_pair_forces_keep_the_cell_tight_and_the_momentum() {
     }
     let t = sim.fluid.kinetic_temperature();
     assert!((t - 1.0).abs() < 0.05, "solvent k_BT {t}");
+}
+
+/// A channel between walls sliding at ±0.5 with one sphere in it, 60 steps.
+const SCENE: &str = r#"[dpd]
+box = [8.0, 8.0, 10.0]
+density = 3.0
+a = 25.0
+gamma = 4.5
+kbt = 1.0
+power = 0.25
+dt = 0.005
+steps = 60
+seed = 4
+walls = { kind = "planes", gap = 8.0 }
+wall_warmup = 20
+flow = "couette"
+wall_speed = 0.5
+save_every = 20
+
+[[dpd.cells]]
+shape = "sphere"
+radius = 1.8
+center = [4.0, 4.0, 5.0]
+subdivisions = 2
+shear_modulus = 20.0
+bending_rigidity = 2.0
+"#;
+
+fn observables(dir: &std::path::Path) -> Vec<Vec<f64>> {
+    std::fs::read_to_string(dir.join("observables.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.trim().parse().unwrap()).collect())
+        .collect()
+}
+
+#[test]
+fn mobo_dpd_with_cells_on_the_gpu_in_f64_follows_the_cpu_run() {
+    let Some(g) = common::gpu_or_skip("the GPU tests of cells in the DPD fluid") else {
+        return;
+    };
+    if !g.has_f64() {
+        eprintln!("no f64 shaders on {}: skipped", g.describe());
+        return;
+    }
+    let dir = common::tmpdir("gpu-dpd-cells-scene");
+    let run = |name: &str, extra: &str| {
+        let text = SCENE.replace("save_every = 20\n", &format!("save_every = 20\n{extra}"));
+        let scene = common::write(&dir, &format!("{name}.toml"), &text);
+        let out = dir.join(name);
+        common::ok(
+            &common::mobo(&["dpd", &scene, "--out", out.to_str().unwrap(), "--quiet"]),
+            name,
+        );
+        out
+    };
+    let cpu = run("cpu", "gpu = false\n");
+    let dev = run("gpu", "gpu = true\ngpu_precision = \"f64\"\n");
+    let (sc, sg) = (common::summary(&cpu), common::summary(&dev));
+    assert_eq!(sc["fluid_step"]["device"], "cpu");
+    assert_eq!(sg["fluid_step"]["device"], "gpu", "{}", sg["fluid_step"]);
+    assert!(
+        sg["fluid_step"]["reason"]
+            .as_str()
+            .unwrap()
+            .contains("pair forces"),
+        "{}",
+        sg["fluid_step"]
+    );
+    // The walls' warm-up ran where the fluid runs.
+    assert_eq!(sc["wall_warmup"]["device"], "cpu");
+    assert_eq!(sg["wall_warmup"]["device"], "gpu", "{}", sg["wall_warmup"]);
+    assert_eq!(sg["wall_warmup"]["steps"], 20);
+    // Observables rows and the cell's shape: the same run to rounding grown over 80 steps.
+    let (oc, og) = (observables(&cpu), observables(&dev));
+    assert_eq!(oc.len(), og.len());
+    for (a, b) in oc.iter().zip(&og) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-8 * (1.0 + x.abs()), "{a:?} vs {b:?}");
+        }
+    }
+    assert_eq!(sc["bounces"], sg["bounces"]);
+    assert_eq!(sc["fluid_particles"], sg["fluid_particles"]);
+    let (mc, mg) = (&sc["membranes"], &sg["membranes"]);
+    assert_eq!(mc["bounces"], mg["bounces"], "{mc} vs {mg}");
+    assert!(mg["bounces"].as_u64().unwrap() > 0, "{mg}");
+    assert_eq!(mg["leaked_particles"], 0, "{mg}");
+    for key in ["taylor_deformation", "area_change", "volume_change"] {
+        let (c, g) = (
+            mc["per_cell"][0][key].as_f64().unwrap(),
+            mg["per_cell"][0][key].as_f64().unwrap(),
+        );
+        assert!((c - g).abs() < 1e-8, "{key}: {c} vs {g}");
+    }
 }

@@ -49,7 +49,11 @@ pub struct GpuPairForces {
 impl GpuPairForces {
     /// A pass for the particles of `fluid` (their number stays; the parameters are its
     /// pair force, time step, seed and box).
-    pub fn new(gpu: Arc<Gpu>, fluid: &DpdSystem, precision: GpuPrecision) -> Result<Self, DpdError> {
+    pub fn new(
+        gpu: Arc<Gpu>,
+        fluid: &DpdSystem,
+        precision: GpuPrecision,
+    ) -> Result<Self, DpdError> {
         // The host adds the body force after the pairs, as after the CPU loops.
         let spec = DpdFluidSpec {
             body: [0.0; 3],

@@ -489,7 +489,7 @@ impl DpdSystem {
     /// A fluid of density `density` bounded by `wall`: a periodic fluid filling the box is
     /// equilibrated for `warmup` steps, then its particles in the wall layer (`0 ≤ d < r_c`)
     /// are frozen (velocity 0), those deeper in the wall removed, and the rest form the fluid.
-    /// Ids are renumbered; the step counter starts at 0.
+    /// Ids are renumbered in the order of the bulk's; the step counter starts at 0.
     pub fn with_wall(
         params: DpdParams,
         density: f64,
@@ -497,14 +497,35 @@ impl DpdSystem {
         wall: Wall,
         warmup: u64,
     ) -> Result<Self, DpdError> {
+        Self::with_wall_warmed_by(params, density, body, wall, warmup, |bulk, steps| {
+            (0..steps).try_for_each(|_| bulk.step())
+        })
+    }
+
+    /// [`Self::with_wall`] with the `warmup` steps of the periodic fluid run by `warm` (on a
+    /// GPU: `crate::dpd::gpu_fluid::GpuFluid`), which must leave the fluid's state after them
+    /// in the system it is given.
+    pub fn with_wall_warmed_by(
+        params: DpdParams,
+        density: f64,
+        body: BodyForce,
+        wall: Wall,
+        warmup: u64,
+        warm: impl FnOnce(&mut DpdSystem, u64) -> Result<(), DpdError>,
+    ) -> Result<Self, DpdError> {
         let mut bulk = Self::random_fluid(params, density, BodyForce::None)?;
-        for _ in 0..warmup {
-            bulk.step()?;
+        if warmup > 0 {
+            warm(&mut bulk, warmup)?;
         }
         let q = &bulk.particles;
         let rc = params.pair.rc;
         let mut p = Particles::default();
-        for i in 0..q.len() {
+        // In the order of the bulk's ids, so that the new ids do not depend on the order the
+        // warm-up left the particles in (the CPU's and the GPU's cell lists order a cell's
+        // particles differently).
+        let mut by_id: Vec<usize> = (0..q.len()).collect();
+        by_id.sort_unstable_by_key(|&i| q.id[i]);
+        for i in by_id {
             let d = wall.sdf([q.x[i], q.y[i], q.z[i]]);
             if d >= rc {
                 continue;

@@ -24,9 +24,12 @@
 //! gpu_precision = "f32"      # "f32" (default, as GPU DPD codes) | "f64" (k = 1, 1/2, 1/4 only)
 //! ```
 //!
-//! The GPU steps the fluid, walls included (`crate::dpd::gpu_fluid`); cells stay on the CPU.
-//! `auto` takes a hardware GPU for at least `AUTO_MIN_PARTICLES` (in `scene::dpd_run`)
-//! particles, `true` any adapter, and fails where there is none or where cells ask for the CPU.
+//! The GPU steps the fluid, walls included (`crate::dpd::gpu_fluid`), and warms up the walls'
+//! fluid before they freeze. With cells in the fluid it computes the solvent's pair forces
+//! only (`crate::dpd::gpu_pairs`); the membranes, the bounce-back off them and the
+//! solvent–vertex pairs stay on the CPU. `auto` takes a hardware GPU for at least
+//! `AUTO_MIN_PARTICLES` (in `scene::dpd_run`) particles, `true` any adapter, and fails where
+//! there is none.
 //!
 //! Walls (frozen particles and bounce-back, [`crate::dpd::walls`]):
 //!
@@ -584,12 +587,6 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
         None => GpuChoice::Auto,
         Some(flag) => flag.choice().map_err(|why| located("gpu", why))?,
     };
-    if gpu == GpuChoice::On && !d.cells.is_empty() {
-        return Err(located(
-            "gpu",
-            "cells in the fluid are stepped on the CPU only (set gpu = false or \"auto\")".into(),
-        ));
-    }
     let gpu_precision = match d.gpu_precision.as_deref() {
         None | Some("f32") => GpuPrecision::F32,
         Some("f64") => {

@@ -33,10 +33,10 @@ use crate::dpd::poiseuille::{
     kinetic_theory_viscosity, FlowGeometry, KineticViscosity, ProfileSampler, ViscosityFit,
 };
 use crate::dpd::suspension::{CellState, CouplingParams, DpdSuspension, SuspensionState};
-use crate::dpd::system::{BodyForce, DpdSystem, DpdTimings};
+use crate::dpd::system::{BodyForce, DpdSystem, DpdTimings, PairForces};
 use crate::dpd::walls::Wall;
 use crate::dpd::DpdError;
-use crate::gpu::{GpuChoice, GpuDecision, GpuError};
+use crate::gpu::{GpuChoice, GpuDecision, GpuError, GpuPrecision};
 use crate::io::checkpoint::Checkpoint;
 use crate::io::vtk::{write_polydata, write_pvd, DataArray, DataValues, PolyMesh, PvdEntry};
 use crate::io::{write_atomic, IoError};
@@ -146,6 +146,10 @@ pub struct DpdSummary {
     /// Where the fluid's steps ran and why (`[dpd] gpu`): `{"device": "cpu" | "gpu", "adapter",
     /// "precision", "reason"}`.
     pub fluid_step: GpuDecision,
+    /// Where this invocation warmed up the walls' fluid before freezing them (the GPU where
+    /// `[dpd] gpu` takes it for a fluid of that size), and how long it took (`null` without
+    /// walls or when the run resumed).
+    pub wall_warmup: Option<WallWarmup>,
     /// Wall seconds of the steps (all invocations of a resumed run).
     pub wall_s: f64,
     /// Wall milliseconds per step in this invocation (NaN when it took no step).
@@ -278,7 +282,9 @@ pub struct CellSummary {
 /// What a run steps: the fluid alone, or cells in it, or the fluid on the GPU.
 enum Model {
     Fluid(Box<DpdSystem>),
-    Cells(Box<DpdSuspension>),
+    /// Cells in the fluid; with a pair-force backend (the GPU's) the solvent's pair forces are
+    /// computed there, the rest of the step on the CPU.
+    Cells(Box<DpdSuspension>, Option<Box<dyn PairForces>>),
     /// The fluid stepped on the GPU; the host system holds the state as last synced (at every
     /// observables row and checkpoint, and at the end); a profile sample is binned on the
     /// device and reads back only the bins' partial sums.
@@ -290,7 +296,7 @@ impl Model {
     fn fluid(&self) -> &DpdSystem {
         match self {
             Model::Fluid(f) => f,
-            Model::Cells(s) => &s.fluid,
+            Model::Cells(s, _) => &s.fluid,
             #[cfg(feature = "gpu")]
             Model::Gpu(f, _) => f,
         }
@@ -300,7 +306,9 @@ impl Model {
     fn advance(&mut self, steps: u64) -> Result<(), DpdError> {
         match self {
             Model::Fluid(f) => (0..steps).try_for_each(|_| f.step()),
-            Model::Cells(s) => (0..steps).try_for_each(|_| s.step()),
+            Model::Cells(s, pairs) => (0..steps).try_for_each(|_| {
+                s.step_with(pairs.as_mut().map(|p| &mut **p as &mut dyn PairForces))
+            }),
             #[cfg(feature = "gpu")]
             Model::Gpu(_, dev) => dev.advance(steps),
         }
@@ -340,7 +348,7 @@ impl Model {
     /// than one at a time.
     fn batches(&self) -> bool {
         match self {
-            Model::Fluid(_) | Model::Cells(_) => false,
+            Model::Fluid(_) | Model::Cells(..) => false,
             #[cfg(feature = "gpu")]
             Model::Gpu(..) => true,
         }
@@ -349,14 +357,14 @@ impl Model {
     /// Total momentum (solvent and vertices).
     fn momentum(&self) -> [f64; 3] {
         match self {
-            Model::Cells(s) => s.momentum(),
+            Model::Cells(s, _) => s.momentum(),
             _ => self.fluid().momentum(),
         }
     }
 
     fn cells(&self) -> Option<&DpdSuspension> {
         match self {
-            Model::Cells(s) => Some(s),
+            Model::Cells(s, _) => Some(s),
             _ => None,
         }
     }
@@ -390,54 +398,29 @@ fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdR
 #[cfg(feature = "gpu")]
 fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdRunError> {
     use crate::dpd::gpu_fluid::GpuFluid;
-    use crate::gpu::{Gpu, GpuPrecision};
-    let auto = scene.gpu == GpuChoice::Auto;
-    let cpu = |model: Model, adapter: Option<String>, why: String| {
-        Ok((model, GpuDecision::cpu(adapter, why)))
-    };
-    let refuse = |why: String| -> Result<(Model, GpuDecision), DpdRunError> {
-        Err(DpdError::Gpu(GpuError::Unsupported(why)).into())
-    };
-    let sys = match model {
-        Model::Fluid(sys) => sys,
-        other if auto => return cpu(other, None, "cells are stepped on the CPU only".into()),
-        _ => return refuse("cells are stepped on the CPU only".into()),
-    };
-    let gpu = match Gpu::shared() {
-        Ok(g) => g,
-        Err(e) if auto => return cpu(Model::Fluid(sys), None, e.to_string()),
-        Err(e) => return Err(DpdError::Gpu(e).into()),
+    use crate::dpd::gpu_pairs::GpuPairForces;
+    let (gpu, prec, mut reason) = match choose_gpu(scene, model.fluid().len())? {
+        Ok(chosen) => chosen,
+        Err((adapter, why)) => return Ok((model, GpuDecision::cpu(adapter, why))),
     };
     let adapter = Some(gpu.describe());
-    if auto && !gpu.is_hardware() {
-        let why = "the adapter is not a hardware GPU (a CPU rasteriser would only compete with the CPU loops)";
-        return cpu(Model::Fluid(sys), adapter, why.into());
-    }
-    if auto && sys.len() < AUTO_MIN_PARTICLES {
-        let why = format!(
-            "{} particles, below the {AUTO_MIN_PARTICLES} where the GPU gains",
-            sys.len()
-        );
-        return cpu(Model::Fluid(sys), adapter, why);
-    }
-    let prec = scene.gpu_precision;
-    if prec == GpuPrecision::F64 && !gpu.has_f64() {
-        if auto {
-            let why = "f64 asked for and the adapter has no f64 shaders".to_string();
-            return cpu(Model::Fluid(sys), adapter, why);
+    let model = match model {
+        Model::Fluid(sys) => {
+            let dev = GpuFluid::new(gpu, &sys, prec)?;
+            Model::Gpu(sys, Box::new(dev))
         }
-        return Err(DpdError::Gpu(GpuError::NoF64(gpu.describe())).into());
-    }
-    let dev = GpuFluid::new(gpu, &sys, prec)?;
-    let reason = match scene.gpu {
-        GpuChoice::On => "gpu = true".to_string(),
-        _ => format!(
-            "a hardware GPU and {} particles (auto takes at least {AUTO_MIN_PARTICLES})",
-            sys.len()
-        ),
+        Model::Cells(sim, _) => {
+            let pairs = GpuPairForces::new(gpu, &sim.fluid, prec)?;
+            reason.push_str(
+                "; with cells only the solvent's pair forces run there (the membranes, the \
+                 bounce-back off them and the solvent-vertex pairs on the CPU)",
+            );
+            Model::Cells(sim, Some(Box::new(pairs)))
+        }
+        Model::Gpu(..) => unreachable!("the model is placed once"),
     };
     Ok((
-        Model::Gpu(sys, Box::new(dev)),
+        model,
         GpuDecision {
             device: "gpu".into(),
             adapter,
@@ -445,6 +428,49 @@ fn open_gpu(scene: &DpdScene, model: Model) -> Result<(Model, GpuDecision), DpdR
             reason,
         },
     ))
+}
+
+/// The adapter, precision and reason for stepping a fluid of `n` particles on the GPU, or,
+/// where `gpu = "auto"` declines, the adapter looked at and why not. Errors where `gpu = true`
+/// cannot be served.
+#[cfg(feature = "gpu")]
+#[allow(clippy::type_complexity)]
+fn choose_gpu(
+    scene: &DpdScene,
+    n: usize,
+) -> Result<
+    Result<(std::sync::Arc<crate::gpu::Gpu>, GpuPrecision, String), (Option<String>, String)>,
+    DpdRunError,
+> {
+    use crate::gpu::Gpu;
+    let auto = scene.gpu == GpuChoice::Auto;
+    let gpu = match Gpu::shared() {
+        Ok(g) => g,
+        Err(e) if auto => return Ok(Err((None, e.to_string()))),
+        Err(e) => return Err(DpdError::Gpu(e).into()),
+    };
+    let adapter = Some(gpu.describe());
+    if auto && !gpu.is_hardware() {
+        let why = "the adapter is not a hardware GPU (a CPU rasteriser would only compete with the CPU loops)";
+        return Ok(Err((adapter, why.into())));
+    }
+    if auto && n < AUTO_MIN_PARTICLES {
+        let why = format!("{n} particles, below the {AUTO_MIN_PARTICLES} where the GPU gains");
+        return Ok(Err((adapter, why)));
+    }
+    let prec = scene.gpu_precision;
+    if prec == GpuPrecision::F64 && !gpu.has_f64() {
+        if auto {
+            let why = "f64 asked for and the adapter has no f64 shaders".to_string();
+            return Ok(Err((adapter, why)));
+        }
+        return Err(DpdError::Gpu(GpuError::NoF64(gpu.describe())).into());
+    }
+    let reason = match scene.gpu {
+        GpuChoice::On => "gpu = true".to_string(),
+        _ => format!("a hardware GPU and {n} particles (auto takes at least {AUTO_MIN_PARTICLES})"),
+    };
+    Ok(Ok((gpu, prec, reason)))
 }
 
 /// Most steps the GPU runs between looks at the stop flag (Ctrl-C, a scheduler's SIGTERM):
@@ -502,12 +528,113 @@ impl Events {
     }
 }
 
-/// The fluid of a new run, with the scene's cells put into it.
-fn build_model(scene: &DpdScene) -> Result<Model, DpdRunError> {
+/// The fluid of a new run, with the scene's cells put into it, and where the walls' warm-up
+/// ran (on the GPU where the scene's fluid may go there: [`warmup_gpu`]).
+fn build_model(scene: &DpdScene) -> Result<(Model, Option<WallWarmup>), DpdRunError> {
+    let (sys, warmup) = build_fluid_warmed(scene, warmup_gpu(scene)?)?;
     if scene.cells.is_empty() {
-        return Ok(Model::Fluid(Box::new(build_fluid(scene)?)));
+        return Ok((Model::Fluid(Box::new(sys)), warmup));
     }
-    Ok(Model::Cells(Box::new(build_suspension(scene)?)))
+    let sim = put_cells(scene, sys)?;
+    Ok((Model::Cells(Box::new(sim), None), warmup))
+}
+
+/// Where the walls' warm-up ran, in this invocation (JSON `wall_warmup`).
+#[derive(Clone, Debug, Serialize)]
+pub struct WallWarmup {
+    /// Steps of the periodic fluid before the wall particles froze (`[dpd] wall_warmup`).
+    pub steps: u64,
+    /// `"cpu"` or `"gpu"`.
+    pub device: String,
+    /// The GPU's precision (`null` on the CPU).
+    pub precision: Option<GpuPrecision>,
+    /// Wall seconds of the warm-up (the GPU's include uploading and reading back the fluid).
+    pub seconds: f64,
+}
+
+/// The GPU that warms up the walls' fluid: where `[dpd] gpu` would take the GPU for the
+/// periodic fluid of the warm-up (its `round(ρV)` particles, more than the walled fluid
+/// keeps), the same adapter and precision; `None` for the CPU.
+#[cfg(feature = "gpu")]
+fn warmup_gpu(scene: &DpdScene) -> Result<Option<WarmupDevice>, DpdRunError> {
+    if scene.gpu == GpuChoice::Off || scene.wall.is_none() || scene.wall_warmup == 0 {
+        return Ok(None);
+    }
+    let n = (scene.density * scene.params.volume()).round() as usize;
+    Ok(choose_gpu(scene, n)?.ok().map(|(gpu, prec, _)| (gpu, prec)))
+}
+
+#[cfg(not(feature = "gpu"))]
+fn warmup_gpu(_scene: &DpdScene) -> Result<Option<WarmupDevice>, DpdRunError> {
+    Ok(None)
+}
+
+/// The device of a warm-up on the GPU.
+#[cfg(feature = "gpu")]
+type WarmupDevice = (Arc<crate::gpu::Gpu>, GpuPrecision);
+/// Without the `gpu` feature there is none.
+#[cfg(not(feature = "gpu"))]
+type WarmupDevice = std::convert::Infallible;
+
+/// [`build_fluid`] with the walls' warm-up on `device` (the CPU if `None`), and where it ran.
+fn build_fluid_warmed(
+    scene: &DpdScene,
+    device: Option<WarmupDevice>,
+) -> Result<(DpdSystem, Option<WallWarmup>), DpdRunError> {
+    let Some(w) = scene.wall else {
+        return Ok((build_fluid(scene)?, None));
+    };
+    let t0 = Instant::now();
+    let precision = device.as_ref().map(warmup_precision);
+    let mut sys = DpdSystem::with_wall_warmed_by(
+        scene.params,
+        scene.density,
+        scene.body,
+        w,
+        scene.wall_warmup,
+        |bulk, steps| match device {
+            None => (0..steps).try_for_each(|_| bulk.step()),
+            Some(d) => warm_on_gpu(d, bulk, steps),
+        },
+    )?;
+    let seconds = t0.elapsed().as_secs_f64();
+    if scene.wall_speed != 0.0 {
+        sys.start_couette(scene.wall_speed)?;
+    }
+    let warmup = WallWarmup {
+        steps: scene.wall_warmup,
+        device: if precision.is_some() { "gpu" } else { "cpu" }.into(),
+        precision,
+        seconds,
+    };
+    Ok((sys, Some(warmup)))
+}
+
+#[cfg(feature = "gpu")]
+fn warmup_precision(d: &WarmupDevice) -> GpuPrecision {
+    d.1
+}
+
+#[cfg(not(feature = "gpu"))]
+fn warmup_precision(d: &WarmupDevice) -> GpuPrecision {
+    match *d {}
+}
+
+/// `steps` steps of the periodic `bulk` on the GPU, its state read back into it.
+#[cfg(feature = "gpu")]
+fn warm_on_gpu(
+    (gpu, prec): WarmupDevice,
+    bulk: &mut DpdSystem,
+    steps: u64,
+) -> Result<(), DpdError> {
+    let mut dev = crate::dpd::gpu_fluid::GpuFluid::new(gpu, bulk, prec)?;
+    dev.advance(steps)?;
+    dev.sync(bulk)
+}
+
+#[cfg(not(feature = "gpu"))]
+fn warm_on_gpu(d: WarmupDevice, _bulk: &mut DpdSystem, _steps: u64) -> Result<(), DpdError> {
+    match d {}
 }
 
 /// The fluid of a scene as `mobo dpd` starts it (random particles, or the walls warmed up;
@@ -550,7 +677,11 @@ pub fn build_fluid(scene: &DpdScene) -> Result<DpdSystem, DpdRunError> {
 /// # Errors
 /// [`DpdRunError::Dynamics`] for parameters the fluid or a membrane refuses.
 pub fn build_suspension(scene: &DpdScene) -> Result<DpdSuspension, DpdRunError> {
-    let sys = build_fluid(scene)?;
+    put_cells(scene, build_fluid(scene)?)
+}
+
+/// The scene's cells and their external forces put into `sys`.
+fn put_cells(scene: &DpdScene, sys: DpdSystem) -> Result<DpdSuspension, DpdRunError> {
     let specs = scene.cells.iter().map(|c| c.spec.clone()).collect();
     let mut sim = DpdSuspension::new(sys, specs, scene.coupling)?;
     for (k, c) in scene.cells.iter().enumerate() {
@@ -787,11 +918,14 @@ pub fn run(
     opts: &DpdRunOptions,
 ) -> Result<DpdSummary, DpdRunError> {
     let ckpt_path = out.join(CHECKPOINT);
+    // Where this invocation warmed up the walls (none when it resumes).
+    let mut wall_warmup = None;
     let (model, mut sampler, mut rows, mut wall_before, p0, earlier) = if opts.resume {
         restore(scene, &ckpt_path)?
     } else {
         write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
-        let model = build_model(scene)?;
+        let (model, warmup) = build_model(scene)?;
+        wall_warmup = warmup;
         if let Some(sim) = model.cells() {
             write_membranes(out, sim)?;
         }
@@ -900,7 +1034,7 @@ pub fn run(
         .and_then(|g| sampler.viscosity(model.fluid().density(), g));
     let flow_kt = sampler.flow_temperature(scene.params.mass);
     let shear = shear_rate(scene, &sampler);
-    let summary = summarise(
+    let mut summary = summarise(
         scene,
         &model,
         fluid_step,
@@ -914,6 +1048,7 @@ pub fn run(
         done,
         this_wall,
     );
+    summary.wall_warmup = wall_warmup;
     write_outputs(scene, out, &sampler, fit.as_ref(), &rows, &summary)?;
     Ok(summary)
 }
@@ -1019,6 +1154,7 @@ fn summarise(
         flow: scene.body,
         effects: effects(scene),
         fluid_step,
+        wall_warmup: None,
         wall_s: wall,
         ms_per_step: per_step * 1e3,
         particle_steps_per_second: n as f64 / per_step,
@@ -1275,10 +1411,13 @@ fn restore(scene: &DpdScene, path: &Path) -> Result<Restored, DpdRunError> {
             counters: [counters[0] as u64, counters[1] as u64, counters[2] as u64],
         };
         let specs = scene.cells.iter().map(|c| c.spec.clone()).collect();
-        Model::Cells(Box::new(
-            DpdSuspension::restore(sys, specs, scene.coupling, state)
-                .map_err(|e| bad(format!("does not fit the scene: {e}")))?,
-        ))
+        Model::Cells(
+            Box::new(
+                DpdSuspension::restore(sys, specs, scene.coupling, state)
+                    .map_err(|e| bad(format!("does not fit the scene: {e}")))?,
+            ),
+            None,
+        )
     };
     let earlier = c
         .meta
