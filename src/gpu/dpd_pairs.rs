@@ -15,6 +15,7 @@
 
 use std::sync::Arc;
 
+use rayon::prelude::*;
 use wgpu::util::DeviceExt;
 
 use super::dpd::{bytes, grid, parameters, DpdFluidSpec};
@@ -37,8 +38,10 @@ pub struct DpdPairPass {
     start: wgpu::Buffer,
     ctl: wgpu::Buffer,
     staging: wgpu::Buffer,
-    /// Packing scratch (kept between calls).
-    pack: Vec<u8>,
+    /// Packing scratch (kept between calls): `vec4` in `f32` or `f64`, and the starts.
+    pack32: Vec<f32>,
+    pack64: Vec<f64>,
+    starts32: Vec<u32>,
 }
 
 /// One call's particles, sorted by cell: positions inside the box, velocities, ids and the
@@ -170,7 +173,9 @@ impl DpdPairPass {
             start,
             ctl,
             staging,
-            pack: Vec::new(),
+            pack32: Vec::new(),
+            pack64: Vec::new(),
+            starts32: Vec::new(),
         })
     }
 
@@ -229,13 +234,22 @@ impl DpdPairPass {
             )));
         }
         let queue = &self.gpu.queue;
-        pack_soa(&mut self.pack, p.x, self.precision);
-        queue.write_buffer(&self.pos, 0, &self.pack);
-        pack_soa(&mut self.pack, p.v, self.precision);
-        queue.write_buffer(&self.vel, 0, &self.pack);
+        for (buf, c) in [(&self.pos, p.x), (&self.vel, p.v)] {
+            match self.precision {
+                GpuPrecision::F32 => {
+                    pack_soa(&mut self.pack32, c, |v| v as f32);
+                    queue.write_buffer(buf, 0, bytes(&self.pack32));
+                }
+                GpuPrecision::F64 => {
+                    pack_soa(&mut self.pack64, c, |v| v);
+                    queue.write_buffer(buf, 0, bytes(&self.pack64));
+                }
+            }
+        }
         queue.write_buffer(&self.ids, 0, bytes(p.id));
-        let starts: Vec<u32> = s.iter().map(|&c| c as u32).collect();
-        queue.write_buffer(&self.start, 0, bytes(&starts));
+        self.starts32.clear();
+        self.starts32.extend(s.iter().map(|&c| c as u32));
+        queue.write_buffer(&self.start, 0, bytes(&self.starts32));
         let mut control = [0u32; CTL_LEN];
         control[..2].copy_from_slice(&[step as u32, (step >> 32) as u32]);
         queue.write_buffer(&self.ctl, 0, bytes(&control));
@@ -257,22 +271,12 @@ impl DpdPairPass {
             let view = slice
                 .get_mapped_range()
                 .map_err(|e| GpuError::Execution(e.to_string()))?;
-            let [fx, fy, fz] = f;
-            let mut put = |i: usize, c: [f64; 4]| {
-                (fx[i], fy[i], fz[i], virials[i]) = (c[0], c[1], c[2], c[3]);
-            };
             match self.precision {
                 GpuPrecision::F64 => {
-                    let v: &[f64] = bytemuck::cast_slice(&view[..n * 32]);
-                    for (i, c) in v.chunks_exact(4).enumerate() {
-                        put(i, [c[0], c[1], c[2], c[3]]);
-                    }
+                    unpack_vec4::<f64>(bytemuck::cast_slice(&view[..n * 32]), f, virials)
                 }
                 GpuPrecision::F32 => {
-                    let v: &[f32] = bytemuck::cast_slice(&view[..n * 16]);
-                    for (i, c) in v.chunks_exact(4).enumerate() {
-                        put(i, [c[0], c[1], c[2], c[3]].map(f64::from));
-                    }
+                    unpack_vec4::<f32>(bytemuck::cast_slice(&view[..n * 16]), f, virials)
                 }
             }
         }
@@ -281,26 +285,41 @@ impl DpdPairPass {
     }
 }
 
-/// Interleave three coordinate arrays as `vec4` in `prec` (the fourth component 0).
-fn pack_soa(out: &mut Vec<u8>, c: [&[f64]; 3], prec: GpuPrecision) {
-    out.clear();
+/// Particles per task of the packing loops.
+const CHUNK: usize = 16384;
+
+/// Interleave three coordinate arrays as `vec4` (the fourth component 0), converted by `to`.
+fn pack_soa<T: Copy + Default + Send + Sync>(out: &mut Vec<T>, c: [&[f64]; 3], to: fn(f64) -> T) {
     let n = c[0].len();
-    match prec {
-        GpuPrecision::F64 => {
-            out.reserve(n * 32);
-            for i in 0..n {
-                for v in [c[0][i], c[1][i], c[2][i], 0.0] {
-                    out.extend_from_slice(&v.to_ne_bytes());
-                }
+    out.clear();
+    out.resize(4 * n, T::default());
+    out.par_chunks_mut(4 * CHUNK)
+        .enumerate()
+        .for_each(|(k, dst)| {
+            for (m, q) in dst.chunks_exact_mut(4).enumerate() {
+                let i = k * CHUNK + m;
+                q[0] = to(c[0][i]);
+                q[1] = to(c[1][i]);
+                q[2] = to(c[2][i]);
             }
-        }
-        GpuPrecision::F32 => {
-            out.reserve(n * 16);
-            for i in 0..n {
-                for v in [c[0][i], c[1][i], c[2][i], 0.0] {
-                    out.extend_from_slice(&(v as f32).to_ne_bytes());
-                }
+        });
+}
+
+/// Split `vec4`s into the three force components and the fourth (the virial share).
+fn unpack_vec4<T: Copy + Into<f64> + Sync>(
+    src: &[T],
+    [fx, fy, fz]: [&mut [f64]; 3],
+    virials: &mut [f64],
+) {
+    fx.par_chunks_mut(CHUNK)
+        .zip(fy.par_chunks_mut(CHUNK))
+        .zip(fz.par_chunks_mut(CHUNK))
+        .zip(virials.par_chunks_mut(CHUNK))
+        .zip(src.par_chunks(4 * CHUNK))
+        .for_each(|((((fx, fy), fz), vir), src)| {
+            for (i, q) in src.chunks_exact(4).enumerate() {
+                (fx[i], fy[i], fz[i], vir[i]) =
+                    (q[0].into(), q[1].into(), q[2].into(), q[3].into());
             }
-        }
-    }
+        });
 }
