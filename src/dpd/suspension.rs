@@ -416,6 +416,9 @@ const MAX_BOUNCES: usize = 4;
 /// Marker of a solvent particle outside every cell.
 const OUTSIDE: u32 = u32::MAX;
 
+/// Vertices per task of the solvent–vertex pairs (a cell of 642 vertices makes 11 tasks).
+const VERTEX_BLOCK: usize = 64;
+
 /// Salts of the noise streams of the coupling (distinct from the fluid's pair noise).
 const SALT_COUPLING: u64 = 0x5bd1_e995_0000_0001;
 const SALT_INNER: u64 = 0x5bd1_e995_0000_0002;
@@ -1006,24 +1009,31 @@ impl DpdSuspension {
                 counter[k] += c.external[k];
             }
         }
-        // Solvent–vertex pairs, cells in parallel: each cell sums its vertices' forces and
-        // lists its contributions to the solvent, which are then added cell by cell in the
-        // order of a serial loop (the same sums bit for bit at any thread count).
+        // Solvent–vertex pairs, blocks of a cell's vertices in parallel: each block sums its
+        // vertices' forces and lists its contributions to the solvent, which are then added
+        // block by block in the order of a serial loop (the same sums bit for bit at any
+        // thread count).
         let (cells_list, p, [fx, fy, fz]) = self.fluid.split_for_coupling();
         let (grid, starts) = (&cells_list.grid, &cells_list.starts);
         let weight = |w: f64| super::pair_force::weight_r(cp.power, w);
         let owner = &self.owner;
-        self.solvent_kicks.resize_with(self.cells.len(), Vec::new);
-        self.cells
-            .par_iter_mut()
-            .zip(self.solvent_kicks.par_iter_mut())
-            .enumerate()
-            .for_each(|(ci, (c, kicks))| {
+        let mut blocks = Vec::new();
+        for (ci, c) in self.cells.iter_mut().enumerate() {
+            let chunks = c.x.chunks(VERTEX_BLOCK).zip(c.v.chunks(VERTEX_BLOCK));
+            for (k, ((x, v), f)) in chunks.zip(c.f.chunks_mut(VERTEX_BLOCK)).enumerate() {
+                blocks.push((ci as u32, c.id0 + (k * VERTEX_BLOCK) as u32, x, v, f));
+            }
+        }
+        self.solvent_kicks.resize_with(blocks.len(), Vec::new);
+        let kick_lists = &mut self.solvent_kicks[..blocks.len()];
+        blocks
+            .into_par_iter()
+            .zip(kick_lists.par_iter_mut())
+            .for_each(|((ci, vid0, xs, vs, fs), kicks)| {
                 kicks.clear();
-                for (vi, (x, (v, f))) in c.x.iter().zip(c.v.iter().zip(c.f.iter_mut())).enumerate()
-                {
+                for (vi, (x, (v, f))) in xs.iter().zip(vs.iter().zip(fs.iter_mut())).enumerate() {
                     let xw = wrap(*x, l);
-                    let vid = c.id0 + vi as u32;
+                    let vid = vid0 + vi as u32;
                     for (nc, s) in grid.neighbours(grid.cell_of(xw)) {
                         for j in starts[nc]..starts[nc + 1] {
                             let d = [
@@ -1038,7 +1048,7 @@ impl DpdSuspension {
                             let r = r2.sqrt();
                             let w = 1.0 - r / rc;
                             let wr = weight(w);
-                            let gamma = if owner[p.id[j] as usize] == ci as u32 {
+                            let gamma = if owner[p.id[j] as usize] == ci {
                                 cp.gamma_in
                             } else {
                                 cp.gamma_out
@@ -1060,7 +1070,7 @@ impl DpdSuspension {
                     }
                 }
             });
-        add_kicks(&self.solvent_kicks, [&mut fx[..], &mut fy[..], &mut fz[..]]);
+        add_kicks(kick_lists, [&mut fx[..], &mut fy[..], &mut fz[..]]);
         if counter.iter().any(|&c| c != 0.0) {
             spread_over_outer_solvent(p, &self.owner, counter, [&mut *fx, &mut *fy, &mut *fz]);
         }
@@ -1111,7 +1121,8 @@ impl DpdSuspension {
                         }
                     }
                 });
-            add_kicks(&self.solvent_kicks, [&mut fx[..], &mut fy[..], &mut fz[..]]);
+            let per_cell = &self.solvent_kicks[..self.cells.len()];
+            add_kicks(per_cell, [&mut fx[..], &mut fy[..], &mut fz[..]]);
         }
         // Contact repulsion between vertices of different cells (pairs of cells in parallel,
         // added in the order of a serial loop).

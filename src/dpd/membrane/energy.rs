@@ -379,19 +379,45 @@ impl Membrane {
         }
         let topo = &self.topology;
         let h0 = 0.5 * c0;
+        // Each edge's dihedral angle, its gradient and its length, and each triangle's area
+        // and normal, once (a vertex's curvature and its forces read each edge twice, and
+        // every edge has two vertices).
+        let edges: Vec<(f64, [[f64; 3]; 4], f64)> = topo
+            .edges
+            .iter()
+            .zip(&topo.edge_opposite)
+            .map(|(&[i, j], &[k, l])| {
+                let (theta, g) = dihedral(x[i], x[j], x[k], x[l]);
+                (theta, g, norm(sub(x[i], x[j])))
+            })
+            .collect();
+        let tris: Vec<(f64, [f64; 3])> = topo
+            .triangles
+            .iter()
+            .map(|&[p, q, r]| tri_area(x[p], x[q], x[r]))
+            .collect();
         for v in 0..topo.n_vertices {
-            let (m, a) = self.vertex_curvature(x, v);
+            // M_v = ¼ Σ l_e θ_e, A_v = ⅓ Σ A_t.
+            let m: f64 = topo
+                .vertex_edges(v)
+                .iter()
+                .map(|&e| 0.25 * edges[e].2 * edges[e].0)
+                .sum();
+            let a: f64 = topo
+                .vertex_triangles(v)
+                .iter()
+                .map(|&t| tris[t].0 / 3.0)
+                .sum();
             let d = m - h0 * a;
             let de_dm = 4.0 * kappa * d / a;
             let de_da = -2.0 * kappa * (2.0 * h0 * d / a + d * d / (a * a));
-            // M_v = ¼ Σ l_e θ_e: ∂M_v = ¼ Σ (θ_e ∇l_e + l_e ∇θ_e).
+            // ∂M_v = ¼ Σ (θ_e ∇l_e + l_e ∇θ_e).
             let wm = 0.25 * de_dm;
             for &e in topo.vertex_edges(v) {
                 let [i, j] = topo.edges[e];
                 let [k, l] = topo.edge_opposite[e];
-                let (theta, g) = dihedral(x[i], x[j], x[k], x[l]);
+                let (theta, g, len) = edges[e];
                 let dij = sub(x[i], x[j]);
-                let len = norm(dij);
                 let sl = -wm * theta / len;
                 add_to(&mut f[i], dij, sl);
                 add_to(&mut f[j], dij, -sl);
@@ -399,13 +425,9 @@ impl Membrane {
                     add_to(&mut f[u], gu, -wm * len);
                 }
             }
-            // A_v = ⅓ Σ A_t.
             let wa = de_da / 3.0;
             for &t in topo.vertex_triangles(v) {
-                let tri = topo.triangles[t];
-                let [p, q, r] = tri;
-                let (_, nhat) = tri_area(x[p], x[q], x[r]);
-                add_area_gradient(x, tri, nhat, wa, f);
+                add_area_gradient(x, topo.triangles[t], tris[t].1, wa, f);
             }
         }
     }
