@@ -373,6 +373,11 @@ impl Model {
 /// Smallest fluid `gpu = "auto"` steps on the GPU. At 10⁵ particles the H200 took 0.09 ms per
 /// step against 5.5 ms on 16 CPU threads (benches/RESULTS.md); below about 2·10⁴ the launches
 /// and the read-back at every sample (every 10 steps by default) are a large share of a step.
+/// With cells (only the solvent's pair forces on the GPU, the state crossing the bus every
+/// step) the same threshold holds on the H200 machine: one RBC in 18 480 particles ran as fast
+/// on 16 CPU threads as with the GPU (5.4 against 5.6–5.8 ms per step), and 2.4× faster with
+/// the GPU than on one thread; in 811 008 particles the GPU was 1.9× faster in `f32` than 16
+/// threads (benches/RESULTS.md).
 pub const AUTO_MIN_PARTICLES: usize = 20_000;
 
 /// Where the fluid's steps run (`[dpd] gpu`), and why: the model as built, or its fluid moved
