@@ -82,7 +82,9 @@ print(f"| {sys.argv[2]} | {dev} | {sys.argv[3]} | {s['steps']} | {s['particles']
       f"{w.get('device', '-')} {w.get('precision') or ''} {w.get('seconds', float('nan')):.2f} s | "
       f"{m.get('bounces', '-')} | {m.get('leaked_particles', '-')} | "
       f"{cell.get('taylor_deformation', float('nan')):.4f} | {cell.get('inclination_deg', float('nan')):.1f} | "
-      f"{s['temperature']:.4f} |")
+      f"{s['temperature']:.4f} | " + " / ".join(
+          f"{m.get('timings', {}).get(k, float('nan')) / s['steps'] * 1e3:.2f}"
+          for k in ("bounce_s", "membrane_s", "coupling_s", "leaks_s")) + " |")
 PY
 }
 
@@ -100,8 +102,8 @@ all="$(nproc)"
 gpu32=$'gpu = true\ngpu_precision = "f32"\n'
 gpu64=$'gpu = true\ngpu_precision = "f64"\n'
 cpu=$'gpu = false\n'
-echo "| run | fluid step | threads | steps | particles | ms/step | particle-steps/s | pair forces % of the steps | warm-up | membrane bounces | leaked | D | inclination ° | k_BT |"
-echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+echo "| run | fluid step | threads | steps | particles | ms/step | particle-steps/s | pair forces % of the steps | warm-up | membrane bounces | leaked | D | inclination ° | k_BT | cells: bounce / membrane / coupling / leaks, ms per step |"
+echo "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
 S="${STEPS:-2000}"
 O="${ONE_STEPS:-300}"
 run rbc-cpu "$all" "$(rbc_scene "$S" "$cpu")"

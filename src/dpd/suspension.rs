@@ -424,6 +424,24 @@ const SALT_COUPLING: u64 = 0x5bd1_e995_0000_0001;
 const SALT_INNER: u64 = 0x5bd1_e995_0000_0002;
 const SALT_MEMBRANE: u64 = 0x5bd1_e995_0000_0003;
 
+/// Wall seconds of the cells' part of the steps (the fluid's own phases are in
+/// [`DpdSystem::timings`]), since the suspension was made or restored.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct CellTimings {
+    /// The vertices' kicks and drift, the drift check and the bounce-back of vertices off a
+    /// wall.
+    pub vertices_s: f64,
+    /// The bounce-back of the solvent off the membranes.
+    pub bounce_s: f64,
+    /// The membranes' own forces (elastic, bending, area, volume, viscous), the body and
+    /// external forces on the vertices.
+    pub membrane_s: f64,
+    /// The solvent–vertex pairs, the inner viscosity and the contacts between cells.
+    pub coupling_s: f64,
+    /// The leak counts (every `check_every` steps).
+    pub leaks_s: f64,
+}
+
 /// Cells in a DPD fluid (see the module docs).
 #[derive(Clone, Debug)]
 pub struct DpdSuspension {
@@ -439,6 +457,8 @@ pub struct DpdSuspension {
     /// Per cell, its contributions to the solvent's forces in the current force evaluation
     /// (scratch kept between steps).
     solvent_kicks: Vec<Vec<(u32, [f64; 3])>>,
+    /// Seconds per phase of the cells' part of the steps.
+    timings: CellTimings,
     /// Per moving particle, in how many cells' bounce-back candidate lists it is (the cell-list
     /// cells around each membrane's swept box) in the current step (scratch kept between
     /// steps).
@@ -528,6 +548,7 @@ impl DpdSuspension {
             leaked: 0,
             max_leaked: 0,
             solvent_kicks: Vec::new(),
+            timings: CellTimings::default(),
             bounce_count: Vec::new(),
         };
         let owner = sim.sides();
@@ -619,6 +640,7 @@ impl DpdSuspension {
             leaked,
             max_leaked,
             solvent_kicks: Vec::new(),
+            timings: CellTimings::default(),
             bounce_count: Vec::new(),
         })
     }
@@ -662,6 +684,11 @@ impl DpdSuspension {
         let (_, p, f) = self.fluid.split_for_coupling();
         spread_over_outer_solvent(p, &self.owner, delta, f);
         Ok(())
+    }
+
+    /// Wall seconds of the cells' part of the steps, by phase.
+    pub fn timings(&self) -> CellTimings {
+        self.timings
     }
 
     /// Bounce-backs off membranes so far.
@@ -750,6 +777,7 @@ impl DpdSuspension {
         let dt = self.fluid.params.dt;
         let h = 0.5 * dt / self.coupling.vertex_mass;
         self.fluid.kick_and_drift();
+        let t0 = std::time::Instant::now();
         for c in &mut self.cells {
             for ((x, xo), (v, f)) in
                 c.x.iter_mut()
@@ -765,10 +793,13 @@ impl DpdSuspension {
         }
         self.check_vertex_drift()?;
         self.bounce_vertices_off_wall();
+        let t1 = std::time::Instant::now();
         self.bounce_off_membranes();
+        let t2 = std::time::Instant::now();
         self.fluid.settle_with(pairs)?;
         self.add_coupling_forces()?;
         self.fluid.kick();
+        let t4 = std::time::Instant::now();
         for c in &mut self.cells {
             for (v, f) in c.v.iter_mut().zip(&c.f) {
                 for k in 0..3 {
@@ -777,9 +808,14 @@ impl DpdSuspension {
             }
         }
         let every = self.coupling.check_every;
+        let t5 = std::time::Instant::now();
         if every > 0 && self.fluid.step.is_multiple_of(every) {
             self.count_leaks();
         }
+        let tm = &mut self.timings;
+        tm.vertices_s += (t1 - t0).as_secs_f64() + (t5 - t4).as_secs_f64();
+        tm.bounce_s += (t2 - t1).as_secs_f64();
+        tm.leaks_s += t5.elapsed().as_secs_f64();
         Ok(())
     }
 
@@ -895,7 +931,25 @@ impl DpdSuspension {
             .zip(candidates.par_iter())
             .map(|((c, sw), list)| {
                 let (mut out, mut n) = (Vec::new(), 0);
-                for &i in list.iter().filter(|&&i| count[i as usize] == 1) {
+                // The particles whose paths cross the membrane, found in parallel (the test
+                // reads positions only); only they are followed, in the list's order, as the
+                // serial loop over the whole list would.
+                let cell: &FluidCell = c;
+                let hitting: Vec<u32> = list
+                    .par_iter()
+                    .copied()
+                    .filter(|&i| {
+                        let i = i as usize;
+                        count[i] == 1
+                            && collision.hits(
+                                cell,
+                                sw,
+                                [p.x[i], p.y[i], p.z[i]],
+                                [p.vx[i], p.vy[i], p.vz[i]],
+                            )
+                    })
+                    .collect();
+                for i in hitting {
                     let i = i as usize;
                     let (x, v) = ([p.x[i], p.y[i], p.z[i]], [p.vx[i], p.vy[i], p.vz[i]]);
                     if let Some((x, v, b)) = collision.follow(c, sw, x, v) {
@@ -965,6 +1019,7 @@ impl DpdSuspension {
         let cp = self.coupling;
         let key = step_key(params.seed ^ SALT_COUPLING, step);
         let inv_sqrt_dt = 1.0 / dt.sqrt();
+        let t0 = std::time::Instant::now();
         // Each cell's own forces, cells in parallel (each writes only its own vertices).
         let body = self.fluid.body;
         let membrane_seed = mix64(params.seed ^ SALT_MEMBRANE);
@@ -1003,6 +1058,8 @@ impl DpdSuspension {
             .collect();
         // The first failure by cell index, as a serial loop would report it.
         own.into_iter().collect::<Result<(), DpdError>>()?;
+        let t1 = std::time::Instant::now();
+        self.timings.membrane_s += (t1 - t0).as_secs_f64();
         let mut counter = [0.0; 3];
         for c in &self.cells {
             for k in 0..3 {
@@ -1134,6 +1191,7 @@ impl DpdSuspension {
                 .unzip();
             add_contact_forces(&xs, &mut fs, l, rc, cp.contact_a);
         }
+        self.timings.coupling_s += t1.elapsed().as_secs_f64();
         if let Some((ci, vi)) = self.cells.iter().enumerate().find_map(|(ci, c)| {
             c.f.iter()
                 .position(|f| f.iter().any(|v| !v.is_finite()))
@@ -1269,6 +1327,13 @@ struct Collision {
 }
 
 impl Collision {
+    /// Whether the path of the particle at `x1` with velocity `v` crosses the membrane of `c`
+    /// (what [`Self::follow`] finds before its first collision; read-only).
+    fn hits(&self, c: &FluidCell, sw: &SweptMembrane, x1: [f64; 3], v: [f64; 3]) -> bool {
+        let path = sw.path(x1, v, self.dt, self.box_len);
+        path.meets && earliest_hit(c, sw, path.q0, path.q1, 0.0).is_some()
+    }
+
     /// Follow the path of the particle at `x1` with velocity `v` (after the drift) through
     /// up to [`MAX_BOUNCES`] collisions with the membrane of `c` (whose vertices take the
     /// impulses): the particle's new position and velocity and the number of collisions, or
@@ -1304,29 +1369,9 @@ impl Collision {
         let (mut s0, mut s1, mut t0, mut vel) = (q0, q1, 0.0f64, v);
         let mut bounces = 0;
         for _ in 0..MAX_BOUNCES {
-            let (pl, ph) = bbox(&[s0, s1]);
-            let (b0, b1) = (sw.bin_of(pl), sw.bin_of(ph));
-            let at = |j: usize| -> [f64; 3] {
-                [0, 1, 2].map(|k| c.x_old[j][k] + t0 * (c.x[j][k] - c.x_old[j][k]))
+            let Some((hit, t)) = earliest_hit(c, sw, s0, s1, t0) else {
+                break;
             };
-            let mut best: Option<(super::crossing::Crossing, usize)> = None;
-            for bz in b0[2]..=b1[2] {
-                for by in b0[1]..=b1[1] {
-                    for bx in b0[0]..=b1[0] {
-                        for &t in &sw.bins[sw.bin_index([bx, by, bz])] {
-                            let tri = tris[t as usize];
-                            let tri0 = tri.map(at);
-                            let tri1 = tri.map(|j| c.x[j]);
-                            if let Some(hit) = first_crossing(s0, s1, tri0, tri1) {
-                                if best.is_none_or(|(b, _)| hit.t < b.t) {
-                                    best = Some((hit, t as usize));
-                                }
-                            }
-                        }
-                    }
-                }
-            }
-            let Some((hit, t)) = best else { break };
             let tri = tris[t];
             let lam = hit.bary;
             let t_hit = t0 + hit.t * (1.0 - t0);
@@ -1389,6 +1434,44 @@ impl Collision {
         }
         (t0 > 0.0).then(|| ([0, 1, 2].map(|k| s1[k] - shift[k]), vel, bounces))
     }
+}
+
+/// The earliest crossing of the path `s0 → s1` (the part of the step from the fraction `t0`
+/// on) with the triangles of `c`'s membrane near it, each moving from its position at `t0` to
+/// its end, and that triangle's index. Reads the vertices' positions only (a collision changes
+/// their velocities), so whether a particle's path crosses the membrane does not depend on the
+/// collisions of other particles in the same step.
+fn earliest_hit(
+    c: &FluidCell,
+    sw: &SweptMembrane,
+    s0: [f64; 3],
+    s1: [f64; 3],
+    t0: f64,
+) -> Option<(super::crossing::Crossing, usize)> {
+    let tris = c.membrane.topology().triangles();
+    let (pl, ph) = bbox(&[s0, s1]);
+    let (b0, b1) = (sw.bin_of(pl), sw.bin_of(ph));
+    let at = |j: usize| -> [f64; 3] {
+        [0, 1, 2].map(|k| c.x_old[j][k] + t0 * (c.x[j][k] - c.x_old[j][k]))
+    };
+    let mut best: Option<(super::crossing::Crossing, usize)> = None;
+    for bz in b0[2]..=b1[2] {
+        for by in b0[1]..=b1[1] {
+            for bx in b0[0]..=b1[0] {
+                for &t in &sw.bins[sw.bin_index([bx, by, bz])] {
+                    let tri = tris[t as usize];
+                    let tri0 = tri.map(at);
+                    let tri1 = tri.map(|j| c.x[j]);
+                    if let Some(hit) = first_crossing(s0, s1, tri0, tri1) {
+                        if best.is_none_or(|(b, _)| hit.t < b.t) {
+                            best = Some((hit, t as usize));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    best
 }
 
 /// The impulse `J` on a particle of mass `ms` hitting the point of barycentric coordinates

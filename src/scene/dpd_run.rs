@@ -32,7 +32,9 @@ use crate::dpd::pair_force::Particles;
 use crate::dpd::poiseuille::{
     kinetic_theory_viscosity, FlowGeometry, KineticViscosity, ProfileSampler, ViscosityFit,
 };
-use crate::dpd::suspension::{CellState, CouplingParams, DpdSuspension, SuspensionState};
+use crate::dpd::suspension::{
+    CellState, CellTimings, CouplingParams, DpdSuspension, SuspensionState,
+};
 use crate::dpd::system::{BodyForce, DpdSystem, DpdTimings, PairForces};
 use crate::dpd::walls::Wall;
 use crate::dpd::DpdError;
@@ -246,6 +248,9 @@ pub struct MembraneSummary {
     pub leaked_at_last_count: u64,
     /// Kinetic temperature of the vertices now (each cell's mean velocity removed).
     pub vertex_temperature: f64,
+    /// Wall seconds of the cells' part of the steps in this invocation, by phase (the fluid's
+    /// are in `timings`).
+    pub timings: CellTimings,
     /// Per cell.
     pub per_cell: Vec<CellSummary>,
 }
@@ -762,6 +767,7 @@ fn membrane_summary(scene: &DpdScene, sim: &DpdSuspension) -> MembraneSummary {
         leaked_particles: sim.max_leaked(),
         leaked_at_last_count: sim.leaked(),
         vertex_temperature: sim.vertex_temperature(),
+        timings: sim.timings(),
         per_cell: sim
             .cells()
             .iter()
