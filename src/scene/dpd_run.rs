@@ -379,10 +379,10 @@ impl Model {
 /// step against 5.5 ms on 16 CPU threads (benches/RESULTS.md); below about 2·10⁴ the launches
 /// and the read-back at every sample (every 10 steps by default) are a large share of a step.
 /// With cells (only the solvent's pair forces on the GPU, the state crossing the bus every
-/// step) the same threshold holds on the H200 machine: one RBC in 18 480 particles ran as fast
-/// on 16 CPU threads as with the GPU (5.4 against 5.6–5.8 ms per step), and 2.4× faster with
-/// the GPU than on one thread; in 811 008 particles the GPU was 1.9× faster in `f32` than 16
-/// threads (benches/RESULTS.md).
+/// step) the same threshold holds on the H200 machine: one RBC in 18 480 particles ran hardly
+/// faster with the GPU than on 16 CPU threads (3.28 and 3.58 ms per step in `f32` and `f64`
+/// against 3.45), and 2.3× faster than on one thread; in 811 008 particles the GPU was 1.6×
+/// faster in `f32` than 16 threads (benches/RESULTS.md).
 pub const AUTO_MIN_PARTICLES: usize = 20_000;
 
 /// Where the fluid's steps run (`[dpd] gpu`), and why: the model as built, or its fluid moved
