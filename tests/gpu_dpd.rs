@@ -420,15 +420,6 @@ bins = 16
 save_every = 40
 "#;
 
-fn observables(dir: &std::path::Path) -> Vec<Vec<f64>> {
-    std::fs::read_to_string(dir.join("observables.csv"))
-        .unwrap()
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').map(|v| v.trim().parse().unwrap()).collect())
-        .collect()
-}
-
 #[test]
 fn mobo_dpd_on_the_gpu_in_f64_follows_the_cpu_run() {
     let Some(g) = gpu() else { return };
@@ -466,16 +457,7 @@ fn mobo_dpd_on_the_gpu_in_f64_follows_the_cpu_run() {
         assert_eq!(sg["steps"], 100);
         // Observables rows (step, t, k_BT, pressure, momentum): the same run to rounding grown
         // over 100 steps of chaotic dynamics.
-        let (oc, og) = (observables(&cpu), observables(&dev));
-        assert_eq!(oc.len(), og.len());
-        for (a, b) in oc.iter().zip(&og) {
-            for (x, y) in a.iter().zip(b) {
-                assert!(
-                    (x - y).abs() <= 1e-8 * (1.0 + x.abs()),
-                    "{kind}: {a:?} vs {b:?}"
-                );
-            }
-        }
+        common::assert_observables_close(&cpu, &dev, 1e-8, kind);
         // The profile sampled every 5 steps between syncs (moving particles only), and the
         // viscosity fitted to it; the walls' bounce-backs.
         let (vc, vg) = (

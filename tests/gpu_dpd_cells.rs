@@ -219,15 +219,6 @@ shear_modulus = 20.0
 bending_rigidity = 2.0
 "#;
 
-fn observables(dir: &std::path::Path) -> Vec<Vec<f64>> {
-    std::fs::read_to_string(dir.join("observables.csv"))
-        .unwrap()
-        .lines()
-        .skip(1)
-        .map(|l| l.split(',').map(|v| v.trim().parse().unwrap()).collect())
-        .collect()
-}
-
 #[test]
 fn mobo_dpd_with_cells_on_the_gpu_in_f64_follows_the_cpu_run() {
     let Some(g) = common::gpu_or_skip("the GPU tests of cells in the DPD fluid") else {
@@ -266,13 +257,7 @@ fn mobo_dpd_with_cells_on_the_gpu_in_f64_follows_the_cpu_run() {
     assert_eq!(sg["wall_warmup"]["device"], "gpu", "{}", sg["wall_warmup"]);
     assert_eq!(sg["wall_warmup"]["steps"], 20);
     // Observables rows and the cell's shape: the same run to rounding grown over 80 steps.
-    let (oc, og) = (observables(&cpu), observables(&dev));
-    assert_eq!(oc.len(), og.len());
-    for (a, b) in oc.iter().zip(&og) {
-        for (x, y) in a.iter().zip(b) {
-            assert!((x - y).abs() <= 1e-8 * (1.0 + x.abs()), "{a:?} vs {b:?}");
-        }
-    }
+    common::assert_observables_close(&cpu, &dev, 1e-8, "cells on the GPU against the CPU");
     assert_eq!(sc["bounces"], sg["bounces"]);
     assert_eq!(sc["fluid_particles"], sg["fluid_particles"]);
     let (mc, mg) = (&sc["membranes"], &sg["membranes"]);

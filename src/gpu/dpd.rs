@@ -208,6 +208,121 @@ pub(super) fn parameters(
     (ipar, rpar_bytes)
 }
 
+/// What [`check_fluid`] found: the cells, the passes' WGSL sources and the bytes of one
+/// `vec4` array of the particles.
+pub(super) struct FluidChecked {
+    pub(super) ncells: usize,
+    pub(super) sources: Vec<(&'static str, String)>,
+    pub(super) vec4: usize,
+}
+
+/// The checks every DPD pass makes of a fluid of `n` particles on `gpu` before it builds
+/// anything: `f64` shaders where asked for, the particle and cell counts within 2³¹, at least 3
+/// cells per axis none narrower than `r_c`, a kernel exponent the precision's shaders take, and
+/// the particles' and cells' arrays within a binding.
+pub(super) fn check_fluid(
+    gpu: &Gpu,
+    precision: GpuPrecision,
+    spec: &DpdFluidSpec,
+    n: usize,
+) -> Result<FluidChecked, GpuError> {
+    if precision == GpuPrecision::F64 && !gpu.has_f64() {
+        return Err(GpuError::NoF64(gpu.describe()));
+    }
+    if n == 0 || n >= (u32::MAX / 2) as usize {
+        return Err(GpuError::Shape(format!("{n} particles (1 to 2³¹)")));
+    }
+    if spec.dims.iter().any(|&d| d < 3) {
+        return Err(GpuError::Shape(format!(
+            "cell grid {:?}: at least 3 cells per axis",
+            spec.dims
+        )));
+    }
+    for (k, &l) in spec.box_len.iter().enumerate() {
+        if !(l.is_finite() && l / spec.dims[k] as f64 >= spec.rc) {
+            return Err(GpuError::Shape(format!(
+                "box length {l} on axis {k} with {} cells: the cells must be at least r_c = {} wide",
+                spec.dims[k], spec.rc
+            )));
+        }
+    }
+    let ncells = spec.dims.iter().map(|&d| d as u64).product::<u64>();
+    if ncells >= (u32::MAX / 2) as u64 {
+        return Err(GpuError::Shape(format!("{ncells} cells (below 2³¹)")));
+    }
+    let ncells = ncells as usize;
+    let Some(sources) = dpd_shader::sources(precision, spec.power) else {
+        return Err(GpuError::Unsupported(format!(
+            "kernel exponent k = {} in {}: the f64 shaders take k = 1, 1/2 and 1/4 only \
+             (WGSL has no f64 pow); use f32",
+            spec.power,
+            precision.name()
+        )));
+    };
+    let real = match precision {
+        GpuPrecision::F32 => 4usize,
+        GpuPrecision::F64 => 8,
+    };
+    let vec4 = n * 4 * real;
+    too_large(
+        format!("{n} particles' positions"),
+        vec4 as u64,
+        gpu.max_binding,
+    )?;
+    too_large(
+        format!("{ncells} cells' starts"),
+        (ncells as u64 + 1) * 4,
+        gpu.max_binding,
+    )?;
+    Ok(FluidChecked {
+        ncells,
+        sources,
+        vec4,
+    })
+}
+
+/// [`GpuError::TooLarge`] for `what` of `bytes` above `limit`.
+fn too_large(what: String, bytes: u64, limit: u64) -> Result<(), GpuError> {
+    if bytes > limit {
+        return Err(GpuError::TooLarge { what, bytes, limit });
+    }
+    Ok(())
+}
+
+/// Copy `bufs` into `staging` one after the other, map them and hand their bytes to `decode`.
+pub(super) fn read_back<T>(
+    gpu: &Gpu,
+    staging: &wgpu::Buffer,
+    bufs: &[&wgpu::Buffer],
+    decode: impl FnOnce(&[&[u8]]) -> T,
+) -> Result<T, GpuError> {
+    let sizes: Vec<u64> = bufs.iter().map(|b| b.size()).collect();
+    let total: u64 = sizes.iter().sum();
+    let mut encoder = gpu.device.create_command_encoder(&Default::default());
+    let mut at = 0;
+    for (b, &s) in bufs.iter().zip(&sizes) {
+        encoder.copy_buffer_to_buffer(b, 0, staging, at, s);
+        at += s;
+    }
+    gpu.queue.submit([encoder.finish()]);
+    let slice = staging.slice(..total);
+    gpu.map_read(&slice)?;
+    let out = {
+        let view = slice
+            .get_mapped_range()
+            .map_err(|e| GpuError::Execution(e.to_string()))?;
+        let mut parts = Vec::new();
+        let mut at = 0usize;
+        for &s in &sizes {
+            parts.push(&view[at..at + s as usize]);
+            at += s as usize;
+        }
+        decode(&parts)
+    };
+    staging.unmap();
+    Ok(out)
+}
+
 /// Steps per command buffer (one submission).
 pub const STEPS_PER_SUBMIT: u64 = 50;
 
@@ -302,10 +417,12 @@ impl DpdFluidPass {
         moves: &[f64],
         step: u64,
     ) -> Result<Self, GpuError> {
-        if precision == GpuPrecision::F64 && !gpu.has_f64() {
-            return Err(GpuError::NoF64(gpu.describe()));
-        }
         let n = x.len();
+        let FluidChecked {
+            ncells,
+            sources,
+            vec4,
+        } = check_fluid(&gpu, precision, spec, n)?;
         if v.len() != n || f.len() != n || id.len() != n || moves.len() != n {
             return Err(GpuError::Shape(
                 "positions, velocities, forces, ids and moves must have one entry per particle"
@@ -314,23 +431,6 @@ impl DpdFluidPass {
         }
         if moves.iter().any(|&m| m != 0.0 && m != 1.0) {
             return Err(GpuError::Shape("moves must be 0 or 1".into()));
-        }
-        if n == 0 || n >= (u32::MAX / 2) as usize {
-            return Err(GpuError::Shape(format!("{n} particles (1 to 2³¹)")));
-        }
-        if spec.dims.iter().any(|&d| d < 3) {
-            return Err(GpuError::Shape(format!(
-                "cell grid {:?}: at least 3 cells per axis",
-                spec.dims
-            )));
-        }
-        for (k, &l) in spec.box_len.iter().enumerate() {
-            if !(l.is_finite() && l / spec.dims[k] as f64 >= spec.rc) {
-                return Err(GpuError::Shape(format!(
-                    "box length {l} on axis {k} with {} cells: the cells must be at least r_c = {} wide",
-                    spec.dims[k], spec.rc
-                )));
-            }
         }
         if let Some(bad) = x
             .iter()
@@ -341,45 +441,10 @@ impl DpdFluidPass {
                 x[bad]
             )));
         }
-        let ncells = spec.dims.iter().map(|&d| d as u64).product::<u64>();
-        if ncells >= (u32::MAX / 2) as u64 {
-            return Err(GpuError::Shape(format!("{ncells} cells (below 2³¹)")));
-        }
-        let ncells = ncells as usize;
-        let Some(sources) = dpd_shader::sources(precision, spec.power) else {
-            return Err(GpuError::Unsupported(format!(
-                "kernel exponent k = {} in {}: the f64 shaders take k = 1, 1/2 and 1/4 only \
-                 (WGSL has no f64 pow); use f32",
-                spec.power,
-                precision.name()
-            )));
-        };
-        let real = match precision {
-            GpuPrecision::F32 => 4usize,
-            GpuPrecision::F64 => 8,
-        };
-        let vec4 = n * 4 * real;
-        let too_large = |what: String, bytes: usize, limit: u64| {
-            if bytes as u64 > limit {
-                Err(GpuError::TooLarge {
-                    what,
-                    bytes: bytes as u64,
-                    limit,
-                })
-            } else {
-                Ok(())
-            }
-        };
-        too_large(format!("{n} particles' positions"), vec4, gpu.max_binding)?;
-        too_large(
-            format!("{ncells} cells' starts"),
-            (ncells + 1) * 4,
-            gpu.max_binding,
-        )?;
         // The read-back buffer holds positions, velocities, forces, ids and the control words.
         too_large(
             "the read-back buffer".into(),
-            3 * vec4 + 4 * n + 4 * CTL_LEN,
+            (3 * vec4 + 4 * n + 4 * CTL_LEN) as u64,
             gpu.max_buffer,
         )?;
         let nblocks = ncells.div_ceil(SCAN_BLOCK as usize);
@@ -598,47 +663,11 @@ impl DpdFluidPass {
         self.gpu.wait()
     }
 
-    /// Copy `bufs` into the read-back buffer one after the other, map them and hand their
-    /// bytes to `decode`.
-    fn read_buffers<T>(
-        &self,
-        staging: &wgpu::Buffer,
-        bufs: &[&wgpu::Buffer],
-        decode: impl FnOnce(&[&[u8]]) -> T,
-    ) -> Result<T, GpuError> {
-        let dev = &self.gpu.device;
-        let sizes: Vec<u64> = bufs.iter().map(|b| b.size()).collect();
-        let total: u64 = sizes.iter().sum();
-        let mut encoder = dev.create_command_encoder(&Default::default());
-        let mut at = 0;
-        for (b, &s) in bufs.iter().zip(&sizes) {
-            encoder.copy_buffer_to_buffer(b, 0, staging, at, s);
-            at += s;
-        }
-        self.gpu.queue.submit([encoder.finish()]);
-        let slice = staging.slice(..total);
-        self.gpu.map_read(&slice)?;
-        let out = {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Execution(e.to_string()))?;
-            let mut parts = Vec::new();
-            let mut at = 0usize;
-            for &s in &sizes {
-                parts.push(&view[at..at + s as usize]);
-                at += s as usize;
-            }
-            decode(&parts)
-        };
-        staging.unmap();
-        Ok(out)
-    }
-
     /// Read the state back (positions, velocities, forces, ids in the device's cell order).
     pub fn read(&self) -> Result<DpdFluidState, GpuError> {
         let (prec, n) = (self.precision, self.n);
         let bufs = [&self.pos, &self.vel, &self.frc, &self.ids, &self.ctl];
-        self.read_buffers(&self.staging, &bufs, |parts| {
+        read_back(&self.gpu, &self.staging, &bufs, |parts| {
             let (x, moves) = unpack4(parts[0], prec);
             let (v, _) = unpack4(parts[1], prec);
             let (f, virial) = unpack4(parts[2], prec);
@@ -682,7 +711,8 @@ impl DpdFluidPass {
         self.gpu.queue.submit([encoder.finish()]);
         let (prec, bins) = (self.precision, spec.bins as usize);
         let used = pp.chunks * bins;
-        self.read_buffers(&pp.staging, &[&pp.sums, &pp.counts, &self.ctl], |parts| {
+        let bufs = [&pp.sums, &pp.counts, &self.ctl];
+        read_back(&self.gpu, &pp.staging, &bufs, |parts| {
             let sums: Vec<f64> = match prec {
                 GpuPrecision::F64 => bytemuck::cast_slice::<u8, f64>(parts[0])[..used].to_vec(),
                 GpuPrecision::F32 => bytemuck::cast_slice::<u8, f32>(parts[0])[..used]

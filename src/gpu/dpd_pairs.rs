@@ -18,8 +18,8 @@ use std::sync::Arc;
 use rayon::prelude::*;
 use wgpu::util::DeviceExt;
 
-use super::dpd::{bytes, grid, parameters, DpdFluidSpec};
-use super::dpd_shader::{self, CTL_LEN, SCAN_BLOCK};
+use super::dpd::{bytes, check_fluid, grid, parameters, read_back, DpdFluidSpec, FluidChecked};
+use super::dpd_shader::{CTL_LEN, SCAN_BLOCK};
 use super::{Gpu, GpuError, GpuPrecision};
 
 /// The pair-force pass (see the module docs).
@@ -66,48 +66,16 @@ impl DpdPairPass {
         spec: &DpdFluidSpec,
         n: usize,
     ) -> Result<Self, GpuError> {
-        if precision == GpuPrecision::F64 && !gpu.has_f64() {
-            return Err(GpuError::NoF64(gpu.describe()));
-        }
-        if n == 0 || n >= (u32::MAX / 2) as usize {
-            return Err(GpuError::Shape(format!("{n} particles (1 to 2³¹)")));
-        }
-        if spec.dims.iter().any(|&d| d < 3) {
-            return Err(GpuError::Shape(format!(
-                "cell grid {:?}: at least 3 cells per axis",
-                spec.dims
-            )));
-        }
-        let ncells = spec.dims.iter().map(|&d| d as u64).product::<u64>();
-        if ncells >= (u32::MAX / 2) as u64 {
-            return Err(GpuError::Shape(format!("{ncells} cells (below 2³¹)")));
-        }
-        let ncells = ncells as usize;
-        let Some(sources) = dpd_shader::sources(precision, spec.power) else {
-            return Err(GpuError::Unsupported(format!(
-                "kernel exponent k = {} in {}: the f64 shaders take k = 1, 1/2 and 1/4 only \
-                 (WGSL has no f64 pow); use f32",
-                spec.power,
-                precision.name()
-            )));
-        };
+        let FluidChecked {
+            ncells,
+            sources,
+            vec4,
+        } = check_fluid(&gpu, precision, spec, n)?;
         let source = sources
             .into_iter()
             .find(|(name, _)| *name == "forces")
             .map(|(_, s)| s)
             .expect("the fluid's passes include the force pass");
-        let real = match precision {
-            GpuPrecision::F32 => 4usize,
-            GpuPrecision::F64 => 8,
-        };
-        let vec4 = n * 4 * real;
-        if vec4 as u64 > gpu.max_binding {
-            return Err(GpuError::TooLarge {
-                what: format!("{n} particles' positions"),
-                bytes: vec4 as u64,
-                limit: gpu.max_binding,
-            });
-        }
         let gn = grid(n, gpu.max_groups)?;
         let gc = grid(ncells, gpu.max_groups)?;
         let nblocks = ncells.div_ceil(SCAN_BLOCK as usize);
@@ -263,25 +231,17 @@ impl DpdPairPass {
             cp.set_bind_group(0, &self.bind_group, &[]);
             cp.dispatch_workgroups(self.groups.0, self.groups.1, 1);
         }
-        encoder.copy_buffer_to_buffer(&self.frc, 0, &self.staging, 0, self.frc.size());
         queue.submit([encoder.finish()]);
-        let slice = self.staging.slice(..);
-        self.gpu.map_read(&slice)?;
-        {
-            let view = slice
-                .get_mapped_range()
-                .map_err(|e| GpuError::Execution(e.to_string()))?;
+        read_back(&self.gpu, &self.staging, &[&self.frc], |parts| {
             match self.precision {
                 GpuPrecision::F64 => {
-                    unpack_vec4::<f64>(bytemuck::cast_slice(&view[..n * 32]), f, virials)
+                    unpack_vec4::<f64>(bytemuck::cast_slice(&parts[0][..n * 32]), f, virials)
                 }
                 GpuPrecision::F32 => {
-                    unpack_vec4::<f32>(bytemuck::cast_slice(&view[..n * 16]), f, virials)
+                    unpack_vec4::<f32>(bytemuck::cast_slice(&parts[0][..n * 16]), f, virials)
                 }
             }
-        }
-        self.staging.unmap();
-        Ok(())
+        })
     }
 }
 

@@ -562,111 +562,89 @@ pub struct WallWarmup {
     pub seconds: f64,
 }
 
-/// The GPU that warms up the walls' fluid: where `[dpd] gpu` would take the GPU for the
-/// periodic fluid of the warm-up (its `round(ρV)` particles, more than the walled fluid
-/// keeps), the same adapter and precision; `None` for the CPU.
+/// A warm-up of the walls' fluid on the GPU: its precision, and the run itself (the steps of
+/// the periodic fluid, its state read back into it).
+struct GpuWarmup {
+    precision: GpuPrecision,
+    run: Box<WarmupRun>,
+}
+
+/// Steps a periodic fluid `steps` times, leaving its state in it.
+type WarmupRun = dyn FnOnce(&mut DpdSystem, u64) -> Result<(), DpdError>;
+
+/// The GPU warm-up of the walls' fluid: where `[dpd] gpu` would take the GPU for the periodic
+/// fluid of the warm-up (its `round(ρV)` particles, more than the walled fluid keeps), the
+/// same adapter and precision; `None` for the CPU.
 #[cfg(feature = "gpu")]
-fn warmup_gpu(scene: &DpdScene) -> Result<Option<WarmupDevice>, DpdRunError> {
+fn warmup_gpu(scene: &DpdScene) -> Result<Option<GpuWarmup>, DpdRunError> {
     if scene.gpu == GpuChoice::Off || scene.wall.is_none() || scene.wall_warmup == 0 {
         return Ok(None);
     }
     let n = (scene.density * scene.params.volume()).round() as usize;
-    Ok(choose_gpu(scene, n)?.ok().map(|(gpu, prec, _)| (gpu, prec)))
+    Ok(choose_gpu(scene, n)?
+        .ok()
+        .map(|(gpu, precision, _)| GpuWarmup {
+            precision,
+            run: Box::new(move |bulk: &mut DpdSystem, steps: u64| {
+                let mut dev = crate::dpd::gpu_fluid::GpuFluid::new(gpu, bulk, precision)?;
+                dev.advance(steps)?;
+                dev.sync(bulk)
+            }),
+        }))
 }
 
 #[cfg(not(feature = "gpu"))]
-fn warmup_gpu(_scene: &DpdScene) -> Result<Option<WarmupDevice>, DpdRunError> {
+fn warmup_gpu(_scene: &DpdScene) -> Result<Option<GpuWarmup>, DpdRunError> {
     Ok(None)
 }
 
-/// The device of a warm-up on the GPU.
-#[cfg(feature = "gpu")]
-type WarmupDevice = (Arc<crate::gpu::Gpu>, GpuPrecision);
-/// Without the `gpu` feature there is none.
-#[cfg(not(feature = "gpu"))]
-type WarmupDevice = std::convert::Infallible;
-
-/// [`build_fluid`] with the walls' warm-up on `device` (the CPU if `None`), and where it ran.
+/// [`build_fluid`] with the walls' warm-up on `gpu` (the CPU if `None`), and where it ran
+/// (`None` without walls).
 fn build_fluid_warmed(
     scene: &DpdScene,
-    device: Option<WarmupDevice>,
+    gpu: Option<GpuWarmup>,
 ) -> Result<(DpdSystem, Option<WallWarmup>), DpdRunError> {
-    let Some(w) = scene.wall else {
-        return Ok((build_fluid(scene)?, None));
+    let (mut sys, warmup) = match scene.wall {
+        None => (
+            DpdSystem::random_fluid(scene.params, scene.density, scene.body)?,
+            None,
+        ),
+        Some(w) => {
+            let t0 = Instant::now();
+            let precision = gpu.as_ref().map(|g| g.precision);
+            let sys = DpdSystem::with_wall_warmed_by(
+                scene.params,
+                scene.density,
+                scene.body,
+                w,
+                scene.wall_warmup,
+                |bulk, steps| match gpu {
+                    None => (0..steps).try_for_each(|_| bulk.step()),
+                    Some(g) => (g.run)(bulk, steps),
+                },
+            )?;
+            let warmup = WallWarmup {
+                steps: scene.wall_warmup,
+                device: if precision.is_some() { "gpu" } else { "cpu" }.into(),
+                precision,
+                seconds: t0.elapsed().as_secs_f64(),
+            };
+            (sys, Some(warmup))
+        }
     };
-    let t0 = Instant::now();
-    let precision = device.as_ref().map(warmup_precision);
-    let mut sys = DpdSystem::with_wall_warmed_by(
-        scene.params,
-        scene.density,
-        scene.body,
-        w,
-        scene.wall_warmup,
-        |bulk, steps| match device {
-            None => (0..steps).try_for_each(|_| bulk.step()),
-            Some(d) => warm_on_gpu(d, bulk, steps),
-        },
-    )?;
-    let seconds = t0.elapsed().as_secs_f64();
     if scene.wall_speed != 0.0 {
         sys.start_couette(scene.wall_speed)?;
     }
-    let warmup = WallWarmup {
-        steps: scene.wall_warmup,
-        device: if precision.is_some() { "gpu" } else { "cpu" }.into(),
-        precision,
-        seconds,
-    };
-    Ok((sys, Some(warmup)))
+    Ok((sys, warmup))
 }
 
-#[cfg(feature = "gpu")]
-fn warmup_precision(d: &WarmupDevice) -> GpuPrecision {
-    d.1
-}
-
-#[cfg(not(feature = "gpu"))]
-fn warmup_precision(d: &WarmupDevice) -> GpuPrecision {
-    match *d {}
-}
-
-/// `steps` steps of the periodic `bulk` on the GPU, its state read back into it.
-#[cfg(feature = "gpu")]
-fn warm_on_gpu(
-    (gpu, prec): WarmupDevice,
-    bulk: &mut DpdSystem,
-    steps: u64,
-) -> Result<(), DpdError> {
-    let mut dev = crate::dpd::gpu_fluid::GpuFluid::new(gpu, bulk, prec)?;
-    dev.advance(steps)?;
-    dev.sync(bulk)
-}
-
-#[cfg(not(feature = "gpu"))]
-fn warm_on_gpu(d: WarmupDevice, _bulk: &mut DpdSystem, _steps: u64) -> Result<(), DpdError> {
-    match d {}
-}
-
-/// The fluid of a scene as `mobo dpd` starts it (random particles, or the walls warmed up;
-/// the walls sliding for Couette flow), without its cells.
+/// The fluid of a scene as `mobo dpd` starts it (random particles, or the walls warmed up on
+/// the CPU; the walls sliding for Couette flow), without its cells.
 ///
 /// # Errors
 /// [`DpdRunError::Dynamics`] for parameters the fluid refuses.
 pub fn build_fluid(scene: &DpdScene) -> Result<DpdSystem, DpdRunError> {
-    let mut sys = match scene.wall {
-        None => DpdSystem::random_fluid(scene.params, scene.density, scene.body)?,
-        Some(w) => DpdSystem::with_wall(
-            scene.params,
-            scene.density,
-            scene.body,
-            w,
-            scene.wall_warmup,
-        )?,
-    };
-    if scene.wall_speed != 0.0 {
-        sys.start_couette(scene.wall_speed)?;
-    }
-    Ok(sys)
+    Ok(build_fluid_warmed(scene, None)?.0)
 }
 
 /// The scene's fluid ([`build_fluid`]) with its cells (`[[dpd.cells]]` or the cells mapped by

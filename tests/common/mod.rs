@@ -172,3 +172,28 @@ pub fn gpu_or_skip(what: &str) -> Option<std::sync::Arc<mobo::gpu::Gpu>> {
         }
     }
 }
+
+/// The rows of `DIR/observables.csv` (header skipped).
+pub fn observables(dir: &std::path::Path) -> Vec<Vec<f64>> {
+    std::fs::read_to_string(dir.join("observables.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|v| v.trim().parse().unwrap()).collect())
+        .collect()
+}
+
+/// Assert that two runs wrote the same number of observables rows, every value within
+/// `tol · (1 + |a|)` of the other run's.
+pub fn assert_observables_close(a: &std::path::Path, b: &std::path::Path, tol: f64, what: &str) {
+    let (oa, ob) = (observables(a), observables(b));
+    assert_eq!(oa.len(), ob.len(), "{what}: rows");
+    for (ra, rb) in oa.iter().zip(&ob) {
+        for (x, y) in ra.iter().zip(rb) {
+            assert!(
+                (x - y).abs() <= tol * (1.0 + x.abs()),
+                "{what}: {ra:?} vs {rb:?}"
+            );
+        }
+    }
+}
