@@ -403,22 +403,39 @@ impl ShTransform {
             }
         }
         self.fft_fwd.process_with_scratch(buf, &mut ws.fft_scratch);
-        // Split: X_a[m] = (Z_m + conj Z_{N−m})/2, X_b[m] = (Z_m − conj Z_{N−m})/(2i).
-        for (pr, z) in buf.chunks_exact(nlon).enumerate() {
-            let (ra, rb) = (2 * pr, 2 * pr + 1);
-            // Spectral column of ring r = j·(p+1) + i is r itself.
-            let (col_a, col_b) = (ra, rb);
-            for m in 0..=pt {
+        // Split: X_a[m] = (Z_m + conj Z_{N−m})/2, X_b[m] = (Z_m − conj Z_{N−m})/(2i). The
+        // spectral column of ring r = j·(p+1) + i is r itself; the orders are split one at a
+        // time over all ring pairs (the spectra written in their storage order).
+        let full = rings / 2;
+        for m in 0..=pt {
+            let off = 2 * m * level;
+            let (cos, sin) = spec[off..off + 2 * level].split_at_mut(level);
+            let split = |z: &[Complex<f64>]| -> [f64; 4] {
                 let zm = z[m];
                 let zc = z[(nlon - m) % nlon].conj();
-                let off = 2 * m * level;
-                spec[off + col_a] = 0.5 * (zm.re + zc.re);
-                spec[off + level + col_a] = -0.5 * (zm.im + zc.im);
-                if rb < rings {
-                    // (zm − zc)/(2i) = (Δim, −Δre)/2
-                    spec[off + col_b] = 0.5 * (zm.im - zc.im);
-                    spec[off + level + col_b] = 0.5 * (zm.re - zc.re);
-                }
+                // (zm − zc)/(2i) = (Δim, −Δre)/2
+                [
+                    0.5 * (zm.re + zc.re),
+                    -0.5 * (zm.im + zc.im),
+                    0.5 * (zm.im - zc.im),
+                    0.5 * (zm.re - zc.re),
+                ]
+            };
+            for ((z, c2), s2) in buf
+                .chunks_exact(nlon)
+                .zip(cos[..2 * full].chunks_exact_mut(2))
+                .zip(sin[..2 * full].chunks_exact_mut(2))
+            {
+                let [ca, sa, cb, sb] = split(z);
+                c2[0] = ca;
+                s2[0] = sa;
+                c2[1] = cb;
+                s2[1] = sb;
+            }
+            if rings % 2 == 1 {
+                let [ca, sa, _, _] = split(&buf[full * nlon..(full + 1) * nlon]);
+                cos[rings - 1] = ca;
+                sin[rings - 1] = sa;
             }
         }
         let t1 = Instant::now();
@@ -604,37 +621,57 @@ impl ShTransform {
             };
             let mtop = pt.min(p - 1);
             let buf = &mut ws.fft_buf[..pairs * nlon];
+            // Z = X_a + i X_b with Hermitian X_a, X_b: x_a = Re ifft(Z), x_b = Im ifft(Z). The
+            // orders are packed one at a time over all ring pairs (the spectra are read in
+            // their storage order, ring by ring).
+            let full = rings / 2;
             for (pr, z) in buf.chunks_exact_mut(nlon).enumerate() {
-                // Z = X_a + i X_b with Hermitian X_a, X_b: x_a = Re ifft(Z), x_b = Im ifft(Z).
                 let (ra, rb) = (2 * pr, 2 * pr + 1);
                 let has_b = rb < rings;
-                let real = |off: usize| -> (f64, f64) {
-                    (spec[off + ra], if has_b { spec[off + rb] } else { 0.0 })
-                };
                 // Order 0 (real; zero under a φ-derivative).
-                let (a0, b0) = if k == 0 { real(0) } else { (0.0, 0.0) };
-                z[0] = Complex::new(a0, b0);
+                z[0] = match (k, has_b) {
+                    (0, true) => Complex::new(spec[ra], spec[rb]),
+                    (0, false) => Complex::new(spec[ra], 0.0),
+                    _ => Complex::new(0.0, 0.0),
+                };
                 if pt < p {
                     // Orders above the expansion's are zero.
                     z[pt + 1..nlon - pt].fill(Complex::new(0.0, 0.0));
                 } else {
-                    let (an, bn) = real(2 * p * level);
-                    z[p] = Complex::new(nyquist * an, nyquist * bn);
+                    let off = 2 * p * level;
+                    let bn = if has_b { spec[off + rb] } else { 0.0 };
+                    z[p] = Complex::new(nyquist * spec[off + ra], nyquist * bn);
                 }
-                for m in 1..mtop + 1 {
-                    let off = 2 * m * level;
-                    let (fr, fi) = factor(m);
-                    let (cr, ci) = (spec[off + ra], -spec[off + level + ra]);
-                    let (dr, di) = if has_b {
-                        (spec[off + rb], -spec[off + level + rb])
-                    } else {
-                        (0.0, 0.0)
-                    };
+            }
+            for m in 1..mtop + 1 {
+                let off = 2 * m * level;
+                let (fr, fi) = factor(m);
+                let cos = &spec[off..off + rings];
+                let sin = &spec[off + level..off + level + rings];
+                // a = (C_a − i S_a)(fr + i fi), b likewise; z_m = a + i b, z_{N−m} = conj(a) + i conj(b).
+                let pack = |cr: f64, sr: f64, dr: f64, tr: f64| -> (Complex<f64>, Complex<f64>) {
+                    let (ci, di) = (-sr, -tr);
                     let (ar, ai) = (cr * fr - ci * fi, cr * fi + ci * fr);
                     let (br, bi) = (dr * fr - di * fi, dr * fi + di * fr);
-                    // z_m = a + i b, z_{N−m} = conj(a) + i conj(b).
-                    z[m] = Complex::new(ar - bi, ai + br);
-                    z[nlon - m] = Complex::new(ar + bi, br - ai);
+                    (
+                        Complex::new(ar - bi, ai + br),
+                        Complex::new(ar + bi, br - ai),
+                    )
+                };
+                for (pr, (c2, s2)) in cos[..2 * full]
+                    .chunks_exact(2)
+                    .zip(sin[..2 * full].chunks_exact(2))
+                    .enumerate()
+                {
+                    let (zm, zn) = pack(c2[0], s2[0], c2[1], s2[1]);
+                    buf[pr * nlon + m] = zm;
+                    buf[pr * nlon + nlon - m] = zn;
+                }
+                if rings % 2 == 1 {
+                    let ra = rings - 1;
+                    let (zm, zn) = pack(cos[ra], sin[ra], 0.0, 0.0);
+                    buf[full * nlon + m] = zm;
+                    buf[full * nlon + nlon - m] = zn;
                 }
             }
             self.fft_inv.process_with_scratch(buf, &mut ws.fft_scratch);

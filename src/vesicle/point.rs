@@ -50,6 +50,34 @@ impl PointEval {
         }
     }
 
+    /// The Legendre values and `(sin mφ, cos mφ)` at `(θ, φ)` for the layout `lay` (its
+    /// order, returned, must be the planned one).
+    fn values_at(&mut self, lay: &CoefLayout, theta: f64, phi: f64) -> usize {
+        let p = lay.order();
+        assert_eq!(
+            p,
+            self.rec.order(),
+            "point evaluation planned for another order"
+        );
+        let (s, c) = theta.sin_cos();
+        self.rec.table(c, s, &mut self.val);
+        self.fill_trig(p, phi);
+        p
+    }
+
+    /// Order `m` of the point of the last [`Self::values_at`]: the normalisation, `sin mφ`,
+    /// `cos mφ` and `P̄_n^m(cos θ)` for `n = m … p`.
+    fn order_m(&self, p: usize, m: usize) -> (f64, f64, f64, &[f64]) {
+        let norm = if m == 0 {
+            1.0 / (2.0 * PI).sqrt()
+        } else {
+            1.0 / PI.sqrt()
+        };
+        let (sm, cm) = self.trig[m];
+        let base = tri_index(p, m, m);
+        (norm, sm, cm, &self.val[base..base + p + 1 - m])
+    }
+
     /// The three values `X(θ, φ)` alone of `x, y, z` coefficients (what a relabelling needs).
     pub(crate) fn eval_values(
         &mut self,
@@ -58,26 +86,11 @@ impl PointEval {
         theta: f64,
         phi: f64,
     ) -> [f64; 3] {
-        let p = lay.order();
-        assert_eq!(
-            p,
-            self.rec.order(),
-            "point evaluation planned for another order"
-        );
+        let p = self.values_at(lay, theta, phi);
         let nc = lay.len();
-        let (s, c) = theta.sin_cos();
-        self.rec.table(c, s, &mut self.val);
-        self.fill_trig(p, phi);
         let mut out = [0.0; 3];
         for m in 0..=p {
-            let norm = if m == 0 {
-                1.0 / (2.0 * PI).sqrt()
-            } else {
-                1.0 / PI.sqrt()
-            };
-            let (sm, cm) = self.trig[m];
-            let base = tri_index(p, m, m);
-            let val = &self.val[base..base + p + 1 - m];
+            let (norm, sm, cm, val) = self.order_m(p, m);
             let cb = lay.cos_block(m);
             for (comp, o) in out.iter_mut().enumerate() {
                 let cos_part: f64 = val
@@ -95,6 +108,27 @@ impl PointEval {
             }
         }
         out
+    }
+
+    /// The basis functions of the layout `lay` at `(θ, φ)` into `row` (`lay.len()` values, in
+    /// the layout's order): `Σ_k row[k] c[k]` is [`Self::eval_values`] of one function, so
+    /// one row serves any number of functions evaluated at the same point (a relabelling's
+    /// passengers).
+    pub(crate) fn basis_row(&mut self, lay: &CoefLayout, theta: f64, phi: f64, row: &mut [f64]) {
+        assert_eq!(row.len(), lay.len(), "basis row of another layout");
+        let p = self.values_at(lay, theta, phi);
+        for m in 0..=p {
+            let (norm, sm, cm, val) = self.order_m(p, m);
+            let cb = lay.cos_block(m);
+            for (r, v) in row[cb..cb + p + 1 - m].iter_mut().zip(val) {
+                *r = norm * cm * v;
+            }
+            if let Some(sb) = lay.sin_block(m) {
+                for (r, v) in row[sb..sb + p + 1 - m].iter_mut().zip(val) {
+                    *r = norm * sm * v;
+                }
+            }
+        }
     }
 
     /// `X` and its first and second derivatives at `(θ, φ)` for `x, y, z` coefficients.
@@ -191,7 +225,8 @@ pub(crate) fn closest_point(
 mod tests {
     use super::*;
 
-    /// `eval_values` (the values alone) is `eval`'s `x`, also near and at the poles; and `eval`
+    /// `eval_values` (the values alone) is `eval`'s `x` and the basis row's sum, also near and at
+    /// the poles; and `eval`
     /// with the precomputed recurrence and trigonometric recurrence matches the closed-form
     /// basis of the reference module.
     #[test]
@@ -218,6 +253,20 @@ mod tests {
                     for c in 0..3 {
                         want[c] += coefs[c * nc + k] * y;
                     }
+                }
+                let mut row = vec![0.0; nc];
+                pe.basis_row(&lay, theta, phi, &mut row);
+                for c in 0..3 {
+                    let by_row: f64 = row
+                        .iter()
+                        .zip(&coefs[c * nc..(c + 1) * nc])
+                        .map(|(r, a)| r * a)
+                        .sum();
+                    assert!(
+                        (by_row - x[c]).abs() < 1e-13,
+                        "p = {p}: basis row {by_row} vs {}",
+                        x[c]
+                    );
                 }
                 for c in 0..3 {
                     assert!(

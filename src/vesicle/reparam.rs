@@ -25,6 +25,8 @@ use super::point::PointEval;
 use super::shapes::Surface;
 use super::{dot, VesicleError};
 use crate::sph_harmonics::{CoefLayout, ShTransform, ShWorkspace};
+use faer::linalg::matmul::matmul;
+use faer::{Accum, MatMut, MatRef, Par};
 
 /// Parameters of [`reparametrize`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -102,6 +104,10 @@ pub struct Reparametrizer {
     new_coefs: Vec<f64>,
     /// Parameters `(θ, φ)` each grid point moves to in the current move.
     shifts: Vec<(f64, f64)>,
+    /// The basis at the shifted parameters (`n_p × n_c`, row-major: row `j` the basis
+    /// functions at `shifts[j]`), built once per move and shared by the surface and every
+    /// passenger relabelled by it.
+    basis: Vec<f64>,
 }
 
 impl Reparametrizer {
@@ -118,6 +124,7 @@ impl Reparametrizer {
             moved: vec![0.0; 3 * np],
             new_coefs: vec![0.0; 3 * nc],
             shifts: vec![(0.0, 0.0); np],
+            basis: vec![0.0; np * nc],
             sht,
         })
     }
@@ -173,19 +180,31 @@ impl Reparametrizer {
         Ok(())
     }
 
+    /// The basis at the parameters of the current move (`shifts`) into `basis`.
+    fn build_basis(&mut self) {
+        let lay = self.sht.layout();
+        let nc = lay.len();
+        for (&(t, f), row) in self.shifts.iter().zip(self.basis.chunks_exact_mut(nc)) {
+            self.pe.basis_row(lay, t, f, row);
+        }
+    }
+
     /// Relabel three functions given by their coefficients `coefs` by the parameter map of the
-    /// last move: `c ← F[c(θ_j + δθ_j, φ_j + δφ_j)]` (point evaluation, then the forward
-    /// transform). A surface relabelled so is the same surface with its grid points moved;
-    /// a material field (reference shape, tension, velocity) stays attached to the material.
+    /// last move: `c ← F[c(θ_j + δθ_j, φ_j + δφ_j)]` (point evaluation through the move's
+    /// basis, one product for the three functions, then the forward transform). A surface
+    /// relabelled so is the same surface with its grid points moved; a material field
+    /// (reference shape, tension, velocity) stays attached to the material.
     fn relabel(&mut self, coefs: &mut [f64]) -> Result<(), VesicleError> {
         let np = self.sht.n_points();
-        let lay = self.sht.layout();
-        for (j, &(t, f)) in self.shifts.iter().enumerate() {
-            let x = self.pe.eval_values(lay, coefs, t, f);
-            for (c, xc) in x.into_iter().enumerate() {
-                self.moved[c * np + j] = xc;
-            }
-        }
+        let nc = self.sht.n_coefs();
+        matmul(
+            MatMut::from_column_major_slice_mut(&mut self.moved, np, 3),
+            Accum::Replace,
+            MatRef::from_row_major_slice(&self.basis, np, nc),
+            MatRef::from_column_major_slice(coefs, nc, 3),
+            1.0,
+            Par::Seq,
+        );
         self.sht
             .forward(&self.moved, &mut self.new_coefs, &mut self.ws)?;
         coefs.copy_from_slice(&self.new_coefs);
@@ -252,6 +271,7 @@ fn reparametrize_with(
             let d: [f64; 3] = std::array::from_fn(|c| -params.step * (gj[c] - gn * n[c]));
             plan.shifts[j] = parameter_shift(&plan.sht, &geom, j, d);
         }
+        plan.build_basis();
         candidate.copy_from_slice(surface.coefs());
         plan.relabel(&mut candidate)?;
         let candidate_surface = Surface::from_coefs(p, candidate.clone())?;
