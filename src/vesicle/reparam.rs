@@ -296,3 +296,55 @@ fn reparametrize_with(
         iterations,
     })
 }
+
+#[cfg(test)]
+mod relabel_tests {
+    use super::*;
+
+    /// A relabelling through the move's basis (one product for the three functions) equals
+    /// point evaluation at each shifted parameter followed by the forward transform, to
+    /// round-off.
+    #[test]
+    fn relabel_by_the_basis_equals_point_evaluation() {
+        for p in [6usize, 12] {
+            let mut plan = Reparametrizer::new(p).unwrap();
+            let (nc, np) = (plan.sht.n_coefs(), plan.sht.n_points());
+            let mut s = 11u64;
+            let mut rnd = || {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+            };
+            let coefs: Vec<f64> = (0..3 * nc).map(|_| rnd()).collect();
+            for j in 0..np {
+                let (t, f) = plan.sht.grid().angles(j);
+                plan.shifts[j] = (t + 0.05 * rnd(), f + 0.05 * rnd());
+            }
+            plan.build_basis();
+            let mut by_basis = coefs.clone();
+            plan.relabel(&mut by_basis).unwrap();
+            let lay = plan.sht.layout().clone();
+            let mut moved = vec![0.0; 3 * np];
+            for j in 0..np {
+                let (t, f) = plan.shifts[j];
+                let x = plan.pe.eval_values(&lay, &coefs, t, f);
+                for c in 0..3 {
+                    moved[c * np + j] = x[c];
+                }
+            }
+            let mut by_points = vec![0.0; 3 * nc];
+            let mut ws = plan.sht.workspace();
+            plan.sht.forward(&moved, &mut by_points, &mut ws).unwrap();
+            let scale = coefs.iter().fold(0.0f64, |m, c| m.max(c.abs()));
+            let d = by_basis
+                .iter()
+                .zip(&by_points)
+                .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+            assert!(
+                d < 1e-14 * (nc as f64) * scale,
+                "p = {p}: relabellings differ by {d:e}"
+            );
+        }
+    }
+}
