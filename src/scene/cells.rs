@@ -19,7 +19,10 @@
 //! center = [0.0, 0.0, 0.0]
 //! # axes = [1.0, 0.8, 0.6]        # ellipsoid (scaled to the equivalent radius)
 //! # reduced_volume = 0.9          # prolate, oblate
-//! # orientation = [0, 0, 1, 30]   # rotation axis and angle in degrees
+//! # orientation = [0, 0, 1, 30]   # rotation axis and angle in degrees (the rbc, prolate and
+//! #                               # oblate shapes have their axis of symmetry along z, which a
+//! #                               # turn about z leaves there: to lay it in the x-y shear plane
+//! #                               # at angle t from x, turn by 90 about (-sin t, cos t, 0))
 //! membrane = "vesicle"            # "vesicle" (locally inextensible: vesicles, RBCs) |
 //! #                               # "capsule" (elastic membrane whose area changes; needs
 //! #                               # shear_modulus > 0; follows material points, no
