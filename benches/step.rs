@@ -36,8 +36,8 @@ use std::time::Instant;
 
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, Par};
+use mobo::run::assembly::build;
 use mobo::scene::cells::parse;
-use mobo::scene::cells_run::build;
 use mobo::vesicle::{shapes, LayerKernel, RotationAlgorithm, SelfInteraction};
 
 /// MOBO's rate at p = 6 (Rahimian et al., SC'10: about 6–7 cell-steps per core-second).

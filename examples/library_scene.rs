@@ -2,7 +2,7 @@
 //! sedimenting side by side and a tilted red blood cell sedimenting above them (three cells
 //! coupled through the Stokeslet FMM), written as a TOML string, validated by
 //! [`mobo::scene::cells::parse`], turned into a [`Suspension`] by
-//! [`mobo::scene::cells_run::build`] and advanced with [`Suspension::step`]. Every step prints,
+//! [`mobo::run::assembly::build`] and advanced with [`Suspension::step`]. Every step prints,
 //! per cell, the centroid, the tilt of the axis of largest moment of inertia (an RBC's axis of
 //! symmetry) from z (arbitrary for the spheres), the relative area drift and the GMRES
 //! iterations.
@@ -18,8 +18,8 @@
 
 use std::path::Path;
 
+use mobo::run::assembly::build;
 use mobo::scene::cells::parse;
-use mobo::scene::cells_run::build;
 use mobo::timestep::suspension::Suspension;
 use mobo::vesicle::SurfaceCalculus;
 

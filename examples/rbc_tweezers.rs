@@ -30,8 +30,8 @@
 
 use std::path::Path;
 
+use mobo::run::simulation::Simulation;
 use mobo::scene::cells::parse;
-use mobo::scene::simulation::Simulation;
 
 /// Mills' data, the cell's moduli and units, the pull and the extent (shared with
 /// `tweezers_probe` and `tests/rbc_tweezers.rs`).

@@ -8,7 +8,7 @@
 //! * `bie`: the scene's `[[cells]]` as `mobo run` steps them (`scene::Simulation`), unbounded
 //!   shear `u = (γ̇y, 0, 0)`; vorticity axis `−z`.
 //! * `dpd`: the scene's `[dpd]` fluid with the same `[[cells]]` mapped by `[dpd.from_cells]`
-//!   (`scene::dpd_run::build_suspension`), Couette flow between walls normal to `z`; vorticity
+//!   (`run::dpd::build_suspension`), Couette flow between walls normal to `z`; vorticity
 //!   axis `+y`. The shear rate is fitted to the fluid's velocities in the middle 70 % of the
 //!   channel at every sample.
 //!
@@ -16,7 +16,7 @@
 //! `t strain D inclination tank_treading_rate/γ̇ γ̇ |n·ω̂|` of cell 0: the Taylor deformation
 //! and the inclination (degrees, from the flow direction towards the gradient) of the equivalent
 //! ellipsoid in the shear plane, and the membrane's mean phase rate about the vorticity axis
-//! (`mobo::tank_treading`; the boundary-integral cell from its membrane velocity, the DPD cell
+//! (`mobo::vesicle::tank_treading`; the boundary-integral cell from its membrane velocity, the DPD cell
 //! from its vertices' phase advance since the last sample), and the cosine of the angle
 //! between the vorticity and the shortest axis of the equivalent ellipsoid (a disk's normal:
 //! 1 with the disk in the shear plane, 0 with its axis in it). The last line averages them over
@@ -26,9 +26,9 @@
 //! of strain. `RAYON_NUM_THREADS` sets the threads.
 use std::path::Path;
 
+use mobo::run::simulation::Simulation;
 use mobo::scene::cells::{self, Flow};
-use mobo::scene::simulation::Simulation;
-use mobo::scene::{dpd, dpd_run};
+use mobo::{run, scene::dpd};
 
 /// One sample: time, strain, D, inclination (degrees), tank-treading rate, shear rate, and
 /// `|n·ω̂|`, `n` the shortest axis of the equivalent ellipsoid (a disk's normal).
@@ -137,7 +137,7 @@ fn run_dpd(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn s
     if scene.cells.is_empty() {
         return Err(format!("{}: [dpd] has no cells", file.display()).into());
     }
-    let mut sim = dpd_run::build_suspension(&scene)?;
+    let mut sim = run::dpd::build_suspension(&scene)?;
     let (mid, half) = (0.5 * (lo + hi), 0.35 * (hi - lo));
     let mut before = sim.cells()[0].positions().to_vec();
     let (mut t_before, mut strain) = (sim.fluid.time(), 0.0);

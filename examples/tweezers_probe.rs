@@ -17,8 +17,8 @@
 
 use std::path::Path;
 
+use mobo::run::simulation::Simulation;
 use mobo::scene::cells::parse;
-use mobo::scene::simulation::Simulation;
 use mobo::sph_harmonics::layout::CoefLayout;
 use mobo::sph_harmonics::ShTransform;
 use mobo::vesicle::membrane::Membrane;

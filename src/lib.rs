@@ -22,8 +22,6 @@
 //! * [`durable`]: atomic file replacement and the FNV-1a checksum, below every other layer.
 //! * [`check`]: relative max-norm errors of a fast routine against its reference (tests).
 //! * [`linalg3`]: the eigen-decomposition of symmetric 3 × 3 matrices.
-//! * [`tank_treading`]: the mean rate at which a membrane's material turns about an axis,
-//!   shared by the spherical-harmonic cells and the DPD membranes.
 //! * [`comm`]: the communicator the distributed algorithms are written against (one rank, or
 //!   MPI ranks with the `mpi` feature).
 //! * [`gpu`]: one wgpu device per process, batched pair sums on it, and the DPD fluid's whole
@@ -40,7 +38,10 @@
 //! * [`dpd`]: dissipative particle dynamics: fluid, walls, membranes, viscosity from
 //!   Poiseuille flow.
 //! * [`io`]: output files: `.npy` arrays, frames, VTK, HDF5, binary checkpoints.
-//! * [`scene`]: TOML scene files, their validation, and the runs they describe.
+//! * [`scene`]: TOML scene files and their typed spec ([`SceneSpec`]): the schema, validated
+//!   with errors that name the file, line and key.
+//! * [`run`]: the runs scenes describe: `mobo run` (one process or MPI ranks, checkpoints,
+//!   frames, summary), [`Simulation`] for research codes, `mobo dpd` and `mobo brownian`.
 //! * [`report`]: the accuracy-versus-time study of the cell solver.
 //!
 //! ## Command line (`mobo`)
@@ -55,9 +56,18 @@
 //!
 //! ## Where to start
 //!
-//! * [`fmm::Fmm`]: build once over sources and targets, evaluate for many densities.
+//! The types a research code starts from are re-exported here:
+//!
+//! * [`SceneSpec`]: a cell scene typed in code (the scene file's schema as Rust types),
+//!   validated by [`SceneSpec::build`] into a [`CellScene`];
+//! * [`Simulation`]: that scene stepped by the caller, who reads the cells between steps and
+//!   adds forces of their own;
+//! * [`Fmm`]: an N-body sum by the KIFMM, built once over sources and targets and evaluated for
+//!   many densities ([`Kernel`] is what it sums);
 //! * [`sph_harmonics::ShTransform`]: forward and inverse transforms and grid derivatives.
-//! * [`scene::cells`]: what a cell scene holds; [`scene::cells_run`] builds and runs it.
+//!
+//! `mobo run`'s own driver is [`run::cells`]; [`docs/architecture.md`] (in the repository)
+//! walks one step through the layers.
 
 pub mod brownian;
 pub mod check;
@@ -69,8 +79,13 @@ pub mod gpu;
 pub mod io;
 pub mod linalg3;
 pub mod report;
+pub mod run;
 pub mod scene;
 pub mod sph_harmonics;
-pub mod tank_treading;
 pub mod timestep;
 pub mod vesicle;
+
+pub use fmm::{Fmm, Kernel};
+pub use run::Simulation;
+pub use scene::cells::CellScene;
+pub use scene::spec::SceneSpec;

@@ -1,6 +1,6 @@
 //! 3 × 3 linear algebra shared by the geometry of spherical-harmonic cells
 //! ([`crate::vesicle::geometry`]) and of DPD membranes ([`crate::dpd::suspension`]), and the
-//! 3-vector products they and [`crate::tank_treading`] use.
+//! 3-vector products they and [`crate::vesicle::tank_treading`] use.
 
 /// `a · b`.
 #[inline]

@@ -145,13 +145,13 @@ enum CliError {
     #[error("{0}")]
     Comm(#[from] mobo::comm::CommError),
     #[error("{0}")]
-    Run(#[from] mobo::scene::brownian_run::RunError),
+    Run(#[from] mobo::run::brownian::RunError),
     #[error("{0}")]
-    CellRun(#[from] mobo::scene::cells_run::CellRunError),
+    CellRun(#[from] mobo::run::CellRunError),
     #[error("{0}")]
     Report(#[from] mobo::report::ReportError),
     #[error("{0}")]
-    Dpd(#[from] mobo::scene::dpd_run::DpdRunError),
+    Dpd(#[from] mobo::run::dpd::DpdRunError),
     #[error("interrupted")]
     Interrupted,
     /// An error that every rank of an MPI run has and rank 0 reports: the other ranks exit
@@ -402,7 +402,8 @@ fn run(
     max_steps: Option<usize>,
     quiet: bool,
 ) -> Result<(), CliError> {
-    use mobo::scene::{cells, cells_run, read_scene_file};
+    use mobo::run::cells as cells_run;
+    use mobo::scene::{cells, read_scene_file};
     let scene = scene.or_else(|| resume.as_ref().map(|d| d.join(cells_run::SCENE_COPY)));
     let (sc, text, name) = match &scene {
         Some(path) => {
@@ -591,7 +592,7 @@ fn brownian_on(
             ranks_note(comm.size()),
             out.display()
         );
-        for e in mobo::scene::brownian_run::effects(&sc) {
+        for e in mobo::run::brownian::effects(&sc) {
             eprintln!(
                 "  {} {}: {}",
                 if e.enabled { "+" } else { "-" },
@@ -600,7 +601,7 @@ fn brownian_on(
             );
         }
     }
-    let s = mobo::scene::brownian_run::run_on(comm, &sc, &out, !quiet)?;
+    let s = mobo::run::brownian::run_on(comm, &sc, &out, !quiet)?;
     if comm.rank() == 0 {
         println!(
             "{} beads, {} steps in {:.2} s ({:.0} steps/s); D_CM estimate {:.4} (D0 = {:.4}); <Rg^2> = {:.4}; <Ree^2> = {:.4}",
@@ -617,7 +618,8 @@ fn dpd(
     max_steps: Option<u64>,
     quiet: bool,
 ) -> Result<(), CliError> {
-    use mobo::scene::{dpd, dpd_run, read_scene_file};
+    use mobo::run::dpd as dpd_run;
+    use mobo::scene::{dpd, read_scene_file};
     let path = match (&scene, &resume) {
         (Some(p), _) => p.clone(),
         (None, Some(d)) => d.join(dpd_run::SCENE_COPY),

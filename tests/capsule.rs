@@ -21,8 +21,8 @@ use std::path::Path;
 mod common;
 use common::{frame_bits, mobo, stop_and_resume, summary, tmpdir, write};
 
+use mobo::run::simulation::Simulation;
 use mobo::scene::cells::parse;
-use mobo::scene::simulation::Simulation;
 use mobo::timestep::semi_implicit::{ElasticStepping, TimeScheme, VesicleParams, VesicleStepper};
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;

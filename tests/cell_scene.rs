@@ -70,7 +70,7 @@ fn a_full_scene_parses_with_its_values_and_effects() {
             .far_side_split
     );
     // The setting reaches every cell's own layer potentials.
-    let susp = mobo::scene::cells_run::build(&s).unwrap();
+    let susp = mobo::run::assembly::build(&s).unwrap();
     assert!(susp.steppers().iter().all(|c| !c.far_side_params().enabled));
     use mobo::timestep::semi_implicit::OperatorStorage;
     assert!(susp

@@ -6,8 +6,8 @@
 use std::f64::consts::PI;
 use std::path::Path;
 
+use mobo::run::assembly::build;
 use mobo::scene::cells::{load, parse};
-use mobo::scene::cells_run::build;
 use mobo::vesicle::SurfaceCalculus;
 
 /// Centroid velocities (per cell) over the `steps`-th step of `scene`.

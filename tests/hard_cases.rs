@@ -3,7 +3,7 @@
 //! versions are `#[ignore]`d and run by `scripts/hard_cases.sh`, which writes the measured
 //! numbers to `docs/hard_cases.md`.
 //!
-//! Every case steps a [`Suspension`] built by `cells_run::build` (the settings of `mobo run`) and
+//! Every case steps a [`Suspension`] built by `run::assembly::build` (the settings of `mobo run`) and
 //! checks after each step: finite SH coefficients and tension, area and volume drift of every
 //! cell against the start, the speed of every centroid against a bound, and (where asked) that
 //! no grid point of one cell lies inside another cell (`OffSurface::classify`, exact closest
@@ -12,8 +12,8 @@
 //!
 //! Each test prints one `| case | ... |` line with its measured numbers.
 
+use mobo::run::assembly::build;
 use mobo::scene::cells::{parse, CellScene};
-use mobo::scene::cells_run::build;
 use mobo::timestep::coupling::{Coupling, CouplingParams};
 
 mod common;

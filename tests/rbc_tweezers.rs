@@ -17,8 +17,8 @@
 
 use std::path::Path;
 
+use mobo::run::simulation::Simulation;
 use mobo::scene::cells::parse;
-use mobo::scene::simulation::Simulation;
 
 /// The setup of `examples/rbc_tweezers.rs` (Mills' data, the cell's moduli and units, the
 /// pull, the extent).

@@ -6,8 +6,8 @@
 
 use std::path::Path;
 
+use mobo::run::simulation::Simulation;
 use mobo::scene::cells::parse;
-use mobo::scene::simulation::Simulation;
 use mobo::timestep::cell_force::{CellForce, CellView, ForceFn, PatchPair};
 use mobo::vesicle::geometry::SurfaceCalculus;
 

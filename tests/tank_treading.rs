@@ -1,4 +1,4 @@
-//! The tank-treading rate of a membrane (`mobo::tank_treading`) in both solvers: the
+//! The tank-treading rate of a membrane (`mobo::vesicle::tank_treading`) in both solvers: the
 //! boundary-integral cell's against the exact rotation of a sphere in shear, and the DPD
 //! membrane's vertex-snapshot estimate on the RBC example scene.
 mod common;
@@ -6,7 +6,7 @@ mod common;
 use std::path::Path;
 
 use common::{mobo, ok, summary, tmpdir, write};
-use mobo::scene::{dpd, dpd_run};
+use mobo::{run, scene::dpd};
 
 /// A spherical vesicle (reduced volume 1: it cannot deform) in the shear `u = (γ̇y, 0, 0)`
 /// turns as a rigid sphere in Stokes flow, at `γ̇/2` clockwise about `z` (its membrane's
@@ -40,7 +40,7 @@ fn a_sphere_in_shear_turns_at_half_the_shear_rate() {
 
 /// The RBC example scene, shortened, by both solvers: the boundary-integral RBC (its disk in
 /// the shear plane) tank-treads a little slower than a rigid sphere would turn; the DPD cell
-/// built by `dpd_run::build_suspension` gives a phase advance over its steps, its vertex
+/// built by `run::dpd::build_suspension` gives a phase advance over its steps, its vertex
 /// areas add up to its area, and a snapshot of the wrong size is refused.
 #[test]
 fn the_rbc_example_runs_both_ways_with_its_tank_treading_rate() {
@@ -68,7 +68,7 @@ fn the_rbc_example_runs_both_ways_with_its_tank_treading_rate() {
     assert!(tt > 0.45 && tt < 0.5, "{cell}");
 
     let scene = dpd::load(Path::new(&scene)).unwrap();
-    let mut sim = dpd_run::build_suspension(&scene).unwrap();
+    let mut sim = run::dpd::build_suspension(&scene).unwrap();
     let c = &sim.cells()[0];
     let area: f64 = c.vertex_areas().iter().sum();
     let (da, _) = c.area_volume_change().unwrap();

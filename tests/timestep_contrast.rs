@@ -16,8 +16,9 @@ mod common;
 use std::f64::consts::PI;
 
 use common::quadrature::{reference_layer, Kernel};
+use mobo::run::assembly::build;
+use mobo::run::cells::{run, RunOptions};
 use mobo::scene::cells::parse;
-use mobo::scene::cells_run::{build, run, RunOptions};
 use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::coupling::{Coupling, CouplingParams};
 use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams};

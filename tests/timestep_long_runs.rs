@@ -340,8 +340,8 @@ every = 4
 /// the two runs' shapes agree, since following the cells is a uniform translation.
 #[test]
 fn extensional_flow_follows_the_cells_and_only_translates() {
+    use mobo::run::simulation::Simulation;
     use mobo::scene::cells::parse;
-    use mobo::scene::simulation::Simulation;
     let scene = |frame: &str| {
         let text = format!(
             "[flow]\nkind = \"extensional\"\nrate = 1.0\nframe = \"{frame}\"\n\n[[cells]]\n\

@@ -8,7 +8,7 @@
 //! `G_s = 1`, `μ = 1`: a force `F` is `F/(G_s R)` and `κ` is `κ/(G_s R²)`.
 
 use mobo::fmm::octree::bounding_box;
-use mobo::scene::simulation::Simulation;
+use mobo::run::simulation::Simulation;
 use mobo::timestep::cell_force::{PatchPair, SmoothPatchPair};
 use mobo::vesicle::geometry::Geometry;
 use mobo::vesicle::shapes::RBC_ALPHA;

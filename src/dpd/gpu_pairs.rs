@@ -17,10 +17,10 @@
 //! ```no_run
 //! use mobo::dpd::gpu_pairs::GpuPairForces;
 //! use mobo::gpu::{Gpu, GpuPrecision};
-//! use mobo::scene::{dpd, dpd_run};
+//! use mobo::{run, scene::dpd};
 //!
 //! let scene = dpd::load(std::path::Path::new("examples/scenes/rbc_shear_bie_and_dpd.toml"))?;
-//! let mut sim = dpd_run::build_suspension(&scene)?;
+//! let mut sim = run::dpd::build_suspension(&scene)?;
 //! let mut pairs = GpuPairForces::new(Gpu::shared()?, &sim.fluid, GpuPrecision::F32)?;
 //! for _ in 0..100 {
 //!     sim.step_with(Some(&mut pairs))?;

@@ -325,7 +325,7 @@ impl FluidCell {
 
     /// The membrane's mean phase advance about `axis` since the vertex positions `before`
     /// (an earlier [`Self::positions`]), weighted by today's [`Self::vertex_areas`]
-    /// ([`crate::tank_treading::phase_advance`]): divided by the time between, the
+    /// ([`crate::vesicle::tank_treading::phase_advance`]): divided by the time between, the
     /// tank-treading rate over that interval, counter-clockwise about `axis` (pass
     /// `[0, 1, 0]` for the sense of the Couette flow `u = (γ̇z, 0, 0)`).
     ///
@@ -339,7 +339,7 @@ impl FluidCell {
                 expected: self.x.len(),
             });
         }
-        Ok(crate::tank_treading::phase_advance(
+        Ok(crate::vesicle::tank_treading::phase_advance(
             before,
             &self.x,
             &self.vertex_areas(),

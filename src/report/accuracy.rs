@@ -46,8 +46,8 @@ use std::time::Instant;
 
 use super::ReportError;
 use crate::io::write_atomic;
+use crate::run::{assembly::build, CellRunError};
 use crate::scene::cells::{self, CellScene, Scheme};
-use crate::scene::cells_run::{build, CellRunError};
 use crate::sph_harmonics::layout::CoefLayout;
 use crate::sph_harmonics::{resample_coefs, ShTransform};
 use crate::vesicle::geometry::SurfaceCalculus;

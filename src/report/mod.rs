@@ -12,7 +12,7 @@ pub mod plot;
 use std::path::PathBuf;
 
 use crate::io::IoError;
-use crate::scene::cells_run::CellRunError;
+use crate::run::CellRunError;
 use crate::scene::SceneError;
 
 /// Errors of a report.

@@ -60,7 +60,7 @@
 //! repulsion_range = 0.05          # contact repulsion within 0.05 R of another cell (0: off)
 //! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
 //! rebalance_every = 10            # under mpirun: steps between checks of the split of the cells
-//! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see cells_partition)
+//! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see run::partition)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [output]
@@ -84,6 +84,13 @@ use crate::gpu::GpuChoice;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
+
+/// Steps between checks of the split of the cells over ranks (`[numerics] rebalance_every`'s
+/// default; [`crate::run::partition`]).
+pub const REBALANCE_EVERY: usize = 10;
+/// Cost imbalance above which cells are moved between ranks (`[numerics] max_imbalance`'s
+/// default; [`crate::run::partition`]).
+pub const MAX_IMBALANCE: f64 = 0.10;
 
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -387,7 +394,7 @@ pub struct Numerics {
     /// Under MPI: steps between checks of the split of the cells between ranks (default 10).
     pub rebalance_every: usize,
     /// Under MPI: the cost imbalance (largest rank over mean, minus 1) above which cells are
-    /// moved at a check (default 0.1; see [`crate::scene::cells_partition`]).
+    /// moved at a check (default 0.1; see [`crate::run::partition`]).
     pub max_imbalance: f64,
     /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
     /// ([`crate::fmm::gpu_near::choose`]).
@@ -709,7 +716,7 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
                 ))
             }
             Some(v) => *v.get_ref() as usize,
-            None => crate::scene::cells_partition::CHECK_EVERY,
+            None => REBALANCE_EVERY,
         },
         max_imbalance: match n.and_then(|n| n.max_imbalance.as_ref()) {
             Some(v) if !(v.get_ref().is_finite() && *v.get_ref() >= 0.0) => {
@@ -722,7 +729,7 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
                 ))
             }
             Some(v) => *v.get_ref(),
-            None => crate::scene::cells_partition::MAX_IMBALANCE,
+            None => MAX_IMBALANCE,
         },
         gpu: match n.and_then(|n| n.gpu.as_ref()) {
             None => GpuChoice::Auto,

@@ -28,7 +28,7 @@
 //! fluid before they freeze. With cells in the fluid it computes the solvent's pair forces
 //! only (`crate::dpd::gpu_pairs`); the membranes, the bounce-back off them and the
 //! solvent–vertex pairs stay on the CPU. `auto` takes a hardware GPU for at least
-//! `AUTO_MIN_PARTICLES` (in `scene::dpd_run`) particles, `true` any adapter, and fails where
+//! `AUTO_MIN_PARTICLES` (in `run::dpd`) particles, `true` any adapter, and fails where
 //! there is none.
 //!
 //! Walls (frozen particles and bounce-back, [`crate::dpd::walls`]):

@@ -4,15 +4,8 @@
 //! assembly decisions; [`brownian`]: the `[brownian]` section of `mobo brownian`.
 
 pub mod brownian;
-pub mod brownian_run;
 pub mod cells;
-mod cells_checkpoint;
-pub mod cells_partition;
-pub mod cells_run;
-mod cells_step;
 pub mod dpd;
-pub mod dpd_run;
-pub mod simulation;
 pub mod spec;
 
 use std::path::{Path, PathBuf};

@@ -176,7 +176,7 @@ impl Geometry {
         let (l, b, _) = crate::linalg3::shear_plane_semi_axes(semi, axes, vorticity);
         (l - b) / (l + b)
     }
-    /// The membrane phase rate about `axis` ([`crate::tank_treading::phase_rate`], weights
+    /// The membrane phase rate about `axis` ([`crate::vesicle::tank_treading::phase_rate`], weights
     /// `da`) of the grid velocity `velocity` (`3n`, component-major, as
     /// [`crate::timestep::semi_implicit::VesicleStepper::velocity`]): for a steadily
     /// tank-treading cell, `2π` over the period of its material points, counter-clockwise
@@ -194,7 +194,7 @@ impl Geometry {
         let u: Vec<[f64; 3]> = (0..n)
             .map(|j| [velocity[j], velocity[n + j], velocity[2 * n + j]])
             .collect();
-        Ok(crate::tank_treading::phase_rate(
+        Ok(crate::vesicle::tank_treading::phase_rate(
             &self.x, &u, &self.da, axis,
         ))
     }

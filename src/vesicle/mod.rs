@@ -85,6 +85,7 @@ mod point;
 pub mod reparam;
 pub mod shapes;
 pub mod skalak;
+pub mod tank_treading;
 pub mod tension;
 
 pub use coefficient_operator::CoefficientOperator;

@@ -18,10 +18,13 @@
 
 use std::path::Path;
 
-use super::cells_run::{CellRunError, CHECKPOINT};
+use super::CellRunError;
 use crate::io::checkpoint::Checkpoint;
 use crate::timestep::cell_state::{CellState, PreconditionerRecord};
 use crate::vesicle::material_labels::MaterialLabels;
+
+/// The checkpoint file in the output directory.
+pub const CHECKPOINT: &str = "checkpoint.bin";
 
 /// Everything a run carries from step to step besides the cells' own state.
 #[derive(Clone, Debug, Default)]

@@ -26,8 +26,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 use serde_json::json;
 
-pub use super::brownian_run::Effect;
-use super::dpd::DpdScene;
+pub use super::brownian::Effect;
 use crate::dpd::pair_force::Particles;
 use crate::dpd::poiseuille::{
     kinetic_theory_viscosity, FlowGeometry, KineticViscosity, ProfileSampler, ViscosityFit,
@@ -42,6 +41,7 @@ use crate::gpu::{GpuChoice, GpuDecision, GpuError, GpuPrecision};
 use crate::io::checkpoint::Checkpoint;
 use crate::io::vtk::{write_polydata, write_pvd, DataArray, DataValues, PolyMesh, PvdEntry};
 use crate::io::{write_atomic, IoError};
+use crate::scene::dpd::DpdScene;
 
 /// The copy of the scene in the output directory.
 pub const SCENE_COPY: &str = "scene.toml";
@@ -652,9 +652,9 @@ pub fn build_fluid(scene: &DpdScene) -> Result<DpdSystem, DpdRunError> {
 /// steps a DPD scene itself and reads the cells between steps.
 ///
 /// ```no_run
-/// use mobo::scene::{dpd, dpd_run};
+/// use mobo::{run, scene::dpd};
 /// let scene = dpd::load(std::path::Path::new("examples/scenes/capsule_shear_bie_and_dpd.toml"))?;
-/// let mut sim = dpd_run::build_suspension(&scene)?;
+/// let mut sim = dpd::build_suspension(&scene)?;
 /// for _ in 0..100 {
 ///     sim.step()?;
 /// }

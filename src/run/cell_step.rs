@@ -1,13 +1,13 @@
-//! One accepted step of a suspension, shared by `mobo run` ([`super::cells_run`]) and the
+//! One accepted step of a suspension, shared by `mobo run` ([`super::cells`]) and the
 //! library's [`super::simulation::Simulation`]: with a fixed `dt` the step is taken once; with
 //! an adaptive `dt` ([`AdaptiveDt`]) a step whose area/volume error is too large, or whose solve
 //! failed (stagnated, out of iterations), is repeated smaller from a snapshot of the cells,
 //! down to `dt_min`, before the error is returned.
 
-use super::cells::{CellScene, Flow, Scheme};
-use super::cells_partition::centre;
-use super::cells_run::CellRunError;
+use super::partition::centre;
+use super::CellRunError;
 use crate::comm::Communicator;
+use crate::scene::cells::{CellScene, Flow, Scheme};
 use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::cell_force::CellForce;
 use crate::timestep::suspension::{CellStepError, Suspension, SuspensionReport};

@@ -30,7 +30,7 @@ use crate::linalg3::{cross3, dot3, sub3};
 /// and `velocities`. NaN for empty input or zero weights.
 ///
 /// ```
-/// use mobo::tank_treading::phase_rate;
+/// use mobo::vesicle::tank_treading::phase_rate;
 /// // A ring turning rigidly at 0.5 clockwise about z (the sense of the shear u = (y, 0, 0)).
 /// let pts: Vec<[f64; 3]> = (0..8)
 ///     .map(|k| (k as f64 * std::f64::consts::FRAC_PI_4).sin_cos())

@@ -13,7 +13,6 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
 
-use super::brownian::BrownianScene;
 use crate::brownian::observables::{
     autocorrelation, center_of_mass, end_to_end, mean_square_displacement, orientation,
     radius_of_gyration_sq,
@@ -22,6 +21,7 @@ use crate::brownian::{BrownianError, BrownianSimulation, NoiseModel};
 use crate::comm::{agreed, block_rows, spread, CommError, Communicator, SerialComm};
 use crate::gpu::GpuDecision;
 use crate::io::{npy, write_atomic, IoError};
+use crate::scene::brownian::BrownianScene;
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]

@@ -34,10 +34,10 @@ use crate::timestep::TimestepError;
 
 /// Cost of a cell step besides its GMRES iterations, in iterations.
 pub const ASSEMBLY_COST: f64 = 12.0;
-/// Steps between checks of the split (default).
-pub const CHECK_EVERY: usize = 10;
-/// Cost imbalance above which cells are moved (default).
-pub const MAX_IMBALANCE: f64 = 0.10;
+/// Cost imbalance above which cells are moved (default; the scene's `[numerics] max_imbalance`).
+pub use crate::scene::cells::MAX_IMBALANCE;
+/// Steps between checks of the split (default; the scene's `[numerics] rebalance_every`).
+pub use crate::scene::cells::REBALANCE_EVERY as CHECK_EVERY;
 /// Fraction of cells on a stale rank above which cells are moved.
 pub const MAX_STALE: f64 = 0.25;
 

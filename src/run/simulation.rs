@@ -1,7 +1,7 @@
 //! A cell scene as a research code drives it: a [`Simulation`] advanced step by step (or to a
 //! time), whose cells the caller reads between steps and on which it adds its own forces.
 //!
-//! `mobo run` ([`super::cells_run`]) runs a scene to its end and writes files; a study written
+//! `mobo run` ([`super::cells`]) runs a scene to its end and writes files; a study written
 //! in Rust instead builds a [`Simulation`] from the same [`CellScene`] and decides itself what
 //! to record and when to stop. The steps are the same ([`Suspension::step_with_forces`], with
 //! the scene's fixed or adaptive `dt`, repeated smaller when the adaptive control rejects a
@@ -13,7 +13,7 @@
 //! ```
 //! use std::path::Path;
 //! use mobo::scene::cells::parse;
-//! use mobo::scene::simulation::Simulation;
+//! use mobo::run::simulation::Simulation;
 //! use mobo::timestep::cell_force::ForceFn;
 //!
 //! let scene = parse(
@@ -37,10 +37,10 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use super::cells::{CellScene, Effect};
-use super::cells_run::{build, CellRunError};
-use super::cells_step::{accepted_step, adaptive_control, flow_origin, step_error};
+use super::cell_step::{accepted_step, adaptive_control, flow_origin, step_error};
+use super::{assembly::build, CellRunError};
 use crate::comm::SerialComm;
+use crate::scene::cells::{CellScene, Effect};
 use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::cell_force::CellForce;
 use crate::timestep::suspension::{Suspension, SuspensionReport};

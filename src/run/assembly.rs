@@ -1,0 +1,216 @@
+//! A scene's cells as a [`Suspension`] ready to step: the setups, the coupling and the memory
+//! plan `mobo run` uses, for one process or one rank's share.
+
+use super::cell_step::step_error;
+use super::error::CellRunError;
+use crate::scene::cells::{CellScene, Effect, Flow, Scheme};
+use crate::timestep::cell_preconditioner;
+use crate::timestep::coupling::CouplingParams;
+use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
+use crate::timestep::suspension::{CellSetup, Suspension};
+use crate::timestep::GmresParams;
+use crate::vesicle::far_side::FarSideParams;
+use crate::vesicle::reparam::ReparamParams;
+use crate::vesicle::skalak::SkalakParams;
+
+/// The setup of every cell of `scene`, in scene order (the settings `mobo run` uses: drift
+/// correction and reparametrisation every step, GMRES restart 200).
+pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
+    let p = scene.numerics.order;
+    let q = scene.numerics.upsample * p;
+    let mut setups = Vec::with_capacity(scene.cells.len());
+    for cell in &scene.cells {
+        let coefs = cell.surface(p)?.coefs().to_vec();
+        let params = VesicleParams {
+            bending_modulus: cell.bending_modulus,
+            viscosity: scene.viscosity,
+            force: cell.force,
+            dt: scene.numerics.dt,
+            upsampled_order: q,
+            gmres: GmresParams {
+                tol: scene.numerics.gmres_tol,
+                restart: 200,
+                max_iters: 5000,
+                ..Default::default()
+            },
+            correct_drift: true,
+            // A capsule's elasticity is measured from material points: its grid follows them.
+            reparametrize: cell.inextensible.then(|| ReparamParams {
+                max_iterations: 10,
+                ..Default::default()
+            }),
+            preconditioner: true,
+            scheme: match scene.numerics.scheme {
+                Scheme::Euler => TimeScheme::Euler,
+                Scheme::Bdf2 => TimeScheme::Bdf2,
+            },
+            viscosity_ratio: cell.viscosity_ratio,
+            inextensible: cell.inextensible,
+            elastic_stepping: scene.numerics.elasticity,
+        };
+        let skalak = (cell.shear_modulus > 0.0).then(|| {
+            (
+                SkalakParams {
+                    shear_modulus: cell.shear_modulus,
+                    dilation_ratio: cell.skalak_c,
+                    law: cell.elastic_law,
+                },
+                coefs.clone(),
+            )
+        });
+        setups.push(CellSetup {
+            coefs,
+            params,
+            skalak,
+        });
+    }
+    Ok(setups)
+}
+
+/// The coupling settings of `scene` (the contact repulsion's strength, when the scene leaves
+/// it out, from the cells' bending, the flow and the forces).
+pub(super) fn coupling_params(scene: &CellScene) -> CouplingParams {
+    let rate = match scene.flow {
+        Flow::None => 0.0,
+        Flow::Shear { rate } | Flow::Extensional { rate, .. } => rate.abs(),
+        Flow::Poiseuille { speed, radius } => (speed / radius).abs(),
+    };
+    let auto_strength = scene
+        .cells
+        .iter()
+        .map(|c| {
+            let r = c.radius;
+            let f = c.force.iter().map(|v| v * v).sum::<f64>().sqrt();
+            (c.bending_modulus / r.powi(3))
+                .max(scene.viscosity * rate)
+                .max(f / (4.0 * std::f64::consts::PI * r * r))
+        })
+        .fold(0.0, f64::max)
+        * 10.0;
+    CouplingParams {
+        viscosity: scene.viscosity,
+        fmm_digits: scene.numerics.fmm_digits,
+        repulsion_range: scene.numerics.repulsion_range,
+        repulsion_strength: scene.numerics.repulsion_strength.unwrap_or(auto_strength),
+        gpu: scene.numerics.gpu,
+        ..Default::default()
+    }
+}
+
+/// The cells of `scene` as a [`Suspension`] ready to step (the settings `mobo run` uses:
+/// drift correction and reparametrisation every step, GMRES restart 200). Library users and
+/// studies (`mobo report`) step it themselves.
+pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
+    let setups = setups(scene)?;
+    let all = (0..setups.len()).collect::<Vec<_>>();
+    build_part(scene, &setups, &all)
+}
+
+/// One rank's share of the cells of `scene`: the cells `ids` (global indices) of `setups`
+/// (every cell's, from [`setups`]).
+pub fn build_part(
+    scene: &CellScene,
+    setups: &[CellSetup],
+    ids: &[usize],
+) -> Result<Suspension, CellRunError> {
+    let p = scene.numerics.order;
+    let q = scene.numerics.upsample * p;
+    let contrast = scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
+    let cells = ids.iter().map(|&i| (i, setups[i].clone())).collect();
+    let mut susp = Suspension::new_part(
+        p,
+        q.max(p),
+        cells,
+        setups.len(),
+        contrast,
+        coupling_params(scene),
+    )
+    .map_err(|e| step_error(0, 0.0, e))?;
+    // Chosen for all cells alike (the memory of the whole scene), so that the split between
+    // ranks does not change how a cell is stepped.
+    let (storage, preconditioning) = memory_plan(scene, setups.len(), contrast);
+    susp.set_operator_storage(storage);
+    susp.set_preconditioning(preconditioning);
+    if !scene.numerics.far_side_split {
+        let off = FarSideParams {
+            enabled: false,
+            ..FarSideParams::default()
+        };
+        susp.set_far_side_params(off)
+            .map_err(|e| step_error(0, 0.0, e))?;
+    }
+    Ok(susp)
+}
+
+/// The scene's effects, and the cells' own preconditioners where [`memory_plan`] left them
+/// out.
+pub(super) fn run_effects(scene: &CellScene, susp: &Suspension) -> Vec<Effect> {
+    let mut effects = scene.effects.clone();
+    if let (Preconditioning::Cell { .. }, Some(Preconditioning::Sphere)) =
+        (scene.numerics.preconditioning, susp.preconditioning())
+    {
+        let (cells, p) = (scene.cells.len(), scene.numerics.order);
+        let bytes = cells as f64 * cell_preconditioner::bytes_per_cell(p) as f64;
+        let reason = if susp.operator_storage() == Some(OperatorStorage::MatrixFree) {
+            "matrix-free operators keep the sphere's preconditioner".to_string()
+        } else {
+            format!(
+                "the own preconditioners of {cells} cells at p = {p} need {:.1} GB, more than \
+                 60 % of the available memory allows beside the operators: every cell takes \
+                 the sphere's",
+                bytes / 1e9
+            )
+        };
+        effects.push(Effect {
+            name: "cell_preconditioner",
+            enabled: false,
+            reason,
+        });
+    }
+    effects
+}
+
+/// Where the cells' operators and preconditioners are kept, within 60 % of the available
+/// memory (8 GiB where it is unknown): the scene's choices, except where they do not fit.
+/// The cells' own preconditioners ((4 n_c)² doubles each, 3.6 MB at `p = 12`) are kept per
+/// cell; where those of all cells do not fit, or leave room only for matrix-free operators
+/// (which do without them), every cell takes the sphere's (shared by the cells of one size;
+/// the summary says so). Then the fastest operator storage that fits what is left
+/// ([`OperatorStorage::for_budget`]: the grid wherever the threads can hold its operators).
+pub(super) fn memory_plan(
+    scene: &CellScene,
+    cells: usize,
+    contrast: bool,
+) -> (OperatorStorage, Preconditioning) {
+    let p = scene.numerics.order;
+    let budget = available_memory().map_or(8 << 30, |m| m / 10 * 6);
+    let threads = rayon::current_num_threads();
+    let auto =
+        |budget| OperatorStorage::for_budget(cells, threads, p, 1 + usize::from(contrast), budget);
+    let own = cells as u64 * cell_preconditioner::bytes_per_cell(p) as u64;
+    if let Preconditioning::Cell { .. } = scene.numerics.preconditioning {
+        // The own preconditioners first; matrix-free operators would drop them anyway.
+        if own <= budget {
+            let storage = scene
+                .numerics
+                .operator_storage
+                .unwrap_or_else(|| auto(budget - own));
+            if storage != OperatorStorage::MatrixFree {
+                return (storage, scene.numerics.preconditioning);
+            }
+        }
+    }
+    let storage = scene
+        .numerics
+        .operator_storage
+        .unwrap_or_else(|| auto(budget));
+    (storage, Preconditioning::Sphere)
+}
+
+/// `MemAvailable` of `/proc/meminfo` in bytes (`None` where there is none).
+pub(super) fn available_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}

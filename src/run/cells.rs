@@ -1,0 +1,622 @@
+//! Running a cell scene (`mobo run`): the semi-implicit steps, saved frames and a summary.
+//!
+//! Writes into the output directory, each file atomically (written, then renamed):
+//! * `frames/frame_NNNNN_coefs.npy` (`3 × n_coefs`: x, y, z SH coefficients),
+//!   `frames/frame_NNNNN_positions.npy` (`3 × n_points` grid positions),
+//!   `frames/frame_NNNNN_tension.npy` (`n_points`), `frames/times.npy` (time of every frame);
+//! * `summary.json`: effects built and why, settings, steps, timings, GMRES iterations, area
+//!   and volume drift, centroid and its velocity, inclination angle, final time.
+//!
+//! Any number of cells (coupled through the FMM when there are two or more), shear elasticity
+//! (Skalak, explicit, stress-free at the initial shape), the first-order and the BDF2 scheme,
+//! a viscosity contrast (with several cells, the double layer of each cell with `λ ≠ 1` is
+//! felt by the others through a second, stresslet FMM, with its membrane velocity from the
+//! previous step; see [`crate::timestep::coupling`]), a fixed or an adaptive `dt`
+//! ([`crate::timestep::adaptive`]: steps whose area/volume error is too large are repeated
+//! smaller). Scenes that ask for what is not built are refused with a message
+//! that says what is missing.
+//!
+//! **Over MPI ranks** ([`run_on`]): every rank reads the scene and builds every cell's setup,
+//! holds a share of the cells ([`super::partition`]) and steps them
+//! ([`Suspension::step_on`]); rank 0 gathers the coefficients and tensions for each frame and
+//! every cell's state for each checkpoint and writes the same files as one rank (the memory
+//! at rank 0 is that of every cell's state during a checkpoint, `docs/scaling.md`). A
+//! checkpoint records the split: resumed on as many ranks it continues bit for bit; on another
+//! number it is split afresh and continues to round-off. A failure on any rank (a cell's step,
+//! an output file) is returned on every rank; a stop request on any rank stops all after the
+//! step, with a checkpoint.
+
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Instant;
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+use super::assembly::{build_part, run_effects, setups};
+use super::cell_step::{accepted_step, adaptive_control, flow_origin, step_error};
+use super::checkpoint::{self, Progress, Split};
+use super::error::{agreed, CellRunError};
+use super::output::{gather_rows, gather_states, gathered_frame};
+use super::partition::{self, Reason};
+use super::summary::{
+    split_summary, AdaptiveSummary, CellRunSummary, CellSummary, Counters, RankClock, Rebalance,
+};
+use crate::comm::{Communicator, SerialComm};
+use crate::io::frames::{FrameFormats, FrameWriter};
+use crate::io::write_atomic;
+use crate::scene::cells::{CellScene, Scheme};
+use crate::sph_harmonics::ShTransform;
+use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
+use crate::timestep::TimestepError;
+use crate::vesicle::geometry::{Geometry, SurfaceCalculus};
+use crate::vesicle::VesicleError;
+
+/// One cell's observables from its coefficients.
+fn observe(
+    calc: &mut SurfaceCalculus,
+    coefs: &[f64],
+) -> Result<([f64; 3], f64, f64, f64), CellRunError> {
+    Ok(observe_geometry(&calc.geometry(coefs)?))
+}
+
+/// One cell's observables from its geometry: centroid, area, volume, inclination (degrees).
+fn observe_geometry(g: &Geometry) -> ([f64; 3], f64, f64, f64) {
+    let (_, axes) = g.principal_axes();
+    (
+        g.centroid(),
+        g.area(),
+        g.volume(),
+        (axes[0][1] / axes[0][0]).atan().to_degrees(),
+    )
+}
+
+/// How a run is started and when it stops early.
+#[derive(Clone, Debug, Default)]
+pub struct RunOptions {
+    /// No progress bar.
+    pub quiet: bool,
+    /// Continue from `out/checkpoint.bin` (written by an earlier run of the same scene).
+    pub resume: bool,
+    /// Stop after this many steps of this invocation (with a checkpoint), e.g. to fit a job's
+    /// wall-time limit; the run is then continued with `resume`.
+    pub max_steps: Option<usize>,
+    /// Set (e.g. by a Ctrl-C handler) to stop cleanly after the current step, with a
+    /// checkpoint.
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+pub use super::checkpoint::CHECKPOINT;
+/// The copy of the scene in the output directory (what `--resume` runs).
+pub const SCENE_COPY: &str = "scene.toml";
+
+/// Check the split (every `every` steps, after step `step`) and move the cells when it went
+/// stale (collective).
+#[allow(clippy::too_many_arguments)]
+fn rebalance(
+    comm: &dyn Communicator,
+    susp: &mut Suspension,
+    p: usize,
+    setups: &[CellSetup],
+    owners: &mut Vec<usize>,
+    (step, every, max_imbalance): (usize, usize, f64),
+    clock: &mut RankClock,
+    log: &mut Vec<Rebalance>,
+) -> Result<(), CellRunError> {
+    let k = comm.size();
+    if k == 1 || step % every != 0 {
+        return Ok(());
+    }
+    let t = Instant::now();
+    let (centres, costs) = partition::gather_inputs(comm, susp).map_err(CellRunError::Comm)?;
+    let fresh = partition::split(&centres, &costs, k);
+    let before = partition::imbalance(owners, &costs, k);
+    let stale = owners.iter().zip(&fresh).filter(|(a, b)| a != b).count();
+    let stale_fraction = stale as f64 / owners.len().max(1) as f64;
+    let reason = if stale == 0 {
+        None
+    } else if before > max_imbalance {
+        Some(Reason::Imbalance)
+    } else if stale_fraction > partition::MAX_STALE {
+        Some(Reason::Locality)
+    } else {
+        None
+    };
+    if let Some(reason) = reason {
+        let bytes = partition::migrate(comm, susp, p, setups, &fresh)
+            .map_err(|e| step_error(step + 1, f64::NAN, e))?;
+        clock.migration_bytes += bytes;
+        log.push(Rebalance {
+            step: step + 1,
+            reason,
+            imbalance_before: before,
+            imbalance_after: partition::imbalance(&fresh, &costs, k),
+            stale_fraction,
+            cells_moved: stale,
+        });
+        *owners = fresh;
+    }
+    clock.rebalance_s += t.elapsed().as_secs_f64();
+    Ok(())
+}
+
+/// Run `scene` (whose text is `scene_text`), writing into `out`, on one process.
+pub fn run(
+    scene: &CellScene,
+    scene_text: &str,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<CellRunSummary, CellRunError> {
+    Ok(run_on(&SerialComm, scene, scene_text, out, options)?
+        .expect("rank 0 of one rank has the summary"))
+}
+
+/// [`run`] over the ranks of `comm` (collective: every rank calls it with the same scene).
+/// The cells are split between the ranks ([`partition`]); rank 0 gathers what is
+/// written (frames, checkpoints, the summary, all the same files as on one rank) and returns
+/// the summary; the other ranks return `None`. A failure is returned on every rank.
+pub fn run_on(
+    comm: &dyn Communicator,
+    scene: &CellScene,
+    scene_text: &str,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<Option<CellRunSummary>, CellRunError> {
+    let p = scene.numerics.order;
+    let q = scene.numerics.upsample * p;
+    let dt = scene.numerics.dt;
+    let steps = (scene.numerics.t_end / dt).round().max(1.0) as usize;
+    let (k_ranks, root) = (comm.size(), comm.rank() == 0);
+    let nc = scene.cells.len();
+    let setups = setups(scene)?;
+    let sht = ShTransform::new(p).map_err(VesicleError::from)?;
+    let mut ws = sht.workspace();
+    let (ncoef, n) = (3 * sht.n_coefs(), sht.n_points());
+    let double_layer = nc > 1 && scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
+    let mut calc = SurfaceCalculus::new(p)?;
+    // Where the run starts: the scene, or the checkpoint (read by every rank).
+    let resumed = if options.resume {
+        let loaded = checkpoint::load(out, nc, ncoef, n, double_layer);
+        Some(agreed(comm, loaded)?)
+    } else {
+        None
+    };
+    let mut owners = match &resumed {
+        Some((_, _, Some(split))) if split.ranks == k_ranks => split.owners.clone(),
+        Some((_, states, _)) => {
+            let centres: Vec<_> = states.iter().map(|s| partition::centre(&s.coefs)).collect();
+            let costs: Vec<_> = states
+                .iter()
+                .map(|s| partition::cost(s.iterations))
+                .collect();
+            partition::split(&centres, &costs, k_ranks)
+        }
+        None => {
+            let centres: Vec<_> = setups.iter().map(|s| partition::centre(&s.coefs)).collect();
+            partition::split(&centres, &vec![partition::cost(0); nc], k_ranks)
+        }
+    };
+    let mine: Vec<usize> = (0..nc).filter(|&i| owners[i] == comm.rank()).collect();
+    let mut susp = agreed(comm, build_part(scene, &setups, &mine))?;
+    let formats = FrameFormats {
+        npy: scene.output.npy,
+        hdf5: scene.output.hdf5,
+        vtp: scene.output.vtk,
+    };
+    let (mut prog, mut frames) = match resumed {
+        Some((prog, states, _)) => {
+            let restored = (0..susp.len()).try_for_each(|i| {
+                let id = susp.ids()[i];
+                susp.set_cell_state(i, &states[id]).map_err(|e| {
+                    CellRunError::Resume(format!(
+                        "{}: cell {}: {}",
+                        out.join(CHECKPOINT).display(),
+                        id + 1,
+                        e.source
+                    ))
+                })
+            });
+            agreed(comm, restored)?;
+            let frames = root
+                .then(|| FrameWriter::resume(out, formats, &prog.frame_times))
+                .transpose()
+                .map_err(CellRunError::from);
+            (prog, agreed(comm, frames)?)
+        }
+        None => {
+            let mut prog = Progress::start(dt);
+            let t0 = Instant::now();
+            let opened = if root {
+                (|| -> Result<_, CellRunError> {
+                    for s in &setups {
+                        let (x, a, v, inc) = observe(&mut calc, &s.coefs)?;
+                        prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
+                    }
+                    write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
+                    Ok(Some(FrameWriter::new(out, formats)?))
+                })()
+            } else {
+                Ok(None)
+            };
+            let mut frames = agreed(comm, opened)?;
+            gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, 0.0)?;
+            prog.output_s += t0.elapsed().as_secs_f64();
+            if let Some(f) = &frames {
+                prog.frame_times = f.times().to_vec();
+            }
+            (prog, frames)
+        }
+    };
+    let adaptive = adaptive_control(scene)?;
+    if adaptive.is_some() {
+        // A resumed adaptive run continues with the step it had chosen.
+        susp.set_dt(prog.dt)
+            .map_err(|e| step_error(prog.step, prog.time, e))?;
+    }
+    let bar = progress_bar(
+        options.quiet || !root,
+        adaptive.is_some(),
+        steps,
+        &prog,
+        scene,
+    );
+    let flow = scene.flow;
+    let start = Instant::now();
+    let wall0 = prog.wall_s;
+    // Centres of this rank's cells before the last step (global index, centre).
+    let mut before_last: Vec<(usize, [f64; 3])> = Vec::new();
+    let first = prog.step + 1;
+    let mut stopped = false;
+    let mut k = prog.step;
+    let mut clock = RankClock::default();
+    let mut log = Vec::new();
+    // Double-layer assemblies and own-preconditioner builds of cells that left this rank
+    // (their steppers went with them).
+    let mut left = [0usize; 2];
+    let counts = |s: &Suspension| {
+        s.steppers().iter().fold([0usize; 2], |[d, b], s| {
+            [
+                d + s.double_layer_assemblies,
+                b + s.own_preconditioner_builds,
+            ]
+        })
+    };
+    // The run ends at t_end up to round-off in the sum of adaptive steps.
+    let t_done = scene.numerics.t_end * (1.0 - 1e-12);
+    // Whether step `k`, reaching time `t`, ends the run.
+    let ends_run = |k: usize, t: f64| match &adaptive {
+        None => k >= steps,
+        Some(_) => t >= t_done,
+    };
+    loop {
+        if ends_run(k, prog.time) {
+            break;
+        }
+        let held = counts(&susp);
+        rebalance(
+            comm,
+            &mut susp,
+            p,
+            &setups,
+            &mut owners,
+            (
+                k,
+                scene.numerics.rebalance_every,
+                scene.numerics.max_imbalance,
+            ),
+            &mut clock,
+            &mut log,
+        )?;
+        let kept = counts(&susp);
+        for ((l, h), k) in left.iter_mut().zip(held).zip(kept) {
+            *l += h - k.min(h);
+        }
+        k += 1;
+        let dt_try = match &adaptive {
+            None => dt,
+            Some(_) => prog.dt.min(scene.numerics.t_end - prog.time),
+        };
+        if ends_run(k, prog.time + dt_try) {
+            before_last.clear();
+            for (&id, c) in susp.ids().iter().zip(susp.coefs()) {
+                before_last.push((id, observe(&mut calc, c)?.0));
+            }
+        }
+        let t = Instant::now();
+        let origin = flow_origin(comm, &susp, &flow)?;
+        let acc = accepted_step(
+            comm,
+            &mut susp,
+            &|x| flow.velocity_about(x, origin),
+            &[],
+            (k, prog.time, scene.numerics.t_end),
+            dt_try,
+            adaptive.as_ref(),
+        )?;
+        prog.rejected += acc.rejected;
+        prog.error_sum += acc.error;
+        if acc.above_tolerance {
+            prog.above_tolerance += 1;
+        }
+        if let Some(next) = acc.next_dt {
+            prog.dt = next;
+        }
+        let (report, dt_try) = (acc.report, acc.dt);
+        prog.step_s += t.elapsed().as_secs_f64();
+        prog.time = match &adaptive {
+            None => k as f64 * dt,
+            Some(_) => prog.time + dt_try,
+        };
+        prog.last_dt = dt_try;
+        prog.dt_used[0] = prog.dt_used[0].min(dt_try);
+        prog.dt_used[1] = prog.dt_used[1].max(dt_try);
+        let finite = susp
+            .ids()
+            .iter()
+            .zip(susp.coefs())
+            .find_map(|(&id, c)| Some((id, c.iter().position(|c| !c.is_finite())?)))
+            .map_or(Ok(()), |(id, j)| {
+                Err(CellStepError {
+                    cell: Some(id),
+                    source: TimestepError::Vesicle(format!(
+                        "non-finite coefficient {j} after the step (the last checkpoint, \
+                         step {}, is kept)",
+                        prog.step
+                    )),
+                })
+            });
+        agree_cells(comm, finite).map_err(|e| step_error(k, prog.time, e))?;
+        let its = report.cells.iter().map(|r| r.gmres.iterations);
+        let mut it = [its.clone().max().unwrap_or(0) as f64];
+        let mut it_sum = [its.sum::<usize>() as u64];
+        comm.all_max(&mut it).map_err(CellRunError::Comm)?;
+        comm.all_sum_u64(&mut it_sum).map_err(CellRunError::Comm)?;
+        let it = it[0] as usize;
+        prog.iters_sum += it_sum[0] as usize;
+        prog.iters_max = prog.iters_max.max(it);
+        if let Some(st) = susp.coupling_stats() {
+            prog.min_gap = prog.min_gap.min(st.min_gap);
+        }
+        match &adaptive {
+            None => {
+                bar.set_message(format!("t {:.3} dt {dt} gmres {it}", prog.time));
+                bar.set_position(k as u64);
+            }
+            Some(_) => {
+                bar.set_message(format!(
+                    "step {k} t {:.3} dt {:.3e} gmres {it} rejected {}",
+                    prog.time, dt_try, prog.rejected
+                ));
+                bar.set_position((1000.0 * prog.time / scene.numerics.t_end) as u64);
+            }
+        }
+        prog.step = k;
+        // A Ctrl-C (or SIGTERM from mpirun) on any rank stops every rank after this step.
+        let mut interrupted = [f64::from(u8::from(
+            options
+                .stop
+                .as_ref()
+                .is_some_and(|s| s.load(Ordering::Relaxed)),
+        ))];
+        comm.all_max(&mut interrupted).map_err(CellRunError::Comm)?;
+        let interrupted = interrupted[0] > 0.0;
+        let limited = options.max_steps.is_some_and(|m| k + 1 - first >= m);
+        let last = ends_run(k, prog.time);
+        stopped = !last && (interrupted || limited);
+        let t0 = Instant::now();
+        if last || (k as u64).is_multiple_of(scene.output_every) {
+            gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, prog.time)?;
+            if let Some(f) = &frames {
+                prog.frame_times = f.times().to_vec();
+            }
+        }
+        if stopped || last || (k as u64).is_multiple_of(scene.output.checkpoint_every) {
+            prog.wall_s = wall0 + start.elapsed().as_secs_f64();
+            let states = gather_states(comm, &susp, ncoef, n)?;
+            let saved = match states {
+                Some(states) => checkpoint::save(
+                    out,
+                    &states,
+                    &prog,
+                    &Split {
+                        ranks: k_ranks,
+                        owners: owners.clone(),
+                    },
+                    double_layer,
+                ),
+                None => Ok(()),
+            };
+            agreed(comm, saved)?;
+        }
+        let spent = t0.elapsed().as_secs_f64();
+        prog.output_s += spent;
+        clock.output_s += spent;
+        if stopped {
+            break;
+        }
+    }
+    bar.finish_and_clear();
+    if !stopped {
+        let finished = frames.take().map_or(Ok(()), |f| f.finish());
+        agreed(comm, finished.map_err(CellRunError::from))?;
+    }
+    prog.wall_s = wall0 + start.elapsed().as_secs_f64();
+    // Per cell: centre, area, volume, inclination, the centre before the last step, the
+    // Taylor deformation and the tank-treading rate.
+    let local = (0..susp.len())
+        .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
+            let id = susp.ids()[i];
+            let g = calc.geometry(&susp.coefs()[i])?;
+            let (x, a, v, inc) = observe_geometry(&g);
+            let d = g.taylor_deformation([0.0, 0.0, 1.0]);
+            let tt = susp.steppers()[i]
+                .velocity()
+                .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]))
+                .transpose()?
+                .unwrap_or(f64::NAN);
+            let b = before_last
+                .iter()
+                .find(|(j, _)| *j == id)
+                .map_or([f64::NAN; 3], |(_, b)| *b);
+            Ok((
+                id,
+                vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2], d, tt],
+            ))
+        })
+        .collect::<Result<Vec<_>, _>>();
+    let local = agreed(comm, local)?;
+    let rows = gather_rows(comm, local, nc, 11)?;
+    let split = split_summary(comm, &susp, &clock, &log, k + 1 - first)?;
+    let stats = susp.coupling_stats().unwrap_or_default();
+    let now = counts(&susp);
+    let mut dl = [(left[0] + now[0]) as u64, (left[1] + now[1]) as u64];
+    comm.all_sum_u64(&mut dl).map_err(CellRunError::Comm)?;
+    let Some(rows) = rows else {
+        return Ok(None);
+    };
+    let mut per_cell = Vec::with_capacity(nc);
+    for (i, r) in rows.iter().enumerate() {
+        let s0 = prog.start_obs[i];
+        let centroid = [r[0], r[1], r[2]];
+        per_cell.push(CellSummary {
+            area_drift: (r[3] - s0[3]) / s0[3],
+            volume_drift: (r[4] - s0[4]) / s0[4],
+            centroid,
+            centroid_velocity: std::array::from_fn(|d| (centroid[d] - r[6 + d]) / prog.last_dt),
+            inclination_deg: r[5],
+            taylor_deformation: r[9],
+            tank_treading_rate: r[10],
+        });
+    }
+    let worst = |f: fn(&CellSummary) -> f64| {
+        per_cell
+            .iter()
+            .map(f)
+            .fold(0.0, |a: f64, b| if b.abs() > a.abs() { b } else { a })
+    };
+    let mean3 = |f: fn(&CellSummary) -> [f64; 3]| {
+        let mut m = [0.0; 3];
+        for c in &per_cell {
+            for (md, v) in m.iter_mut().zip(f(c)) {
+                *md += v / nc as f64;
+            }
+        }
+        m
+    };
+    let threads = rayon::current_num_threads() * k_ranks;
+    let done = prog.step;
+    let summary = CellRunSummary {
+        cells: nc,
+        order: p,
+        upsampled_order: q,
+        dt,
+        steps: done,
+        final_time: prog.time,
+        completed: ends_run(done, prog.time),
+        adaptive: adaptive.map(|a| AdaptiveSummary {
+            tolerance: a.tolerance,
+            dt_min: a.dt_min,
+            dt_max: a.dt_max,
+            rejected_steps: prog.rejected,
+            steps_above_tolerance: prog.above_tolerance,
+            dt_smallest: prog.dt_used[0],
+            dt_largest: prog.dt_used[1],
+            dt_last: prog.last_dt,
+        }),
+        area_volume_error_sum: prog.error_sum,
+        scheme: match scene.numerics.scheme {
+            Scheme::Euler => "euler",
+            Scheme::Bdf2 => "bdf2",
+        },
+        gmres_tol: scene.numerics.gmres_tol,
+        fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
+        near_field: susp.near_field_decision(),
+        effects: run_effects(scene, &susp),
+        wall_s: prog.wall_s,
+        step_s: prog.step_s,
+        coupling_s: stats.setup_s + stats.fmm_s + stats.self_s + stats.exchange_s + stats.near_s,
+        output_s: prog.output_s,
+        threads,
+        cell_steps_per_core_second: (done * nc) as f64 / (prog.step_s * threads as f64).max(1e-12),
+        gmres_iterations_mean: prog.iters_sum as f64 / (done * nc).max(1) as f64,
+        gmres_iterations_max: prog.iters_max,
+        counters: Counters {
+            fmm_builds: stats.fmm_builds,
+            repulsion_points: stats.repulsion_points,
+            double_layer_assemblies: dl[0] as usize,
+            preconditioner_builds: dl[1] as usize,
+            near_points: stats.near_points,
+            near_pairs: stats.near_pairs,
+            double_layer_fmm_builds: stats.double_layer_fmm_builds,
+        },
+        area_drift: worst(|c| c.area_drift),
+        volume_drift: worst(|c| c.volume_drift),
+        centroid: mean3(|c| c.centroid),
+        centroid_velocity: mean3(|c| c.centroid_velocity),
+        inclination_deg: if nc == 1 {
+            per_cell[0].inclination_deg
+        } else {
+            per_cell.iter().map(|c| c.inclination_deg).sum::<f64>() / nc as f64
+        },
+        min_gap: prog.min_gap.is_finite().then_some(prog.min_gap),
+        per_cell,
+        frames: prog.frame_times.len(),
+        split,
+    };
+    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+    write_atomic(&out.join("summary.json"), json.as_bytes())?;
+    Ok(Some(summary))
+}
+
+/// The progress bar (hidden when `hidden`).
+fn progress_bar(
+    hidden: bool,
+    adaptive: bool,
+    steps: usize,
+    prog: &Progress,
+    scene: &CellScene,
+) -> ProgressBar {
+    if hidden {
+        return ProgressBar::hidden();
+    }
+    let b = ProgressBar::new(if adaptive { 1000 } else { steps as u64 });
+    b.set_style(
+        ProgressStyle::with_template(
+            "{elapsed_precise} [{bar:30}] step {pos}/{len} {msg} ETA {eta}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    b.set_position(if adaptive {
+        (1000.0 * prog.time / scene.numerics.t_end) as u64
+    } else {
+        prog.step as u64
+    });
+    b
+}
+
+/// The built-in demo scene of `mobo run` without a scene file: one red blood cell in simple
+/// shear (about half a minute on 2 cores).
+pub const DEMO_SCENE: &str = r#"
+[fluid]
+viscosity = 1.0
+
+[flow]
+kind = "shear"
+rate = 1.0
+
+[[cells]]
+shape = "rbc"
+radius = 1.0
+bending_modulus = 0.1
+orientation = [0, 0, 1, 30]
+
+[numerics]
+order = 8
+dt = 0.05
+t_end = 10.0
+gmres_tol = 1e-8
+
+[output]
+every = 20
+"#;

@@ -1,0 +1,122 @@
+//! Frames and cell states gathered from the ranks at rank 0 (collective).
+
+use super::error::{agreed, CellRunError};
+use crate::comm::Communicator;
+use crate::io::frames::{CellFrame, FrameWriter};
+use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::timestep::cell_state::CellState;
+use crate::timestep::suspension::Suspension;
+use crate::vesicle::VesicleError;
+
+/// Every cell's `width` values from `local` (`(global index, values)`), in global order, at
+/// rank 0 (`None` on the others).
+pub(super) fn gather_rows(
+    comm: &dyn Communicator,
+    local: Vec<(usize, Vec<f64>)>,
+    n_global: usize,
+    width: usize,
+) -> Result<Option<Vec<Vec<f64>>>, CellRunError> {
+    let mut buf = Vec::with_capacity(local.len() * (width + 1));
+    for (id, v) in local {
+        buf.push(id as f64);
+        buf.extend_from_slice(&v);
+    }
+    let all = comm.gather_f64(&buf, 0).map_err(CellRunError::Comm)?;
+    if comm.rank() != 0 {
+        return Ok(None);
+    }
+    let mut rows = vec![Vec::new(); n_global];
+    for rec in all.iter().flat_map(|b| b.chunks_exact(width + 1)) {
+        rows[rec[0] as usize] = rec[1..].to_vec();
+    }
+    Ok(Some(rows))
+}
+
+/// Every cell's state at rank 0, global order (`None` on the others).
+pub(super) fn gather_states(
+    comm: &dyn Communicator,
+    susp: &Suspension,
+    ncoef: usize,
+    n: usize,
+) -> Result<Option<Vec<CellState>>, CellRunError> {
+    let width = CellState::encoded_len(ncoef, n);
+    let local = (0..susp.len())
+        .map(|i| {
+            let mut v = Vec::with_capacity(width);
+            susp.cell_state(i).encode(&mut v);
+            (susp.ids()[i], v)
+        })
+        .collect();
+    let Some(rows) = gather_rows(comm, local, susp.n_global(), width)? else {
+        return Ok(None);
+    };
+    rows.iter()
+        .map(|r| CellState::decode(r, ncoef, n).map_err(CellRunError::from))
+        .collect::<Result<Vec<_>, _>>()
+        .map(Some)
+}
+
+/// Write frame `frames.times().len()` at `time` from every cell's coefficients and tension
+/// (global order).
+pub(super) fn write_frame(
+    frames: &mut FrameWriter,
+    cells: &[(Vec<f64>, Vec<f64>)],
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    time: f64,
+) -> Result<(), CellRunError> {
+    let n = sht.n_points();
+    let mut x = vec![0.0; 3 * n * cells.len()];
+    for (i, (c, _)) in cells.iter().enumerate() {
+        sht.inverse(c, &mut x[3 * n * i..3 * n * (i + 1)], ws)
+            .map_err(VesicleError::from)?;
+    }
+    let frame: Vec<CellFrame<'_>> = cells
+        .iter()
+        .enumerate()
+        .map(|(i, (c, sigma))| CellFrame {
+            order: sht.order(),
+            coefs: c,
+            positions: &x[3 * n * i..3 * n * (i + 1)],
+            tension: sigma,
+        })
+        .collect();
+    let index = frames.times().len();
+    frames.write_frame(index, time, &frame)?;
+    Ok(())
+}
+
+/// Gather the coefficients and tensions and write a frame at rank 0 (collective; an output
+/// failure is returned on every rank).
+pub(super) fn gathered_frame(
+    comm: &dyn Communicator,
+    susp: &Suspension,
+    frames: Option<&mut FrameWriter>,
+    sht: &ShTransform,
+    ws: &mut ShWorkspace,
+    time: f64,
+) -> Result<(), CellRunError> {
+    let (ncoef, n) = (sht.n_coefs() * 3, sht.n_points());
+    let local = susp
+        .ids()
+        .iter()
+        .zip(susp.coefs())
+        .zip(susp.steppers())
+        .map(|((&id, c), st)| (id, c.iter().chain(&st.sigma).copied().collect()))
+        .collect();
+    let rows = gather_rows(comm, local, susp.n_global(), ncoef + n)?;
+    let written = match (rows, frames) {
+        (Some(rows), Some(frames)) => {
+            let cells: Vec<(Vec<f64>, Vec<f64>)> = rows
+                .into_iter()
+                .map(|mut r| {
+                    let sigma = r.split_off(ncoef);
+                    (r, sigma)
+                })
+                .collect();
+            write_frame(frames, &cells, sht, ws, time)
+        }
+        _ => Ok(()),
+    };
+    agreed(comm, written)
+}
