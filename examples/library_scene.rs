@@ -1,11 +1,11 @@
 //! A cell scene built and stepped through the library instead of `mobo run`: two spheres
 //! sedimenting side by side and a tilted red blood cell sedimenting above them (three cells
-//! coupled through the Stokeslet FMM), written as a TOML string, validated by
-//! [`mobo::scene::cells::parse`], turned into a [`Suspension`] by
-//! [`mobo::run::assembly::build`] and advanced with [`Suspension::step`]. Every step prints,
-//! per cell, the centroid, the tilt of the axis of largest moment of inertia (an RBC's axis of
-//! symmetry) from z (arbitrary for the spheres), the relative area drift and the GMRES
-//! iterations.
+//! coupled through the Stokeslet FMM), typed in code as a [`SceneSpec`], validated by
+//! [`SceneSpec::build`] (the checks of a scene file, with errors that name the key), turned
+//! into a [`Suspension`] by [`mobo::run::assembly::build`] and advanced with
+//! [`Suspension::step`]. Every step prints, per cell, the centroid, the tilt of the axis of
+//! largest moment of inertia (an RBC's axis of symmetry) from z (arbitrary for the spheres),
+//! the relative area drift and the GMRES iterations.
 //!
 //! ```text
 //! cargo run --release --example library_scene [-- STEPS [ORDER]]
@@ -14,51 +14,51 @@
 //! Defaults: 10 steps at p = 8 (a few seconds). The same loop is what a study would write to
 //! record its own observables (here: the sedimentation speed of the pair, `1/(6π) ≈ 0.053`
 //! for one sphere alone, about 20% more for the pair at 4 radii apart, a little more with the
-//! RBC sinking above them).
-
-use std::path::Path;
+//! RBC sinking above them). [`mobo::Simulation`] runs the same steps with the scene's
+//! adaptive `dt` and the caller's own forces.
 
 use mobo::run::assembly::build;
-use mobo::scene::cells::parse;
+use mobo::scene::spec::{
+    CellGroupSpec, FlowKind, FlowSpec, FluidSpec, NumericsSpec, SceneSpec, ShapeKind,
+};
 use mobo::timestep::suspension::Suspension;
 use mobo::vesicle::SurfaceCalculus;
 
-const SCENE: &str = r#"
-[fluid]
-viscosity = 1.0
-
-[flow]
-kind = "none"
-
-# A red blood cell with Skalak shear elasticity, tilted by 30° about x, above the spheres.
-[[cells]]
-shape = "rbc"
-center = [0.0, 0.0, 5.0]
-orientation = [1, 0, 0, 30]
-force = [0.0, 0.0, -1.0]
-bending_modulus = 0.1
-shear_modulus = 1.0
-
-# Two spheres pulled down (−z) side by side.
-[[cells]]
-shape = "sphere"
-center = [-2.0, 0.0, 0.0]
-force = [0.0, 0.0, -1.0]
-bending_modulus = 0.1
-
-[[cells]]
-shape = "sphere"
-center = [2.0, 0.0, 0.0]
-force = [0.0, 0.0, -1.0]
-bending_modulus = 0.1
-
-[numerics]
-order = ORDER
-dt = 0.05
-t_end = 1.0
-gmres_tol = 1e-8
-fmm_digits = 5
-"#;
+/// The scene at SH order `order`: a red blood cell with Skalak shear elasticity tilted by 30°
+/// about x above two spheres, all three pulled down (−z) by a unit force.
+fn scene(order: usize) -> SceneSpec {
+    let pulled = |shape, center: [f64; 3]| CellGroupSpec {
+        center: Some(center),
+        force: Some([0.0, 0.0, -1.0]),
+        bending_modulus: Some(0.1),
+        ..CellGroupSpec::new(shape)
+    };
+    SceneSpec {
+        fluid: Some(FluidSpec { viscosity: 1.0 }),
+        flow: Some(FlowSpec {
+            kind: FlowKind::None,
+            ..Default::default()
+        }),
+        cells: vec![
+            CellGroupSpec {
+                orientation: Some([1.0, 0.0, 0.0, 30.0]),
+                shear_modulus: Some(1.0),
+                ..pulled(ShapeKind::Rbc, [0.0, 0.0, 5.0])
+            },
+            pulled(ShapeKind::Sphere, [-2.0, 0.0, 0.0]),
+            pulled(ShapeKind::Sphere, [2.0, 0.0, 0.0]),
+        ],
+        numerics: Some(NumericsSpec {
+            order: Some(order),
+            dt: Some(0.05),
+            t_end: Some(1.0),
+            gmres_tol: Some(1e-8),
+            fmm_digits: Some(5),
+            ..Default::default()
+        }),
+        ..Default::default()
+    }
+}
 
 /// Centroid, area, tilt (degrees from z of the axis of largest moment of inertia) of one cell.
 fn observe(calc: &mut SurfaceCalculus, coefs: &[f64]) -> ([f64; 3], f64, f64) {
@@ -72,8 +72,7 @@ fn main() {
     let mut args = std::env::args().skip(1);
     let steps: usize = args.next().and_then(|s| s.parse().ok()).unwrap_or(10);
     let order: usize = args.next().and_then(|s| s.parse().ok()).unwrap_or(8);
-    let text = SCENE.replace("ORDER", &order.to_string());
-    let scene = parse(Path::new("library_scene (in code)"), &text).unwrap_or_else(|e| {
+    let scene = scene(order).build().unwrap_or_else(|e| {
         eprintln!("{e}");
         std::process::exit(2)
     });

@@ -110,7 +110,7 @@ python3 - "$out/base" "$out/head" <<'EOF' || status=$?
 import json, os, re, sys
 
 base, head = sys.argv[1], sys.argv[2]
-TIMED = re.compile(r"(timing|second|wall|elapsed|_s$|per_second|rate_|_rate|throughput|speed|duration)", re.I)
+TIMED = re.compile(r"(timing|second|wall_time|elapsed|_s$|^ms_|_ms$|per_second|throughput|duration)", re.I)
 
 def strip(v):
     if isinstance(v, dict):

@@ -86,6 +86,11 @@ pub mod timestep;
 pub mod vesicle;
 
 pub use fmm::{Fmm, Kernel};
+
+/// The README's Rust snippets, compiled and run by `cargo test --doc`.
+#[cfg(doctest)]
+#[doc = include_str!("../README.md")]
+pub struct ReadmeDoctests;
 pub use run::Simulation;
 pub use scene::cells::CellScene;
 pub use scene::spec::SceneSpec;

@@ -258,6 +258,23 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
         ("[[cells]]\nshape = \"sphere\"\n[output]\nevery = 0\n", "every must be at least 1"),
         ("[fluid]\nviscosity = 1.0\n", "no [[cells]]"),
         ("[[cells]]\nshape = \"sphere\"\norientation = [0, 0, 0, 30]\n", "non-zero axis"),
+        // Keys that would be ignored are refused.
+        (
+            "[[cells]]\nshape = \"rbc\"\n[numerics]\norder = 2\n",
+            "order = 2 cannot hold the red blood cell",
+        ),
+        (
+            "[[cells]]\nshape = \"rbc\"\nreduced_volume = 0.6\n",
+            "reduced_volume applies to shape = \"prolate\" or \"oblate\" only",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\naxes = [1, 2, 3]\n",
+            "axes applies to shape = \"ellipsoid\" only",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\ncount = 8\nplacement = \"lattice\"\nregion = [[0, 0, 0], [9, 9, 9]]\n",
+            "region applies to placement = \"random\" only",
+        ),
     ];
     for (text, want) in cases {
         let e = parse(file(), text).expect_err(text).to_string();

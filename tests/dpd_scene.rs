@@ -111,6 +111,12 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
     .is_ok());
     let e = err_of(&BASE.replace("bins = 16", "bins = 8"));
     assert!(e.contains("bins") && e.contains("at least 12"), "{e}");
+    // A size that allocates has a bound: a located error, not an aborted allocation.
+    let e = err_of(&BASE.replace("bins = 16", "bins = 99999999999"));
+    assert!(
+        e.contains("bins") && e.contains("between 2 and 1000000"),
+        "{e}"
+    );
     let e = err_of(&BASE.replace("equilibrate = 20", "equilibrate = 500"));
     assert!(e.contains("equilibrate"), "{e}");
     let e = err_of(&BASE.replace("density = 3.0", "density = \"dense\""));

@@ -260,6 +260,10 @@ fn bad_arguments_are_errors() {
     let pts = Cloud::Uniform.points(100, 1);
     assert!(Fmm::new(FmmKernel::Laplace, &pts, None, &pts, 1, 10).is_err());
     assert!(Fmm::new(FmmKernel::Laplace, &pts, None, &pts, 30, 10).is_err());
+    match Fmm::new(FmmKernel::Laplace, &pts, None, &pts, 6, 0) {
+        Err(e) => assert!(e.to_string().contains("leaf size"), "{e}"),
+        Ok(_) => panic!("a leaf size of 0 was accepted"),
+    }
     assert!(Fmm::new(FmmKernel::Stresslet, &pts, None, &pts, 4, 10).is_err());
     assert!(FmmKernel::from_name("rpy", None).is_err());
     assert!(FmmKernel::from_name("rpy", Some(-1.0)).is_err());

@@ -233,6 +233,21 @@ fn a_force_returning_nan_stops_the_step_with_the_cell_named() {
         e.contains("step 1") && e.contains("cell 1") && e.contains("user force"),
         "{e}"
     );
+    // A force that panics: the step fails with its name and message, the worker survives and
+    // the next simulation steps.
+    let mut sim = Simulation::new(scene(text)).unwrap();
+    sim.add_force(ForceFn::new("panics", |_: &CellView, _: &mut [f64]| {
+        panic!("index out of the caller's range")
+    }));
+    let e = sim.step().expect_err("a panicking force").to_string();
+    assert!(
+        e.contains("step 1")
+            && e.contains("user force \"panics\" panicked")
+            && e.contains("index out of the caller's range"),
+        "{e}"
+    );
+    let mut sim = Simulation::new(scene(text)).unwrap();
+    sim.step().expect("a step without the force");
 }
 
 #[test]

@@ -26,7 +26,7 @@
 //! | Laplace DL | 5.8e-4 | 7.1e-5 | 1.2e-5 | 1.7e-6 | 3.4e-7 | 6.7e-8 | 8.8e-9 | 3.3e-9 | 3.1e-10 | 3.0e-10 | 2.2e-11 |
 //! | Stokeslet | | | 2.6e-4 | 4.3e-5 | 3.5e-6 | | 1.8e-7 | 1.8e-8 | | 1.9e-9 | |
 
-use super::evaluator::FmmKernel;
+use super::kernels::FmmKernel;
 use super::FmmError;
 
 /// Orders for 3, 4, …, 10 digits.

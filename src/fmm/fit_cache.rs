@@ -42,7 +42,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use faer::Mat;
 
-use super::operators::Pinv;
+use super::pinv::Pinv;
 use crate::durable::{fnv1a64, write_atomic};
 
 const MAGIC: &[u8; 8] = b"MOBOFIT2";

@@ -119,6 +119,7 @@ pub trait Kernel: Sync {
 
 use super::blocks::SourceView;
 use super::p2p;
+use super::FmmError;
 
 const FOUR_PI: f64 = 4.0 * std::f64::consts::PI;
 const EIGHT_PI: f64 = 8.0 * std::f64::consts::PI;
@@ -387,5 +388,117 @@ impl Kernel for RpyFar {
     }
     fn eval_block(&self, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
         p2p::rpy_far(t, s, out, self.radius)
+    }
+}
+
+/// The sums `mobo fmm` offers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FmmKernel {
+    /// `Σ q/(4π|r|)`.
+    Laplace,
+    /// `Σ (n·r) q/(4π|r|³)`.
+    LaplaceDoubleLayer,
+    /// `Σ (1/8π)(I/|r| + r rᵀ/|r|³) f`.
+    Stokeslet,
+    /// `Σ (3/4π)(r·f)(r·n) r/|r|⁵`.
+    Stresslet,
+    /// Rotne–Prager–Yamakawa with bead radius `radius`.
+    Rpy {
+        /// Bead radius `a`.
+        radius: f64,
+    },
+}
+
+impl FmmKernel {
+    /// Parse a command-line name (`laplace`, `laplace-dl`, `stokeslet`, `stresslet`, `rpy`).
+    pub fn from_name(name: &str, radius: Option<f64>) -> Result<Self, FmmError> {
+        Ok(match name {
+            "laplace" => FmmKernel::Laplace,
+            "laplace-dl" => FmmKernel::LaplaceDoubleLayer,
+            "stokeslet" => FmmKernel::Stokeslet,
+            "stresslet" => FmmKernel::Stresslet,
+            "rpy" => {
+                let a = radius.ok_or_else(|| FmmError::Shape("rpy needs a radius".into()))?;
+                if !(a > 0.0 && a.is_finite()) {
+                    return Err(FmmError::Shape(format!(
+                        "rpy radius must be positive, got {a}"
+                    )));
+                }
+                FmmKernel::Rpy { radius: a }
+            }
+            other => return Err(FmmError::Shape(format!("unknown kernel '{other}'"))),
+        })
+    }
+
+    /// The kernel applied between points (P2P, and the direct sum).
+    pub fn near(&self) -> Box<dyn Kernel> {
+        match *self {
+            FmmKernel::Laplace => Box::new(Laplace),
+            FmmKernel::LaplaceDoubleLayer => Box::new(LaplaceDoubleLayer),
+            FmmKernel::Stokeslet => Box::new(Stokeslet),
+            FmmKernel::Stresslet => Box::new(Stresslet),
+            FmmKernel::Rpy { radius } => Box::new(Rpy { radius }),
+        }
+    }
+
+    /// Sources to check surfaces (P2M, P2L).
+    pub(super) fn far_source(&self) -> Box<dyn Kernel> {
+        match *self {
+            FmmKernel::Rpy { radius } => Box::new(RpyFar { radius }),
+            _ => self.near(),
+        }
+    }
+
+    /// Equivalent densities to check surfaces (M2M, M2L, L2L).
+    pub(super) fn equivalent(&self) -> Box<dyn Kernel> {
+        match *self {
+            FmmKernel::Laplace | FmmKernel::LaplaceDoubleLayer => Box::new(Laplace),
+            FmmKernel::Stokeslet | FmmKernel::Rpy { .. } => Box::new(Stokeslet),
+            FmmKernel::Stresslet => Box::new(StokesletSource),
+        }
+    }
+
+    /// Equivalent densities to targets (L2P, M2P).
+    pub(super) fn far_target(&self) -> Box<dyn Kernel> {
+        match *self {
+            FmmKernel::Rpy { radius } => Box::new(RpyFar { radius }),
+            _ => self.equivalent(),
+        }
+    }
+
+    /// Relative cut-off of the truncated-SVD fits (measured: Laplace keeps improving to
+    /// 1e-13; Stokes kernels are best near 1e-10, round-off in the fits dominates below).
+    pub fn rcond(&self) -> f64 {
+        match self {
+            FmmKernel::Laplace | FmmKernel::LaplaceDoubleLayer => 1e-13,
+            _ => 1e-10,
+        }
+    }
+
+    /// Default leaf size (points per leaf, sources plus targets), balancing P2P against the
+    /// translations: measured on 10⁵ and 10⁶ points of the uniform and sphere clouds
+    /// (examples/fmm_probe). Larger leaves also keep uniform clouds off half-refined levels,
+    /// whose W and X lists cost more than they save.
+    pub fn default_leaf_size(&self, order: usize) -> usize {
+        100 * order.max(4)
+    }
+
+    /// [`FmmKernel::default_leaf_size`] where the targets are the sources (`same_points`). A
+    /// kernel whose near field then evaluates each pair of leaves once for both directions
+    /// ([`MutualPairs`](super::near_pairs::MutualPairs), Laplace, on one rank) pays half as
+    /// much per pair in the P2P, so the balance against the translations moves to leaves √2
+    /// larger. `mobo fmm` takes them on
+    /// every rank count (the same tree, so K ranks give one rank's values to round-off).
+    /// Measured (2·10⁵ points, Laplace at 6 digits, 2 threads, 3 interleaved rounds, s per
+    /// evaluation, leaves of 800 against 1131 sources plus targets, i.e. 400 against 566
+    /// points): uniform cube 0.38–0.44 against 0.28–0.31, spheres 0.33–0.40 against
+    /// 0.33–0.34, Gaussian blobs 0.42–0.43 against 0.43–0.47.
+    pub fn default_leaf_size_for(&self, order: usize, same_points: bool) -> usize {
+        let base = self.default_leaf_size(order);
+        if same_points && self.near().has_mutual() {
+            (base as f64 * std::f64::consts::SQRT_2).round() as usize
+        } else {
+            base
+        }
     }
 }

@@ -41,16 +41,20 @@ pub mod kifmm;
 pub mod m2l_fft;
 pub mod m2l_plan;
 pub mod near_field;
+pub mod near_list;
 pub mod near_pairs;
 pub mod octree;
 pub mod operators;
 pub mod p2p;
+pub mod pinv;
 pub mod surface;
 
 pub use calibration::order_for_digits;
 pub use direct::{direct_sum, SumInput};
-pub use evaluator::{clear_operator_cache, Fmm, FmmComm, FmmKernel, FmmTimings};
-pub use kernels::{Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, Stresslet};
+pub use evaluator::{clear_operator_cache, Fmm, FmmComm, FmmTimings};
+pub use kernels::{
+    FmmKernel, Kernel, Laplace, LaplaceDoubleLayer, Rpy, RpyFar, Stokeslet, Stresslet,
+};
 
 /// Errors of the N-body sums.
 #[derive(Debug, thiserror::Error, PartialEq, Eq)]

@@ -16,7 +16,7 @@
 use std::collections::{HashMap, HashSet};
 use std::ops::Range;
 
-use super::near_field::NearList;
+use super::near_list::NearList;
 
 /// Rounds of a greedy colouring hold at most this many colours; a pair that finds none free
 /// (a leaf with more than 64 near partners: deep adaptive trees) stays one-way in both rows.

@@ -28,7 +28,7 @@
 
 use std::path::{Path, PathBuf};
 
-use super::frames::FrameArrays;
+use super::frame_arrays::FrameArrays;
 use super::IoError;
 
 /// The finished file's name in the output directory.

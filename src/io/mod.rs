@@ -11,6 +11,7 @@
 //! * [`hdf5`]: `frames.h5` (cargo feature `hdf5`).
 
 pub mod checkpoint;
+pub mod frame_arrays;
 pub mod frames;
 pub mod hdf5;
 pub mod npy;

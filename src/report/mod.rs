@@ -8,6 +8,8 @@
 
 pub mod accuracy;
 pub mod plot;
+pub mod study;
+pub mod tables;
 
 use std::path::PathBuf;
 

@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
 
-use super::accuracy::{Knob, Study};
+use super::study::{Knob, Study};
 use super::ReportError;
 
 /// Font files tried in order after `MOBO_FONT`.

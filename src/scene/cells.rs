@@ -85,6 +85,10 @@ use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Precondit
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
 
+/// The lowest SH order that holds the red blood cell's shape ([`shapes::rbc`]: its height is
+/// `sin⁴θ cosθ` at most, a polynomial of degree 5).
+pub const RBC_MIN_ORDER: usize = 5;
+
 /// Steps between checks of the split of the cells over ranks (`[numerics] rebalance_every`'s
 /// default; [`crate::run::partition`]).
 pub const REBALANCE_EVERY: usize = 10;
@@ -806,6 +810,21 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         cells.extend(group);
     }
     check_overlaps(&cells, file)?;
+    if let Some(c) = cells
+        .iter()
+        .find(|c| matches!(c.shape, Shape::Rbc) && numerics.order < RBC_MIN_ORDER)
+    {
+        let message = format!(
+            "[numerics] order = {} cannot hold the red blood cell of the [[cells]] entry at line \
+             {}: its shape has spherical-harmonic degree {RBC_MIN_ORDER}; give order >= \
+             {RBC_MIN_ORDER}",
+            numerics.order, c.line
+        );
+        return Err(match order {
+            Some(o) => at(o.span(), message),
+            None => SceneError::new(file, message),
+        });
+    }
     if let (true, Some(c)) = (numerics.adaptive_dt, cells.iter().find(|c| !c.inextensible)) {
         return Err(SceneError::new(
             file,
@@ -950,6 +969,27 @@ fn cell_specs(
             ))
         }
     };
+    // Keys of other shapes are refused, not ignored.
+    if let (Some(v), false) = (&c.reduced_volume, matches!(shape, Shape::Spheroid { .. })) {
+        return Err(at(
+            v.span(),
+            format!(
+                "{} applies to shape = \"prolate\" or \"oblate\" only, not \"{}\"",
+                key("reduced_volume"),
+                c.shape.get_ref()
+            ),
+        ));
+    }
+    if let (Some(a), false) = (&c.axes, matches!(shape, Shape::Ellipsoid { .. })) {
+        return Err(at(
+            a.span(),
+            format!(
+                "{} applies to shape = \"ellipsoid\" only, not \"{}\"",
+                key("axes"),
+                c.shape.get_ref()
+            ),
+        ));
+    }
     let get = |v: &Option<Spanned<f64>>, name: &str, default: f64, pos: bool| match v {
         Some(v) if pos => positive(v, &key(name)),
         Some(v) => finite(v, &key(name)),
@@ -1101,6 +1141,16 @@ fn cell_specs(
         None => 1,
     };
     let placement = c.placement.as_ref().map(|p| p.get_ref().as_str());
+    if let (Some(r), false) = (&c.region, placement == Some("random")) {
+        return Err(at(
+            r.span(),
+            format!(
+                "{} applies to placement = \"random\" only (a lattice, and a single cell, are \
+                 centred on center)",
+                key("region")
+            ),
+        ));
+    }
     if count == 1 && placement.is_none() {
         return Ok(vec![base]);
     }

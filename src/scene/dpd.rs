@@ -109,6 +109,10 @@ use crate::gpu::{GpuChoice, GpuPrecision};
 use crate::vesicle::skalak::ElasticLaw;
 use crate::vesicle::{shapes, CellMesh, Surface};
 
+/// The most profile bins a scene may ask for (`[dpd] bins`): the sampler keeps four arrays of
+/// this length (32 MB at the bound), far finer than any box resolves.
+pub const MAX_BINS: usize = 1_000_000;
+
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct File {
@@ -459,10 +463,10 @@ pub fn parse(file: &Path, text: &str) -> Result<DpdScene, SceneError> {
             return Err(located(key, "must be at least 1".into()));
         }
     }
-    if d.bins < 2 {
+    if !(2..=MAX_BINS).contains(&d.bins) {
         return Err(located(
             "bins",
-            format!("must be at least 2, got {}", d.bins),
+            format!("must be between 2 and {MAX_BINS}, got {}", d.bins),
         ));
     }
     let body = match d.flow.as_str() {

@@ -94,6 +94,7 @@ pub mod coupling;
 mod gmres;
 pub mod grid_frame;
 mod operator;
+pub mod operator_storage;
 pub mod semi_implicit;
 pub mod sphere_preconditioner;
 mod step_engine;
@@ -197,6 +198,15 @@ pub enum TimestepError {
         rank: usize,
         /// Why its state was refused.
         source: cell_state::CellStateError,
+    },
+    /// A force of the caller ([`cell_force::CellForce`]) panicked while it added its traction
+    /// (the panic is caught: the step fails with this error instead of killing a worker).
+    #[error("user force \"{force}\" panicked: {message}")]
+    UserForcePanicked {
+        /// The force's name.
+        force: String,
+        /// The panic's message.
+        message: String,
     },
     /// A cell's step failed on another rank (its message, agreed by every rank);
     /// `solver_failure` says whether it was a failed linear solve ([`TimestepError::report`]

@@ -11,7 +11,7 @@ use std::sync::Mutex;
 use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
-use super::semi_implicit::OperatorStorage;
+use super::operator_storage::OperatorStorage;
 use super::step_engine::{ElasticWork, OperatorWork, ProductWork};
 use super::LinearOperator;
 use crate::sph_harmonics::{ShTransform, ShWorkspace};

@@ -536,9 +536,20 @@ impl Suspension {
                         geometry: g,
                     };
                     for f in forces {
-                        f.add_traction(&view, &mut t);
+                        // A panic in the caller's code becomes this cell's step error.
+                        let added = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                            f.add_traction(&view, &mut t)
+                        }));
+                        if let Err(panic) = added {
+                            return Err(TimestepError::UserForcePanicked {
+                                force: f.name().to_string(),
+                                message: panic_message(panic.as_ref()),
+                            });
+                        }
                     }
+                    Ok(())
                 })
+                .and_then(|r| r)
                 .map_err(|source| CellStepError {
                     cell: Some(ids[i]),
                     source,
@@ -684,6 +695,15 @@ impl Suspension {
         }
         Ok(SuspensionReport { cells: reports })
     }
+}
+
+/// The text of a caught panic (its `&str` or `String` payload).
+fn panic_message(panic: &(dyn std::any::Any + Send)) -> String {
+    panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "(a panic without a message)".to_string())
 }
 
 /// `local` where every rank succeeded; otherwise, on every rank, the failure of the lowest

@@ -56,7 +56,7 @@ use faer::linalg::matmul::matmul;
 use faer::{Accum, MatMut, MatRef, Par};
 
 use super::coefficient_operator::forward_matrix;
-use super::layer::{kernel_entries, LayerKernel};
+use super::layer_kernel::{kernel_entries, LayerKernel};
 use super::{cross, dot, get3, VesicleError};
 use crate::sph_harmonics::{resample_coefs, Deriv, Grid, ShTransform, ShWorkspace};
 

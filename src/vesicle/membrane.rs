@@ -17,7 +17,7 @@
 //! they are the linear operators the semi-implicit time step needs.
 
 use super::geometry::{Geometry, SurfaceCalculus};
-use super::skalak::Reference;
+use super::skalak_reference::Reference;
 use super::{check_len, cross, dot, get3, VesicleError};
 use crate::sph_harmonics::{resample_coefs, Deriv, ShTransform, ShWorkspace};
 

@@ -77,6 +77,7 @@ pub mod coefficient_operator;
 pub mod far_side;
 pub mod geometry;
 pub mod layer;
+pub mod layer_kernel;
 pub mod material_labels;
 pub mod membrane;
 pub mod mesh;
@@ -85,6 +86,7 @@ mod point;
 pub mod reparam;
 pub mod shapes;
 pub mod skalak;
+mod skalak_reference;
 pub mod tank_treading;
 pub mod tension;
 

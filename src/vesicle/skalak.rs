@@ -22,6 +22,7 @@
 
 use super::geometry::div_at;
 use super::membrane::Membrane;
+use super::skalak_reference::Reference;
 use super::{check_len, VesicleError};
 use crate::sph_harmonics::{resample_coefs, Deriv};
 
@@ -83,21 +84,6 @@ impl SkalakParams {
         }
         Ok(())
     }
-}
-
-/// The reference metric on the order-`q` grid and the scratch for the tension tensor.
-pub(super) struct Reference {
-    /// Its order-`p` coefficients.
-    coefs: Vec<f64>,
-    /// `[E, F, G]` of the reference surface.
-    metric: Vec<[f64; 3]>,
-    /// `W_ref / W` is needed for the energy; `W_ref` here.
-    w: Vec<f64>,
-    /// Six tension components (xx, xy, xz, yy, yz, zz), each `nq` values.
-    tau: Vec<f64>,
-    ctau: Vec<f64>,
-    dt: Vec<f64>,
-    dp: Vec<f64>,
 }
 
 /// Index of the symmetric component `(a, b)` in the six stored components.
