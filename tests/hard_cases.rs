@@ -72,22 +72,28 @@ fn grid_ratio(calc: &mut SurfaceCalculus, coefs: &[f64]) -> f64 {
 }
 
 /// Smallest distance of a grid point of one cell to another's surface; `Err` on overlap.
-fn contact(coefs: &[Vec<f64>], p: usize, case: &str, k: usize, t: f64) -> Result<f64, String> {
+fn contact<C: AsRef<[f64]>>(
+    coefs: &[C],
+    p: usize,
+    case: &str,
+    k: usize,
+    t: f64,
+) -> Result<f64, String> {
     let mut calc = SurfaceCalculus::new(p).unwrap();
     let mut near = OffSurface::new(p, NearParams::default()).unwrap();
     let centroids: Vec<[f64; 3]> = coefs
         .iter()
-        .map(|c| calc.geometry(c).unwrap().centroid())
+        .map(|c| calc.geometry(c.as_ref()).unwrap().centroid())
         .collect();
     let mut gap = f64::INFINITY;
     for (j, cj) in coefs.iter().enumerate() {
-        near.set_surface(cj).unwrap();
+        near.set_surface(cj.as_ref()).unwrap();
         for (i, ci) in coefs.iter().enumerate() {
             // Far pairs (centroids more than 4 radii apart) cannot touch.
             if i == j || norm(std::array::from_fn(|d| centroids[i][d] - centroids[j][d])) > 4.0 {
                 continue;
             }
-            let g = calc.geometry(ci).unwrap();
+            let g = calc.geometry(ci.as_ref()).unwrap();
             for (q, x) in g.x.iter().enumerate() {
                 let info = near.classify(*x).unwrap();
                 if info.inside {
@@ -195,7 +201,7 @@ fn run_case(
         }
         if let Some(every) = checks.contact_every {
             if k % every == 0 || k == steps {
-                out.min_gap = out.min_gap.min(contact(susp.coefs(), p, case, k, t)?);
+                out.min_gap = out.min_gap.min(contact(&susp.coefs(), p, case, k, t)?);
             }
         }
     }
@@ -282,7 +288,7 @@ fn near_contact(case: &str, steps: usize) {
     let gap0 = 0.03;
     let sc = near_contact_scene(8, gap0);
     let mut susp = build(&sc).unwrap();
-    let g0 = contact(susp.coefs(), 8, case, 0, 0.0).unwrap();
+    let g0 = contact(&susp.coefs(), 8, case, 0, 0.0).unwrap();
     assert!(
         g0 < 0.05,
         "{case}: initial gap {g0} not below 5% of the radius"
@@ -329,8 +335,8 @@ fn near_contact_coupling_against_a_fine_quadrature() {
     let mut susp = build(&sc).unwrap();
     let flow = sc.flow;
     susp.step(&|x| flow.velocity(x)).unwrap();
-    let coefs: Vec<Vec<f64>> = susp.coefs().to_vec();
-    let gap = contact(&coefs, p, "near-contact coupling", 1, sc.numerics.dt).unwrap();
+    let coefs: Vec<Vec<f64>> = susp.coefs().iter().map(|c| c.to_vec()).collect();
+    let gap = contact(&susp.coefs(), p, "near-contact coupling", 1, sc.numerics.dt).unwrap();
     let n = susp.steppers()[0].n_points();
     let f: Vec<Vec<f64>> = (0..coefs.len())
         .map(|i| {
@@ -530,14 +536,20 @@ fn deflated(case: &str, shape: &str, steps: usize) {
     let sc = scene(&text);
     let mut susp = build(&sc).unwrap();
     let mut calc = SurfaceCalculus::new(8).unwrap();
-    let v0 = calc.geometry(&susp.coefs()[0]).unwrap().reduced_volume();
+    let v0 = calc
+        .geometry(&susp.cells()[0].coefs)
+        .unwrap()
+        .reduced_volume();
     let checks = Checks {
         drift: 1e-3,
         speed: 5.0,
         contact_every: None,
     };
     let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
-    let v1 = calc.geometry(&susp.coefs()[0]).unwrap().reduced_volume();
+    let v1 = calc
+        .geometry(&susp.cells()[0].coefs)
+        .unwrap()
+        .reduced_volume();
     report(case, &o, &format!("reduced volume {v0:.4} → {v1:.4}"));
     assert!(
         (v1 - v0).abs() < 1e-3,
@@ -606,14 +618,14 @@ fn viscosity_contrast_ten_tumbles() {
         );
         (axes[0][1] / axes[0][0]).atan().to_degrees()
     };
-    let start = inclination(&mut calc, &susp.coefs()[0]);
+    let start = inclination(&mut calc, &susp.cells()[0].coefs);
     assert!((start - 30.0).abs() < 1.0, "initial inclination {start}°");
     // The inclination unwrapped (modulo 180°): its total turn after 12 shear times.
     let (mut last, mut turned) = (start, 0.0);
     let (mut min, mut max) = (f64::INFINITY, f64::NEG_INFINITY);
     for _ in 0..48 {
         run_case("λ = 10", &sc, &mut susp, 5, checks).unwrap_or_else(|e| panic!("{e}"));
-        let a = inclination(&mut calc, &susp.coefs()[0]);
+        let a = inclination(&mut calc, &susp.cells()[0].coefs);
         let mut d = a - last;
         if d > 90.0 {
             d -= 180.0;

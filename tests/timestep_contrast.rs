@@ -306,7 +306,7 @@ fn two_cells_with_contrast_run_stably_and_feel_each_others_double_layer() {
             susp.coupling_stats().unwrap().double_layer_fmm_builds,
             if double_layer { 19 } else { 0 }
         );
-        susp.coefs().to_vec()
+        susp.coefs().iter().map(|c| c.to_vec()).collect()
     };
     let with = step(true);
     let without = step(false);

@@ -131,9 +131,9 @@ fn simulate(
     for k in 1..=steps {
         if k == steps {
             before.clear();
-            for c in susp.coefs() {
+            for cell in susp.cells() {
                 let g = calc
-                    .geometry(c)
+                    .geometry(&cell.coefs)
                     .map_err(|e| run_error(label, CellRunError::from(e)))?;
                 before.push(g.centroid());
             }
@@ -156,8 +156,8 @@ fn simulate(
             .iter()
             .map(|r| r.gmres.iterations)
             .sum::<usize>();
-        for (i, c) in susp.coefs().iter().enumerate() {
-            if c.iter().any(|v| !v.is_finite()) {
+        for (i, cell) in susp.cells().iter().enumerate() {
+            if cell.coefs.iter().any(|v| !v.is_finite()) {
                 return Err(ReportError::NonFinite {
                     run: label.to_string(),
                     step: k,
@@ -166,8 +166,8 @@ fn simulate(
                 });
             }
         }
-        for (i, st) in susp.steppers().iter().enumerate() {
-            if st.sigma.iter().any(|v| !v.is_finite()) {
+        for (i, cell) in susp.cells().iter().enumerate() {
+            if cell.stepper.sigma.iter().any(|v| !v.is_finite()) {
                 return Err(ReportError::NonFinite {
                     run: label.to_string(),
                     step: k,
@@ -177,21 +177,25 @@ fn simulate(
             }
         }
         if k == 1 && susp.len() > 1 {
-            coupling = Some(susp.inter_cell_velocities().to_vec());
+            coupling = Some(susp.cells().iter().map(|c| c.velocity.clone()).collect());
         }
     }
     let mut velocity = Vec::with_capacity(susp.len());
-    for (i, c) in susp.coefs().iter().enumerate() {
+    for (i, cell) in susp.cells().iter().enumerate() {
         let g = calc
-            .geometry(c)
+            .geometry(&cell.coefs)
             .map_err(|e| run_error(label, CellRunError::from(e)))?;
         let x = g.centroid();
         velocity.push(std::array::from_fn(|d| (x[d] - before[i][d]) / settings.dt));
     }
     Ok(Final {
         order: settings.order,
-        coefs: susp.coefs().to_vec(),
-        sigma: susp.steppers().iter().map(|s| s.sigma.clone()).collect(),
+        coefs: susp.cells().iter().map(|c| c.coefs.clone()).collect(),
+        sigma: susp
+            .cells()
+            .iter()
+            .map(|c| c.stepper.sigma.clone())
+            .collect(),
         velocity,
         coupling,
         steps,

@@ -206,7 +206,7 @@ pub fn run_on(
     let (mut prog, mut frames) = match resumed {
         Some((prog, states, _)) => {
             let restored = (0..susp.len()).try_for_each(|i| {
-                let id = susp.ids()[i];
+                let id = susp.cells()[i].id;
                 susp.set_cell_state(i, &states[id]).map_err(|e| {
                     CellRunError::Resume(format!(
                         "{}: cell {}: {}",
@@ -274,10 +274,10 @@ pub fn run_on(
     // (their steppers went with them).
     let mut left = [0usize; 2];
     let counts = |s: &Suspension| {
-        s.steppers().iter().fold([0usize; 2], |[d, b], s| {
+        s.cells().iter().fold([0usize; 2], |[d, b], c| {
             [
-                d + s.double_layer_assemblies,
-                b + s.own_preconditioner_builds,
+                d + c.stepper.double_layer_assemblies,
+                b + c.stepper.own_preconditioner_builds,
             ]
         })
     };
@@ -318,8 +318,8 @@ pub fn run_on(
         };
         if ends_run(k, prog.time + dt_try) {
             before_last.clear();
-            for (&id, c) in susp.ids().iter().zip(susp.coefs()) {
-                before_last.push((id, observe(&mut calc, c)?.0));
+            for c in susp.cells() {
+                before_last.push((c.id, observe(&mut calc, &c.coefs)?.0));
             }
         }
         let t = Instant::now();
@@ -351,10 +351,9 @@ pub fn run_on(
         prog.dt_used[0] = prog.dt_used[0].min(dt_try);
         prog.dt_used[1] = prog.dt_used[1].max(dt_try);
         let finite = susp
-            .ids()
+            .cells()
             .iter()
-            .zip(susp.coefs())
-            .find_map(|(&id, c)| Some((id, c.iter().position(|c| !c.is_finite())?)))
+            .find_map(|c| Some((c.id, c.coefs.iter().position(|c| !c.is_finite())?)))
             .map_or(Ok(()), |(id, j)| {
                 Err(CellStepError {
                     cell: Some(id),
@@ -445,11 +444,13 @@ pub fn run_on(
     // Taylor deformation and the tank-treading rate.
     let local = (0..susp.len())
         .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
-            let id = susp.ids()[i];
-            let g = calc.geometry(&susp.coefs()[i])?;
+            let cell = &susp.cells()[i];
+            let id = cell.id;
+            let g = calc.geometry(&cell.coefs)?;
             let (x, a, v, inc) = observe_geometry(&g);
             let d = g.taylor_deformation([0.0, 0.0, 1.0]);
-            let tt = susp.steppers()[i]
+            let tt = cell
+                .stepper
                 .velocity()
                 .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]))
                 .transpose()?

@@ -44,7 +44,7 @@ pub(super) fn gather_states(
         .map(|i| {
             let mut v = Vec::with_capacity(width);
             susp.cell_state(i).encode(&mut v);
-            (susp.ids()[i], v)
+            (susp.cells()[i].id, v)
         })
         .collect();
     let Some(rows) = gather_rows(comm, local, susp.n_global(), width)? else {
@@ -98,11 +98,14 @@ pub(super) fn gathered_frame(
 ) -> Result<(), CellRunError> {
     let (ncoef, n) = (sht.n_coefs() * 3, sht.n_points());
     let local = susp
-        .ids()
+        .cells()
         .iter()
-        .zip(susp.coefs())
-        .zip(susp.steppers())
-        .map(|((&id, c), st)| (id, c.iter().chain(&st.sigma).copied().collect()))
+        .map(|c| {
+            (
+                c.id,
+                c.coefs.iter().chain(&c.stepper.sigma).copied().collect(),
+            )
+        })
         .collect();
     let rows = gather_rows(comm, local, susp.n_global(), ncoef + n)?;
     let written = match (rows, frames) {

@@ -112,9 +112,9 @@ pub fn gather_inputs(
     susp: &Suspension,
 ) -> Result<(Vec<[f64; 3]>, Vec<f64>), CommError> {
     let mut mine = Vec::with_capacity(5 * susp.len());
-    for ((&id, c), &it) in susp.ids().iter().zip(susp.coefs()).zip(susp.iterations()) {
-        let x = centre(c);
-        mine.extend_from_slice(&[id as f64, x[0], x[1], x[2], cost(it)]);
+    for cell in susp.cells() {
+        let x = centre(&cell.coefs);
+        mine.extend_from_slice(&[cell.id as f64, x[0], x[1], x[2], cost(cell.iterations)]);
     }
     let all = comm.all_gather_f64(&mine)?;
     let n = susp.n_global();
@@ -144,7 +144,7 @@ pub fn migrate(
     let mut send = vec![Vec::new(); comm.size()];
     let mut i = 0;
     while i < susp.len() {
-        let id = susp.ids()[i];
+        let id = susp.cells()[i].id;
         let to = owners[id];
         if to == me {
             i += 1;

@@ -23,7 +23,7 @@
 //! no double-layer density is passed and no stresslet FMM is built.
 //!
 //! **Over MPI ranks** ([`Suspension::new_part`], [`Suspension::step_on`]): each rank holds some
-//! of the cells, whole (stepper, coefficients, history), named by their global indices
+//! of the cells, whole (one [`SuspensionCell`] each: stepper, coefficients, history), named by their global indices
 //! ([`Suspension::ids`], kept ascending); the coupling is collective
 //! ([`Coupling::velocities_on`]: one distributed FMM, ghost copies of nearby cells), every
 //! per-cell solve stays on its rank. A failure of one cell's step ends the step on every rank
@@ -97,22 +97,31 @@ pub struct SuspensionState {
     cells: Vec<CellState>,
 }
 
+/// One cell held by a [`Suspension`]: its global index, its stepper and what the suspension
+/// keeps of it between steps.
+pub struct SuspensionCell {
+    /// Global index of the cell (its place in the scene, over all ranks).
+    pub id: usize,
+    /// The cell's semi-implicit stepper (with its tension, history and operators).
+    pub stepper: VesicleStepper,
+    /// Order-`p` SH coefficients `Xⁿ` (x, y, z).
+    pub coefs: Vec<f64>,
+    /// Inter-cell velocity of the last step on the order-`p` grid (`3n`; empty: none yet),
+    /// kept for output.
+    pub velocity: Vec<f64>,
+    /// That of the step before (BDF2 extrapolates the explicit coupling to `X*`).
+    pub previous_velocity: Vec<f64>,
+    /// GMRES iterations of the cell's last solve (0 before the first).
+    pub iterations: usize,
+}
+
 /// Cells of order `p`, stepped together (all of them, or one rank's share).
 pub struct Suspension {
-    /// Global index of each cell held here, ascending.
-    ids: Vec<usize>,
+    /// The cells held here, by ascending global index.
+    cells: Vec<SuspensionCell>,
     /// Cells over all ranks.
     n_global: usize,
-    steppers: Vec<VesicleStepper>,
-    coefs: Vec<Vec<f64>>,
     coupling: Option<Coupling>,
-    /// Inter-cell velocities of the last step (per cell, order-`p` grid; empty: none yet),
-    /// kept for output.
-    velocities: Vec<Vec<f64>>,
-    /// Those of the step before (BDF2 extrapolates the explicit coupling to `X*`).
-    previous_velocities: Vec<Vec<f64>>,
-    /// GMRES iterations of each cell's last solve.
-    iterations: Vec<usize>,
     /// Whether the cells with `λ ≠ 1` pass their double layer to the others (on by default;
     /// switched off only to measure what it does).
     inter_cell_double_layer: bool,
@@ -165,14 +174,9 @@ impl Suspension {
         coupling: CouplingParams,
     ) -> Result<Self, CellStepError> {
         let mut s = Suspension {
-            ids: Vec::new(),
+            cells: Vec::new(),
             n_global,
-            steppers: Vec::new(),
-            coefs: Vec::new(),
             coupling: None,
-            velocities: Vec::new(),
-            previous_velocities: Vec::new(),
-            iterations: Vec::new(),
             inter_cell_double_layer: true,
             contrast,
             storage: None,
@@ -229,20 +233,25 @@ impl Suspension {
         if let Some(far_side) = self.far_side {
             st.set_far_side_params(far_side).map_err(err)?;
         }
-        let at = self.ids.partition_point(|&i| i < id);
-        if self.ids.get(at) == Some(&id) {
+        let at = self.cells.partition_point(|c| c.id < id);
+        if self.cells.get(at).map(|c| c.id) == Some(id) {
             return Err(err(TimestepError::InvalidParameter {
                 name: "cell",
                 value: format!("{id}"),
                 reason: "is already held here",
             }));
         }
-        self.ids.insert(at, id);
-        self.steppers.insert(at, st);
-        self.coefs.insert(at, setup.coefs.clone());
-        self.velocities.insert(at, Vec::new());
-        self.previous_velocities.insert(at, Vec::new());
-        self.iterations.insert(at, 0);
+        self.cells.insert(
+            at,
+            SuspensionCell {
+                id,
+                stepper: st,
+                coefs: setup.coefs.clone(),
+                velocity: Vec::new(),
+                previous_velocity: Vec::new(),
+                iterations: 0,
+            },
+        );
         if let Some(state) = state {
             self.set_cell_state(at, state)?;
         }
@@ -252,21 +261,16 @@ impl Suspension {
     /// Remove this rank's cell `i` (a cell moving away): its global index and state.
     pub fn take_cell(&mut self, i: usize) -> (usize, CellState) {
         let state = self.cell_state(i);
-        let id = self.ids.remove(i);
-        self.steppers.remove(i);
-        self.coefs.remove(i);
-        self.velocities.remove(i);
-        self.previous_velocities.remove(i);
-        self.iterations.remove(i);
-        (id, state)
+        (self.cells.remove(i).id, state)
     }
 
     /// The state of this rank's cell `i`.
     pub fn cell_state(&self, i: usize) -> CellState {
-        let st = &self.steppers[i];
+        let cell = &self.cells[i];
+        let st = &cell.stepper;
         let opt = |v: &Vec<f64>| (!v.is_empty()).then(|| v.clone());
         CellState {
-            coefs: self.coefs[i].clone(),
+            coefs: cell.coefs.clone(),
             sigma: st.sigma.clone(),
             drift_targets: st.drift_targets(),
             previous_coefs: st.previous_coefs().map(|c| c.to_vec()),
@@ -274,9 +278,9 @@ impl Suspension {
             membrane_velocity: st.velocity().map(|v| v.to_vec()),
             skalak_reference: st.skalak_reference().map(|r| r.to_vec()),
             material_labels: st.material_labels().cloned(),
-            velocity: opt(&self.velocities[i]),
-            previous_velocity: opt(&self.previous_velocities[i]),
-            iterations: self.iterations[i],
+            velocity: opt(&cell.velocity),
+            previous_velocity: opt(&cell.previous_velocity),
+            iterations: cell.iterations,
             preconditioner: st.own_preconditioner_record().cloned(),
         }
     }
@@ -284,19 +288,20 @@ impl Suspension {
     /// Put this rank's cell `i` into `state` (a restart, a cell that moved here, a rejected
     /// step).
     pub fn set_cell_state(&mut self, i: usize, state: &CellState) -> Result<(), CellStepError> {
+        let cell = &mut self.cells[i];
         let err = |source| CellStepError {
-            cell: Some(self.ids[i]),
+            cell: Some(cell.id),
             source,
         };
-        let st = &mut self.steppers[i];
-        if state.coefs.len() != self.coefs[i].len() || state.sigma.len() != st.sigma.len() {
+        let st = &mut cell.stepper;
+        if state.coefs.len() != cell.coefs.len() || state.sigma.len() != st.sigma.len() {
             return Err(err(TimestepError::DimensionMismatch {
                 what: "cell state (coefficients and tension)",
-                expected: self.coefs[i].len() + st.sigma.len(),
+                expected: cell.coefs.len() + st.sigma.len(),
                 got: state.coefs.len() + state.sigma.len(),
             }));
         }
-        self.coefs[i].copy_from_slice(&state.coefs);
+        cell.coefs.copy_from_slice(&state.coefs);
         st.sigma.copy_from_slice(&state.sigma);
         st.set_drift_targets(state.drift_targets);
         st.set_previous_coefs(state.previous_coefs.as_deref())
@@ -321,26 +326,26 @@ impl Suspension {
                 }
             }
         }
-        self.velocities[i] = state.velocity.clone().unwrap_or_default();
-        self.previous_velocities[i] = state.previous_velocity.clone().unwrap_or_default();
-        self.iterations[i] = state.iterations;
-        self.steppers[i].set_own_preconditioner_record(state.preconditioner.as_ref());
+        st.set_own_preconditioner_record(state.preconditioner.as_ref());
+        cell.velocity = state.velocity.clone().unwrap_or_default();
+        cell.previous_velocity = state.previous_velocity.clone().unwrap_or_default();
+        cell.iterations = state.iterations;
         Ok(())
     }
 
     /// Store the operators of every cell (also of cells inserted later) as `storage`.
     pub fn set_operator_storage(&mut self, storage: OperatorStorage) {
         self.storage = Some(storage);
-        for s in &mut self.steppers {
-            s.set_operator_storage(storage);
+        for c in &mut self.cells {
+            c.stepper.set_operator_storage(storage);
         }
     }
 
     /// The preconditioner of every cell (also of cells inserted later).
     pub fn set_preconditioning(&mut self, preconditioning: Preconditioning) {
         self.preconditioning = Some(preconditioning);
-        for s in &mut self.steppers {
-            s.set_preconditioning(preconditioning);
+        for c in &mut self.cells {
+            c.stepper.set_preconditioning(preconditioning);
         }
     }
 
@@ -357,28 +362,39 @@ impl Suspension {
     /// Own preconditioners built by this rank's cells so far (see
     /// [`super::semi_implicit::Preconditioning::Cell`]).
     pub fn own_preconditioner_builds(&self) -> usize {
-        self.steppers
+        self.cells
             .iter()
-            .map(|s| s.own_preconditioner_builds)
+            .map(|c| c.stepper.own_preconditioner_builds)
             .sum()
     }
 
     /// Far-side settings of every cell (also of cells inserted later).
     pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), CellStepError> {
         self.far_side = Some(params);
-        for (i, s) in self.steppers.iter_mut().enumerate() {
-            s.set_far_side_params(params)
+        for c in &mut self.cells {
+            c.stepper
+                .set_far_side_params(params)
                 .map_err(|source| CellStepError {
-                    cell: Some(self.ids[i]),
+                    cell: Some(c.id),
                     source,
                 })?;
         }
         Ok(())
     }
 
+    /// The cells held here, by ascending global index.
+    pub fn cells(&self) -> &[SuspensionCell] {
+        &self.cells
+    }
+
+    /// The cells held here, mutable (a restart, a study that sets a cell's surface).
+    pub fn cells_mut(&mut self) -> &mut [SuspensionCell] {
+        &mut self.cells
+    }
+
     /// Global indices of the cells held here, ascending.
-    pub fn ids(&self) -> &[usize] {
-        &self.ids
+    pub fn ids(&self) -> Vec<usize> {
+        self.cells.iter().map(|c| c.id).collect()
     }
 
     /// Cells over all ranks.
@@ -388,32 +404,32 @@ impl Suspension {
 
     /// Number of cells held here.
     pub fn len(&self) -> usize {
-        self.steppers.len()
+        self.cells.len()
     }
 
     /// Whether no cell is held here.
     pub fn is_empty(&self) -> bool {
-        self.steppers.is_empty()
+        self.cells.is_empty()
     }
 
-    /// Each cell's SH coefficients.
-    pub fn coefs(&self) -> &[Vec<f64>] {
-        &self.coefs
+    /// Each cell's SH coefficients (a view of [`Self::cells`]).
+    pub fn coefs(&self) -> Vec<&[f64]> {
+        self.cells.iter().map(|c| c.coefs.as_slice()).collect()
     }
 
-    /// Replace the coefficients of every cell (restart).
-    pub fn coefs_mut(&mut self) -> &mut [Vec<f64>] {
-        &mut self.coefs
+    /// Each cell's SH coefficients, mutable (a restart; a view of [`Self::cells_mut`]).
+    pub fn coefs_mut(&mut self) -> Vec<&mut Vec<f64>> {
+        self.cells.iter_mut().map(|c| &mut c.coefs).collect()
     }
 
-    /// The per-cell steppers (tension, drift targets).
-    pub fn steppers(&self) -> &[VesicleStepper] {
-        &self.steppers
+    /// The per-cell steppers (tension, drift targets; a view of [`Self::cells`]).
+    pub fn steppers(&self) -> Vec<&VesicleStepper> {
+        self.cells.iter().map(|c| &c.stepper).collect()
     }
 
-    /// Mutable per-cell steppers (restart).
-    pub fn steppers_mut(&mut self) -> &mut [VesicleStepper] {
-        &mut self.steppers
+    /// Mutable per-cell steppers (a restart; a view of [`Self::cells_mut`]).
+    pub fn steppers_mut(&mut self) -> Vec<&mut VesicleStepper> {
+        self.cells.iter_mut().map(|c| &mut c.stepper).collect()
     }
 
     /// Seconds this rank spent in its cells' own work (tractions, solves), not counting the
@@ -423,8 +439,8 @@ impl Suspension {
     }
 
     /// GMRES iterations of each cell's last solve (0 before the first).
-    pub fn iterations(&self) -> &[usize] {
-        &self.iterations
+    pub fn iterations(&self) -> Vec<usize> {
+        self.cells.iter().map(|c| c.iterations).collect()
     }
 
     /// Counters of the coupling (`None` for one cell: nothing coupled, no FMM).
@@ -439,26 +455,29 @@ impl Suspension {
 
     /// The velocity the other cells induced on each cell in the last step (an empty vector
     /// for a cell before its first coupled step).
-    pub fn inter_cell_velocities(&self) -> &[Vec<f64>] {
-        &self.velocities
+    pub fn inter_cell_velocities(&self) -> Vec<&[f64]> {
+        self.cells.iter().map(|c| c.velocity.as_slice()).collect()
     }
 
     /// The inter-cell velocities at `Xⁿ⁻¹` kept for the BDF2 extrapolation (empty vectors
     /// for one cell or the Euler scheme before the first step).
-    pub fn previous_inter_cell_velocities(&self) -> &[Vec<f64>] {
-        &self.previous_velocities
+    pub fn previous_inter_cell_velocities(&self) -> Vec<&[f64]> {
+        self.cells
+            .iter()
+            .map(|c| c.previous_velocity.as_slice())
+            .collect()
     }
 
     /// The time step (shared by all cells).
     pub fn dt(&self) -> f64 {
-        self.steppers.first().map_or(0.0, |s| s.params().dt)
+        self.cells.first().map_or(0.0, |c| c.stepper.params().dt)
     }
 
     /// Change the time step of every cell (adaptive `dt`).
     pub fn set_dt(&mut self, dt: f64) -> Result<(), CellStepError> {
-        for (i, st) in self.steppers.iter_mut().enumerate() {
-            st.set_dt(dt).map_err(|source| CellStepError {
-                cell: Some(self.ids[i]),
+        for c in &mut self.cells {
+            c.stepper.set_dt(dt).map_err(|source| CellStepError {
+                cell: Some(c.id),
                 source,
             })?;
         }
@@ -521,16 +540,15 @@ impl Suspension {
         time: f64,
         forces: &[&dyn CellForce],
     ) -> Result<Vec<Vec<f64>>, CellStepError> {
-        let ids = &self.ids;
-        self.steppers
+        self.cells
             .par_iter_mut()
-            .zip(self.coefs.par_iter())
-            .enumerate()
-            .map(|(i, (st, c))| {
+            .map(|cell| {
+                let id = cell.id;
+                let (st, c) = (&mut cell.stepper, &cell.coefs);
                 let mut t = vec![0.0; 3 * st.n_points()];
                 st.with_geometry(c, |g| {
                     let view = CellView {
-                        id: ids[i],
+                        id,
                         time,
                         coefs: c,
                         geometry: g,
@@ -551,12 +569,12 @@ impl Suspension {
                 })
                 .and_then(|r| r)
                 .map_err(|source| CellStepError {
-                    cell: Some(ids[i]),
+                    cell: Some(id),
                     source,
                 })?;
                 if t.iter().any(|v| !v.is_finite()) {
                     return Err(CellStepError {
-                        cell: Some(ids[i]),
+                        cell: Some(id),
                         source: TimestepError::NonFinite {
                             what: "traction of a user force",
                         },
@@ -581,24 +599,23 @@ impl Suspension {
         let t0 = std::time::Instant::now();
         // (Without forces nothing can fail, and no rank has any: no agreement needed.)
         let user = if forces.is_empty() {
-            vec![Vec::new(); self.steppers.len()]
+            vec![Vec::new(); self.cells.len()]
         } else {
             agree_cells(comm, self.user_tractions(time, forces))?
         };
-        let ids = &self.ids;
         if let Some(coupling) = &mut self.coupling {
             let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
-                .steppers
+                .cells
                 .par_iter_mut()
-                .zip(self.coefs.par_iter())
                 .zip(user.par_iter())
-                .enumerate()
-                .map(|(i, ((st, c), u))| {
-                    let mut f = vec![0.0; 3 * st.n_points()];
-                    st.traction(c, &mut f).map_err(|source| CellStepError {
-                        cell: Some(ids[i]),
-                        source,
-                    })?;
+                .map(|(cell, u)| {
+                    let mut f = vec![0.0; 3 * cell.stepper.n_points()];
+                    cell.stepper
+                        .traction(&cell.coefs, &mut f)
+                        .map_err(|source| CellStepError {
+                            cell: Some(cell.id),
+                            source,
+                        })?;
                     for (f, u) in f.iter_mut().zip(u) {
                         *f += u;
                     }
@@ -607,17 +624,20 @@ impl Suspension {
                 .collect();
             self.solve_s += t0.elapsed().as_secs_f64();
             let tractions = agree_cells(comm, tractions)?;
-            self.previous_velocities = std::mem::take(&mut self.velocities);
-            let cref: Vec<&[f64]> = self.coefs.iter().map(|c| c.as_slice()).collect();
+            for c in &mut self.cells {
+                c.previous_velocity = std::mem::take(&mut c.velocity);
+            }
+            let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
+            let cref: Vec<&[f64]> = self.cells.iter().map(|c| c.coefs.as_slice()).collect();
             let fref: Vec<&[f64]> = tractions.iter().map(|c| c.as_slice()).collect();
             // Double-layer densities (1 − λ_j) u_j from each cell's last solve (none before the
             // first step: the first step couples the single layers only).
             let scaled: Vec<Option<Vec<f64>>> = self
-                .steppers
+                .cells
                 .iter()
-                .map(|st| {
-                    let lambda = st.params().viscosity_ratio;
-                    match st.velocity() {
+                .map(|c| {
+                    let lambda = c.stepper.params().viscosity_ratio;
+                    match c.stepper.velocity() {
                         Some(u) if lambda != 1.0 && self.inter_cell_double_layer => {
                             Some(u.iter().map(|v| (1.0 - lambda) * v).collect())
                         }
@@ -626,20 +646,25 @@ impl Suspension {
                 })
                 .collect();
             let dref: Vec<Option<&[f64]>> = scaled.iter().map(|d| d.as_deref()).collect();
-            self.velocities = coupling
-                .velocities_on(comm, ids, &cref, &fref, &dref)
+            let velocities = coupling
+                .velocities_on(comm, &ids, &cref, &fref, &dref)
                 .map_err(|source| CellStepError { cell: None, source })?;
+            for (c, v) in self.cells.iter_mut().zip(velocities) {
+                c.velocity = v;
+            }
         }
         // BDF2 takes the explicit terms at X* = (1 + ω)Xⁿ − ωXⁿ⁻¹ (ω = Δtⁿ/Δtⁿ⁻¹):
         // v* = (1 + ω)vⁿ − ωvⁿ⁻¹ (second order; 2vⁿ − vⁿ⁻¹ at a constant step).
         let explicit: Vec<Option<Vec<f64>>> = self
-            .steppers
+            .cells
             .iter()
-            .enumerate()
-            .map(|(i, st)| {
-                let v = self.velocities.get(i).filter(|v| !v.is_empty())?;
-                match (st.extrapolation_ratio(), self.previous_velocities.get(i)) {
-                    (Some(w), Some(u)) if !u.is_empty() => Some(
+            .map(|c| {
+                let (v, u) = (&c.velocity, &c.previous_velocity);
+                if v.is_empty() {
+                    return None;
+                }
+                match c.stepper.extrapolation_ratio() {
+                    Some(w) if !u.is_empty() => Some(
                         v.iter()
                             .zip(u)
                             .map(|(a, b)| (1.0 + w) * a - w * b)
@@ -670,28 +695,28 @@ impl Suspension {
             .collect();
         let t1 = std::time::Instant::now();
         let reports: Result<Vec<StepReport>, CellStepError> = self
-            .steppers
+            .cells
             .par_iter_mut()
-            .zip(self.coefs.par_iter_mut())
             .enumerate()
-            .map(|(i, (st, c))| {
+            .map(|(i, cell)| {
                 let extra = ExplicitTerms {
                     velocity: explicit[i].as_deref(),
                     traction: combined[i]
                         .as_deref()
                         .or_else(|| repulsion.map(|r| r[i].as_slice())),
                 };
-                st.step_with(c, u_inf, extra)
+                cell.stepper
+                    .step_with(&mut cell.coefs, u_inf, extra)
                     .map_err(|source| CellStepError {
-                        cell: Some(ids[i]),
+                        cell: Some(cell.id),
                         source,
                     })
             })
             .collect();
         self.solve_s += t1.elapsed().as_secs_f64();
         let reports = agree_cells(comm, reports)?;
-        for (it, r) in self.iterations.iter_mut().zip(&reports) {
-            *it = r.gmres.iterations;
+        for (c, r) in self.cells.iter_mut().zip(&reports) {
+            c.iterations = r.gmres.iterations;
         }
         Ok(SuspensionReport { cells: reports })
     }
