@@ -173,7 +173,7 @@ use super::step_operator::{
     add_elastic_jacobian, apply_operators, InextensibleOperator, StepOperator,
 };
 use super::TimestepError;
-use super::{gmres, FnOperator, GmresParams, GmresReport, Identity};
+use super::{gmres, FnOperator, GmresParams, GmresReport, GmresWorkspace, Identity};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
@@ -1077,7 +1077,7 @@ impl VesicleStepper {
         report
     }
 
-    /// [`Self::step_with`] on a leased engine, the sizes checked.
+    /// [`Self::step_with`] on a leased engine, the sizes checked: the step's phases in order.
     fn step_on(
         &mut self,
         engine: &mut StepEngine,
@@ -1085,8 +1085,25 @@ impl VesicleStepper {
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         extra: ExplicitTerms<'_>,
     ) -> Result<StepReport, TimestepError> {
-        let (n, nc) = (self.n, self.nc);
-        let kappa = self.params.bending_modulus;
+        let plan = self.plan(engine, coefs)?;
+        let pcs = self.prepare_preconditioners(engine, &plan)?;
+        let terms = self.explicit_grid_terms(engine, &plan, u_inf, extra)?;
+        self.assemble(engine, &plan)?;
+        let (report, x_new, own_built) = self.solve(engine, &plan, &pcs, &terms)?;
+        let area_volume_error = self.advance(engine, coefs, &plan, &x_new, &terms.xh_grid)?;
+        self.regrid_and_correct(engine, coefs, &plan)?;
+        Ok(StepReport {
+            gmres: report,
+            scheme: plan.scheme,
+            preconditioner_built: pcs.sphere_built || own_built,
+            area_volume_error,
+        })
+    }
+
+    /// Phase 1, the plan of the step from the history: the scheme (BDF2 once `Xⁿ⁻¹` is
+    /// known), `τ`, the operator's coefficients, `X*` and `X̂`, the drift targets (set at the
+    /// first step) and the local area source.
+    fn plan(&mut self, engine: &mut StepEngine, coefs: &[f64]) -> Result<StepPlan, TimestepError> {
         let omega = self.extrapolation_ratio();
         let bdf2 = omega.is_some();
         let scheme = if bdf2 {
@@ -1105,7 +1122,6 @@ impl VesicleStepper {
             self.params.dt
         };
         let coef = self.step_coefficients(tau);
-        let (a_id, c_d) = (coef.identity, coef.double_layer);
         // The geometry of Xⁿ: its area and volume, and its area element for the local area
         // source.
         let g_now = engine.calc.geometry(coefs)?;
@@ -1145,76 +1161,144 @@ impl VesicleStepper {
                 .params
                 .elastic_stepping
                 .map_or(!inextensible, |e| e == ElasticStepping::LinearlyImplicit);
-        // The sphere preconditioner is that of the inextensible system.
-        let precondition = self.params.preconditioner && inextensible;
-        let (pc_index, preconditioner_built) = if precondition {
+        Ok(StepPlan {
+            scheme,
+            tau,
+            coef,
+            area0,
+            volume0,
+            xstar,
+            xhat,
+            area_source,
+            inextensible,
+            implicit_elastic,
+            // The sphere preconditioner is that of the inextensible system.
+            precondition: self.params.preconditioner && inextensible,
+        })
+    }
+
+    /// Phase 2, the preconditioners of the step: the sphere's (built or reused) and the cell's
+    /// own (to be built in the solve when stale), and how far the grid has turned with the
+    /// cell.
+    fn prepare_preconditioners(
+        &mut self,
+        engine: &mut StepEngine,
+        plan: &StepPlan,
+    ) -> Result<StepPreconditioners, TimestepError> {
+        let (sphere, sphere_built) = if plan.precondition {
             // With the drift correction the area is the target area at every step: the sphere
             // is built from it (not from the current area, which differs in the last bits), so
             // that a restarted run rebuilds the very same preconditioner (bit-identical restart).
             let area = match (self.params.correct_drift, self.targets) {
                 (true, Some((a, _))) => a,
-                _ => engine.calc.geometry(&xstar)?.area(),
+                _ => engine.calc.geometry(&plan.xstar)?.area(),
             };
             let radius = (area / (4.0 * std::f64::consts::PI)).sqrt();
-            let (i, b) = self.preconditioner_for(engine, radius, coef)?;
+            let (i, b) = self.preconditioner_for(engine, radius, plan.coef)?;
             (Some(i), b)
         } else {
             (None, false)
         };
         let (build_own, own_rebuilt) = self.prepare_own(
             engine,
-            &coef,
-            precondition && implicit_elastic,
-            precondition,
+            &plan.coef,
+            plan.precondition && plan.implicit_elastic,
+            plan.precondition,
         )?;
         // How far the grid has turned with the cell: the sphere preconditioner is turned with
         // it (see super::grid_frame).
-        let rotation = if precondition {
-            let g = engine.calc.geometry(&xstar)?;
+        let rotation = if plan.precondition {
+            let g = engine.calc.geometry(&plan.xstar)?;
             grid_rotation(&g, &engine.sht.grid().unit_points())
         } else {
             IDENTITY
         };
+        Ok(StepPreconditioners {
+            sphere,
+            sphere_built,
+            build_own,
+            own_rebuilt,
+            rotation,
+        })
+    }
+
+    /// Phase 3, the explicit terms on the grid: `X*` and `X̂`, the explicit traction
+    /// `f_e(X*) + f_extra + F/A` and the velocity `u_∞(X*) + u_other`.
+    fn explicit_grid_terms(
+        &mut self,
+        engine: &mut StepEngine,
+        plan: &StepPlan,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        extra: ExplicitTerms<'_>,
+    ) -> Result<GridTerms, TimestepError> {
+        let n = self.n;
         let mut xs_grid = vec![0.0; 3 * n];
         let mut xh_grid = vec![0.0; 3 * n];
         engine
             .sht
-            .inverse(&xstar, &mut xs_grid, &mut engine.ws)
+            .inverse(&plan.xstar, &mut xs_grid, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
         engine
             .sht
-            .inverse(&xhat, &mut xh_grid, &mut engine.ws)
+            .inverse(&plan.xhat, &mut xh_grid, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
-        let mut fext = vec![0.0; 3 * n];
+        let mut traction = vec![0.0; 3 * n];
         let area = {
             let OperatorWork { membrane, fb, .. } = engine.work.get_mut().expect("operator lock");
-            membrane.set_geometry(&xstar)?;
+            membrane.set_geometry(&plan.xstar)?;
             if let Some((sk, _)) = &self.skalak {
                 membrane.skalak_force(sk, fb)?;
-                fext.copy_from_slice(fb);
+                traction.copy_from_slice(fb);
             }
             membrane.geometry()?.area()
         };
         if let Some(t) = extra.traction {
-            for (a, b) in fext.iter_mut().zip(t) {
+            for (a, b) in traction.iter_mut().zip(t) {
                 *a += b;
             }
         }
+        for c in 0..3 {
+            for f in &mut traction[c * n..(c + 1) * n] {
+                *f += self.params.force[c] / area;
+            }
+        }
+        // u_∞(X*) + the other cells' velocity on the grid.
+        let mut velocity = vec![0.0; 3 * n];
+        for j in 0..n {
+            let ui = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
+            for c in 0..3 {
+                velocity[c * n + j] = ui[c] + extra.velocity.map_or(0.0, |v| v[c * n + j]);
+            }
+        }
+        Ok(GridTerms {
+            xs_grid,
+            xh_grid,
+            traction,
+            velocity,
+            // The cell's size (area-equivalent radius), the scale of the Jacobian's
+            // difference step.
+            size: (area / (4.0 * std::f64::consts::PI)).sqrt(),
+        })
+    }
+
+    /// Phase 4, the operators at `X*`: the single layer, and the double layer for `λ ≠ 1`
+    /// (kept per cell or lent by the engine, as [`Self::operator_storage`] says).
+    fn assemble(&mut self, engine: &mut StepEngine, plan: &StepPlan) -> Result<(), TimestepError> {
         assemble_operator(
             engine,
             self.storage,
             LayerKernel::SingleLayer {
                 viscosity: self.params.viscosity,
             },
-            &xstar,
+            &plan.xstar,
             &mut self.s_op,
         )?;
-        if c_d != 0.0 {
+        if plan.coef.double_layer != 0.0 {
             assemble_operator(
                 engine,
                 self.storage,
                 LayerKernel::DoubleLayer,
-                &xstar,
+                &plan.xstar,
                 &mut self.d_op,
             )?;
             self.double_layer_assemblies += 1;
@@ -1222,216 +1306,298 @@ impl VesicleStepper {
             // No double layer: a kept one is freed (a lent one goes back to the engine).
             self.d_op = Vec::new();
         }
-        let storage = self.storage;
-        let (s_op, d_op) = match storage {
-            OperatorStorage::MatrixFree => (
-                StepOperator::Kernel(LayerKernel::SingleLayer {
-                    viscosity: self.params.viscosity,
-                }),
-                (c_d != 0.0).then_some(StepOperator::Kernel(LayerKernel::DoubleLayer)),
-            ),
-            _ => (
-                StepOperator::Dense(&self.s_op[..]),
-                (c_d != 0.0).then_some(StepOperator::Dense(&self.d_op[..])),
-            ),
-        };
-        for c in 0..3 {
-            for f in &mut fext[c * n..(c + 1) * n] {
-                *f += self.params.force[c] / area;
-            }
-        }
-        // u_∞(X*) + the other cells' velocity on the grid.
-        let mut u = vec![0.0; 3 * n];
-        for j in 0..n {
-            let ui = u_inf([xs_grid[j], xs_grid[n + j], xs_grid[2 * n + j]]);
-            for c in 0..3 {
-                u[c * n + j] = ui[c] + extra.velocity.map_or(0.0, |v| v[c * n + j]);
-            }
-        }
-        // The cell's size (area-equivalent radius), the scale of the Jacobian's difference step.
-        let size = (area / (4.0 * std::f64::consts::PI)).sqrt();
-        let mut own_built = own_rebuilt;
-        let (report, x_new) = if let (Some((sk, reference)), false) = (&self.skalak, inextensible) {
-            solve_capsule(
-                engine,
-                &CapsuleSystem {
-                    storage,
-                    s_op,
-                    d_op,
-                    xstar: &xstar,
-                    xs_grid: &xs_grid,
-                    xh_grid: &xh_grid,
-                    traction: &fext,
-                    velocity: &u,
-                    a_id,
-                    c_d,
-                    tau,
-                    kappa,
-                    jacobian: implicit_elastic.then_some((sk, &reference[..])),
-                    size,
-                },
-                &self.params.gmres,
-            )?
-        } else {
-            // Right-hand side [a X̂ − c_D D X̂ + τ (u_∞(X*) + u_other + S f_ext); Div X̂].
-            let mut b = vec![0.0; 4 * n];
-            for ((bi, h), ui) in b.iter_mut().zip(&xh_grid).zip(&u) {
-                *bi = a_id * h + tau * ui;
-            }
-            {
-                let OperatorWork {
-                    membrane, products, ..
-                } = engine.work.get_mut().expect("operator lock");
-                apply_operators(
-                    storage,
-                    &engine.sht,
-                    products,
-                    &xstar,
-                    (s_op, &fext, tau),
-                    d_op.map(|d| (d, &xh_grid[..], -c_d)),
-                    &mut b[..3 * n],
-                )?;
-                membrane.surface_divergence(&xh_grid, &mut b[3 * n..])?;
-                if let Some(r) = &area_source {
-                    // Filtered as the divergence is, so that the source lies in the range of
-                    // `Div` (unfiltered, GMRES stagnates at the part outside it).
-                    let mut rq = vec![0.0; membrane.n_points_upsampled()];
-                    membrane.upsample(r, &mut rq)?;
-                    let mut rp = vec![0.0; n];
-                    membrane.filter_density(&mut rq, &mut rp)?;
-                    for (bi, ri) in b[3 * n..].iter_mut().zip(&rp) {
-                        *bi += ri;
-                    }
-                }
-            }
-            // With the elasticity linearly implicit, the Jacobian's engine (see below).
-            let jacobian = match (&self.skalak, implicit_elastic) {
-                (Some((sk, reference)), true) => {
-                    let OperatorWork {
-                        membrane, elastic, ..
-                    } = engine.work.get_mut().expect("operator lock");
-                    elastic_work(elastic, membrane, nc, reference)?;
-                    Some(*sk)
-                }
-                _ => None,
-            };
-            // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X] (plus −τ S J X
-            // once the Jacobian is enabled).
-            let op = InextensibleOperator::new(
-                n,
-                &engine.work,
-                &engine.sht,
-                storage,
-                &xstar,
-                (s_op, d_op),
-                [a_id, c_d, tau, kappa],
-                jacobian,
-                size,
-            );
-            // Initial guess: X* (the extrapolation for BDF2, Xⁿ for Euler) and the last tension.
-            let mut z0 = vec![0.0; 4 * n];
-            z0[..3 * n].copy_from_slice(&xs_grid);
-            z0[3 * n..].copy_from_slice(&self.sigma);
-            if jacobian.is_some() {
-                // Solve for δ = X − X* (so that the Jacobian's relative error multiplies the
-                // small δ, as for capsules): b ← b − A [X*; 0] with A without J, then J on.
-                let mut xs0 = vec![0.0; 4 * n];
-                xs0[..3 * n].copy_from_slice(&xs_grid);
-                let mut shift = vec![0.0; 4 * n];
-                super::LinearOperator::apply(&op, &xs0, &mut shift);
-                for (bi, si) in b.iter_mut().zip(&shift) {
-                    *bi -= si;
-                }
-                z0[..3 * n].fill(0.0);
-                op.enable_jacobian();
-            }
-            // The cell's own preconditioner, (re)built now if `prepare_own` found it stale.
-            if build_own {
-                let inverse = own_inverse(&op, &engine.sht, a_id)?;
-                self.own = Some(OwnPreconditioner {
-                    record: PreconditionerRecord {
-                        surface: xstar.clone(),
-                        tau,
-                        jacobian_reference: jacobian
-                            .and(self.skalak.as_ref())
-                            .map(|(_, r)| r.clone()),
-                        last_iterations: 0,
+        Ok(())
+    }
+
+    /// Phase 5, the linear system of the step, solved by GMRES: a capsule's for `X − X*`, an
+    /// inextensible cell's for `[X; σ]`. Returns the solve's report, `Xⁿ⁺¹` on the grid, and
+    /// whether the cell's own preconditioner was built (or rebuilt from its record).
+    fn solve(
+        &mut self,
+        engine: &mut StepEngine,
+        plan: &StepPlan,
+        pcs: &StepPreconditioners,
+        terms: &GridTerms,
+    ) -> Result<(GmresReport, Vec<f64>, bool), TimestepError> {
+        match (&self.skalak, plan.inextensible) {
+            (Some((sk, reference)), false) => {
+                let (s_op, d_op) = step_operators(
+                    self.storage,
+                    self.params.viscosity,
+                    &self.s_op,
+                    &self.d_op,
+                    plan.coef.double_layer,
+                );
+                let (report, x) = solve_capsule(
+                    engine,
+                    &CapsuleSystem {
+                        storage: self.storage,
+                        s_op,
+                        d_op,
+                        xstar: &plan.xstar,
+                        xs_grid: &terms.xs_grid,
+                        xh_grid: &terms.xh_grid,
+                        traction: &terms.traction,
+                        velocity: &terms.velocity,
+                        a_id: plan.coef.identity,
+                        c_d: plan.coef.double_layer,
+                        tau: plan.tau,
+                        kappa: self.params.bending_modulus,
+                        jacobian: plan.implicit_elastic.then_some((sk, &reference[..])),
+                        size: terms.size,
                     },
-                    coefs: coef,
-                    inverse,
-                    frame: rotation,
-                });
-                self.own_preconditioner_builds += 1;
-                own_built = true;
-            }
-            let own_pc = match self.own.as_ref() {
-                Some(OwnPreconditioner {
-                    inverse: OwnInverse::Built(pc),
-                    frame,
-                    ..
-                }) => Some((pc, relative_rotation(&rotation, frame))),
-                _ => None,
-            };
-            let mut z = vec![0.0; 4 * n];
-            let report = match (pc_index, own_pc) {
-                (Some(_), Some((pc, turn))) => gmres(
-                    &op,
-                    &RotatedPreconditioner::new(
-                        &CellPreconditionerOp::new(pc, &engine.sht),
-                        turn,
-                        n,
-                    ),
-                    &b,
-                    Some(&z0),
-                    &mut z,
                     &self.params.gmres,
-                    &mut engine.gmres_ws,
-                ),
-                (Some(i), None) => gmres(
-                    &op,
-                    &RotatedPreconditioner::new(&*self.preconditioners[i], rotation, n),
-                    &b,
-                    Some(&z0),
-                    &mut z,
-                    &self.params.gmres,
-                    &mut engine.gmres_ws,
-                ),
-                (None, _) => gmres(
-                    &op,
-                    &Identity::new(4 * n),
-                    &b,
-                    Some(&z0),
-                    &mut z,
-                    &self.params.gmres,
-                    &mut engine.gmres_ws,
-                ),
-            };
-            if let Some(e) = op.take_failure() {
-                return Err(e.into());
+                )?;
+                Ok((report, x, pcs.own_rebuilt))
             }
-            // A (nearly) spherical cell makes the system singular: a constant tension gives the
-            // traction 2σHn with H constant, whose single layer vanishes on a closed surface. A
-            // right-hand side with a component outside the range (a sphere in a straining flow,
-            // to discretisation accuracy) then ends in `Breakdown`, which is reported as an error:
-            // the least-squares answer carries an arbitrary, possibly huge mean tension, and the
-            // explicit coupling would spread it to the other cells.
-            let report = report?;
-            if let Some(o) = &mut self.own {
-                o.record.last_iterations = report.iterations;
+            _ => self.solve_inextensible(engine, plan, pcs, terms),
+        }
+    }
+
+    /// An inextensible cell's system for `[X; σ]` (the elastic Jacobian in the operator when
+    /// linearly implicit), the cell's own preconditioner built first when phase 2 found it
+    /// stale.
+    fn solve_inextensible(
+        &mut self,
+        engine: &mut StepEngine,
+        plan: &StepPlan,
+        pcs: &StepPreconditioners,
+        terms: &GridTerms,
+    ) -> Result<(GmresReport, Vec<f64>, bool), TimestepError> {
+        let (n, nc) = (self.n, self.nc);
+        let (a_id, c_d, tau) = (plan.coef.identity, plan.coef.double_layer, plan.tau);
+        let kappa = self.params.bending_modulus;
+        let storage = self.storage;
+        let (s_op, d_op) =
+            step_operators(storage, self.params.viscosity, &self.s_op, &self.d_op, c_d);
+        let (xs_grid, size) = (&terms.xs_grid, terms.size);
+        let xstar = &plan.xstar;
+        let mut own_built = pcs.own_rebuilt;
+        let mut b = self.inextensible_rhs(engine, plan, terms, s_op, d_op)?;
+        // With the elasticity linearly implicit, the Jacobian's engine (see below).
+        let jacobian = match (&self.skalak, plan.implicit_elastic) {
+            (Some((sk, reference)), true) => {
+                let OperatorWork {
+                    membrane, elastic, ..
+                } = engine.work.get_mut().expect("operator lock");
+                elastic_work(elastic, membrane, nc, reference)?;
+                Some(*sk)
             }
-            self.sigma.copy_from_slice(&z[3 * n..]);
-            z.truncate(3 * n);
-            if jacobian.is_some() {
-                for (zi, s) in z.iter_mut().zip(&xs_grid) {
-                    *zi += s;
+            _ => None,
+        };
+        // The operator [X; σ] ↦ [a X − c_D D X − τ S (B X + T σ); Div X] (plus −τ S J X
+        // once the Jacobian is enabled).
+        let op = InextensibleOperator::new(
+            n,
+            &engine.work,
+            &engine.sht,
+            storage,
+            xstar,
+            (s_op, d_op),
+            [a_id, c_d, tau, kappa],
+            jacobian,
+            size,
+        );
+        // Initial guess: X* (the extrapolation for BDF2, Xⁿ for Euler) and the last tension.
+        let mut z0 = vec![0.0; 4 * n];
+        z0[..3 * n].copy_from_slice(xs_grid);
+        z0[3 * n..].copy_from_slice(&self.sigma);
+        if jacobian.is_some() {
+            // Solve for δ = X − X* (so that the Jacobian's relative error multiplies the
+            // small δ, as for capsules): b ← b − A [X*; 0] with A without J, then J on.
+            let mut xs0 = vec![0.0; 4 * n];
+            xs0[..3 * n].copy_from_slice(xs_grid);
+            let mut shift = vec![0.0; 4 * n];
+            super::LinearOperator::apply(&op, &xs0, &mut shift);
+            for (bi, si) in b.iter_mut().zip(&shift) {
+                *bi -= si;
+            }
+            z0[..3 * n].fill(0.0);
+            op.enable_jacobian();
+        }
+        // The cell's own preconditioner, (re)built now if `prepare_own` found it stale.
+        if pcs.build_own {
+            self.own =
+                Some(self.own_preconditioner(&op, &engine.sht, plan, pcs, jacobian.is_some())?);
+            self.own_preconditioner_builds += 1;
+            own_built = true;
+        }
+        let (report, mut z) = self.run_gmres(&op, &engine.sht, &mut engine.gmres_ws, pcs, &b, &z0);
+        if let Some(e) = op.take_failure() {
+            return Err(e.into());
+        }
+        // A (nearly) spherical cell makes the system singular: a constant tension gives the
+        // traction 2σHn with H constant, whose single layer vanishes on a closed surface. A
+        // right-hand side with a component outside the range (a sphere in a straining flow,
+        // to discretisation accuracy) then ends in `Breakdown`, which is reported as an error:
+        // the least-squares answer carries an arbitrary, possibly huge mean tension, and the
+        // explicit coupling would spread it to the other cells.
+        let report = report?;
+        if let Some(o) = &mut self.own {
+            o.record.last_iterations = report.iterations;
+        }
+        self.sigma.copy_from_slice(&z[3 * n..]);
+        z.truncate(3 * n);
+        if jacobian.is_some() {
+            for (zi, s) in z.iter_mut().zip(xs_grid) {
+                *zi += s;
+            }
+        }
+        Ok((report, z, own_built))
+    }
+
+    /// The right-hand side of an inextensible cell's system,
+    /// `[a X̂ − c_D D X̂ + τ (u_∞(X*) + u_other + S f_ext); Div X̂ + r]` (`r` the local area
+    /// source).
+    fn inextensible_rhs(
+        &self,
+        engine: &mut StepEngine,
+        plan: &StepPlan,
+        terms: &GridTerms,
+        s_op: StepOperator<'_>,
+        d_op: Option<StepOperator<'_>>,
+    ) -> Result<Vec<f64>, TimestepError> {
+        let n = self.n;
+        let (a_id, c_d, tau) = (plan.coef.identity, plan.coef.double_layer, plan.tau);
+        let GridTerms {
+            xh_grid,
+            traction: fext,
+            velocity: u,
+            ..
+        } = terms;
+        let xstar = &plan.xstar;
+        let storage = self.storage;
+        let mut b = vec![0.0; 4 * n];
+        for ((bi, h), ui) in b.iter_mut().zip(xh_grid).zip(u) {
+            *bi = a_id * h + tau * ui;
+        }
+        {
+            let OperatorWork {
+                membrane, products, ..
+            } = engine.work.get_mut().expect("operator lock");
+            apply_operators(
+                storage,
+                &engine.sht,
+                products,
+                xstar,
+                (s_op, fext, tau),
+                d_op.map(|d| (d, &xh_grid[..], -c_d)),
+                &mut b[..3 * n],
+            )?;
+            membrane.surface_divergence(xh_grid, &mut b[3 * n..])?;
+            if let Some(r) = &plan.area_source {
+                // Filtered as the divergence is, so that the source lies in the range of
+                // `Div` (unfiltered, GMRES stagnates at the part outside it).
+                let mut rq = vec![0.0; membrane.n_points_upsampled()];
+                membrane.upsample(r, &mut rq)?;
+                let mut rp = vec![0.0; n];
+                membrane.filter_density(&mut rq, &mut rp)?;
+                for (bi, ri) in b[3 * n..].iter_mut().zip(&rp) {
+                    *bi += ri;
                 }
             }
-            (report, z)
+        }
+        Ok(b)
+    }
+
+    /// The cell's own preconditioner: the inverse of the step's operator `op` at `X*` (with
+    /// the elastic Jacobian when `with_jacobian`), recorded with what it was built from.
+    fn own_preconditioner(
+        &self,
+        op: &InextensibleOperator<'_>,
+        sht: &ShTransform,
+        plan: &StepPlan,
+        pcs: &StepPreconditioners,
+        with_jacobian: bool,
+    ) -> Result<OwnPreconditioner, TimestepError> {
+        let inverse = own_inverse(op, sht, plan.coef.identity)?;
+        Ok(OwnPreconditioner {
+            record: PreconditionerRecord {
+                surface: plan.xstar.clone(),
+                tau: plan.tau,
+                jacobian_reference: if with_jacobian {
+                    self.skalak.as_ref().map(|(_, r)| r.clone())
+                } else {
+                    None
+                },
+                last_iterations: 0,
+            },
+            coefs: plan.coef,
+            inverse,
+            frame: pcs.rotation,
+        })
+    }
+
+    /// GMRES on the step's system `op z = b` from `z0` (returns its report and `z`),
+    /// preconditioned by the cell's own
+    /// preconditioner (where built), else the sphere's, both turned with the grid, else none.
+    fn run_gmres(
+        &self,
+        op: &InextensibleOperator<'_>,
+        sht: &ShTransform,
+        ws: &mut GmresWorkspace,
+        pcs: &StepPreconditioners,
+        b: &[f64],
+        z0: &[f64],
+    ) -> (Result<GmresReport, TimestepError>, Vec<f64>) {
+        let n = self.n;
+        let mut z = vec![0.0; 4 * n];
+        let own_pc = match self.own.as_ref() {
+            Some(OwnPreconditioner {
+                inverse: OwnInverse::Built(pc),
+                frame,
+                ..
+            }) => Some((pc, relative_rotation(&pcs.rotation, frame))),
+            _ => None,
         };
+        let report = match (pcs.sphere, own_pc) {
+            (Some(_), Some((pc, turn))) => gmres(
+                op,
+                &RotatedPreconditioner::new(&CellPreconditionerOp::new(pc, sht), turn, n),
+                b,
+                Some(z0),
+                &mut z,
+                &self.params.gmres,
+                ws,
+            ),
+            (Some(i), None) => gmres(
+                op,
+                &RotatedPreconditioner::new(&*self.preconditioners[i], pcs.rotation, n),
+                b,
+                Some(z0),
+                &mut z,
+                &self.params.gmres,
+                ws,
+            ),
+            (None, _) => gmres(
+                op,
+                &Identity::new(4 * n),
+                b,
+                Some(z0),
+                &mut z,
+                &self.params.gmres,
+                ws,
+            ),
+        };
+        (report, z)
+    }
+
+    /// Phase 6, the new surface: the membrane velocity `(Xⁿ⁺¹ − X̂)/τ`, the history moved on
+    /// (BDF2), `Xⁿ⁺¹` into `coefs`. Returns the relative area and volume change of the flow
+    /// step (a capsule: the volume's alone), the adaptive step's error estimate.
+    fn advance(
+        &mut self,
+        engine: &mut StepEngine,
+        coefs: &mut [f64],
+        plan: &StepPlan,
+        x_new: &[f64],
+        xh_grid: &[f64],
+    ) -> Result<f64, TimestepError> {
         // The membrane velocity of this step, u = (Xⁿ⁺¹ − X̂)/τ on the grid.
+        let tau = plan.tau;
         let velocity = self.velocity.get_or_insert_with(Vec::new);
         velocity.clear();
-        velocity.extend(x_new.iter().zip(&xh_grid).map(|(x, h)| (x - h) / tau));
+        velocity.extend(x_new.iter().zip(xh_grid).map(|(x, h)| (x - h) / tau));
         if self.params.scheme == TimeScheme::Bdf2 {
             match &mut self.previous {
                 Some(prev) => prev.copy_from_slice(coefs),
@@ -1441,34 +1607,37 @@ impl VesicleStepper {
         }
         engine
             .sht
-            .forward(&x_new, coefs, &mut engine.ws)
+            .forward(x_new, coefs, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
         // The error estimate of the flow step itself (before the reparametrisation, which
         // changes area and volume by the discretisation error, whatever the step).
-        let area_volume_error = {
-            let g = engine.calc.geometry(coefs)?;
-            let dv = ((g.volume() - volume0) / volume0).abs();
-            // A capsule's area changes with the flow: only the volume is an invariant.
-            if inextensible {
-                ((g.area() - area0) / area0).abs().max(dv)
-            } else {
-                dv
-            }
-        };
+        let g = engine.calc.geometry(coefs)?;
+        let dv = ((g.volume() - plan.volume0) / plan.volume0).abs();
+        // A capsule's area changes with the flow: only the volume is an invariant.
+        Ok(if plan.inextensible {
+            ((g.area() - plan.area0) / plan.area0).abs().max(dv)
+        } else {
+            dv
+        })
+    }
+
+    /// Phase 7, the surface's grid and drift: the reparametrisation (when asked for) and the
+    /// correction of area and volume to the targets (a capsule: the volume's alone).
+    fn regrid_and_correct(
+        &mut self,
+        engine: &mut StepEngine,
+        coefs: &mut [f64],
+        plan: &StepPlan,
+    ) -> Result<(), TimestepError> {
         if let Some(rp) = self.params.reparametrize {
             self.regrid(engine, coefs, &rp)?;
         }
         if self.params.correct_drift {
-            let (area, volume) = self.targets.expect("set above");
+            let (area, volume) = self.targets.expect("set by the plan");
             // A capsule's area is free: the volume alone.
-            correct_shape(engine, coefs, inextensible.then_some(area), volume)?;
+            correct_shape(engine, coefs, plan.inextensible.then_some(area), volume)?;
         }
-        Ok(StepReport {
-            gmres: report,
-            scheme,
-            preconditioner_built: preconditioner_built || own_built,
-            area_volume_error,
-        })
+        Ok(())
     }
 
     /// The source `r = (τ/Δt)(W_ref (A/A_ref) / Wⁿ − 1)` of the constraint `Div (X − X̂) = r`
@@ -1654,6 +1823,53 @@ fn elastic_work<'a>(
     Ok(el)
 }
 
+/// What a step takes from the history (phase 1 of [`VesicleStepper::step_with`]).
+struct StepPlan {
+    scheme: TimeScheme,
+    tau: f64,
+    coef: StepCoefficients,
+    /// Area and volume of `Xⁿ`.
+    area0: f64,
+    volume0: f64,
+    /// `X*` (the operators' geometry) and `X̂` (the history term), as coefficients.
+    xstar: Vec<f64>,
+    xhat: Vec<f64>,
+    /// The local area source of the constraint (`None`: none).
+    area_source: Option<Vec<f64>>,
+    inextensible: bool,
+    /// Whether the elastic force is linearised in the operator.
+    implicit_elastic: bool,
+    /// Whether GMRES is preconditioned (an inextensible cell with the preconditioner on).
+    precondition: bool,
+}
+
+/// The preconditioners of a step (phase 2).
+struct StepPreconditioners {
+    /// The sphere preconditioner in use (`None`: unpreconditioned), and whether it was built
+    /// for this step.
+    sphere: Option<usize>,
+    sphere_built: bool,
+    /// Whether the cell's own preconditioner is to be built in the solve, and whether it was
+    /// rebuilt from its record.
+    build_own: bool,
+    own_rebuilt: bool,
+    /// How far the grid has turned with the cell.
+    rotation: Rotation,
+}
+
+/// The explicit terms of a step on the order-`p` grid (phase 3).
+struct GridTerms {
+    /// `X*` and `X̂`.
+    xs_grid: Vec<f64>,
+    xh_grid: Vec<f64>,
+    /// `f_e(X*) + f_extra + F/A`.
+    traction: Vec<f64>,
+    /// `u_∞(X*) + u_other`.
+    velocity: Vec<f64>,
+    /// The area-equivalent radius at `X*`.
+    size: f64,
+}
+
 /// The linear system of a capsule's step (see "Capsules" in the module docs): operators at
 /// `X*`, grid vectors `3n`.
 struct CapsuleSystem<'a> {
@@ -1677,6 +1893,28 @@ struct CapsuleSystem<'a> {
     jacobian: Option<(&'a SkalakParams, &'a [f64])>,
     /// The cell's size (area-equivalent radius), the scale of the difference step.
     size: f64,
+}
+
+/// The single and double layer of a step as its operators apply them: the cell's dense
+/// matrices (`s_op`, `d_op`), or their kernels for matrix-free storage; no double layer when
+/// `c_d = 0` (`λ = 1`).
+fn step_operators<'a>(
+    storage: OperatorStorage,
+    viscosity: f64,
+    s_op: &'a [f64],
+    d_op: &'a [f64],
+    c_d: f64,
+) -> (StepOperator<'a>, Option<StepOperator<'a>>) {
+    match storage {
+        OperatorStorage::MatrixFree => (
+            StepOperator::Kernel(LayerKernel::SingleLayer { viscosity }),
+            (c_d != 0.0).then_some(StepOperator::Kernel(LayerKernel::DoubleLayer)),
+        ),
+        _ => (
+            StepOperator::Dense(s_op),
+            (c_d != 0.0).then_some(StepOperator::Dense(d_op)),
+        ),
+    }
 }
 
 /// Solve a capsule's step for `δ = X − X*`; returns the solve's report and `X = X* + δ` on the
