@@ -15,7 +15,7 @@ use mobo::fmm::gpu_near::{choose, gpu_expected, GPU_LEAF_FACTOR};
 use mobo::fmm::{order_for_digits, Fmm, FmmError, FmmKernel};
 use mobo::gpu::{GpuChoice, GpuPrecision};
 
-use super::CliError;
+use crate::cli_error::CliError;
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum KernelArg {
