@@ -385,7 +385,28 @@ fn specs_and_files_describe_the_same_scenes() {
     let e = bad.build().unwrap_err();
     assert!(e.place.is_none());
     let from_file = parse(file(), "[[cells]]\nshape = \"sphere\"\nradius = -1.0\n").unwrap_err();
-    assert_eq!(e.message, from_file.message);
+    // The same check and words, the key named as the spec's field.
+    assert!(
+        from_file.message.contains("[[cells]] #1 radius"),
+        "{from_file}"
+    );
+    assert_eq!(
+        e.message,
+        from_file
+            .message
+            .replace("[[cells]] #1 radius", "cells[0].radius")
+    );
+    // Cells of a spec are cited as its entries, never by a line of the text it wrote.
+    let mut close = SceneSpec {
+        cells: vec![CellGroupSpec::new(ShapeKind::Sphere); 2],
+        ..Default::default()
+    };
+    close.cells[1].center = Some([0.5, 0.0, 0.0]);
+    let e = close.build().unwrap_err().to_string();
+    assert!(
+        e.contains("overlap") && e.contains("cells[1] of the spec") && !e.contains("line"),
+        "{e}"
+    );
     let none = SceneSpec::default().build().unwrap_err();
     assert!(none.to_string().contains("no [[cells]]"), "{none}");
 }

@@ -100,9 +100,7 @@ fn contact<C: AsRef<[f64]>>(
                     return Err(format!(
                         "{case}: step {k} (t = {t:.4}), cell {}: overlap, grid point {q} lies \
                          inside cell {} (distance {:.3e})",
-                        i + 1,
-                        j + 1,
-                        info.distance
+                        i, j, info.distance
                     ));
                 }
                 gap = gap.min(info.distance);
@@ -145,7 +143,7 @@ fn run_case(
         susp.step(&|x| flow.velocity(x)).map_err(|e| {
             format!(
                 "{case}: step {k} (t = {t:.4}), cell {}: the step failed: {}",
-                e.cell.map_or("-".into(), |c| (c + 1).to_string()),
+                e.cell.map_or("-".into(), |c| c.to_string()),
                 e.source
             )
         })?;
@@ -154,21 +152,18 @@ fn run_case(
             if let Some(j) = c.iter().position(|v| !v.is_finite()) {
                 return Err(format!(
                     "{case}: step {k} (t = {t:.4}), cell {}: non-finite SH coefficient {j}",
-                    i + 1
+                    i
                 ));
             }
             if let Some(j) = susp.steppers()[i].sigma.iter().position(|v| !v.is_finite()) {
                 return Err(format!(
                     "{case}: step {k} (t = {t:.4}), cell {}: non-finite tension at grid point {j}",
-                    i + 1
+                    i
                 ));
             }
-            let g = calc.geometry(c).map_err(|e| {
-                format!(
-                    "{case}: step {k} (t = {t:.4}), cell {}: geometry: {e}",
-                    i + 1
-                )
-            })?;
+            let g = calc
+                .geometry(c)
+                .map_err(|e| format!("{case}: step {k} (t = {t:.4}), cell {}: geometry: {e}", i))?;
             let (a0, v0) = start_obs[i];
             let da = ((g.area() - a0) / a0).abs();
             let dv = ((g.volume() - v0) / v0).abs();
@@ -178,8 +173,7 @@ fn run_case(
                 if d > checks.drift {
                     return Err(format!(
                         "{case}: step {k} (t = {t:.4}), cell {}: {what} {d:.3e} above {:.1e}",
-                        i + 1,
-                        checks.drift
+                        i, checks.drift
                     ));
                 }
             }
@@ -190,7 +184,7 @@ fn run_case(
             if speed > checks.speed {
                 return Err(format!(
                     "{case}: step {k} (t = {t:.4}), cell {}: centroid speed {speed:.3e} above {:.3e}",
-                    i + 1,
+                    i,
                     checks.speed
                 ));
             }

@@ -305,7 +305,7 @@ fn a_failing_step_stops_every_rank_with_one_message_and_the_checkpoint_intact() 
         .collect();
     assert_eq!(lines.len(), 1, "one message from rank 0: {err}");
     assert!(
-        lines[0].contains("step 3") && lines[0].contains("cell 1") && lines[0].contains("tol"),
+        lines[0].contains("step 3") && lines[0].contains("cell 0") && lines[0].contains("tol"),
         "{}",
         lines[0]
     );

@@ -230,7 +230,7 @@ fn a_force_returning_nan_stops_the_step_with_the_cell_named() {
     }));
     let e = sim.step().expect_err("NaN traction").to_string();
     assert!(
-        e.contains("step 1") && e.contains("cell 1") && e.contains("user force"),
+        e.contains("step 1") && e.contains("cell 0") && e.contains("user force"),
         "{e}"
     );
     // A force that panics: the step fails with its name and message, the worker survives and
@@ -266,7 +266,7 @@ fn bad_tweezers_and_cell_indices_are_errors_not_panics() {
         });
         let e = sim.step().expect_err("invalid patch pair").to_string();
         assert!(
-            e.contains("cell 1") && e.contains("user force"),
+            e.contains("cell 0") && e.contains("user force"),
             "fraction {bad}: {e}"
         );
     }

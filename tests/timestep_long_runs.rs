@@ -287,7 +287,7 @@ dt_min = 0.02
     // "t = 0.02": the step was retried at dt_min = 0.02 after failing at dt = 0.05.
     for want in [
         "step 1 (t = 0.02)",
-        "cell 1",
+        "cell 0",
         "stagnated",
         "residual after each cycle",
     ] {

@@ -145,7 +145,7 @@ fn simulate(
                 CellRunError::Step {
                     step: k,
                     time: k as f64 * settings.dt,
-                    cell: e.cell.map(|c| c + 1),
+                    cell: e.cell,
                     source: Box::new(e.source),
                 },
             )
@@ -161,7 +161,7 @@ fn simulate(
                 return Err(ReportError::NonFinite {
                     run: label.to_string(),
                     step: k,
-                    cell: i + 1,
+                    cell: i,
                     quantity: "SH coefficient",
                 });
             }
@@ -171,7 +171,7 @@ fn simulate(
                 return Err(ReportError::NonFinite {
                     run: label.to_string(),
                     step: k,
-                    cell: i + 1,
+                    cell: i,
                     quantity: "tension",
                 });
             }

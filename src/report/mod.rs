@@ -38,7 +38,7 @@ pub enum ReportError {
         run: String,
         /// Step at which it happened.
         step: usize,
-        /// Index of the cell.
+        /// Index of the cell (from 0, in scene order).
         cell: usize,
         /// Which quantity.
         quantity: &'static str,

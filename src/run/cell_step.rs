@@ -30,12 +30,13 @@ pub(crate) struct Accepted {
     pub above_tolerance: bool,
 }
 
-/// A failed step `step` (that was to reach `time`) as a run error, the cell numbered from 1.
+/// A failed step `step` (that was to reach `time`) as a run error (cells are numbered from 0,
+/// in scene order, as everywhere in the API and the messages).
 pub(crate) fn step_error(step: usize, time: f64, e: CellStepError) -> CellRunError {
     CellRunError::Step {
         step,
         time,
-        cell: e.cell.map(|c| c + 1),
+        cell: e.cell,
         source: Box::new(e.source),
     }
 }

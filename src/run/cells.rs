@@ -211,7 +211,7 @@ pub fn run_on(
                     CellRunError::Resume(format!(
                         "{}: cell {}: {}",
                         out.join(CHECKPOINT).display(),
-                        id + 1,
+                        id,
                         e.source
                     ))
                 })

@@ -380,7 +380,7 @@ pub(crate) fn load(
         if !(its >= 0.0 && its.fract() == 0.0) {
             return Err(checkpoint_error(
                 out,
-                format!("iterations of cell {}: {its} is not a count", i + 1),
+                format!("iterations of cell {i}: {its} is not a count"),
             ));
         }
         states.push(CellState {

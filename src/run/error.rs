@@ -9,14 +9,15 @@ use crate::vesicle::VesicleError;
 /// Errors of a cell run.
 #[derive(Debug, thiserror::Error)]
 pub enum CellRunError {
-    /// The step failed (solver, geometry), with the step number and the cell (1-based).
+    /// The step failed (solver, geometry), with the step number and the cell (numbered from 0
+    /// in scene order, as [`crate::run::Simulation::cell`] and `summary.json`'s `per_cell`).
     #[error("step {step} (t = {time}){}: {source}", .cell.map(|c| format!(", cell {c}")).unwrap_or_default())]
     Step {
         /// The step that failed (numbered from 1; 0: building the cells).
         step: usize,
         /// The time the step was to reach.
         time: f64,
-        /// The cell that failed, numbered from 1 in scene order (`None`: not one cell's).
+        /// The cell that failed, numbered from 0 in scene order (`None`: not one cell's).
         cell: Option<usize>,
         /// What failed.
         source: Box<TimestepError>,

@@ -414,7 +414,7 @@ pub struct Effect {
     pub name: &'static str,
     /// Whether it is built.
     pub enabled: bool,
-    /// Why, in words (e.g. `"viscosity_ratio ≠ 1 for cells 1, 3"`).
+    /// Why, in words (e.g. `"viscosity_ratio ≠ 1 for cells 0, 2"`).
     pub reason: String,
 }
 
@@ -471,8 +471,23 @@ pub(crate) fn rotation(axis: [f64; 3], deg: f64) -> Option<[[f64; 3]; 3]> {
     ])
 }
 
+/// Where a scene's text comes from: what its messages cite.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Origin {
+    /// A file the user wrote: `[[cells]]` entries by number (from 1) and line.
+    File,
+    /// The text of a [`super::spec::SceneSpec`]: its `cells[k]` (from 0), no lines (the user
+    /// never saw the text).
+    Spec,
+}
+
 /// Validate scene text (`file` names the scene in messages).
 pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
+    parse_from(file, text, Origin::File)
+}
+
+/// [`parse`], with messages that cite the scene as `origin` does.
+pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<CellScene, SceneError> {
     let f: File = parse_toml(file, text)?;
     let at = |span: std::ops::Range<usize>, msg: String| SceneError {
         file: file.to_path_buf(),
@@ -804,21 +819,33 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
     if sections.is_empty() {
         return Err(SceneError::new(file, "the scene has no [[cells]]"));
     }
+    // The `[[cells]]` entry a cell comes from, as the messages cite it.
+    let entry_lines: Vec<usize> = sections
+        .iter()
+        .map(|c| line_col(text, c.shape.span().start).0)
+        .collect();
+    let entry = |line: usize| {
+        let k = entry_lines.iter().position(|&l| l == line).unwrap_or(0);
+        match origin {
+            Origin::File => format!("the [[cells]] entry #{} (line {line})", k + 1),
+            Origin::Spec => format!("cells[{k}] of the spec"),
+        }
+    };
     let mut cells = Vec::new();
     for (k, c) in sections.iter().enumerate() {
-        let group = cell_specs(c, k, &cells, &at, &positive, &finite, text)?;
+        let group = cell_specs(c, k, origin, &cells, &at, &positive, &finite, text)?;
         cells.extend(group);
     }
-    check_overlaps(&cells, file)?;
+    check_overlaps(&cells, file, &entry)?;
     if let Some(c) = cells
         .iter()
         .find(|c| matches!(c.shape, Shape::Rbc) && numerics.order < RBC_MIN_ORDER)
     {
         let message = format!(
-            "[numerics] order = {} cannot hold the red blood cell of the [[cells]] entry at line \
-             {}: its shape has spherical-harmonic degree {RBC_MIN_ORDER}; give order >= \
-             {RBC_MIN_ORDER}",
-            numerics.order, c.line
+            "[numerics] order = {} cannot hold the red blood cell of {}: its shape has \
+             spherical-harmonic degree {RBC_MIN_ORDER}; give order >= {RBC_MIN_ORDER}",
+            numerics.order,
+            entry(c.line)
         );
         return Err(match order {
             Some(o) => at(o.span(), message),
@@ -829,10 +856,10 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
         return Err(SceneError::new(
             file,
             format!(
-                "[numerics] adaptive_dt = true cannot step capsules (the [[cells]] entry at line \
-                 {}): the adaptive step size is controlled by the area/volume change of a step, \
-                 which does not show a capsule's elastic error; use a fixed dt",
-                c.line
+                "[numerics] adaptive_dt = true cannot step capsules ({}): the adaptive step size \
+                 is controlled by the area/volume change of a step, which does not show a \
+                 capsule's elastic error; use a fixed dt",
+                entry(c.line)
             ),
         ));
     }
@@ -908,16 +935,21 @@ fn preconditioning(
 }
 
 /// The cells of `[[cells]]` entry `k`; random placement keeps clear of the `earlier` entries' cells.
+#[allow(clippy::too_many_arguments)]
 fn cell_specs(
     c: &CellSection,
     k: usize,
+    origin: Origin,
     earlier: &[CellSpec],
     at: &At,
     positive: &Check,
     finite: &Check,
     text: &str,
 ) -> Result<Vec<CellSpec>, SceneError> {
-    let key = |name: &str| format!("[[cells]] #{} {name}", k + 1);
+    let key = |name: &str| match origin {
+        Origin::File => format!("[[cells]] #{} {name}", k + 1),
+        Origin::Spec => format!("cells[{k}].{name}"),
+    };
     let shape = match c.shape.get_ref().as_str() {
         "sphere" => Shape::Sphere,
         "rbc" => Shape::Rbc,
@@ -1276,7 +1308,11 @@ fn bounding_radius(s: &Surface) -> Result<f64, crate::vesicle::VesicleError> {
 }
 
 /// Cells whose bounding spheres intersect are an error naming both.
-fn check_overlaps(cells: &[CellSpec], file: &Path) -> Result<(), SceneError> {
+fn check_overlaps(
+    cells: &[CellSpec],
+    file: &Path,
+    entry: &dyn Fn(usize) -> String,
+) -> Result<(), SceneError> {
     for i in 0..cells.len() {
         for j in 0..i {
             let d = dist(cells[i].center, cells[j].center);
@@ -1285,11 +1321,11 @@ fn check_overlaps(cells: &[CellSpec], file: &Path) -> Result<(), SceneError> {
                     file: file.to_path_buf(),
                     place: Some((cells[i].line, 1)),
                     message: format!(
-                        "cells {} (line {}) and {} (line {}) overlap: centres {:.4} apart, bounding radii {:.4} and {:.4}",
-                        j + 1,
-                        cells[j].line,
-                        i + 1,
-                        cells[i].line,
+                        "cells {} (of {}) and {} (of {}) overlap: centres {:.4} apart, bounding radii {:.4} and {:.4}",
+                        j,
+                        entry(cells[j].line),
+                        i,
+                        entry(cells[i].line),
                         d,
                         cells[j].bounding_radius,
                         cells[i].bounding_radius
@@ -1316,7 +1352,7 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
         .collect();
     let forced: Vec<usize> = (0..n).filter(|&i| cells[i].force != [0.0; 3]).collect();
     let list = |v: &[usize]| {
-        let s: Vec<String> = v.iter().take(5).map(|i| (i + 1).to_string()).collect();
+        let s: Vec<String> = v.iter().take(5).map(|i| i.to_string()).collect();
         format!("{}{}", s.join(", "), if v.len() > 5 { ", …" } else { "" })
     };
     vec![

@@ -33,7 +33,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::cells::{parse, CellScene};
+use super::cells::{parse_from, CellScene, Origin};
 use super::SceneError;
 
 /// The name a built scene's errors carry in place of a file.
@@ -454,6 +454,7 @@ impl SceneSpec {
     /// messages (section and key named; no line, which a spec does not have).
     pub fn build(&self) -> Result<CellScene, SceneError> {
         let text = self.to_toml()?;
-        parse(Path::new(SOURCE), &text).map_err(|e| SceneError { place: None, ..e })
+        parse_from(Path::new(SOURCE), &text, Origin::Spec)
+            .map_err(|e| SceneError { place: None, ..e })
     }
 }
