@@ -5,7 +5,8 @@
 //! `t D iterations area/area₀ volume drift` and a final line with the steady `D` (the first time
 //! `D` varies by less than `5·10⁻⁴ D` over one time unit) and `D` at `T_END`. BDF2 with the volume restored after each step by default; `MOBO_EULER=1`,
 //! `MOBO_NO_DRIFT_CORRECTION=1`, `MOBO_EXPLICIT=1` (explicit elasticity) change that.
-use mobo::timestep::semi_implicit::{ElasticStepping, TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{ElasticStepping, TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::shapes;

@@ -5,7 +5,8 @@
 //!
 //! `cargo run --release --example cell_memory -- [P] [N] [STORAGE]`, STORAGE = coefficients
 //! (default) | grid | matrix_free; also prints the time of a third step per cell (one thread).
-use mobo::timestep::semi_implicit::{OperatorStorage, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{OperatorStorage, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::reparam::ReparamParams;
 use mobo::vesicle::shapes;

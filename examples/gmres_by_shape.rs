@@ -12,7 +12,8 @@
 //! ```text
 //! cargo run --release --example gmres_by_shape [-- ORDERS STEPS]      (defaults: 6,8,12,16 20)
 //! ```
-use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::reparam::ReparamParams;
 use mobo::vesicle::shapes::{self, Spheroid};
@@ -84,7 +85,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let secs = t.elapsed().as_secs_f64() / steps as f64;
             let mean = its.iter().sum::<usize>() as f64 / steps as f64;
             let max = its.iter().max().copied().unwrap_or(0);
-            let builds = st.own_preconditioner_builds;
+            let builds = st.own_preconditioner_builds();
             println!("| {name} | {p} | {first} | {mean:.1} | {max} | {secs:.3} | {builds} |");
         }
     }

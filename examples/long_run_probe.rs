@@ -13,7 +13,8 @@
 //! `MOBO_PRECONDITIONER` = `cell` (each cell's own operator inverted, as `mobo run` does by
 //! default) | `sphere` (the default here: the library stepper's).
 use mobo::sph_harmonics::CoefLayout;
-use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::ReparamParams;
@@ -229,8 +230,13 @@ fn main() {
                 jmax = jmax.max(jj);
                 skew = skew.max((g.f[j] / (g.e[j] * g.g[j]).sqrt()).abs());
             }
-            sht.forward(&stepper.sigma, &mut sig_c, &mut ws).unwrap();
-            let smax = stepper.sigma.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            sht.forward(&stepper.state().sigma, &mut sig_c, &mut ws)
+                .unwrap();
+            let smax = stepper
+                .state()
+                .sigma
+                .iter()
+                .fold(0.0f64, |m, v| m.max(v.abs()));
             // The membrane velocity of the last solve, split into normal and tangential parts
             // (root mean square over the grid points).
             // The displacement the step actually made (after the reparametrisation and the

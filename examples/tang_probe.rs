@@ -3,7 +3,8 @@
 //! `tang_probe P DT STEPS EVERY` with env: MOBO_FLOW (ext|shear), MOBO_KAPPA, MOBO_V (0.7),
 //! MOBO_LOAD / MOBO_SAVE (state file), MOBO_SAVE_STEP, MOBO_NO_REPARAM, MOBO_TOL,
 //! MOBO_SEED (add a small symmetry-breaking tangential perturbation at start), MOBO_T0.
-use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::ReparamParams;
@@ -157,7 +158,7 @@ fn main() {
     let mut stepper = VesicleStepper::new(p, params).unwrap();
     if let Some(s) = sigma0 {
         if s.len() == n {
-            stepper.sigma.copy_from_slice(&s);
+            stepper.state_mut().sigma.copy_from_slice(&s);
         }
     }
     if let Ok(s) = std::env::var("MOBO_TARGET") {
@@ -210,7 +211,7 @@ fn main() {
         iters += r.gmres.iterations;
         if save_step == k {
             if let Ok(f) = std::env::var("MOBO_SAVE") {
-                save(&f, t0 + k as f64 * dt, &coefs, &stepper.sigma);
+                save(&f, t0 + k as f64 * dt, &coefs, &stepper.state().sigma);
             }
         }
         if k % every != 0 {
@@ -315,7 +316,7 @@ fn main() {
                     a2 += d * d;
                     t2 += ut[c * n + j].powi(2);
                 }
-                let s = &stepper.sigma;
+                let s = &stepper.state().sigma;
                 let d = 0.5 * (s[j] - s[jj]);
                 sa2 += d * d;
                 st2 += s[j] * s[j];
@@ -382,7 +383,7 @@ fn main() {
     }
     if let Ok(f) = std::env::var("MOBO_SAVE") {
         if save_step == 0 {
-            save(&f, t0 + steps as f64 * dt, &coefs, &stepper.sigma);
+            save(&f, t0 + steps as f64 * dt, &coefs, &stepper.state().sigma);
         }
     }
 }

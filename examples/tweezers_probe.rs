@@ -93,9 +93,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .map(|j| (u[j] * u[j] + u[n + j] * u[n + j] + u[2 * n + j] * u[2 * n + j]).sqrt())
                 .fold(0.0, f64::max)
         });
-        let st = &sim.suspension().steppers()[0];
-        let labels = st.material_labels().ok_or("no labels")?;
-        let reference = st.skalak_reference().ok_or("no reference")?;
+        let st = &sim.suspension().cells()[0].state;
+        let labels = st.material_labels.as_ref().ok_or("no labels")?;
+        let reference = st.skalak_reference.as_deref().ok_or("no reference")?;
         let mut xi = vec![0.0; 3 * n];
         let mut ws = sht.workspace();
         sht.inverse(&labels.map, &mut xi, &mut ws)?;
@@ -116,8 +116,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     // The grid moved alone: the energy of the same membrane before and after.
-    let st = &sim.suspension().steppers()[0];
-    let mut labels = st.material_labels().ok_or("no labels")?.clone();
+    let st = &sim.suspension().cells()[0].state;
+    let mut labels = st.material_labels.as_ref().ok_or("no labels")?.clone();
     let mut coefs = sim.cell(0)?.coefs;
     let par = SkalakParams::skalak(1.0, 10.0);
     let mut membrane = Membrane::with_default_upsampling(p)?;

@@ -1,7 +1,8 @@
 //! A prolate vesicle (reduced volume 0.9) in simple shear, semi-implicit steps:
 //! `cargo run --release --example vesicle_shear -- [P] [DT] [STEPS]`. Prints time, inclination
 //! angle of the longest inertia axis in the flow plane, area and volume drift, GMRES iterations.
-use mobo::timestep::semi_implicit::{VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::VesicleParams;
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::ReparamParams;

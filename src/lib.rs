@@ -66,7 +66,7 @@
 //!   many densities ([`Kernel`] is what it sums);
 //! * [`sph_harmonics::ShTransform`]: forward and inverse transforms and grid derivatives.
 //!
-//! `mobo run`'s own driver is [`run::cells`]; [`docs/architecture.md`] (in the repository)
+//! `mobo run`'s own driver is [`run::cells`]; `docs/architecture.md` (in the repository)
 //! walks one step through the layers.
 
 pub mod brownian;

@@ -23,7 +23,8 @@ use common::{frame_bits, mobo, stop_and_resume, summary, tmpdir, write};
 
 use mobo::run::simulation::Simulation;
 use mobo::scene::cells::parse;
-use mobo::timestep::semi_implicit::{ElasticStepping, TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{ElasticStepping, TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::shapes;

@@ -96,7 +96,7 @@ dt = 0.05
         "one cell builds no coupling"
     );
     let mut calc = SurfaceCalculus::new(6).unwrap();
-    let g0 = calc.geometry(&susp.cells()[0].coefs).unwrap();
+    let g0 = calc.geometry(&susp.cells()[0].state.coefs).unwrap();
     let (a0, c0) = (g0.area(), g0.centroid());
     let flow = scene.flow;
     for _ in 0..5 {
@@ -104,7 +104,7 @@ dt = 0.05
         assert!(r.cells[0].gmres.converged);
         assert!(r.cells[0].gmres.iterations > 0);
     }
-    let g = calc.geometry(&susp.cells()[0].coefs).unwrap();
+    let g = calc.geometry(&susp.cells()[0].state.coefs).unwrap();
     let drift = (g.area() - a0) / a0;
     println!("area drift {drift:.2e}, centroid {:?}", g.centroid());
     assert!(drift.abs() < 1e-6, "{drift}");

@@ -155,7 +155,12 @@ fn run_case(
                     i
                 ));
             }
-            if let Some(j) = susp.steppers()[i].sigma.iter().position(|v| !v.is_finite()) {
+            if let Some(j) = susp.cells()[i]
+                .state
+                .sigma
+                .iter()
+                .position(|v| !v.is_finite())
+            {
                 return Err(format!(
                     "{case}: step {k} (t = {t:.4}), cell {}: non-finite tension at grid point {j}",
                     i
@@ -335,7 +340,9 @@ fn near_contact_coupling_against_a_fine_quadrature() {
     let f: Vec<Vec<f64>> = (0..coefs.len())
         .map(|i| {
             let mut f = vec![0.0; 3 * n];
-            susp.steppers_mut()[i].traction(&coefs[i], &mut f).unwrap();
+            let cell = &susp.cells()[i];
+            assert_eq!(cell.state.coefs, coefs[i]);
+            cell.stepper.traction(&cell.state, &mut f).unwrap();
             f
         })
         .collect();
@@ -531,7 +538,7 @@ fn deflated(case: &str, shape: &str, steps: usize) {
     let mut susp = build(&sc).unwrap();
     let mut calc = SurfaceCalculus::new(8).unwrap();
     let v0 = calc
-        .geometry(&susp.cells()[0].coefs)
+        .geometry(&susp.cells()[0].state.coefs)
         .unwrap()
         .reduced_volume();
     let checks = Checks {
@@ -541,7 +548,7 @@ fn deflated(case: &str, shape: &str, steps: usize) {
     };
     let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
     let v1 = calc
-        .geometry(&susp.cells()[0].coefs)
+        .geometry(&susp.cells()[0].state.coefs)
         .unwrap()
         .reduced_volume();
     report(case, &o, &format!("reduced volume {v0:.4} → {v1:.4}"));
@@ -612,14 +619,14 @@ fn viscosity_contrast_ten_tumbles() {
         );
         (axes[0][1] / axes[0][0]).atan().to_degrees()
     };
-    let start = inclination(&mut calc, &susp.cells()[0].coefs);
+    let start = inclination(&mut calc, &susp.cells()[0].state.coefs);
     assert!((start - 30.0).abs() < 1.0, "initial inclination {start}°");
     // The inclination unwrapped (modulo 180°): its total turn after 12 shear times.
     let (mut last, mut turned) = (start, 0.0);
     let (mut min, mut max) = (f64::INFINITY, f64::NEG_INFINITY);
     for _ in 0..48 {
         run_case("λ = 10", &sc, &mut susp, 5, checks).unwrap_or_else(|e| panic!("{e}"));
-        let a = inclination(&mut calc, &susp.cells()[0].coefs);
+        let a = inclination(&mut calc, &susp.cells()[0].state.coefs);
         let mut d = a - last;
         if d > 90.0 {
             d -= 180.0;

@@ -7,7 +7,8 @@
 mod common;
 use common::{frame_bits, mobo, summary, tmpdir, write};
 
-use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::shapes;

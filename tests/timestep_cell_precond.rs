@@ -10,10 +10,9 @@ use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::cell_preconditioner::{CellPreconditioner, CellPreconditionerScratch};
 use mobo::timestep::coupling::CouplingParams;
 use mobo::timestep::grid_frame::relative_rotation;
-use mobo::timestep::semi_implicit::{
-    OperatorStorage, Preconditioning, TimeScheme, VesicleParams, VesicleStepper,
-};
+use mobo::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
 use mobo::timestep::suspension::{CellSetup, Suspension};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::{FnOperator, GmresParams};
 use mobo::vesicle::reparam::ReparamParams;
 use mobo::vesicle::shapes::{self, Spheroid};
@@ -226,7 +225,7 @@ fn run(
     let its = (0..steps)
         .map(|_| st.step(&mut c, &shear).unwrap().gmres.iterations)
         .collect();
-    (its, c, st.own_preconditioner_builds)
+    (its, c, st.own_preconditioner_builds())
 }
 
 #[test]

@@ -414,11 +414,11 @@ fn spheres_with_contrast_still_sediment_at_the_two_sphere_mobility() {
     let u0 = 1.0 / (6.0 * PI * a);
     let s = a / d;
     let rp = 1.0 + 1.5 * s - s.powi(3);
-    for (st, (c, b)) in susp.steppers().iter().zip(susp.coefs().iter().zip(&before)) {
-        let x = calc.geometry(c).unwrap().centroid();
+    for (cell, b) in susp.cells().iter().zip(&before) {
+        let x = calc.geometry(&cell.state.coefs).unwrap().centroid();
         let ratio = -(x[2] - b[2]) / dt / u0;
         // The recorded membrane velocity is (nearly) the rigid translation.
-        let u = st.velocity().unwrap();
+        let u = cell.state.membrane_velocity.as_deref().unwrap();
         let n = u.len() / 3;
         let mean = u[2 * n..].iter().sum::<f64>() / n as f64;
         println!("λ = 5, d = {d}: U/U0 = {ratio:.6} (RPY {rp:.6}), mean u_z {mean:.6}");

@@ -19,7 +19,8 @@ use common::{frame_bits, mobo, rotation, stop_and_resume, tmpdir, write};
 
 use mobo::sph_harmonics::ShTransform;
 use mobo::timestep::grid_frame::{grid_rotation, polar_rotation};
-use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{Preconditioning, TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::{ReparamParams, Reparametrizer};
@@ -445,7 +446,7 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
             let reference = st.skalak_reference().unwrap().to_vec();
             worst = worst.max(largest_area_strain(&mut calc, &coefs, &reference));
         }
-        let tension = st.sigma.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let tension = st.state().sigma.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         // The reference is the first surface, whatever its labels: its area is an invariant.
         let reference = st.skalak_reference().unwrap().to_vec();
         let (a_ref, a0) = (

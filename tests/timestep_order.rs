@@ -8,7 +8,8 @@
 //! 2.01); the same with the drift correction; with reparametrisation as well, BDF2 loses part of
 //! its order at small Δt (see the last test).
 
-use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::geometry::SurfaceCalculus;
 use mobo::vesicle::reparam::ReparamParams;
@@ -212,13 +213,13 @@ fn a_restarted_bdf2_run_continues_exactly() {
     }
     // Checkpoint.
     let prev = a.previous_coefs().unwrap().to_vec();
-    let (sigma, targets, saved) = (a.sigma.clone(), a.drift_targets(), ca.clone());
+    let (sigma, targets, saved) = (a.state().sigma.clone(), a.drift_targets(), ca.clone());
     for _ in 0..3 {
         a.step(&mut ca, &shear).unwrap();
     }
     let mut b = VesicleStepper::new(P, prm).unwrap();
     b.set_previous_coefs(Some(&prev)).unwrap();
-    b.sigma.copy_from_slice(&sigma);
+    b.state_mut().sigma.copy_from_slice(&sigma);
     b.set_drift_targets(targets);
     let mut cb = saved;
     for _ in 0..3 {
@@ -234,7 +235,7 @@ fn a_restarted_bdf2_run_continues_exactly() {
     // Without the history the next step is Euler, and it differs.
     let mut c = VesicleStepper::new(P, prm).unwrap();
     c.set_drift_targets(targets);
-    c.sigma.copy_from_slice(&sigma);
+    c.state_mut().sigma.copy_from_slice(&sigma);
     let mut cc = a.previous_coefs().unwrap().to_vec();
     assert_eq!(c.step(&mut cc, &shear).unwrap().scheme, TimeScheme::Euler);
     // Bad inputs.

@@ -5,7 +5,8 @@
 
 use std::time::Instant;
 
-use mobo::timestep::semi_implicit::{StepReport, TimeScheme, VesicleParams, VesicleStepper};
+use mobo::timestep::semi_implicit::{StepReport, TimeScheme, VesicleParams};
+use mobo::timestep::vesicle_stepper::VesicleStepper;
 use mobo::timestep::GmresParams;
 use mobo::vesicle::shapes::{self, Spheroid, Surface};
 
@@ -47,7 +48,7 @@ fn one_step(p: usize, surface: &Surface, prm: VesicleParams) -> (Vec<f64>, StepR
     assert!(r.gmres.converged);
     assert_eq!(r.preconditioner_built, prm.preconditioner);
     // Again from the same state (preconditioner kept): the step time without the build.
-    st.sigma.fill(0.0);
+    st.state_mut().sigma.fill(0.0);
     let mut c2 = surface.coefs().to_vec();
     let t = Instant::now();
     let r2 = st.step(&mut c2, &shear).unwrap();

@@ -252,8 +252,12 @@ fn head_on(strength: f64, steps: usize) -> (f64, f64, usize) {
         gap = gap.min(st.min_gap);
         if std::env::var("MOBO_DEBUG").is_ok() {
             let mut calc = SurfaceCalculus::new(6).unwrap();
-            let x0 = calc.geometry(&susp.cells()[0].coefs).unwrap().centroid()[0];
-            let sig = susp.steppers()[0]
+            let x0 = calc
+                .geometry(&susp.cells()[0].state.coefs)
+                .unwrap()
+                .centroid()[0];
+            let sig = susp.cells()[0]
+                .state
                 .sigma
                 .iter()
                 .fold(0.0f64, |m, v| m.max(v.abs()));

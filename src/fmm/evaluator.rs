@@ -17,7 +17,7 @@
 //!
 //! Rayon runs the boxes of one level (and the leaves) in parallel; the kernels and translation
 //! operators are serial. RPY runs as a Stokeslet FMM whose source and target ends carry the
-//! finite-size correction ([`RpyFar`]), with boxes at least `2a` wide.
+//! finite-size correction ([`super::kernels::RpyFar`]), with boxes at least `2a` wide.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};

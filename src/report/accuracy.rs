@@ -133,7 +133,7 @@ fn simulate(
             before.clear();
             for cell in susp.cells() {
                 let g = calc
-                    .geometry(&cell.coefs)
+                    .geometry(&cell.state.coefs)
                     .map_err(|e| run_error(label, CellRunError::from(e)))?;
                 before.push(g.centroid());
             }
@@ -157,7 +157,7 @@ fn simulate(
             .map(|r| r.gmres.iterations)
             .sum::<usize>();
         for (i, cell) in susp.cells().iter().enumerate() {
-            if cell.coefs.iter().any(|v| !v.is_finite()) {
+            if cell.state.coefs.iter().any(|v| !v.is_finite()) {
                 return Err(ReportError::NonFinite {
                     run: label.to_string(),
                     step: k,
@@ -167,7 +167,7 @@ fn simulate(
             }
         }
         for (i, cell) in susp.cells().iter().enumerate() {
-            if cell.stepper.sigma.iter().any(|v| !v.is_finite()) {
+            if cell.state.sigma.iter().any(|v| !v.is_finite()) {
                 return Err(ReportError::NonFinite {
                     run: label.to_string(),
                     step: k,
@@ -177,25 +177,26 @@ fn simulate(
             }
         }
         if k == 1 && susp.len() > 1 {
-            coupling = Some(susp.cells().iter().map(|c| c.velocity.clone()).collect());
+            coupling = Some(
+                susp.cells()
+                    .iter()
+                    .map(|c| c.state.velocity.clone().unwrap_or_default())
+                    .collect(),
+            );
         }
     }
     let mut velocity = Vec::with_capacity(susp.len());
     for (i, cell) in susp.cells().iter().enumerate() {
         let g = calc
-            .geometry(&cell.coefs)
+            .geometry(&cell.state.coefs)
             .map_err(|e| run_error(label, CellRunError::from(e)))?;
         let x = g.centroid();
         velocity.push(std::array::from_fn(|d| (x[d] - before[i][d]) / settings.dt));
     }
     Ok(Final {
         order: settings.order,
-        coefs: susp.cells().iter().map(|c| c.coefs.clone()).collect(),
-        sigma: susp
-            .cells()
-            .iter()
-            .map(|c| c.stepper.sigma.clone())
-            .collect(),
+        coefs: susp.cells().iter().map(|c| c.state.coefs.clone()).collect(),
+        sigma: susp.cells().iter().map(|c| c.state.sigma.clone()).collect(),
         velocity,
         coupling,
         steps,

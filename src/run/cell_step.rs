@@ -147,7 +147,7 @@ pub(crate) fn flow_origin(
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for c in susp.cells() {
-        let x = centre(&c.coefs);
+        let x = centre(&c.state.coefs);
         for d in 0..3 {
             lo[d] = lo[d].min(x[d]);
             hi[d] = hi[d].max(x[d]);

@@ -319,7 +319,7 @@ pub fn run_on(
         if ends_run(k, prog.time + dt_try) {
             before_last.clear();
             for c in susp.cells() {
-                before_last.push((c.id, observe(&mut calc, &c.coefs)?.0));
+                before_last.push((c.id, observe(&mut calc, &c.state.coefs)?.0));
             }
         }
         let t = Instant::now();
@@ -353,7 +353,7 @@ pub fn run_on(
         let finite = susp
             .cells()
             .iter()
-            .find_map(|c| Some((c.id, c.coefs.iter().position(|c| !c.is_finite())?)))
+            .find_map(|c| Some((c.id, c.state.coefs.iter().position(|c| !c.is_finite())?)))
             .map_or(Ok(()), |(id, j)| {
                 Err(CellStepError {
                     cell: Some(id),
@@ -446,12 +446,13 @@ pub fn run_on(
         .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
             let cell = &susp.cells()[i];
             let id = cell.id;
-            let g = calc.geometry(&cell.coefs)?;
+            let g = calc.geometry(&cell.state.coefs)?;
             let (x, a, v, inc) = observe_geometry(&g);
             let d = g.taylor_deformation([0.0, 0.0, 1.0]);
             let tt = cell
-                .stepper
-                .velocity()
+                .state
+                .membrane_velocity
+                .as_deref()
                 .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]))
                 .transpose()?
                 .unwrap_or(f64::NAN);

@@ -654,7 +654,7 @@ pub fn build_fluid(scene: &DpdScene) -> Result<DpdSystem, DpdRunError> {
 /// ```no_run
 /// use mobo::{run, scene::dpd};
 /// let scene = dpd::load(std::path::Path::new("examples/scenes/capsule_shear_bie_and_dpd.toml"))?;
-/// let mut sim = dpd::build_suspension(&scene)?;
+/// let mut sim = run::dpd::build_suspension(&scene)?;
 /// for _ in 0..100 {
 ///     sim.step()?;
 /// }

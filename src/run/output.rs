@@ -103,7 +103,12 @@ pub(super) fn gathered_frame(
         .map(|c| {
             (
                 c.id,
-                c.coefs.iter().chain(&c.stepper.sigma).copied().collect(),
+                c.state
+                    .coefs
+                    .iter()
+                    .chain(&c.state.sigma)
+                    .copied()
+                    .collect(),
             )
         })
         .collect();

@@ -113,8 +113,14 @@ pub fn gather_inputs(
 ) -> Result<(Vec<[f64; 3]>, Vec<f64>), CommError> {
     let mut mine = Vec::with_capacity(5 * susp.len());
     for cell in susp.cells() {
-        let x = centre(&cell.coefs);
-        mine.extend_from_slice(&[cell.id as f64, x[0], x[1], x[2], cost(cell.iterations)]);
+        let x = centre(&cell.state.coefs);
+        mine.extend_from_slice(&[
+            cell.id as f64,
+            x[0],
+            x[1],
+            x[2],
+            cost(cell.state.iterations),
+        ]);
     }
     let all = comm.all_gather_f64(&mine)?;
     let n = susp.n_global();

@@ -89,6 +89,27 @@ const PRECONDITIONER_JACOBIAN: u64 = 256;
 const LABELS: u64 = 512;
 
 impl CellState {
+    /// Bytes of the state's vectors (what a cell keeps between steps besides its stepper).
+    pub fn memory_bytes(&self) -> usize {
+        let opt = |v: &Option<Vec<f64>>| v.as_ref().map_or(0, |v| v.capacity());
+        8 * (self.coefs.capacity()
+            + self.sigma.capacity()
+            + opt(&self.previous_coefs)
+            + opt(&self.membrane_velocity)
+            + opt(&self.skalak_reference)
+            + self
+                .material_labels
+                .as_ref()
+                .map_or(0, |l| l.original.capacity() + l.map.capacity())
+            + opt(&self.velocity)
+            + opt(&self.previous_velocity)
+            + self
+                .preconditioner
+                .as_ref()
+                .map_or(0, |r| r.surface.capacity() + opt(&r.jacobian_reference)))
+            + std::mem::size_of::<Self>()
+    }
+
     /// Values one state takes in the flat codec for `ncoef` coefficients and `n` grid points.
     pub fn encoded_len(ncoef: usize, n: usize) -> usize {
         // presence, iterations, coefs, sigma, targets (2), previous, previous dt,

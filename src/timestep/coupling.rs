@@ -29,7 +29,7 @@
 //! layer, with more, closer check points (`DOUBLE_LAYER_NEAR`). Cells without a density add
 //! nothing, and a call without any builds nothing more than the single-layer part (counter
 //! [`CouplingStats::double_layer_fmm_builds`]). `u_j` is explicit: the suspension passes each
-//! cell's velocity of its previous solve ([`super::semi_implicit::VesicleStepper::velocity`],
+//! cell's velocity of its previous solve ([`super::cell_state::CellState::membrane_velocity`],
 //! see [`super::suspension`]). Accuracy (tests/timestep_contrast.rs, `p = 8`, `q = 2p`, against
 //! a direct quadrature of order 160): 9e-12 for separated cells; 2.1e-5 and 1.3e-5 at gaps 0.3
 //! and 0.1, limited by the order-`q` quadrature just beyond `δ` (the `1/r²` kernel needs more

@@ -100,6 +100,7 @@ pub mod sphere_preconditioner;
 mod step_engine;
 mod step_operator;
 pub mod suspension;
+pub mod vesicle_stepper;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};
 pub use operator::{

@@ -19,13 +19,13 @@ pub enum OperatorStorage {
     Coefficients,
     /// On the grid: `A = P F`, kept as the rows `P` over the density's coefficients
     /// (`3n × 3n_c` entries, 3.8 MB per operator at `p = 12`;
-    /// [`SelfInteraction::assemble_rows`]) and applied as `P (F x)` (the full `A`, `(3n)²`,
+    /// [`crate::vesicle::layer::SelfInteraction::assemble_rows`]) and applied as `P (F x)` (the full `A`, `(3n)²`,
     /// without upsampling), in the buffers of the step engine the cell's step holds: the fast
     /// path, one operator (two with a viscosity contrast) per thread, none per cell.
     #[default]
     Grid,
     /// Not stored: every GMRES iteration applies `A` matrix-free, batched per latitude
-    /// ([`SelfInteraction::apply`]): memory linear in the points per cell, each product
+    /// ([`crate::vesicle::layer::SelfInteraction::apply`]): memory linear in the points per cell, each product
     /// costing about half an assembly (for a thread that cannot hold one dense operator).
     MatrixFree,
 }

@@ -47,7 +47,7 @@
 //! ```
 //!
 //! The first step (no `Xⁿ⁻¹`) is Euler. The stepper keeps `Xⁿ⁻¹`
-//! ([`VesicleStepper::previous_coefs`], [`VesicleStepper::set_previous_coefs`] for restarts).
+//! ([`CellState::previous_coefs`], carried by checkpoints for restarts).
 //! Explicit velocities passed by the caller ([`ExplicitTerms`]) are taken as they are (the
 //! caller extrapolates them for second order). The area/volume drift correction keeps the
 //! order (tests/timestep_order.rs: 1.98, 2.00, 2.01). Reparametrisation moves the grid of `Xⁿ⁺¹`
@@ -57,7 +57,7 @@
 //! caps the accuracy at small `Δt` (measured orders 1.94, 1.75, 1.40 over Δt = 0.05 … 0.00625).
 //!
 //! The membrane velocity of the solve, `u = (Xⁿ⁺¹ − X̂)/τ` on the grid (before the
-//! reparametrisation and the drift correction), is kept ([`VesicleStepper::velocity`]): a
+//! reparametrisation and the drift correction), is kept ([`CellState::membrane_velocity`]): a
 //! suspension passes `(1 − λ) u` to the other cells as the density of this cell's double layer
 //! (explicitly, in the next step).
 //!
@@ -104,7 +104,7 @@
 //!
 //! The sphere's error grows with the cell's distance from the sphere (p = 12: 9 iterations per
 //! step for a sphere, 18 for a prolate of reduced volume 0.85, 22 for an RBC, and more with
-//! `p`). [`Preconditioning::Cell`] ([`VesicleStepper::set_preconditioning`], scene
+//! `p`). [`Preconditioning::Cell`] ([`CellStepper::set_preconditioning`], scene
 //! `[numerics] preconditioner = "cell"`) uses the exact inverse of the cell's own step
 //! operator instead ([`super::cell_preconditioner`]): built at a step from that step's operator
 //! (GMRES then takes at most two iterations), turned with the grid at later steps like the
@@ -143,7 +143,7 @@
 //! 7.8e-6 at Δt = 0.001 to 1.5e-5 at 0.0005.) A correction toward the constraint's manifold,
 //! zero when `W = W_ref` and of the size of the linearisation's error (`O(Δt²)` per step)
 //! otherwise, so the step keeps its order.
-//! [`VesicleStepper::set_local_area_relaxation`] switches it off.
+//! [`CellStepper::set_local_area_relaxation`] switches it off.
 //!
 //! ## After the step
 //!
@@ -163,7 +163,7 @@ pub use super::operator_storage::OperatorStorage;
 use std::sync::{Arc, Mutex};
 
 use super::cell_preconditioner::{CellPreconditioner, CellPreconditionerOp};
-use super::cell_state::PreconditionerRecord;
+use super::cell_state::{CellState, PreconditionerRecord};
 use super::grid_frame::{
     grid_rotation, relative_rotation, RotatedPreconditioner, Rotation, IDENTITY,
 };
@@ -311,7 +311,7 @@ pub struct VesicleParams {
     pub viscosity_ratio: f64,
     /// `true`: a vesicle or RBC, locally inextensible (`∇ₛ·u = 0`, with the tension as
     /// unknown). `false`: a capsule, whose membrane stretches and resists through its elastic law
-    /// alone ([`VesicleStepper::set_skalak`], required); see "Capsules" in the module docs.
+    /// alone ([`CellStepper::set_skalak`], required); see "Capsules" in the module docs.
     pub inextensible: bool,
     /// How the elastic force enters the step (`None`: linearly implicit for a capsule,
     /// explicit for an inextensible cell, whose tension carries most of the in-plane load).
@@ -344,13 +344,21 @@ pub struct StepReport {
     pub area_volume_error: f64,
 }
 
-/// Steps one vesicle of SH order `p`.
+/// Steps one cell of SH order `p`: the algorithm, its operators, preconditioners and the
+/// engines it leases, apart from the cell's state.
 ///
-/// The stepper holds the cell's own state; transforms, the membrane-force engine, the layer
-/// potentials and scratch are lent per call by a pool shared by every stepper of the same
-/// `(p, q, restart)` in the process (the crate's private `step_engine`), so that a suspension holds one
-/// such engine per thread, not per cell.
-pub struct VesicleStepper {
+/// A [`CellState`] holds what the cell is and what its next step needs (coefficients, tension,
+/// the BDF2 history, the membrane velocity, the Skalak reference and its material labels, the
+/// drift targets, the record of its own preconditioner); [`CellStepper::step_with`] advances
+/// a state by one step. The stepper keeps only what can be rebuilt from the state and its
+/// parameters: the dense operators of the last step, the sphere preconditioners, the cell's
+/// own preconditioner (rebuilt from the state's record when it is not the one held).
+/// Transforms, the membrane-force engine, the layer potentials and scratch are lent per call by
+/// a pool shared by every stepper of the same `(p, q, restart)` in the process (the crate's
+/// private `step_engine`), so that a suspension holds one such engine per thread, not per
+/// cell. [`super::vesicle_stepper::VesicleStepper`] is one cell with its state, for studies of
+/// a single cell.
+pub struct CellStepper {
     p: usize,
     /// Grid points and coefficients per component.
     n: usize,
@@ -365,34 +373,21 @@ pub struct VesicleStepper {
     s_op: Vec<f64>,
     /// Dense double layer, the same (empty when `λ = 1`).
     d_op: Vec<f64>,
-    /// Tension of the last step (initial guess of the next).
-    pub sigma: Vec<f64>,
-    /// Area and volume to restore (those of the first step's surface).
-    targets: Option<(f64, f64)>,
-    /// Shear elasticity (explicit) and its stress-free reference surface (coefficients).
-    skalak: Option<(SkalakParams, Vec<f64>)>,
-    /// The Skalak reference as its first surface and the grid's material labels (the reference
-    /// above is composed from them after every reparametrisation).
-    labels: Option<MaterialLabels>,
+    /// Shear elasticity (explicit or linearly implicit); its reference surface is the state's.
+    skalak: Option<SkalakParams>,
     /// Double-layer operators assembled by the steps so far (0 for `λ = 1`: only what is called
     /// for; a preconditioner rebuilt from its record assembles again, not counted here).
     pub double_layer_assemblies: usize,
-    /// `Xⁿ⁻¹` (coefficients) for BDF2.
-    previous: Option<Vec<f64>>,
-    /// The step `Δtⁿ⁻¹` that led from `Xⁿ⁻¹` to `Xⁿ` (variable-step BDF2).
-    previous_dt: Option<f64>,
     /// Sphere preconditioners in use (at most two: the Euler and the BDF2 `τ`), shared with
     /// the other cells of the same sphere ([`sphere_preconditioner::shared`]).
     preconditioners: Vec<Arc<SpherePreconditioner>>,
     /// Which preconditioner the steps use.
     preconditioning: Preconditioning,
-    /// The cell's own preconditioner ([`Preconditioning::Cell`]), once built.
+    /// The cell's own preconditioner ([`Preconditioning::Cell`]), once built (its record is
+    /// also the state's).
     own: Option<OwnPreconditioner>,
     /// Own preconditioners built so far.
     pub own_preconditioner_builds: usize,
-    /// Membrane velocity of the last solve on the order-`p` grid (see
-    /// [`VesicleStepper::velocity`]).
-    velocity: Option<Vec<f64>>,
     /// Whether an inextensible cell with a Skalak reference relaxes its local area element to
     /// the reference's in the constraint (see "Local area" in the module docs).
     local_area_relaxation: bool,
@@ -410,7 +405,7 @@ fn check(name: &'static str, v: f64) -> Result<(), TimestepError> {
     }
 }
 
-impl VesicleStepper {
+impl CellStepper {
     /// Plans for order `p`.
     pub fn new(p: usize, params: VesicleParams) -> Result<Self, TimestepError> {
         if params.inextensible || params.bending_modulus != 0.0 {
@@ -431,7 +426,7 @@ impl VesicleStepper {
             let e = pool.lease()?;
             (e.sht.n_points(), e.sht.n_coefs())
         };
-        Ok(VesicleStepper {
+        Ok(CellStepper {
             p,
             n,
             nc,
@@ -441,24 +436,145 @@ impl VesicleStepper {
             storage: OperatorStorage::default(),
             s_op: Vec::new(),
             d_op: Vec::new(),
-            sigma: vec![0.0; n],
-            targets: None,
             skalak: None,
-            labels: None,
             double_layer_assemblies: 0,
-            previous: None,
-            previous_dt: None,
             preconditioners: Vec::new(),
             preconditioning: Preconditioning::default(),
             own: None,
             own_preconditioner_builds: 0,
-            velocity: None,
             local_area_relaxation: true,
         })
     }
 
-    /// An engine for one call, set up for this cell (far-side settings, Skalak reference).
-    fn lease(&self) -> Result<EngineLease, TimestepError> {
+    /// A cell's state at its first step: the surface `coefs` (order-`p` coefficients), zero
+    /// tension, no history; with shear elasticity, the stress-free `skalak_reference`
+    /// (coefficients, the same parametrisation) and material labels starting as the identity.
+    ///
+    /// # Errors
+    /// [`TimestepError::DimensionMismatch`] for a surface or reference of the wrong length,
+    /// [`TimestepError::InvalidParameter`] for a reference without shear elasticity or shear
+    /// elasticity without a reference, and the checks of the reference as a surface.
+    pub fn initial_state(
+        &self,
+        coefs: &[f64],
+        skalak_reference: Option<&[f64]>,
+    ) -> Result<CellState, TimestepError> {
+        if coefs.len() != 3 * self.nc {
+            return Err(TimestepError::DimensionMismatch {
+                what: "surface coefficients",
+                expected: 3 * self.nc,
+                got: coefs.len(),
+            });
+        }
+        let material_labels = match (skalak_reference, self.skalak.is_some()) {
+            (Some(r), true) => Some(self.identity_labels(r)?),
+            (None, false) => None,
+            (r, _) => {
+                return Err(TimestepError::InvalidParameter {
+                    name: "skalak reference",
+                    value: if r.is_some() { "given" } else { "none" }.into(),
+                    reason: "a cell has a Skalak reference exactly when it has shear elasticity \
+                             (CellStepper::set_skalak)",
+                })
+            }
+        };
+        Ok(CellState {
+            coefs: coefs.to_vec(),
+            sigma: vec![0.0; self.n],
+            drift_targets: None,
+            previous_coefs: None,
+            previous_dt: None,
+            membrane_velocity: None,
+            skalak_reference: skalak_reference.map(|r| r.to_vec()),
+            material_labels,
+            velocity: None,
+            previous_velocity: None,
+            iterations: 0,
+            preconditioner: None,
+        })
+    }
+
+    /// The material labels of a fresh Skalak reference `reference` (the identity map; the
+    /// reference is checked as a surface).
+    pub fn identity_labels(&self, reference: &[f64]) -> Result<MaterialLabels, TimestepError> {
+        let mut engine = self.pool.lease()?;
+        let StepEngine { sht, ws, work, .. } = &mut *engine;
+        work.get_mut()
+            .expect("operator lock")
+            .membrane
+            .set_reference(reference)?;
+        Ok(MaterialLabels::identity(sht, ws, reference)?)
+    }
+
+    /// Check that `state` is one of this stepper's cells: the lengths of its vectors, finite
+    /// history, a Skalak reference (with labels of its size) exactly when the stepper has
+    /// shear elasticity.
+    pub fn check_state(&self, state: &CellState) -> Result<(), TimestepError> {
+        let (n, nc) = (self.n, self.nc);
+        let len = |what: &'static str, got: usize, expected: usize| {
+            if got == expected {
+                Ok(())
+            } else {
+                Err(TimestepError::DimensionMismatch {
+                    what,
+                    expected,
+                    got,
+                })
+            }
+        };
+        len("surface coefficients", state.coefs.len(), 3 * nc)?;
+        len("tension", state.sigma.len(), n)?;
+        if let Some(c) = &state.previous_coefs {
+            len("previous coefficients", c.len(), 3 * nc)?;
+            if !c.iter().all(|v| v.is_finite()) {
+                return Err(TimestepError::NonFinite {
+                    what: "previous coefficients",
+                });
+            }
+        }
+        if let Some(dt) = state.previous_dt {
+            check("previous dt", dt)?;
+        }
+        if let Some(v) = &state.membrane_velocity {
+            len("membrane velocity", v.len(), 3 * n)?;
+            if !v.iter().all(|x| x.is_finite()) {
+                return Err(TimestepError::NonFinite {
+                    what: "membrane velocity",
+                });
+            }
+        }
+        if state.material_labels.is_some() && state.skalak_reference.is_none() {
+            return Err(TimestepError::InvalidParameter {
+                name: "material labels",
+                value: "present".into(),
+                reason: "a cell state with material labels needs its Skalak reference",
+            });
+        }
+        if let Some(r) = &state.skalak_reference {
+            if self.skalak.is_none() {
+                return Err(TimestepError::InvalidParameter {
+                    name: "skalak reference",
+                    value: format!("{} coefficients", r.len()),
+                    reason: "the cell has no shear elasticity",
+                });
+            }
+            len("skalak reference", r.len(), 3 * nc)?;
+        }
+        if let Some(l) = &state.material_labels {
+            if l.original.len() != 3 * nc || l.map.len() != 3 * nc {
+                return Err(TimestepError::InvalidParameter {
+                    name: "material labels",
+                    value: format!("{} + {} coefficients", l.original.len(), l.map.len()),
+                    reason: "need a cell with shear elasticity and 3 n_c coefficients each",
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// An engine for one call, set up for this cell (far-side settings, the Skalak reference
+    /// `reference` of its state).
+    fn lease(&self, reference: Option<&[f64]>) -> Result<EngineLease, TimestepError> {
         let mut e = self.pool.lease()?;
         e.work
             .get_mut()
@@ -466,7 +582,7 @@ impl VesicleStepper {
             .products
             .layer
             .set_far_side_params(self.far_side)?;
-        if let Some((_, reference)) = &self.skalak {
+        if let (Some(_), Some(reference)) = (&self.skalak, reference) {
             e.work
                 .get_mut()
                 .expect("operator lock")
@@ -476,90 +592,21 @@ impl VesicleStepper {
         Ok(e)
     }
 
-    /// Add Skalak shear elasticity (explicit in time) relative to the stress-free surface
-    /// `reference` (order-`p` coefficients, same parametrisation as the stepped surface).
-    pub fn set_skalak(
-        &mut self,
-        params: SkalakParams,
-        reference: &[f64],
-    ) -> Result<(), TimestepError> {
-        // Checked here (length, a proper surface), set on each engine lent to this cell; the
-        // labels start as the identity.
-        let labels = {
-            let mut engine = self.pool.lease()?;
-            let StepEngine { sht, ws, work, .. } = &mut *engine;
-            work.get_mut()
-                .expect("operator lock")
-                .membrane
-                .set_reference(reference)?;
-            MaterialLabels::identity(sht, ws, reference)?
-        };
+    /// Add Skalak shear elasticity (explicit in time, or linearly implicit as
+    /// [`VesicleParams::elastic_stepping`] says) relative to the stress-free surface of each
+    /// state ([`CellState::skalak_reference`], from [`Self::initial_state`]).
+    pub fn set_skalak(&mut self, params: SkalakParams) {
         // Other elastic parameters change the Jacobian in the cell's own preconditioner (a
         // relabelled reference does not: the record keeps the one it was built with).
-        if self.skalak.as_ref().is_none_or(|(p, _)| *p != params) {
+        if self.skalak.is_none_or(|p| p != params) {
             self.own = None;
         }
-        self.skalak = Some((params, reference.to_vec()));
-        self.labels = Some(labels);
-        Ok(())
+        self.skalak = Some(params);
     }
 
-    /// The Skalak reference's first surface and the grid's material labels
-    /// ([`crate::vesicle::material_labels`]); `None` without shear elasticity.
-    pub fn material_labels(&self) -> Option<&MaterialLabels> {
-        self.labels.as_ref()
-    }
-
-    /// Restore the material labels (a restarted run or a repeated step), after
-    /// [`VesicleStepper::set_skalak_reference`] (which starts the labels afresh from the
-    /// reference it is given).
-    ///
-    /// # Errors
-    /// [`TimestepError::InvalidParameter`] for a cell without shear elasticity or labels of
-    /// the wrong size.
-    pub fn set_material_labels(&mut self, labels: MaterialLabels) -> Result<(), TimestepError> {
-        let expected = 3 * self.nc;
-        if self.skalak.is_none()
-            || labels.original.len() != expected
-            || labels.map.len() != expected
-        {
-            return Err(TimestepError::InvalidParameter {
-                name: "material labels",
-                value: format!(
-                    "{} + {} coefficients",
-                    labels.original.len(),
-                    labels.map.len()
-                ),
-                reason: "need a cell with shear elasticity and 3 n_c coefficients each",
-            });
-        }
-        self.labels = Some(labels);
-        Ok(())
-    }
-
-    /// The stress-free reference of the Skalak elasticity (coefficients) in the current
-    /// parametrisation, composed from the material labels after every reparametrisation
-    /// ([`VesicleStepper::material_labels`]); `None` without shear elasticity.
-    pub fn skalak_reference(&self) -> Option<&[f64]> {
-        self.skalak.as_ref().map(|(_, r)| &r[..])
-    }
-
-    /// Replace the (relabelled) Skalak reference (a restarted run or a repeated step restores
-    /// it). The material labels start afresh from it (the identity map): a caller that kept
-    /// them restores them next with [`VesicleStepper::set_material_labels`].
-    ///
-    /// # Errors
-    /// [`TimestepError::InvalidParameter`] for a cell without shear elasticity; the checks of
-    /// [`VesicleStepper::set_skalak`] for the surface.
-    pub fn set_skalak_reference(&mut self, reference: &[f64]) -> Result<(), TimestepError> {
-        let Some((params, _)) = self.skalak else {
-            return Err(TimestepError::InvalidParameter {
-                name: "skalak reference",
-                value: format!("{} coefficients", reference.len()),
-                reason: "the cell has no shear elasticity",
-            });
-        };
-        self.set_skalak(params, reference)
+    /// The shear elasticity (`None`: none).
+    pub fn skalak(&self) -> Option<SkalakParams> {
+        self.skalak
     }
 
     /// Which preconditioner the steps use.
@@ -587,17 +634,11 @@ impl VesicleStepper {
         self.local_area_relaxation = on;
     }
 
-    /// What the cell's own preconditioner was built from (`None`: it has none), for a
-    /// checkpoint or a cell moving to another rank.
-    pub fn own_preconditioner_record(&self) -> Option<&PreconditionerRecord> {
-        self.own.as_ref().map(|o| &o.record)
-    }
-
-    /// Give the cell the own preconditioner built from `record` (`None`: none): unless it is
-    /// the one it holds, it is rebuilt from the record before the next step that uses it, bit
-    /// for bit the one the record came from (a resumed run, a cell moved here, a repeated
-    /// step).
-    pub fn set_own_preconditioner_record(&mut self, record: Option<&PreconditionerRecord>) {
+    /// Hold the own preconditioner of `record` (`None`: none): unless it is the one held, it is
+    /// rebuilt from the record before the next step that uses it, bit for bit the one the
+    /// record came from (a resumed run, a cell moved here, a repeated step). Every step first
+    /// adopts its state's record this way.
+    fn adopt_own_record(&mut self, record: Option<&PreconditionerRecord>) {
         let bits = |a: &[f64], b: &[f64]| {
             a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
         };
@@ -642,20 +683,11 @@ impl VesicleStepper {
         self.storage = storage;
     }
 
-    /// Bytes of this cell's own state (its dense operators, preconditioners and vectors;
-    /// the engines lent by the pool are shared and not counted).
+    /// Bytes the stepper keeps for its cell (its dense operators and preconditioners; the
+    /// engines lent by the pool are shared and not counted, the state is
+    /// [`CellState::memory_bytes`]).
     pub fn memory_bytes(&self) -> usize {
-        let vecs = self.s_op.capacity()
-            + self.d_op.capacity()
-            + self.sigma.capacity()
-            + self.previous.as_ref().map_or(0, |v| v.capacity())
-            + self.velocity.as_ref().map_or(0, |v| v.capacity())
-            + self.skalak.as_ref().map_or(0, |(_, r)| r.capacity())
-            + self
-                .labels
-                .as_ref()
-                .map_or(0, |l| l.original.capacity() + l.map.capacity());
-        8 * vecs
+        8 * (self.s_op.capacity() + self.d_op.capacity())
             + self
                 .preconditioners
                 .iter()
@@ -669,66 +701,6 @@ impl VesicleStepper {
             + std::mem::size_of::<Self>()
     }
 
-    /// The area and volume the drift correction restores (set at the first step).
-    pub fn drift_targets(&self) -> Option<(f64, f64)> {
-        self.targets
-    }
-
-    /// Set the area and volume the drift correction restores (a restarted run keeps those of
-    /// its first step).
-    pub fn set_drift_targets(&mut self, targets: Option<(f64, f64)>) {
-        self.targets = targets;
-    }
-
-    /// The coefficients `Xⁿ⁻¹` of the surface before the last step (kept by BDF2 runs; `None`
-    /// before the first step or for Euler).
-    pub fn previous_coefs(&self) -> Option<&[f64]> {
-        self.previous.as_deref()
-    }
-
-    /// Set (or clear) `Xⁿ⁻¹` (a restarted BDF2 run restores it; `None` makes the next step
-    /// Euler).
-    ///
-    /// # Errors
-    /// [`TimestepError::DimensionMismatch`] for a wrong length, [`TimestepError::NonFinite`]
-    /// for NaN or infinite coefficients.
-    pub fn set_previous_coefs(&mut self, coefs: Option<&[f64]>) -> Result<(), TimestepError> {
-        match coefs {
-            None => self.previous = None,
-            Some(c) => {
-                let expected = 3 * self.nc;
-                if c.len() != expected {
-                    return Err(TimestepError::DimensionMismatch {
-                        what: "previous coefficients",
-                        expected,
-                        got: c.len(),
-                    });
-                }
-                if !c.iter().all(|v| v.is_finite()) {
-                    return Err(TimestepError::NonFinite {
-                        what: "previous coefficients",
-                    });
-                }
-                self.previous = Some(c.to_vec());
-            }
-        }
-        Ok(())
-    }
-
-    /// The step `Δtⁿ⁻¹` from `Xⁿ⁻¹` to `Xⁿ` (`None`: the step size of the run so far, `dt`).
-    pub fn previous_dt(&self) -> Option<f64> {
-        self.previous_dt
-    }
-
-    /// Set `Δtⁿ⁻¹` (restart of an adaptive BDF2 run).
-    pub fn set_previous_dt(&mut self, dt: Option<f64>) -> Result<(), TimestepError> {
-        if let Some(v) = dt {
-            check("previous dt", v)?;
-        }
-        self.previous_dt = dt;
-        Ok(())
-    }
-
     /// Change the time step (adaptive `dt`). A BDF2 run then takes the variable-step formula
     /// with the ratio `ω = Δtⁿ/Δtⁿ⁻¹`.
     pub fn set_dt(&mut self, dt: f64) -> Result<(), TimestepError> {
@@ -737,51 +709,11 @@ impl VesicleStepper {
         Ok(())
     }
 
-    /// `ω = Δtⁿ/Δtⁿ⁻¹` when the next step is a BDF2 step (`None`: an Euler step): explicit
-    /// terms are extrapolated to the operators' geometry `X* = (1 + ω)Xⁿ − ωXⁿ⁻¹`.
-    pub fn extrapolation_ratio(&self) -> Option<f64> {
-        (self.params.scheme == TimeScheme::Bdf2 && self.previous.is_some())
-            .then(|| self.params.dt / self.previous_dt.unwrap_or(self.params.dt))
-    }
-
-    /// The membrane velocity of the last step on the order-`p` grid (`3n`, component-major):
-    /// `u = (Xⁿ⁺¹ − X̂)/τ` from the solution of the linear system, before the
-    /// reparametrisation and the drift correction (`(Xⁿ⁺¹ − Xⁿ)/Δt` for Euler, the BDF2
-    /// derivative `(3Xⁿ⁺¹ − 4Xⁿ + Xⁿ⁻¹)/(2Δt)` for BDF2). Value `k` is the velocity of grid
-    /// point `k`, relabelled with the grid by the reparametrisation. `None` before the first
-    /// step. A suspension with a viscosity
-    /// contrast takes it as the density of the cell's double layer seen by the other cells
-    /// (explicitly, in the next step).
-    pub fn velocity(&self) -> Option<&[f64]> {
-        self.velocity.as_deref()
-    }
-
-    /// Set (or clear) the recorded membrane velocity (a restarted run restores it).
-    ///
-    /// # Errors
-    /// [`TimestepError::DimensionMismatch`] for a wrong length, [`TimestepError::NonFinite`]
-    /// for NaN or infinite values.
-    pub fn set_velocity(&mut self, velocity: Option<&[f64]>) -> Result<(), TimestepError> {
-        match velocity {
-            None => self.velocity = None,
-            Some(v) => {
-                let expected = 3 * self.n;
-                if v.len() != expected {
-                    return Err(TimestepError::DimensionMismatch {
-                        what: "membrane velocity",
-                        expected,
-                        got: v.len(),
-                    });
-                }
-                if !v.iter().all(|x| x.is_finite()) {
-                    return Err(TimestepError::NonFinite {
-                        what: "membrane velocity",
-                    });
-                }
-                self.velocity = Some(v.to_vec());
-            }
-        }
-        Ok(())
+    /// `ω = Δtⁿ/Δtⁿ⁻¹` when the next step of `state` is a BDF2 step (`None`: an Euler step):
+    /// explicit terms are extrapolated to the operators' geometry `X* = (1 + ω)Xⁿ − ωXⁿ⁻¹`.
+    pub fn extrapolation_ratio(&self, state: &CellState) -> Option<f64> {
+        (self.params.scheme == TimeScheme::Bdf2 && state.previous_coefs.is_some())
+            .then(|| self.params.dt / state.previous_dt.unwrap_or(self.params.dt))
     }
 
     /// Parameters.
@@ -813,10 +745,10 @@ impl VesicleStepper {
         Ok(())
     }
 
-    /// The traction the membrane exerts on the fluid at the surface `coefs`, with the tension
-    /// of the last step: `f_b(X) + f_σ(σ) + f_Skalak(X) + F/A` on the order-`p` grid (`3n`).
-    /// This is the density whose single layer the other cells feel (explicit coupling).
-    pub fn traction(&mut self, coefs: &[f64], out: &mut [f64]) -> Result<(), TimestepError> {
+    /// The traction the membrane exerts on the fluid at the surface of `state`, with its
+    /// tension: `f_b(X) + f_σ(σ) + f_Skalak(X) + F/A` on the order-`p` grid (`3n`). This is
+    /// the density whose single layer the other cells feel (explicit coupling).
+    pub fn traction(&self, state: &CellState, out: &mut [f64]) -> Result<(), TimestepError> {
         let n = self.n;
         if out.len() != 3 * n {
             return Err(TimestepError::DimensionMismatch {
@@ -825,18 +757,18 @@ impl VesicleStepper {
                 got: out.len(),
             });
         }
-        let mut engine = self.lease()?;
+        let mut engine = self.lease(state.skalak_reference.as_deref())?;
         let OperatorWork {
             membrane, fb, ft, ..
         } = engine.work.get_mut().expect("operator lock");
-        membrane.set_geometry(coefs)?;
+        membrane.set_geometry(&state.coefs)?;
         let area = membrane.geometry()?.area();
         membrane.bending_force(self.params.bending_modulus, out)?;
-        membrane.tension_force(&self.sigma, ft)?;
+        membrane.tension_force(&state.sigma, ft)?;
         for (o, t) in out.iter_mut().zip(ft.iter()) {
             *o += t;
         }
-        if let Some((sk, _)) = &self.skalak {
+        if let Some(sk) = &self.skalak {
             membrane.skalak_force(sk, fb)?;
             for (o, t) in out.iter_mut().zip(fb.iter()) {
                 *o += t;
@@ -853,11 +785,11 @@ impl VesicleStepper {
     /// `f` applied to the geometry of the surface `coefs` on the order-`p` grid (with the
     /// transforms of the stepper's engine).
     pub fn with_geometry<R>(
-        &mut self,
+        &self,
         coefs: &[f64],
         f: impl FnOnce(&crate::vesicle::geometry::Geometry) -> R,
     ) -> Result<R, TimestepError> {
-        let mut engine = self.lease()?;
+        let mut engine = self.lease(None)?;
         let g = engine.calc.geometry(coefs)?;
         Ok(f(&g))
     }
@@ -872,18 +804,11 @@ impl VesicleStepper {
         self.n
     }
 
-    /// Advance the surface with coefficients `coefs` (x, y, z at order `p`) by one step in the
-    /// background flow `u_inf`.
-    pub fn step(
-        &mut self,
-        coefs: &mut [f64],
-        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
-    ) -> Result<StepReport, TimestepError> {
-        self.step_with(coefs, u_inf, ExplicitTerms::default())
+    /// Coefficients per component, `n_c = (p+1)² − 1`.
+    pub fn n_coefs(&self) -> usize {
+        self.nc
     }
 
-    /// The sphere preconditioner for radius `radius` and coefficients `c`, built if none of the
-    /// kept ones matches; returns its index and whether it was built.
     fn preconditioner_for(
         &mut self,
         engine: &mut StepEngine,
@@ -1002,7 +927,7 @@ impl VesicleStepper {
             assemble_operator(engine, self.storage, double, &record.surface, &mut d_op)?;
         }
         let jacobian = match (&record.jacobian_reference, &self.skalak) {
-            (Some(reference), Some((sk, _))) => {
+            (Some(reference), Some(sk)) => {
                 let OperatorWork {
                     membrane, elastic, ..
                 } = engine.work.get_mut().expect("operator lock");
@@ -1034,19 +959,30 @@ impl VesicleStepper {
         inverse
     }
 
-    /// One step with explicit terms (the velocity induced by other cells, extra tractions).
+    /// Advance `state` by one step in the background flow `u_inf`.
+    pub fn step(
+        &mut self,
+        state: &mut CellState,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    ) -> Result<StepReport, TimestepError> {
+        self.step_with(state, u_inf, ExplicitTerms::default())
+    }
+
+    /// Advance `state` by one step with explicit terms (the velocity induced by other cells,
+    /// extra tractions). The state's own-preconditioner record is the one the step uses
+    /// (rebuilt from it when it is not the one held) and the one it leaves.
     pub fn step_with(
         &mut self,
-        coefs: &mut [f64],
+        state: &mut CellState,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         extra: ExplicitTerms<'_>,
     ) -> Result<StepReport, TimestepError> {
         let (n, nc) = (self.n, self.nc);
-        if coefs.len() != 3 * nc {
+        if state.coefs.len() != 3 * nc || state.sigma.len() != n {
             return Err(TimestepError::DimensionMismatch {
-                what: "surface coefficients",
-                expected: 3 * nc,
-                got: coefs.len(),
+                what: "cell state (coefficients and tension)",
+                expected: 3 * nc + n,
+                got: state.coefs.len() + state.sigma.len(),
             });
         }
         for (what, v) in [("velocity", extra.velocity), ("traction", extra.traction)] {
@@ -1060,7 +996,8 @@ impl VesicleStepper {
                 }
             }
         }
-        let mut lease = self.lease()?;
+        self.adopt_own_record(state.preconditioner.as_ref());
+        let mut lease = self.lease(state.skalak_reference.as_deref())?;
         let engine: &mut StepEngine = &mut lease;
         // Grid storage: the operators live in the engine (one pair per thread), lent to this
         // cell for its step and handed back whatever the step's outcome.
@@ -1069,11 +1006,12 @@ impl VesicleStepper {
             std::mem::swap(&mut self.s_op, &mut engine.grid_single);
             std::mem::swap(&mut self.d_op, &mut engine.grid_double);
         }
-        let report = self.step_on(engine, coefs, u_inf, extra);
+        let report = self.step_on(engine, state, u_inf, extra);
         if lent {
             std::mem::swap(&mut self.s_op, &mut engine.grid_single);
             std::mem::swap(&mut self.d_op, &mut engine.grid_double);
         }
+        state.preconditioner = self.own.as_ref().map(|o| o.record.clone());
         report
     }
 
@@ -1081,17 +1019,17 @@ impl VesicleStepper {
     fn step_on(
         &mut self,
         engine: &mut StepEngine,
-        coefs: &mut [f64],
+        state: &mut CellState,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         extra: ExplicitTerms<'_>,
     ) -> Result<StepReport, TimestepError> {
-        let plan = self.plan(engine, coefs)?;
-        let pcs = self.prepare_preconditioners(engine, &plan)?;
+        let plan = self.plan(engine, state)?;
+        let pcs = self.prepare_preconditioners(engine, &plan, state)?;
         let terms = self.explicit_grid_terms(engine, &plan, u_inf, extra)?;
         self.assemble(engine, &plan)?;
-        let (report, x_new, own_built) = self.solve(engine, &plan, &pcs, &terms)?;
-        let area_volume_error = self.advance(engine, coefs, &plan, &x_new, &terms.xh_grid)?;
-        self.regrid_and_correct(engine, coefs, &plan)?;
+        let (report, x_new, own_built) = self.solve(engine, &plan, &pcs, &terms, state)?;
+        let area_volume_error = self.advance(engine, state, &plan, &x_new, &terms.xh_grid)?;
+        self.regrid_and_correct(engine, state, &plan)?;
         Ok(StepReport {
             gmres: report,
             scheme: plan.scheme,
@@ -1103,8 +1041,12 @@ impl VesicleStepper {
     /// Phase 1, the plan of the step from the history: the scheme (BDF2 once `Xⁿ⁻¹` is
     /// known), `τ`, the operator's coefficients, `X*` and `X̂`, the drift targets (set at the
     /// first step) and the local area source.
-    fn plan(&mut self, engine: &mut StepEngine, coefs: &[f64]) -> Result<StepPlan, TimestepError> {
-        let omega = self.extrapolation_ratio();
+    fn plan(
+        &self,
+        engine: &mut StepEngine,
+        state: &mut CellState,
+    ) -> Result<StepPlan, TimestepError> {
+        let omega = self.extrapolation_ratio(state);
         let bdf2 = omega.is_some();
         let scheme = if bdf2 {
             TimeScheme::Bdf2
@@ -1124,13 +1066,14 @@ impl VesicleStepper {
         let coef = self.step_coefficients(tau);
         // The geometry of Xⁿ: its area and volume, and its area element for the local area
         // source.
-        let g_now = engine.calc.geometry(coefs)?;
+        let g_now = engine.calc.geometry(&state.coefs)?;
         let (area0, volume0) = (g_now.area(), g_now.volume());
-        if self.targets.is_none() {
-            self.targets = Some((area0, volume0));
+        if state.drift_targets.is_none() {
+            state.drift_targets = Some((area0, volume0));
         }
+        let coefs = &state.coefs;
         // X* (geometry of the operators) and X̂ (the history term), as coefficients.
-        let (xstar, xhat): (Vec<f64>, Vec<f64>) = match (&self.previous, bdf2) {
+        let (xstar, xhat): (Vec<f64>, Vec<f64>) = match (&state.previous_coefs, bdf2) {
             (Some(prev), true) => (
                 coefs
                     .iter()
@@ -1145,7 +1088,7 @@ impl VesicleStepper {
             ),
             _ => (coefs.to_vec(), coefs.to_vec()),
         };
-        let area_source = self.local_area_source(engine, &g_now.w, tau)?;
+        let area_source = self.local_area_source(engine, state, &g_now.w, tau)?;
         drop(g_now);
         let inextensible = self.params.inextensible;
         if !inextensible && self.skalak.is_none() {
@@ -1184,12 +1127,13 @@ impl VesicleStepper {
         &mut self,
         engine: &mut StepEngine,
         plan: &StepPlan,
+        state: &CellState,
     ) -> Result<StepPreconditioners, TimestepError> {
         let (sphere, sphere_built) = if plan.precondition {
             // With the drift correction the area is the target area at every step: the sphere
             // is built from it (not from the current area, which differs in the last bits), so
             // that a restarted run rebuilds the very same preconditioner (bit-identical restart).
-            let area = match (self.params.correct_drift, self.targets) {
+            let area = match (self.params.correct_drift, state.drift_targets) {
                 (true, Some((a, _))) => a,
                 _ => engine.calc.geometry(&plan.xstar)?.area(),
             };
@@ -1246,7 +1190,7 @@ impl VesicleStepper {
         let area = {
             let OperatorWork { membrane, fb, .. } = engine.work.get_mut().expect("operator lock");
             membrane.set_geometry(&plan.xstar)?;
-            if let Some((sk, _)) = &self.skalak {
+            if let Some(sk) = &self.skalak {
                 membrane.skalak_force(sk, fb)?;
                 traction.copy_from_slice(fb);
             }
@@ -1318,9 +1262,19 @@ impl VesicleStepper {
         plan: &StepPlan,
         pcs: &StepPreconditioners,
         terms: &GridTerms,
+        state: &mut CellState,
     ) -> Result<(GmresReport, Vec<f64>, bool), TimestepError> {
         match (&self.skalak, plan.inextensible) {
-            (Some((sk, reference)), false) => {
+            (Some(sk), false) => {
+                let reference =
+                    state
+                        .skalak_reference
+                        .as_deref()
+                        .ok_or(TimestepError::InvalidParameter {
+                            name: "skalak reference",
+                            value: "none".into(),
+                            reason: "a cell with shear elasticity needs its reference in its state",
+                        })?;
                 let (s_op, d_op) = step_operators(
                     self.storage,
                     self.params.viscosity,
@@ -1343,14 +1297,14 @@ impl VesicleStepper {
                         c_d: plan.coef.double_layer,
                         tau: plan.tau,
                         kappa: self.params.bending_modulus,
-                        jacobian: plan.implicit_elastic.then_some((sk, &reference[..])),
+                        jacobian: plan.implicit_elastic.then_some((sk, reference)),
                         size: terms.size,
                     },
                     &self.params.gmres,
                 )?;
                 Ok((report, x, pcs.own_rebuilt))
             }
-            _ => self.solve_inextensible(engine, plan, pcs, terms),
+            _ => self.solve_inextensible(engine, plan, pcs, terms, state),
         }
     }
 
@@ -1363,6 +1317,7 @@ impl VesicleStepper {
         plan: &StepPlan,
         pcs: &StepPreconditioners,
         terms: &GridTerms,
+        state: &mut CellState,
     ) -> Result<(GmresReport, Vec<f64>, bool), TimestepError> {
         let (n, nc) = (self.n, self.nc);
         let (a_id, c_d, tau) = (plan.coef.identity, plan.coef.double_layer, plan.tau);
@@ -1375,8 +1330,8 @@ impl VesicleStepper {
         let mut own_built = pcs.own_rebuilt;
         let mut b = self.inextensible_rhs(engine, plan, terms, s_op, d_op)?;
         // With the elasticity linearly implicit, the Jacobian's engine (see below).
-        let jacobian = match (&self.skalak, plan.implicit_elastic) {
-            (Some((sk, reference)), true) => {
+        let jacobian = match (&self.skalak, &state.skalak_reference, plan.implicit_elastic) {
+            (Some(sk), Some(reference), true) => {
                 let OperatorWork {
                     membrane, elastic, ..
                 } = engine.work.get_mut().expect("operator lock");
@@ -1401,7 +1356,7 @@ impl VesicleStepper {
         // Initial guess: X* (the extrapolation for BDF2, Xⁿ for Euler) and the last tension.
         let mut z0 = vec![0.0; 4 * n];
         z0[..3 * n].copy_from_slice(xs_grid);
-        z0[3 * n..].copy_from_slice(&self.sigma);
+        z0[3 * n..].copy_from_slice(&state.sigma);
         if jacobian.is_some() {
             // Solve for δ = X − X* (so that the Jacobian's relative error multiplies the
             // small δ, as for capsules): b ← b − A [X*; 0] with A without J, then J on.
@@ -1417,8 +1372,9 @@ impl VesicleStepper {
         }
         // The cell's own preconditioner, (re)built now if `prepare_own` found it stale.
         if pcs.build_own {
+            let jacobian_reference = jacobian.and(state.skalak_reference.clone());
             self.own =
-                Some(self.own_preconditioner(&op, &engine.sht, plan, pcs, jacobian.is_some())?);
+                Some(self.own_preconditioner(&op, &engine.sht, plan, pcs, jacobian_reference)?);
             self.own_preconditioner_builds += 1;
             own_built = true;
         }
@@ -1436,7 +1392,7 @@ impl VesicleStepper {
         if let Some(o) = &mut self.own {
             o.record.last_iterations = report.iterations;
         }
-        self.sigma.copy_from_slice(&z[3 * n..]);
+        state.sigma.copy_from_slice(&z[3 * n..]);
         z.truncate(3 * n);
         if jacobian.is_some() {
             for (zi, s) in z.iter_mut().zip(xs_grid) {
@@ -1501,25 +1457,22 @@ impl VesicleStepper {
     }
 
     /// The cell's own preconditioner: the inverse of the step's operator `op` at `X*` (with
-    /// the elastic Jacobian when `with_jacobian`), recorded with what it was built from.
+    /// the elastic Jacobian of `jacobian_reference`, if any), recorded with what it was built
+    /// from.
     fn own_preconditioner(
         &self,
         op: &InextensibleOperator<'_>,
         sht: &ShTransform,
         plan: &StepPlan,
         pcs: &StepPreconditioners,
-        with_jacobian: bool,
+        jacobian_reference: Option<Vec<f64>>,
     ) -> Result<OwnPreconditioner, TimestepError> {
         let inverse = own_inverse(op, sht, plan.coef.identity)?;
         Ok(OwnPreconditioner {
             record: PreconditionerRecord {
                 surface: plan.xstar.clone(),
                 tau: plan.tau,
-                jacobian_reference: if with_jacobian {
-                    self.skalak.as_ref().map(|(_, r)| r.clone())
-                } else {
-                    None
-                },
+                jacobian_reference,
                 last_iterations: 0,
             },
             coefs: plan.coef,
@@ -1586,32 +1539,32 @@ impl VesicleStepper {
     /// (BDF2), `Xⁿ⁺¹` into `coefs`. Returns the relative area and volume change of the flow
     /// step (a capsule: the volume's alone), the adaptive step's error estimate.
     fn advance(
-        &mut self,
+        &self,
         engine: &mut StepEngine,
-        coefs: &mut [f64],
+        state: &mut CellState,
         plan: &StepPlan,
         x_new: &[f64],
         xh_grid: &[f64],
     ) -> Result<f64, TimestepError> {
         // The membrane velocity of this step, u = (Xⁿ⁺¹ − X̂)/τ on the grid.
         let tau = plan.tau;
-        let velocity = self.velocity.get_or_insert_with(Vec::new);
+        let velocity = state.membrane_velocity.get_or_insert_with(Vec::new);
         velocity.clear();
         velocity.extend(x_new.iter().zip(xh_grid).map(|(x, h)| (x - h) / tau));
         if self.params.scheme == TimeScheme::Bdf2 {
-            match &mut self.previous {
-                Some(prev) => prev.copy_from_slice(coefs),
-                None => self.previous = Some(coefs.to_vec()),
+            match &mut state.previous_coefs {
+                Some(prev) => prev.copy_from_slice(&state.coefs),
+                None => state.previous_coefs = Some(state.coefs.clone()),
             }
-            self.previous_dt = Some(self.params.dt);
+            state.previous_dt = Some(self.params.dt);
         }
         engine
             .sht
-            .forward(x_new, coefs, &mut engine.ws)
+            .forward(x_new, &mut state.coefs, &mut engine.ws)
             .map_err(crate::vesicle::VesicleError::from)?;
         // The error estimate of the flow step itself (before the reparametrisation, which
         // changes area and volume by the discretisation error, whatever the step).
-        let g = engine.calc.geometry(coefs)?;
+        let g = engine.calc.geometry(&state.coefs)?;
         let dv = ((g.volume() - plan.volume0) / plan.volume0).abs();
         // A capsule's area changes with the flow: only the volume is an invariant.
         Ok(if plan.inextensible {
@@ -1624,18 +1577,23 @@ impl VesicleStepper {
     /// Phase 7, the surface's grid and drift: the reparametrisation (when asked for) and the
     /// correction of area and volume to the targets (a capsule: the volume's alone).
     fn regrid_and_correct(
-        &mut self,
+        &self,
         engine: &mut StepEngine,
-        coefs: &mut [f64],
+        state: &mut CellState,
         plan: &StepPlan,
     ) -> Result<(), TimestepError> {
         if let Some(rp) = self.params.reparametrize {
-            self.regrid(engine, coefs, &rp)?;
+            self.regrid(engine, state, &rp)?;
         }
         if self.params.correct_drift {
-            let (area, volume) = self.targets.expect("set by the plan");
+            let (area, volume) = state.drift_targets.expect("set by the plan");
             // A capsule's area is free: the volume alone.
-            correct_shape(engine, coefs, plan.inextensible.then_some(area), volume)?;
+            correct_shape(
+                engine,
+                &mut state.coefs,
+                plan.inextensible.then_some(area),
+                volume,
+            )?;
         }
         Ok(())
     }
@@ -1647,18 +1605,21 @@ impl VesicleStepper {
     fn local_area_source(
         &self,
         engine: &mut StepEngine,
+        state: &CellState,
         w_now: &[f64],
         tau: f64,
     ) -> Result<Option<Vec<f64>>, TimestepError> {
-        let reference = match &self.skalak {
-            Some((_, r)) if self.params.inextensible && self.local_area_relaxation => r,
+        let reference = match (&self.skalak, &state.skalak_reference) {
+            (Some(_), Some(r)) if self.params.inextensible && self.local_area_relaxation => r,
             _ => return Ok(None),
         };
         let g_ref = engine.calc.geometry(reference)?;
         // The reference's area element scaled to the area the drift correction restores (the
         // reference composed from its labels differs from its first area by one re-fit): both
         // corrections then ask for the same total area instead of undoing each other.
-        let (target, _) = self.targets.expect("set by the step before this call");
+        let (target, _) = state
+            .drift_targets
+            .expect("set by the step before this call");
         let ratio = target / g_ref.area();
         let scale = tau / self.params.dt;
         Ok(Some(
@@ -1675,9 +1636,9 @@ impl VesicleStepper {
     /// elasticity would see the tangential move as a strain), the tension, the membrane
     /// velocity and the BDF2 history, so that each stays attached to the same membrane point.
     fn regrid(
-        &mut self,
+        &self,
         engine: &mut StepEngine,
-        coefs: &mut [f64],
+        state: &mut CellState,
         rp: &ReparamParams,
     ) -> Result<(), TimestepError> {
         use crate::vesicle::VesicleError;
@@ -1689,9 +1650,9 @@ impl VesicleStepper {
         let mut sigma_c = vec![0.0; 3 * nc];
         engine
             .sht
-            .forward(&self.sigma, &mut sigma_c[..nc], &mut engine.ws)
+            .forward(&state.sigma, &mut sigma_c[..nc], &mut engine.ws)
             .map_err(VesicleError::from)?;
-        let mut velocity_c = match &self.velocity {
+        let mut velocity_c = match &state.membrane_velocity {
             Some(v) => {
                 let mut c = vec![0.0; 3 * nc];
                 engine
@@ -1702,7 +1663,7 @@ impl VesicleStepper {
             }
             None => None,
         };
-        let mut surf = Surface::from_coefs(self.p, coefs.to_vec())?;
+        let mut surf = Surface::from_coefs(self.p, state.coefs.clone())?;
         {
             let mut passengers: Vec<&mut [f64]> = vec![&mut sigma_c[..]];
             if let Some(v) = velocity_c.as_mut() {
@@ -1711,10 +1672,10 @@ impl VesicleStepper {
             // The Skalak reference moves with the grid through its labels (composed below;
             // `set_skalak` gives every Skalak cell labels): relabelled itself, its re-fits
             // would change its shape.
-            if let Some(l) = self.labels.as_mut() {
+            if let Some(l) = state.material_labels.as_mut() {
                 passengers.push(&mut l.map[..]);
             }
-            if let Some(prev) = self.previous.as_mut() {
+            if let Some(prev) = state.previous_coefs.as_mut() {
                 passengers.push(&mut prev[..]);
             }
             engine
@@ -1723,15 +1684,17 @@ impl VesicleStepper {
                 .expect("planned above")
                 .run_with(&mut surf, rp, &mut passengers)?;
         }
-        coefs.copy_from_slice(surf.coefs());
-        if let (Some(l), Some((_, reference))) = (&self.labels, self.skalak.as_mut()) {
+        state.coefs.copy_from_slice(surf.coefs());
+        if let (Some(l), Some(reference)) =
+            (&state.material_labels, state.skalak_reference.as_mut())
+        {
             l.compose(&engine.sht, &mut engine.ws, reference)?;
         }
         engine
             .sht
-            .inverse(&sigma_c[..nc], &mut self.sigma, &mut engine.ws)
+            .inverse(&sigma_c[..nc], &mut state.sigma, &mut engine.ws)
             .map_err(VesicleError::from)?;
-        if let (Some(c), Some(v)) = (velocity_c, self.velocity.as_mut()) {
+        if let (Some(c), Some(v)) = (velocity_c, state.membrane_velocity.as_mut()) {
             engine
                 .sht
                 .inverse(&c, v, &mut engine.ws)
@@ -1745,12 +1708,12 @@ impl VesicleStepper {
     /// both, whatever the cell: the step's own correction of a capsule restores the volume
     /// alone.
     pub fn correct_area_volume(
-        &mut self,
+        &self,
         coefs: &mut [f64],
         area: f64,
         volume: f64,
     ) -> Result<(), TimestepError> {
-        let mut engine = self.lease()?;
+        let mut engine = self.lease(None)?;
         correct_shape(&mut engine, coefs, Some(area), volume)
     }
 }

@@ -1,5 +1,5 @@
 //! Many cells in one flow: each cell advanced by its own semi-implicit step
-//! ([`VesicleStepper`]: bending, tension and self-interaction implicit), the cells coupled
+//! ([`CellStepper`]: bending, tension and self-interaction implicit), the cells coupled
 //! explicitly through the velocity their membrane tractions at `Xⁿ` induce on each other
 //! ([`Coupling`]: FMM, minus each cell's own smooth quadrature, plus near-singular corrections).
 //!
@@ -13,13 +13,13 @@
 //! **Viscosity contrast between cells.** A cell with `λ ≠ 1` is felt by the others through its
 //! single layer and its double layer `(1 − λ) D[u]` ([`Coupling::velocities_with`]). Its own
 //! double layer is implicit in its step; the one the others feel takes the membrane velocity
-//! `u` of the cell's previous solve ([`VesicleStepper::velocity`]: `(Xⁿ − Xⁿ⁻¹)/Δt` for Euler,
+//! `u` of the cell's previous solve ([`CellState::membrane_velocity`]: `(Xⁿ − Xⁿ⁻¹)/Δt` for Euler,
 //! a first-order lag, consistent with the explicit coupling; the BDF2 derivative
 //! `(3Xⁿ − 4Xⁿ⁻¹ + Xⁿ⁻²)/(2Δt)` for BDF2, which then extrapolates the whole inter-cell velocity
 //! as above). The first step has no velocity yet and couples the single layers only (the
 //! cells' initial velocity is not known before their first solve); the double layer enters
 //! from the second step on. A restart restores the velocities
-//! ([`VesicleStepper::set_velocity`]). Only what is called for: with every `λ = 1` (or one cell)
+//! (the state's membrane velocity). Only what is called for: with every `λ = 1` (or one cell)
 //! no double-layer density is passed and no stresslet FMM is built.
 //!
 //! **Over MPI ranks** ([`Suspension::new_part`], [`Suspension::step_on`]): each rank holds some
@@ -37,7 +37,7 @@ use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
 use super::semi_implicit::{
-    ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams, VesicleStepper,
+    CellStepper, ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
 };
 use super::TimestepError;
 use crate::comm::{text_words, words_text, Communicator, SerialComm};
@@ -97,22 +97,16 @@ pub struct SuspensionState {
     cells: Vec<CellState>,
 }
 
-/// One cell held by a [`Suspension`]: its global index, its stepper and what the suspension
-/// keeps of it between steps.
+/// One cell held by a [`Suspension`]: its global index, its stepper (operators,
+/// preconditioners) and its state (surface, tension, history, inter-cell velocities, GMRES
+/// iterations: what a checkpoint saves and a move to another rank carries).
 pub struct SuspensionCell {
     /// Global index of the cell (its place in the scene, over all ranks).
     pub id: usize,
-    /// The cell's semi-implicit stepper (with its tension, history and operators).
-    pub stepper: VesicleStepper,
-    /// Order-`p` SH coefficients `Xⁿ` (x, y, z).
-    pub coefs: Vec<f64>,
-    /// Inter-cell velocity of the last step on the order-`p` grid (`3n`; empty: none yet),
-    /// kept for output.
-    pub velocity: Vec<f64>,
-    /// That of the step before (BDF2 extrapolates the explicit coupling to `X*`).
-    pub previous_velocity: Vec<f64>,
-    /// GMRES iterations of the cell's last solve (0 before the first).
-    pub iterations: usize,
+    /// The cell's semi-implicit stepper.
+    pub stepper: CellStepper,
+    /// The cell's state.
+    pub state: CellState,
 }
 
 /// Cells of order `p`, stepped together (all of them, or one rank's share).
@@ -220,9 +214,9 @@ impl Suspension {
             cell: Some(id),
             source,
         };
-        let mut st = VesicleStepper::new(p, setup.params).map_err(err)?;
-        if let Some((sk, reference)) = &setup.skalak {
-            st.set_skalak(*sk, reference).map_err(err)?;
+        let mut st = CellStepper::new(p, setup.params).map_err(err)?;
+        if let Some((sk, _)) = &setup.skalak {
+            st.set_skalak(*sk);
         }
         if let Some(storage) = self.storage {
             st.set_operator_storage(storage);
@@ -241,15 +235,15 @@ impl Suspension {
                 reason: "is already held here",
             }));
         }
+        let initial = st
+            .initial_state(&setup.coefs, setup.skalak.as_ref().map(|(_, r)| &r[..]))
+            .map_err(err)?;
         self.cells.insert(
             at,
             SuspensionCell {
                 id,
                 stepper: st,
-                coefs: setup.coefs.clone(),
-                velocity: Vec::new(),
-                previous_velocity: Vec::new(),
-                iterations: 0,
+                state: initial,
             },
         );
         if let Some(state) = state {
@@ -266,49 +260,20 @@ impl Suspension {
 
     /// The state of this rank's cell `i`.
     pub fn cell_state(&self, i: usize) -> CellState {
-        let cell = &self.cells[i];
-        let st = &cell.stepper;
-        let opt = |v: &Vec<f64>| (!v.is_empty()).then(|| v.clone());
-        CellState {
-            coefs: cell.coefs.clone(),
-            sigma: st.sigma.clone(),
-            drift_targets: st.drift_targets(),
-            previous_coefs: st.previous_coefs().map(|c| c.to_vec()),
-            previous_dt: st.previous_dt(),
-            membrane_velocity: st.velocity().map(|v| v.to_vec()),
-            skalak_reference: st.skalak_reference().map(|r| r.to_vec()),
-            material_labels: st.material_labels().cloned(),
-            velocity: opt(&cell.velocity),
-            previous_velocity: opt(&cell.previous_velocity),
-            iterations: cell.iterations,
-            preconditioner: st.own_preconditioner_record().cloned(),
-        }
+        self.cells[i].state.clone()
     }
 
     /// Put this rank's cell `i` into `state` (a restart, a cell that moved here, a rejected
-    /// step).
+    /// step), checked against its stepper ([`CellStepper::check_state`]). A Skalak reference
+    /// without material labels (a checkpoint written before them) starts its labels afresh; a
+    /// cell without shear elasticity ignores a reference; a Skalak cell given none keeps its
+    /// own.
     pub fn set_cell_state(&mut self, i: usize, state: &CellState) -> Result<(), CellStepError> {
         let cell = &mut self.cells[i];
         let err = |source| CellStepError {
             cell: Some(cell.id),
             source,
         };
-        let st = &mut cell.stepper;
-        if state.coefs.len() != cell.coefs.len() || state.sigma.len() != st.sigma.len() {
-            return Err(err(TimestepError::DimensionMismatch {
-                what: "cell state (coefficients and tension)",
-                expected: cell.coefs.len() + st.sigma.len(),
-                got: state.coefs.len() + state.sigma.len(),
-            }));
-        }
-        cell.coefs.copy_from_slice(&state.coefs);
-        st.sigma.copy_from_slice(&state.sigma);
-        st.set_drift_targets(state.drift_targets);
-        st.set_previous_coefs(state.previous_coefs.as_deref())
-            .map_err(err)?;
-        st.set_previous_dt(state.previous_dt).map_err(err)?;
-        st.set_velocity(state.membrane_velocity.as_deref())
-            .map_err(err)?;
         if state.material_labels.is_some() && state.skalak_reference.is_none() {
             return Err(err(TimestepError::InvalidParameter {
                 name: "material labels",
@@ -316,20 +281,23 @@ impl Suspension {
                 reason: "a cell state with material labels needs its Skalak reference",
             }));
         }
-        if let Some(r) = &state.skalak_reference {
-            if st.skalak_reference().is_some() {
-                st.set_skalak_reference(r).map_err(err)?;
-                // Without labels (a checkpoint written before them) the labels start afresh
-                // from the relabelled reference.
-                if let Some(l) = &state.material_labels {
-                    st.set_material_labels(l.clone()).map_err(err)?;
-                }
+        let mut new = state.clone();
+        match (cell.stepper.skalak(), &new.skalak_reference) {
+            (None, _) => {
+                new.skalak_reference = None;
+                new.material_labels = None;
             }
+            (Some(_), None) => {
+                new.skalak_reference = cell.state.skalak_reference.clone();
+                new.material_labels = cell.state.material_labels.clone();
+            }
+            (Some(_), Some(r)) if new.material_labels.is_none() => {
+                new.material_labels = Some(cell.stepper.identity_labels(r).map_err(err)?);
+            }
+            _ => {}
         }
-        st.set_own_preconditioner_record(state.preconditioner.as_ref());
-        cell.velocity = state.velocity.clone().unwrap_or_default();
-        cell.previous_velocity = state.previous_velocity.clone().unwrap_or_default();
-        cell.iterations = state.iterations;
+        cell.stepper.check_state(&new).map_err(err)?;
+        cell.state = new;
         Ok(())
     }
 
@@ -414,21 +382,24 @@ impl Suspension {
 
     /// Each cell's SH coefficients (a view of [`Self::cells`]).
     pub fn coefs(&self) -> Vec<&[f64]> {
-        self.cells.iter().map(|c| c.coefs.as_slice()).collect()
+        self.cells
+            .iter()
+            .map(|c| c.state.coefs.as_slice())
+            .collect()
     }
 
     /// Each cell's SH coefficients, mutable (a restart; a view of [`Self::cells_mut`]).
     pub fn coefs_mut(&mut self) -> Vec<&mut Vec<f64>> {
-        self.cells.iter_mut().map(|c| &mut c.coefs).collect()
+        self.cells.iter_mut().map(|c| &mut c.state.coefs).collect()
     }
 
     /// The per-cell steppers (tension, drift targets; a view of [`Self::cells`]).
-    pub fn steppers(&self) -> Vec<&VesicleStepper> {
+    pub fn steppers(&self) -> Vec<&CellStepper> {
         self.cells.iter().map(|c| &c.stepper).collect()
     }
 
     /// Mutable per-cell steppers (a restart; a view of [`Self::cells_mut`]).
-    pub fn steppers_mut(&mut self) -> Vec<&mut VesicleStepper> {
+    pub fn steppers_mut(&mut self) -> Vec<&mut CellStepper> {
         self.cells.iter_mut().map(|c| &mut c.stepper).collect()
     }
 
@@ -440,7 +411,7 @@ impl Suspension {
 
     /// GMRES iterations of each cell's last solve (0 before the first).
     pub fn iterations(&self) -> Vec<usize> {
-        self.cells.iter().map(|c| c.iterations).collect()
+        self.cells.iter().map(|c| c.state.iterations).collect()
     }
 
     /// Counters of the coupling (`None` for one cell: nothing coupled, no FMM).
@@ -456,7 +427,10 @@ impl Suspension {
     /// The velocity the other cells induced on each cell in the last step (an empty vector
     /// for a cell before its first coupled step).
     pub fn inter_cell_velocities(&self) -> Vec<&[f64]> {
-        self.cells.iter().map(|c| c.velocity.as_slice()).collect()
+        self.cells
+            .iter()
+            .map(|c| c.state.velocity.as_deref().unwrap_or_default())
+            .collect()
     }
 
     /// The inter-cell velocities at `Xⁿ⁻¹` kept for the BDF2 extrapolation (empty vectors
@@ -464,7 +438,7 @@ impl Suspension {
     pub fn previous_inter_cell_velocities(&self) -> Vec<&[f64]> {
         self.cells
             .iter()
-            .map(|c| c.previous_velocity.as_slice())
+            .map(|c| c.state.previous_velocity.as_deref().unwrap_or_default())
             .collect()
     }
 
@@ -544,7 +518,7 @@ impl Suspension {
             .par_iter_mut()
             .map(|cell| {
                 let id = cell.id;
-                let (st, c) = (&mut cell.stepper, &cell.coefs);
+                let (st, c) = (&cell.stepper, &cell.state.coefs);
                 let mut t = vec![0.0; 3 * st.n_points()];
                 st.with_geometry(c, |g| {
                     let view = CellView {
@@ -611,7 +585,7 @@ impl Suspension {
                 .map(|(cell, u)| {
                     let mut f = vec![0.0; 3 * cell.stepper.n_points()];
                     cell.stepper
-                        .traction(&cell.coefs, &mut f)
+                        .traction(&cell.state, &mut f)
                         .map_err(|source| CellStepError {
                             cell: Some(cell.id),
                             source,
@@ -625,10 +599,10 @@ impl Suspension {
             self.solve_s += t0.elapsed().as_secs_f64();
             let tractions = agree_cells(comm, tractions)?;
             for c in &mut self.cells {
-                c.previous_velocity = std::mem::take(&mut c.velocity);
+                c.state.previous_velocity = c.state.velocity.take();
             }
             let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
-            let cref: Vec<&[f64]> = self.cells.iter().map(|c| c.coefs.as_slice()).collect();
+            let cref: Vec<&[f64]> = self.cells.iter().map(|c| &c.state.coefs[..]).collect();
             let fref: Vec<&[f64]> = tractions.iter().map(|c| c.as_slice()).collect();
             // Double-layer densities (1 − λ_j) u_j from each cell's last solve (none before the
             // first step: the first step couples the single layers only).
@@ -637,7 +611,7 @@ impl Suspension {
                 .iter()
                 .map(|c| {
                     let lambda = c.stepper.params().viscosity_ratio;
-                    match c.stepper.velocity() {
+                    match &c.state.membrane_velocity {
                         Some(u) if lambda != 1.0 && self.inter_cell_double_layer => {
                             Some(u.iter().map(|v| (1.0 - lambda) * v).collect())
                         }
@@ -650,7 +624,7 @@ impl Suspension {
                 .velocities_on(comm, &ids, &cref, &fref, &dref)
                 .map_err(|source| CellStepError { cell: None, source })?;
             for (c, v) in self.cells.iter_mut().zip(velocities) {
-                c.velocity = v;
+                c.state.velocity = Some(v);
             }
         }
         // BDF2 takes the explicit terms at X* = (1 + ω)Xⁿ − ωXⁿ⁻¹ (ω = Δtⁿ/Δtⁿ⁻¹):
@@ -659,18 +633,19 @@ impl Suspension {
             .cells
             .iter()
             .map(|c| {
-                let (v, u) = (&c.velocity, &c.previous_velocity);
+                let v = c.state.velocity.as_deref().unwrap_or_default();
+                let u = c.state.previous_velocity.as_deref().unwrap_or_default();
                 if v.is_empty() {
                     return None;
                 }
-                match c.stepper.extrapolation_ratio() {
+                match c.stepper.extrapolation_ratio(&c.state) {
                     Some(w) if !u.is_empty() => Some(
                         v.iter()
                             .zip(u)
                             .map(|(a, b)| (1.0 + w) * a - w * b)
                             .collect(),
                     ),
-                    _ => Some(v.clone()),
+                    _ => Some(v.to_vec()),
                 }
             })
             .collect();
@@ -706,7 +681,7 @@ impl Suspension {
                         .or_else(|| repulsion.map(|r| r[i].as_slice())),
                 };
                 cell.stepper
-                    .step_with(&mut cell.coefs, u_inf, extra)
+                    .step_with(&mut cell.state, u_inf, extra)
                     .map_err(|source| CellStepError {
                         cell: Some(cell.id),
                         source,
@@ -716,7 +691,7 @@ impl Suspension {
         self.solve_s += t1.elapsed().as_secs_f64();
         let reports = agree_cells(comm, reports)?;
         for (c, r) in self.cells.iter_mut().zip(&reports) {
-            c.iterations = r.gmres.iterations;
+            c.state.iterations = r.gmres.iterations;
         }
         Ok(SuspensionReport { cells: reports })
     }

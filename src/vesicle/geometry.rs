@@ -178,7 +178,7 @@ impl Geometry {
     }
     /// The membrane phase rate about `axis` ([`crate::vesicle::tank_treading::phase_rate`], weights
     /// `da`) of the grid velocity `velocity` (`3n`, component-major, as
-    /// [`crate::timestep::semi_implicit::VesicleStepper::velocity`]): for a steadily
+    /// [`crate::timestep::cell_state::CellState::membrane_velocity`]): for a steadily
     /// tank-treading cell, `2π` over the period of its material points, counter-clockwise
     /// about `axis` (pass `[0, 0, −1]` for the sense of the shear `u = (γ̇y, 0, 0)`).
     ///

@@ -1,5 +1,5 @@
 //! The Stokes kernels of the layer potentials ([`LayerKernel`]) and their nine entries at one
-//! source–target pair ([`kernel_entries`]), shared by the singular quadrature of
+//! source–target pair (`kernel_entries`), shared by the singular quadrature of
 //! [`super::layer`] and the far-side split of [`super::far_side`].
 
 use std::f64::consts::PI;
