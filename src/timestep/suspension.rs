@@ -305,6 +305,10 @@ impl Suspension {
     pub fn set_operator_storage(&mut self, storage: OperatorStorage) {
         self.storage = Some(storage);
         for c in &mut self.cells {
+            // A change drops the cell's own preconditioner (the stepper's and its record).
+            if c.stepper.operator_storage() != storage {
+                c.state.preconditioner = None;
+            }
             c.stepper.set_operator_storage(storage);
         }
     }
@@ -313,6 +317,9 @@ impl Suspension {
     pub fn set_preconditioning(&mut self, preconditioning: Preconditioning) {
         self.preconditioning = Some(preconditioning);
         for c in &mut self.cells {
+            if c.stepper.preconditioning() != preconditioning {
+                c.state.preconditioner = None;
+            }
             c.stepper.set_preconditioning(preconditioning);
         }
     }
@@ -340,6 +347,9 @@ impl Suspension {
     pub fn set_far_side_params(&mut self, params: FarSideParams) -> Result<(), CellStepError> {
         self.far_side = Some(params);
         for c in &mut self.cells {
+            if c.stepper.far_side_params() != params {
+                c.state.preconditioner = None;
+            }
             c.stepper
                 .set_far_side_params(params)
                 .map_err(|source| CellStepError {
