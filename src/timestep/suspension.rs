@@ -35,9 +35,10 @@ use rayon::prelude::*;
 
 use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
+use super::cell_stepper::CellStepper;
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
 use super::semi_implicit::{
-    CellStepper, ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
+    ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
 };
 use super::TimestepError;
 use crate::comm::{text_words, words_text, Communicator, SerialComm};

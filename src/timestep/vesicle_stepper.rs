@@ -24,8 +24,9 @@
 //! ```
 
 use super::cell_state::{CellState, PreconditionerRecord};
+use super::cell_stepper::CellStepper;
 use super::semi_implicit::{
-    CellStepper, ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
+    ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
 };
 use super::TimestepError;
 use crate::vesicle::far_side::FarSideParams;
