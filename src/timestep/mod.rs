@@ -1,15 +1,17 @@
 //! Time stepping: the Krylov layer (linear operators, preconditioners, restarted GMRES), the
-//! semi-implicit step of one vesicle ([`semi_implicit`]: Euler or BDF2, any viscosity ratio) and
-//! its preconditioner from the sphere ([`sphere_preconditioner`]); many cells coupled by the
-//! FMM, adaptive `dt` and the scenes come next.
+//! semi-implicit step of one cell ([`semi_implicit`]: the scheme, Euler or BDF2, any viscosity
+//! ratio; [`cell_state`]: what a cell carries from step to step; [`cell_stepper`]: what steps
+//! it, in the phases of [`step_phases`]) with its preconditioners (the sphere's,
+//! [`sphere_preconditioner`], and the cell's own, [`cell_preconditioner`]); many cells coupled
+//! through the FMM ([`suspension`], [`coupling`]) and adaptive `dt` ([`adaptive`]).
 //!
 //! The semi-implicit step of Veerapaneni, Rahimian, Biros & Zorin (*A fast algorithm for
 //! simulating vesicle flows in three dimensions*, J. Comput. Phys. 230, 2011) freezes the
 //! bending, tension and self-interaction operators at the current geometry and leaves one
 //! nonsymmetric linear system per step, `A x = b`, whose unknowns are the new positions and
 //! tensions of all cells. `A` is only available as a product (local operators per cell plus the
-//! FMM for the coupling), so it is solved matrix-free by GMRES. This module holds that layer; the
-//! step itself, the scene assembly and adaptive `dt` build on it.
+//! FMM for the coupling), so it is solved matrix-free by GMRES. Today each cell's system is
+//! solved on its own, the other cells' velocity taken explicitly ([`suspension`]).
 //!
 //! ## Linear operators ([`LinearOperator`])
 //!
