@@ -748,8 +748,8 @@ fn divergence_names_step_cell_quantity_and_keeps_the_checkpoint() {
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("no step number in: {stderr}"));
     assert!(rest.contains("(t = "), "no time in: {stderr}");
-    assert!(rest.contains(", cell 1: "), "no cell in: {stderr}");
-    let quantity = rest.split(", cell 1: ").nth(1).unwrap_or("");
+    assert!(rest.contains(", cell 0: "), "no cell in: {stderr}");
+    let quantity = rest.split(", cell 0: ").nth(1).unwrap_or("");
     assert!(
         [
             "coefficient",

@@ -254,3 +254,61 @@ fn a_restarted_bdf2_run_continues_exactly() {
         assert!(VesicleStepper::new(P, bad).is_err(), "λ = {lambda}");
     }
 }
+
+/// A cell's state carries everything its next step needs: the state of a BDF2 RBC with Skalak
+/// elasticity and its own preconditioner, taken after two steps and stepped by a fresh
+/// `CellStepper`, gives the third step of the stepper it came from bit for bit (the own
+/// preconditioner rebuilt from the state's record, the history, labels and tension from the
+/// state).
+#[test]
+fn a_state_continues_bit_for_bit_on_a_fresh_stepper() {
+    use mobo::timestep::cell_stepper::CellStepper;
+    use mobo::timestep::semi_implicit::Preconditioning;
+    use mobo::vesicle::skalak::SkalakParams;
+    let rbc = shapes::rbc(P).unwrap().coefs().to_vec();
+    let prm = VesicleParams {
+        bending_modulus: 0.1,
+        viscosity: 1.0,
+        force: [0.0; 3],
+        dt: 0.02,
+        upsampled_order: 2 * P,
+        gmres: GmresParams {
+            tol: 1e-10,
+            ..Default::default()
+        },
+        correct_drift: true,
+        reparametrize: Some(ReparamParams::default()),
+        preconditioner: true,
+        scheme: TimeScheme::Bdf2,
+        viscosity_ratio: 5.0,
+        inextensible: true,
+        elastic_stepping: None,
+    };
+    let make = || {
+        let mut st = CellStepper::new(P, prm).unwrap();
+        st.set_skalak(SkalakParams::skalak(1.0, 10.0));
+        st.set_preconditioning(Preconditioning::CELL);
+        st
+    };
+    let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
+    let mut a = make();
+    let mut state = a.initial_state(&rbc, Some(&rbc)).unwrap();
+    for _ in 0..2 {
+        a.step(&mut state, &shear).unwrap();
+    }
+    assert!(state.previous_coefs.is_some() && state.preconditioner.is_some());
+    let mut moved = state.clone();
+    a.step(&mut state, &shear).unwrap();
+    let mut b = make();
+    b.check_state(&moved).unwrap();
+    let report = b.step(&mut moved, &shear).unwrap();
+    assert_eq!(report.scheme, TimeScheme::Bdf2);
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&moved.coefs), bits(&state.coefs), "surface");
+    assert_eq!(bits(&moved.sigma), bits(&state.sigma), "tension");
+    assert_eq!(moved, state, "the whole state");
+    // A state of another order is refused with a message, not stepped.
+    let mut wrong = moved.clone();
+    wrong.sigma.pop();
+    assert!(b.step(&mut wrong, &shear).is_err());
+}

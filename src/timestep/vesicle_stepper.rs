@@ -9,13 +9,29 @@
 //! a study may change it between steps.
 //!
 //! ```
-//! use mobo::timestep::semi_implicit::VesicleParams;
+//! use mobo::timestep::semi_implicit::{TimeScheme, VesicleParams};
 //! use mobo::timestep::vesicle_stepper::VesicleStepper;
+//! use mobo::timestep::GmresParams;
 //! use mobo::vesicle::shapes;
 //!
 //! let p = 6;
 //! let mut coefs = shapes::ellipsoid(p, [1.0, 0.8, 0.6]).unwrap().coefs().to_vec();
-//! let mut st = VesicleStepper::new(p, VesicleParams { dt: 0.01, ..Default::default() }).unwrap();
+//! let params = VesicleParams {
+//!     bending_modulus: 1.0,
+//!     viscosity: 1.0,
+//!     force: [0.0; 3],
+//!     dt: 0.01,
+//!     upsampled_order: 2 * p,
+//!     gmres: GmresParams::default(),
+//!     correct_drift: true,
+//!     reparametrize: None,
+//!     preconditioner: true,
+//!     scheme: TimeScheme::Euler,
+//!     viscosity_ratio: 1.0,
+//!     inextensible: true,
+//!     elastic_stepping: None,
+//! };
+//! let mut st = VesicleStepper::new(p, params).unwrap();
 //! let report = st.step(&mut coefs, &|_| [0.0; 3]).unwrap();
 //! assert!(report.gmres.converged);
 //! // The tension of the step and the membrane velocity are the state's.
