@@ -42,9 +42,11 @@
 //! # Ok::<(), mobo::dpd::DpdError>(())
 //! ```
 
+mod bounce;
 pub mod cell_list;
 pub mod contact;
 pub mod crossing;
+pub mod fluid_cell;
 #[cfg(feature = "gpu")]
 pub mod gpu_fluid;
 #[cfg(feature = "gpu")]
