@@ -4,7 +4,10 @@
 //! assembly decisions; [`brownian`]: the `[brownian]` section of `mobo brownian`.
 
 pub mod brownian;
+mod cell_groups;
+mod cell_scene;
 pub mod cells;
+mod cells_schema;
 pub mod dpd;
 pub mod spec;
 

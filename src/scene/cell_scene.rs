@@ -1,0 +1,299 @@
+//! A validated cell scene ([`CellScene`]): the fluid, the flow, every cell ([`CellSpec`]),
+//! the numerics and the output, as [`super::cells::parse`] and
+//! [`super::spec::SceneSpec::build`] produce it.
+
+use crate::gpu::GpuChoice;
+use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
+use crate::vesicle::shapes::{self, Spheroid, Surface};
+use crate::vesicle::skalak::ElasticLaw;
+
+/// The lowest SH order that holds the red blood cell's shape ([`shapes::rbc`]: its height is
+/// `sin⁴θ cosθ` at most, a polynomial of degree 5).
+pub const RBC_MIN_ORDER: usize = 5;
+
+/// Steps between checks of the split of the cells over ranks (`[numerics] rebalance_every`'s
+/// default; [`crate::run::partition`]).
+pub const REBALANCE_EVERY: usize = 10;
+
+/// Cost imbalance above which cells are moved between ranks (`[numerics] max_imbalance`'s
+/// default; [`crate::run::partition`]).
+pub const MAX_IMBALANCE: f64 = 0.10;
+
+/// `[output]`: what is written besides `summary.json`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutputSettings {
+    /// Frames as `.npy` arrays in `DIR/frames/` (default on).
+    pub npy: bool,
+    /// Frames as ParaView meshes in `DIR/vtk/` with this many icosphere subdivisions (default
+    /// on, 3 subdivisions: 642 vertices per cell).
+    pub vtk: Option<u32>,
+    /// Frames in `DIR/frames.h5` (needs the `hdf5` feature; default off).
+    pub hdf5: bool,
+    /// Steps between checkpoints (default: `every`).
+    pub checkpoint_every: u64,
+}
+
+/// Background flow.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Flow {
+    /// Quiescent fluid.
+    None,
+    /// `u = (γ̇ y, 0, 0)`.
+    Shear {
+        /// Shear rate `γ̇` (`[flow] rate`; its sign sets the direction).
+        rate: f64,
+    },
+    /// `u = ε̇ (x − o_x, −(y − o_y), 0)` about the origin `o` of the frame.
+    Extensional {
+        /// Strain rate `ε̇` (`[flow] rate`).
+        rate: f64,
+        /// Whether the stagnation point follows the cells (`[flow] frame = "cells"`, the
+        /// default): `o` is, at the start of every step, the midpoint of the bounding box of
+        /// the cells' centres; otherwise (`frame = "lab"`) `o = 0`. Following the cells is a
+        /// uniform translation of the whole suspension (in free space it changes no shape and
+        /// no relative position), as the feedback of cross-slot experiments keeps a cell at the
+        /// stagnation point; in the lab frame the stagnation point is a saddle that a cell
+        /// leaves exponentially, at the strain rate, from the round-off of its position.
+        follow_cells: bool,
+    },
+    /// `u = (U (1 − (y² + z²)/R²), 0, 0)`.
+    Poiseuille {
+        /// Centreline speed `U` (`[flow] speed`).
+        speed: f64,
+        /// Radius `R` of the profile (`[flow] radius`, positive); the flow is unbounded (no
+        /// wall at `R`), so `u` turns negative beyond it.
+        radius: f64,
+    },
+}
+
+impl Flow {
+    /// The background velocity at `x` in a frame whose origin is `origin`: for an extensional
+    /// flow that follows the cells, `u(x − origin)`; every other flow is the lab frame's
+    /// [`Flow::velocity`] (`origin` unused).
+    pub fn velocity_about(&self, x: [f64; 3], origin: [f64; 3]) -> [f64; 3] {
+        if self.follows_cells() {
+            self.velocity([x[0] - origin[0], x[1] - origin[1], x[2] - origin[2]])
+        } else {
+            self.velocity(x)
+        }
+    }
+
+    /// Whether the flow's origin follows the cells (an extensional flow with `frame = "cells"`).
+    pub fn follows_cells(&self) -> bool {
+        matches!(
+            self,
+            Flow::Extensional {
+                follow_cells: true,
+                ..
+            }
+        )
+    }
+
+    /// The background velocity at `x` (lab frame).
+    pub fn velocity(&self, x: [f64; 3]) -> [f64; 3] {
+        match *self {
+            Flow::None => [0.0; 3],
+            Flow::Shear { rate } => [rate * x[1], 0.0, 0.0],
+            Flow::Extensional { rate, .. } => [rate * x[0], -rate * x[1], 0.0],
+            Flow::Poiseuille { speed, radius } => [
+                speed * (1.0 - (x[1] * x[1] + x[2] * x[2]) / (radius * radius)),
+                0.0,
+                0.0,
+            ],
+        }
+    }
+}
+
+/// Cell shape before scaling and placement.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Shape {
+    /// `shape = "sphere"`.
+    Sphere,
+    /// `shape = "ellipsoid"`.
+    Ellipsoid {
+        /// Semi-axes along x, y, z (`axes`, positive); only their ratios matter, the size is
+        /// set by the equivalent radius.
+        axes: [f64; 3],
+    },
+    /// `shape = "rbc"`: the biconcave red blood cell disc of [`crate::vesicle::shapes::rbc`]
+    /// (axis of symmetry along z).
+    Rbc,
+    /// `shape = "prolate"` or `"oblate"`: the spheroid (axis of symmetry along z) of a given
+    /// reduced volume.
+    Spheroid {
+        /// Prolate or oblate.
+        kind: Spheroid,
+        /// Reduced volume `v = 6√π V / A^{3/2}` (volume over that of the sphere of equal
+        /// area) in `(0, 1)` (`reduced_volume`; 1 would be a sphere).
+        reduced_volume: f64,
+    },
+}
+
+/// One cell of a scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CellSpec {
+    /// Shape before scaling, rotation and placement.
+    pub shape: Shape,
+    /// Equivalent radius (sphere of equal volume).
+    pub radius: f64,
+    /// Centroid.
+    pub center: [f64; 3],
+    /// Rotation matrix applied about the centroid.
+    pub rotation: [[f64; 3]; 3],
+    /// Bending modulus `κ_b` (default 0.05).
+    pub bending_modulus: f64,
+    /// Shear modulus `G_s` of the elastic law (default 0: no shear elasticity); the membrane
+    /// is stress-free at its initial shape.
+    pub shear_modulus: f64,
+    /// Skalak area-dilation parameter `C` (large `C`: nearly area-preserving; default 10).
+    pub skalak_c: f64,
+    /// The strain-energy function of the shear elasticity (default Skalak).
+    pub elastic_law: ElasticLaw,
+    /// `false` for a capsule (`membrane = "capsule"`): no inextensibility constraint.
+    pub inextensible: bool,
+    /// Viscosity ratio `λ = μ_in / μ_out` (default 1: no double layer).
+    pub viscosity_ratio: f64,
+    /// Body force on the cell, the total `F` (spread as a uniform traction `F / A`; default
+    /// zero).
+    pub force: [f64; 3],
+    /// Radius of a sphere about the centroid that contains the cell.
+    pub bounding_radius: f64,
+    /// Line in the scene file of the `[[cells]]` entry this cell comes from.
+    pub line: usize,
+}
+
+impl CellSpec {
+    /// The cell's surface at SH order `p`.
+    pub fn surface(&self, p: usize) -> Result<Surface, crate::vesicle::VesicleError> {
+        let mut s = unit_shape(&self.shape, p)?;
+        s.scale_to_equivalent_radius(self.radius)?;
+        s.place_centroid([0.0; 3])?;
+        s.rotate(self.rotation)?;
+        s.translate(self.center);
+        Ok(s)
+    }
+}
+
+/// Time-integration scheme.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Scheme {
+    /// First-order semi-implicit (Veerapaneni et al. 2011).
+    Euler,
+    /// Second order, BDF2 with extrapolated operators.
+    Bdf2,
+}
+
+/// `[numerics]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Numerics {
+    /// Spherical-harmonic order `p` of the cell surfaces (2 to 64; default 12).
+    pub order: usize,
+    /// Upsampling factor: the quadrature order is `q = upsample · p` (1 to 4; default 2).
+    pub upsample: usize,
+    /// Digits of accuracy asked of the FMM between cells (3 to 10; default 6).
+    pub fmm_digits: u32,
+    /// Relative residual at which GMRES stops (in `(0, 1)`; default `1e-8`).
+    pub gmres_tol: f64,
+    /// Time step (default 0.01); with `adaptive_dt`, the first step.
+    pub dt: f64,
+    /// End time of the run (default 1); a fixed `dt` takes `round(t_end / dt)` steps.
+    pub t_end: f64,
+    /// Time-integration scheme (default [`Scheme::Euler`]).
+    pub scheme: Scheme,
+    /// How the elastic force enters the step (`None`, `"auto"`: linearly implicit for
+    /// capsules, explicit for inextensible cells).
+    pub elasticity: Option<ElasticStepping>,
+    /// Choose `dt` from the area/volume error estimate ([`crate::timestep::adaptive`];
+    /// default off).
+    pub adaptive_dt: bool,
+    /// Split a cell's own far side off its singular integrals where it comes close
+    /// ([`crate::vesicle::far_side`]; default on).
+    pub far_side_split: bool,
+    /// How each cell keeps its self-interaction operators
+    /// ([`crate::timestep::semi_implicit::OperatorStorage`]); `None` ("auto", the default): the
+    /// fastest whose operators for all cells and threads fit in 60 % of the memory available at
+    /// the start (the grid, unless a thread cannot hold its operators).
+    pub operator_storage: Option<OperatorStorage>,
+    /// GMRES preconditioner of every inextensible cell (default: each cell's own,
+    /// [`Preconditioning::CELL`]; see [`crate::timestep::semi_implicit::Preconditioning`]).
+    pub preconditioning: Preconditioning,
+    /// Adaptive `dt`: relative area/volume error allowed over the run (default `1e-3`).
+    pub dt_tolerance: f64,
+    /// Adaptive `dt`: smallest step (default `dt/1000`).
+    pub dt_min: f64,
+    /// Adaptive `dt`: largest step (default `max(dt, t_end/10)`).
+    pub dt_max: f64,
+    /// Contact repulsion range as a fraction of the equivalent radius (0: off).
+    pub repulsion_range: f64,
+    /// Contact repulsion strength (traction); `None`: `10 · max(κ_b/R³, μ γ̇, |F|/4πR²)`
+    /// over the cells, `γ̇` the flow's rate scale.
+    pub repulsion_strength: Option<f64>,
+    /// Under MPI: steps between checks of the split of the cells between ranks (default 10).
+    pub rebalance_every: usize,
+    /// Under MPI: the cost imbalance (largest rank over mean, minus 1) above which cells are
+    /// moved at a check (default 0.1; see [`crate::run::partition`]).
+    pub max_imbalance: f64,
+    /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
+    /// ([`crate::fmm::gpu_near::choose`]).
+    pub gpu: GpuChoice,
+}
+
+/// One assembly decision: whether a piece of physics is built, and why.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Effect {
+    /// What is built: `"fmm"`, `"double_layer"`, `"inter_cell_double_layer"`, `"skalak"`,
+    /// `"background_flow"`, `"body_force"`, `"adaptive_dt"`, or (in a run's summary, where
+    /// memory left them out) `"cell_preconditioner"`.
+    pub name: &'static str,
+    /// Whether it is built.
+    pub enabled: bool,
+    /// Why, in words (e.g. `"viscosity_ratio ≠ 1 for cells 0, 2"`).
+    pub reason: String,
+}
+
+/// A validated cell scene.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CellScene {
+    /// Viscosity `μ` of the suspending fluid (`[fluid] viscosity`; default 1).
+    pub viscosity: f64,
+    /// Background flow (`[flow]`; default none).
+    pub flow: Flow,
+    /// Every cell, groups expanded, in the order of the file.
+    pub cells: Vec<CellSpec>,
+    /// Discretisation, time stepping and parallel settings.
+    pub numerics: Numerics,
+    /// Steps between saved frames (`[output] every`; default 10).
+    pub output_every: u64,
+    /// Formats and checkpoints.
+    pub output: OutputSettings,
+    /// What the scene needs, decided from its contents (see [`super::cells::effects`]).
+    pub effects: Vec<Effect>,
+}
+
+pub(super) fn unit_shape(shape: &Shape, p: usize) -> Result<Surface, crate::vesicle::VesicleError> {
+    match *shape {
+        Shape::Sphere => shapes::sphere(p, 1.0),
+        Shape::Ellipsoid { axes } => shapes::ellipsoid(p, axes),
+        Shape::Rbc => shapes::rbc(p),
+        Shape::Spheroid {
+            kind,
+            reduced_volume,
+        } => shapes::reduced_volume_spheroid(p, reduced_volume, kind, 1.0),
+    }
+}
+
+/// Rotation matrix about `axis` by `deg` degrees (Rodrigues).
+pub(crate) fn rotation(axis: [f64; 3], deg: f64) -> Option<[[f64; 3]; 3]> {
+    let n = (axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2]).sqrt();
+    if !(n > 0.0 && n.is_finite() && deg.is_finite()) {
+        return None;
+    }
+    let (x, y, z) = (axis[0] / n, axis[1] / n, axis[2] / n);
+    let (s, c) = deg.to_radians().sin_cos();
+    let t = 1.0 - c;
+    Some([
+        [t * x * x + c, t * x * y - s * z, t * x * z + s * y],
+        [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
+        [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
+    ])
+}
