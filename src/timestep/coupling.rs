@@ -416,7 +416,6 @@ impl Coupling {
         let t2 = Instant::now();
         self.stats.fmm_s += (t2 - t1).as_secs_f64();
         // 3. Minus each cell's own smooth quadrature; to component-major per cell.
-        let np = self.n_grid();
         let mut out: Vec<Vec<f64>> = (0..nc)
             .into_par_iter()
             .map(|i| self.minus_own(i, &u_all, &dl_all))
@@ -451,6 +450,25 @@ impl Coupling {
         sources.sort_by_key(|s| s.id);
         let near = agreed(comm, self.near_corrections(ids, &sources))?;
         drop(sources);
+        self.apply_near(comm, ids, near, &mut out)?;
+        // A rank without pushes returns no repulsion; every rank agrees on whether any exists
+        // only where it matters (its own cells).
+        self.stats.near_s += t4.elapsed().as_secs_f64();
+        Ok(out)
+    }
+
+    /// The near zone's results applied (collective): each near-singular correction added to
+    /// the velocity `out` of this rank's cells (component-major per cell), the contact pushes
+    /// kept as the repulsion tractions ([`Coupling::repulsion`]), and the statistics (near
+    /// points and pairs, pushes, the smallest gap) reduced over the ranks.
+    fn apply_near(
+        &mut self,
+        comm: &dyn Communicator,
+        ids: &[usize],
+        near: NearResult,
+        out: &mut [Vec<f64>],
+    ) -> Result<(), TimestepError> {
+        let (nc, np) = (out.len(), self.n_grid());
         let mut min_gap = [f64::INFINITY];
         let mut counts = [0u64; 3];
         for list in &near.corrections {
@@ -485,10 +503,7 @@ impl Coupling {
             }
             r
         };
-        // A rank without pushes returns no repulsion; every rank agrees on whether any exists
-        // only where it matters (its own cells).
-        self.stats.near_s += t4.elapsed().as_secs_f64();
-        Ok(out)
+        Ok(())
     }
 
     /// Grid points per cell (order `p`).
