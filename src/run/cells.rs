@@ -46,7 +46,8 @@ use crate::comm::{Communicator, SerialComm};
 use crate::io::frames::{FrameFormats, FrameWriter};
 use crate::io::write_atomic;
 use crate::scene::cells::{CellScene, Scheme};
-use crate::sph_harmonics::ShTransform;
+use crate::sph_harmonics::{ShTransform, ShWorkspace};
+use crate::timestep::adaptive::AdaptiveDt;
 use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
 use crate::timestep::TimestepError;
 use crate::vesicle::geometry::{Geometry, SurfaceCalculus};
@@ -155,6 +156,9 @@ pub fn run(
 /// The cells are split between the ranks ([`partition`]); rank 0 gathers what is
 /// written (frames, checkpoints, the summary, all the same files as on one rank) and returns
 /// the summary; the other ranks return `None`. A failure is returned on every rank.
+///
+/// The run goes in phases (`CellRun`): it starts (from the scene or the checkpoint), steps
+/// until `t_end` or a stop, writes frames and checkpoints as it goes, and writes its summary.
 pub fn run_on(
     comm: &dyn Communicator,
     scene: &CellScene,
@@ -162,152 +166,261 @@ pub fn run_on(
     out: &Path,
     options: &RunOptions,
 ) -> Result<Option<CellRunSummary>, CellRunError> {
-    let p = scene.numerics.order;
-    let q = scene.numerics.upsample * p;
-    let dt = scene.numerics.dt;
-    let steps = (scene.numerics.t_end / dt).round().max(1.0) as usize;
-    let (k_ranks, root) = (comm.size(), comm.rank() == 0);
-    let nc = scene.cells.len();
-    let setups = setups(scene)?;
-    let sht = ShTransform::new(p).map_err(VesicleError::from)?;
-    let mut ws = sht.workspace();
-    let (ncoef, n) = (3 * sht.n_coefs(), sht.n_points());
-    let double_layer = nc > 1 && scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
-    let mut calc = SurfaceCalculus::new(p)?;
-    // Where the run starts: the scene, or the checkpoint (read by every rank).
-    let resumed = if options.resume {
-        let loaded = checkpoint::load(out, nc, ncoef, n, double_layer);
-        Some(agreed(comm, loaded)?)
-    } else {
-        None
-    };
-    let mut owners = match &resumed {
-        Some((_, _, Some(split))) if split.ranks == k_ranks => split.owners.clone(),
-        Some((_, states, _)) => {
-            let centres: Vec<_> = states.iter().map(|s| partition::centre(&s.coefs)).collect();
-            let costs: Vec<_> = states
-                .iter()
-                .map(|s| partition::cost(s.iterations))
-                .collect();
-            partition::split(&centres, &costs, k_ranks)
-        }
-        None => {
-            let centres: Vec<_> = setups.iter().map(|s| partition::centre(&s.coefs)).collect();
-            partition::split(&centres, &vec![partition::cost(0); nc], k_ranks)
-        }
-    };
-    let mine: Vec<usize> = (0..nc).filter(|&i| owners[i] == comm.rank()).collect();
-    let mut susp = agreed(comm, build_part(scene, &setups, &mine))?;
-    let formats = FrameFormats {
-        npy: scene.output.npy,
-        hdf5: scene.output.hdf5,
-        vtp: scene.output.vtk,
-    };
-    let (mut prog, mut frames) = match resumed {
-        Some((prog, states, _)) => {
-            let restored = (0..susp.len()).try_for_each(|i| {
-                let id = susp.cells()[i].id;
-                susp.set_cell_state(i, &states[id]).map_err(|e| {
-                    CellRunError::Resume(format!(
-                        "{}: cell {}: {}",
-                        out.join(CHECKPOINT).display(),
-                        id,
-                        e.source
-                    ))
-                })
-            });
-            agreed(comm, restored)?;
-            let frames = root
-                .then(|| FrameWriter::resume(out, formats, &prog.frame_times))
-                .transpose()
-                .map_err(CellRunError::from);
-            (prog, agreed(comm, frames)?)
-        }
-        None => {
-            let mut prog = Progress::start(dt);
-            let t0 = Instant::now();
-            let opened = if root {
-                (|| -> Result<_, CellRunError> {
-                    for s in &setups {
-                        let (x, a, v, inc) = observe(&mut calc, &s.coefs)?;
-                        prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
-                    }
-                    write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
-                    Ok(Some(FrameWriter::new(out, formats)?))
-                })()
-            } else {
-                Ok(None)
-            };
-            let mut frames = agreed(comm, opened)?;
-            gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, 0.0)?;
-            prog.output_s += t0.elapsed().as_secs_f64();
-            if let Some(f) = &frames {
-                prog.frame_times = f.times().to_vec();
-            }
-            (prog, frames)
-        }
-    };
-    let adaptive = adaptive_control(scene)?;
-    if adaptive.is_some() {
-        // A resumed adaptive run continues with the step it had chosen.
-        susp.set_dt(prog.dt)
-            .map_err(|e| step_error(prog.step, prog.time, e))?;
-    }
+    let mut run = CellRun::start(comm, scene, scene_text, out, options)?;
     let bar = progress_bar(
-        options.quiet || !root,
-        adaptive.is_some(),
-        steps,
-        &prog,
+        options.quiet || comm.rank() != 0,
+        run.adaptive.is_some(),
+        run.steps(),
+        &run.prog,
         scene,
     );
-    let flow = scene.flow;
-    let start = Instant::now();
-    let wall0 = prog.wall_s;
-    // Centres of this rank's cells before the last step (global index, centre).
-    let mut before_last: Vec<(usize, [f64; 3])> = Vec::new();
-    let first = prog.step + 1;
     let mut stopped = false;
-    let mut k = prog.step;
-    let mut clock = RankClock::default();
-    let mut log = Vec::new();
-    // Double-layer assemblies and own-preconditioner builds of cells that left this rank
-    // (their steppers went with them).
-    let mut left = [0usize; 2];
-    let counts = |s: &Suspension| {
-        s.cells().iter().fold([0usize; 2], |[d, b], c| {
-            [
-                d + c.stepper.double_layer_assemblies,
-                b + c.stepper.own_preconditioner_builds,
-            ]
-        })
-    };
-    // The run ends at t_end up to round-off in the sum of adaptive steps.
-    let t_done = scene.numerics.t_end * (1.0 - 1e-12);
-    // Whether step `k`, reaching time `t`, ends the run.
-    let ends_run = |k: usize, t: f64| match &adaptive {
-        None => k >= steps,
-        Some(_) => t >= t_done,
-    };
-    loop {
-        if ends_run(k, prog.time) {
+    while !run.ends_run(run.k, run.prog.time) {
+        let last;
+        (last, stopped) = run.step(&bar)?;
+        run.write_outputs(last, stopped)?;
+        if stopped {
             break;
         }
-        let held = counts(&susp);
+    }
+    bar.finish_and_clear();
+    run.finish(stopped)
+}
+
+/// A cell run in progress on one rank: what [`run_on`] carries from one step to the next.
+struct CellRun<'a> {
+    comm: &'a dyn Communicator,
+    scene: &'a CellScene,
+    out: &'a Path,
+    options: &'a RunOptions,
+    /// Every cell's setup, in scene order (moved cells are rebuilt from them).
+    setups: Vec<CellSetup>,
+    sht: ShTransform,
+    ws: ShWorkspace,
+    calc: SurfaceCalculus,
+    /// Whether the cells feel each other's double layer (a checkpoint keeps the velocities).
+    double_layer: bool,
+    /// The rank of every cell.
+    owners: Vec<usize>,
+    susp: Suspension,
+    prog: Progress,
+    frames: Option<FrameWriter>,
+    adaptive: Option<AdaptiveDt>,
+    /// Centres of this rank's cells before the last step (global index, centre).
+    before_last: Vec<(usize, [f64; 3])>,
+    /// The first step of this invocation.
+    first: usize,
+    /// The last step taken.
+    k: usize,
+    clock: RankClock,
+    log: Vec<Rebalance>,
+    /// Double-layer assemblies and own-preconditioner builds of cells that left this rank
+    /// (their steppers went with them).
+    left: [usize; 2],
+    start: Instant,
+    wall0: f64,
+}
+
+/// Double-layer assemblies and own-preconditioner builds of the cells held in `s`.
+fn counts(s: &Suspension) -> [usize; 2] {
+    s.cells().iter().fold([0usize; 2], |[d, b], c| {
+        [
+            d + c.stepper.double_layer_assemblies,
+            b + c.stepper.own_preconditioner_builds,
+        ]
+    })
+}
+
+impl<'a> CellRun<'a> {
+    /// Start: the cells split over the ranks and built, from the scene (frame 0 written) or
+    /// from the checkpoint in `out` (every rank reads it).
+    fn start(
+        comm: &'a dyn Communicator,
+        scene: &'a CellScene,
+        scene_text: &str,
+        out: &'a Path,
+        options: &'a RunOptions,
+    ) -> Result<Self, CellRunError> {
+        let p = scene.numerics.order;
+        let dt = scene.numerics.dt;
+        let (k_ranks, root) = (comm.size(), comm.rank() == 0);
+        let nc = scene.cells.len();
+        let setups = setups(scene)?;
+        let sht = ShTransform::new(p).map_err(VesicleError::from)?;
+        let mut ws = sht.workspace();
+        let (ncoef, n) = (3 * sht.n_coefs(), sht.n_points());
+        let double_layer = nc > 1 && scene.cells.iter().any(|c| c.viscosity_ratio != 1.0);
+        let mut calc = SurfaceCalculus::new(p)?;
+        // Where the run starts: the scene, or the checkpoint (read by every rank).
+        let resumed = if options.resume {
+            let loaded = checkpoint::load(out, nc, ncoef, n, double_layer);
+            Some(agreed(comm, loaded)?)
+        } else {
+            None
+        };
+        let owners = match &resumed {
+            Some((_, _, Some(split))) if split.ranks == k_ranks => split.owners.clone(),
+            Some((_, states, _)) => {
+                let centres: Vec<_> = states.iter().map(|s| partition::centre(&s.coefs)).collect();
+                let costs: Vec<_> = states
+                    .iter()
+                    .map(|s| partition::cost(s.iterations))
+                    .collect();
+                partition::split(&centres, &costs, k_ranks)
+            }
+            None => {
+                let centres: Vec<_> = setups.iter().map(|s| partition::centre(&s.coefs)).collect();
+                partition::split(&centres, &vec![partition::cost(0); nc], k_ranks)
+            }
+        };
+        let mine: Vec<usize> = (0..nc).filter(|&i| owners[i] == comm.rank()).collect();
+        let mut susp = agreed(comm, build_part(scene, &setups, &mine))?;
+        let formats = FrameFormats {
+            npy: scene.output.npy,
+            hdf5: scene.output.hdf5,
+            vtp: scene.output.vtk,
+        };
+        let (prog, frames) = match resumed {
+            Some((prog, states, _)) => {
+                let restored = (0..susp.len()).try_for_each(|i| {
+                    let id = susp.cells()[i].id;
+                    susp.set_cell_state(i, &states[id]).map_err(|e| {
+                        CellRunError::Resume(format!(
+                            "{}: cell {}: {}",
+                            out.join(CHECKPOINT).display(),
+                            id,
+                            e.source
+                        ))
+                    })
+                });
+                agreed(comm, restored)?;
+                let frames = root
+                    .then(|| FrameWriter::resume(out, formats, &prog.frame_times))
+                    .transpose()
+                    .map_err(CellRunError::from);
+                (prog, agreed(comm, frames)?)
+            }
+            None => {
+                let mut prog = Progress::start(dt);
+                let t0 = Instant::now();
+                let opened = if root {
+                    (|| -> Result<_, CellRunError> {
+                        for s in &setups {
+                            let (x, a, v, inc) = observe(&mut calc, &s.coefs)?;
+                            prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
+                        }
+                        write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
+                        Ok(Some(FrameWriter::new(out, formats)?))
+                    })()
+                } else {
+                    Ok(None)
+                };
+                let mut frames = agreed(comm, opened)?;
+                gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, 0.0)?;
+                prog.output_s += t0.elapsed().as_secs_f64();
+                if let Some(f) = &frames {
+                    prog.frame_times = f.times().to_vec();
+                }
+                (prog, frames)
+            }
+        };
+        let adaptive = adaptive_control(scene)?;
+        if adaptive.is_some() {
+            // A resumed adaptive run continues with the step it had chosen.
+            susp.set_dt(prog.dt)
+                .map_err(|e| step_error(prog.step, prog.time, e))?;
+        }
+        let (first, k, wall0) = (prog.step + 1, prog.step, prog.wall_s);
+        Ok(CellRun {
+            comm,
+            scene,
+            out,
+            options,
+            setups,
+            sht,
+            ws,
+            calc,
+            double_layer,
+            owners,
+            susp,
+            prog,
+            frames,
+            adaptive,
+            before_last: Vec::new(),
+            first,
+            k,
+            clock: RankClock::default(),
+            log: Vec::new(),
+            left: [0; 2],
+            start: Instant::now(),
+            wall0,
+        })
+    }
+
+    /// Fixed steps of the scene (`t_end / dt`).
+    fn steps(&self) -> usize {
+        (self.scene.numerics.t_end / self.scene.numerics.dt)
+            .round()
+            .max(1.0) as usize
+    }
+
+    /// Whether step `k`, reaching time `t`, ends the run (with an adaptive `dt`, at `t_end`
+    /// up to round-off in the sum of the steps).
+    fn ends_run(&self, k: usize, t: f64) -> bool {
+        match &self.adaptive {
+            None => k >= self.steps(),
+            Some(_) => t >= self.scene.numerics.t_end * (1.0 - 1e-12),
+        }
+    }
+
+    /// One accepted step (the split checked first, the cells moved if it went stale), its
+    /// checks and statistics. Returns whether it was the last, and whether the run stops
+    /// after it (a stop request on any rank, or `max_steps`).
+    fn step(&mut self, bar: &ProgressBar) -> Result<(bool, bool), CellRunError> {
+        let (comm, scene, options) = (self.comm, self.scene, self.options);
+        let (p, dt, first) = (scene.numerics.order, scene.numerics.dt, self.first);
+        let flow = scene.flow;
+        let mut k = self.k;
+        let steps = self.steps();
+        let t_done = scene.numerics.t_end * (1.0 - 1e-12);
+        let adaptive_on = self.adaptive.is_some();
+        // Whether step `k`, reaching time `t`, ends the run (as [`Self::ends_run`]).
+        let ends_run = |k: usize, t: f64| {
+            if adaptive_on {
+                t >= t_done
+            } else {
+                k >= steps
+            }
+        };
+        let CellRun {
+            setups,
+            calc,
+            owners,
+            susp,
+            prog,
+            adaptive,
+            before_last,
+            clock,
+            log,
+            left,
+            ..
+        } = self;
+        let held = counts(susp);
         rebalance(
             comm,
-            &mut susp,
+            susp,
             p,
-            &setups,
-            &mut owners,
+            setups,
+            owners,
             (
                 k,
                 scene.numerics.rebalance_every,
                 scene.numerics.max_imbalance,
             ),
-            &mut clock,
-            &mut log,
+            clock,
+            log,
         )?;
-        let kept = counts(&susp);
+        let kept = counts(susp);
         for ((l, h), k) in left.iter_mut().zip(held).zip(kept) {
             *l += h - k.min(h);
         }
@@ -319,14 +432,14 @@ pub fn run_on(
         if ends_run(k, prog.time + dt_try) {
             before_last.clear();
             for c in susp.cells() {
-                before_last.push((c.id, observe(&mut calc, &c.state.coefs)?.0));
+                before_last.push((c.id, observe(calc, &c.state.coefs)?.0));
             }
         }
         let t = Instant::now();
-        let origin = flow_origin(comm, &susp, &flow)?;
+        let origin = flow_origin(comm, susp, &flow)?;
         let acc = accepted_step(
             comm,
-            &mut susp,
+            susp,
             &|x| flow.velocity_about(x, origin),
             &[],
             (k, prog.time, scene.numerics.t_end),
@@ -401,22 +514,42 @@ pub fn run_on(
         let interrupted = interrupted[0] > 0.0;
         let limited = options.max_steps.is_some_and(|m| k + 1 - first >= m);
         let last = ends_run(k, prog.time);
-        stopped = !last && (interrupted || limited);
+        let stopped = !last && (interrupted || limited);
+        self.k = k;
+        Ok((last, stopped))
+    }
+
+    /// The frame and the checkpoint due after step `self.k` (always after the last step and
+    /// at a stop), gathered at rank 0.
+    fn write_outputs(&mut self, last: bool, stopped: bool) -> Result<(), CellRunError> {
+        let (comm, scene, out, k) = (self.comm, self.scene, self.out, self.k);
+        let (k_ranks, ncoef, n) = (comm.size(), 3 * self.sht.n_coefs(), self.sht.n_points());
+        let (wall0, start, double_layer) = (self.wall0, self.start, self.double_layer);
+        let CellRun {
+            susp,
+            frames,
+            sht,
+            ws,
+            prog,
+            owners,
+            clock,
+            ..
+        } = self;
         let t0 = Instant::now();
         if last || (k as u64).is_multiple_of(scene.output_every) {
-            gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, prog.time)?;
+            gathered_frame(comm, susp, frames.as_mut(), sht, ws, prog.time)?;
             if let Some(f) = &frames {
                 prog.frame_times = f.times().to_vec();
             }
         }
         if stopped || last || (k as u64).is_multiple_of(scene.output.checkpoint_every) {
             prog.wall_s = wall0 + start.elapsed().as_secs_f64();
-            let states = gather_states(comm, &susp, ncoef, n)?;
+            let states = gather_states(comm, susp, ncoef, n)?;
             let saved = match states {
                 Some(states) => checkpoint::save(
                     out,
                     &states,
-                    &prog,
+                    prog,
                     &Split {
                         ranks: k_ranks,
                         owners: owners.clone(),
@@ -430,144 +563,174 @@ pub fn run_on(
         let spent = t0.elapsed().as_secs_f64();
         prog.output_s += spent;
         clock.output_s += spent;
-        if stopped {
-            break;
+        Ok(())
+    }
+
+    /// The end of the run: the frames closed (unless stopped), every cell observed, the
+    /// summary gathered at rank 0 and written there (`None` on the other ranks).
+    fn finish(mut self, stopped: bool) -> Result<Option<CellRunSummary>, CellRunError> {
+        let (comm, scene, out, k, first) = (self.comm, self.scene, self.out, self.k, self.first);
+        let (p, dt, k_ranks, nc) = (
+            scene.numerics.order,
+            scene.numerics.dt,
+            comm.size(),
+            scene.cells.len(),
+        );
+        let q = scene.numerics.upsample * p;
+        let completed = self.ends_run(self.prog.step, self.prog.time);
+        let (wall0, start) = (self.wall0, self.start);
+        let CellRun {
+            susp,
+            frames,
+            prog,
+            calc,
+            before_last,
+            clock,
+            log,
+            left,
+            adaptive,
+            ..
+        } = &mut self;
+        let adaptive = adaptive.take();
+        if !stopped {
+            let finished = frames.take().map_or(Ok(()), |f| f.finish());
+            agreed(comm, finished.map_err(CellRunError::from))?;
         }
-    }
-    bar.finish_and_clear();
-    if !stopped {
-        let finished = frames.take().map_or(Ok(()), |f| f.finish());
-        agreed(comm, finished.map_err(CellRunError::from))?;
-    }
-    prog.wall_s = wall0 + start.elapsed().as_secs_f64();
-    // Per cell: centre, area, volume, inclination, the centre before the last step, the
-    // Taylor deformation and the tank-treading rate.
-    let local = (0..susp.len())
-        .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
-            let cell = &susp.cells()[i];
-            let id = cell.id;
-            let g = calc.geometry(&cell.state.coefs)?;
-            let (x, a, v, inc) = observe_geometry(&g);
-            let d = g.taylor_deformation([0.0, 0.0, 1.0]);
-            let tt = cell
-                .state
-                .membrane_velocity
-                .as_deref()
-                .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]))
-                .transpose()?
-                .unwrap_or(f64::NAN);
-            let b = before_last
+        prog.wall_s = wall0 + start.elapsed().as_secs_f64();
+        // Per cell: centre, area, volume, inclination, the centre before the last step, the
+        // Taylor deformation and the tank-treading rate.
+        let local = (0..susp.len())
+            .map(|i| -> Result<(usize, Vec<f64>), CellRunError> {
+                let cell = &susp.cells()[i];
+                let id = cell.id;
+                let g = calc.geometry(&cell.state.coefs)?;
+                let (x, a, v, inc) = observe_geometry(&g);
+                let d = g.taylor_deformation([0.0, 0.0, 1.0]);
+                let tt = cell
+                    .state
+                    .membrane_velocity
+                    .as_deref()
+                    .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -1.0]))
+                    .transpose()?
+                    .unwrap_or(f64::NAN);
+                let b = before_last
+                    .iter()
+                    .find(|(j, _)| *j == id)
+                    .map_or([f64::NAN; 3], |(_, b)| *b);
+                Ok((
+                    id,
+                    vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2], d, tt],
+                ))
+            })
+            .collect::<Result<Vec<_>, _>>();
+        let local = agreed(comm, local)?;
+        let rows = gather_rows(comm, local, nc, 11)?;
+        let split = split_summary(comm, susp, clock, log, k + 1 - first)?;
+        let stats = susp.coupling_stats().unwrap_or_default();
+        let now = counts(susp);
+        let mut dl = [(left[0] + now[0]) as u64, (left[1] + now[1]) as u64];
+        comm.all_sum_u64(&mut dl).map_err(CellRunError::Comm)?;
+        let Some(rows) = rows else {
+            return Ok(None);
+        };
+        let mut per_cell = Vec::with_capacity(nc);
+        for (i, r) in rows.iter().enumerate() {
+            let s0 = prog.start_obs[i];
+            let centroid = [r[0], r[1], r[2]];
+            per_cell.push(CellSummary {
+                area_drift: (r[3] - s0[3]) / s0[3],
+                volume_drift: (r[4] - s0[4]) / s0[4],
+                centroid,
+                centroid_velocity: std::array::from_fn(|d| (centroid[d] - r[6 + d]) / prog.last_dt),
+                inclination_deg: r[5],
+                taylor_deformation: r[9],
+                tank_treading_rate: r[10],
+            });
+        }
+        let worst = |f: fn(&CellSummary) -> f64| {
+            per_cell
                 .iter()
-                .find(|(j, _)| *j == id)
-                .map_or([f64::NAN; 3], |(_, b)| *b);
-            Ok((
-                id,
-                vec![x[0], x[1], x[2], a, v, inc, b[0], b[1], b[2], d, tt],
-            ))
-        })
-        .collect::<Result<Vec<_>, _>>();
-    let local = agreed(comm, local)?;
-    let rows = gather_rows(comm, local, nc, 11)?;
-    let split = split_summary(comm, &susp, &clock, &log, k + 1 - first)?;
-    let stats = susp.coupling_stats().unwrap_or_default();
-    let now = counts(&susp);
-    let mut dl = [(left[0] + now[0]) as u64, (left[1] + now[1]) as u64];
-    comm.all_sum_u64(&mut dl).map_err(CellRunError::Comm)?;
-    let Some(rows) = rows else {
-        return Ok(None);
-    };
-    let mut per_cell = Vec::with_capacity(nc);
-    for (i, r) in rows.iter().enumerate() {
-        let s0 = prog.start_obs[i];
-        let centroid = [r[0], r[1], r[2]];
-        per_cell.push(CellSummary {
-            area_drift: (r[3] - s0[3]) / s0[3],
-            volume_drift: (r[4] - s0[4]) / s0[4],
-            centroid,
-            centroid_velocity: std::array::from_fn(|d| (centroid[d] - r[6 + d]) / prog.last_dt),
-            inclination_deg: r[5],
-            taylor_deformation: r[9],
-            tank_treading_rate: r[10],
-        });
-    }
-    let worst = |f: fn(&CellSummary) -> f64| {
-        per_cell
-            .iter()
-            .map(f)
-            .fold(0.0, |a: f64, b| if b.abs() > a.abs() { b } else { a })
-    };
-    let mean3 = |f: fn(&CellSummary) -> [f64; 3]| {
-        let mut m = [0.0; 3];
-        for c in &per_cell {
-            for (md, v) in m.iter_mut().zip(f(c)) {
-                *md += v / nc as f64;
+                .map(f)
+                .fold(0.0, |a: f64, b| if b.abs() > a.abs() { b } else { a })
+        };
+        let mean3 = |f: fn(&CellSummary) -> [f64; 3]| {
+            let mut m = [0.0; 3];
+            for c in &per_cell {
+                for (md, v) in m.iter_mut().zip(f(c)) {
+                    *md += v / nc as f64;
+                }
             }
-        }
-        m
-    };
-    let threads = rayon::current_num_threads() * k_ranks;
-    let done = prog.step;
-    let summary = CellRunSummary {
-        cells: nc,
-        order: p,
-        upsampled_order: q,
-        dt,
-        steps: done,
-        final_time: prog.time,
-        completed: ends_run(done, prog.time),
-        adaptive: adaptive.map(|a| AdaptiveSummary {
-            tolerance: a.tolerance,
-            dt_min: a.dt_min,
-            dt_max: a.dt_max,
-            rejected_steps: prog.rejected,
-            steps_above_tolerance: prog.above_tolerance,
-            dt_smallest: prog.dt_used[0],
-            dt_largest: prog.dt_used[1],
-            dt_last: prog.last_dt,
-        }),
-        area_volume_error_sum: prog.error_sum,
-        scheme: match scene.numerics.scheme {
-            Scheme::Euler => "euler",
-            Scheme::Bdf2 => "bdf2",
-        },
-        gmres_tol: scene.numerics.gmres_tol,
-        fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
-        near_field: susp.near_field_decision(),
-        effects: run_effects(scene, &susp),
-        wall_s: prog.wall_s,
-        step_s: prog.step_s,
-        coupling_s: stats.setup_s + stats.fmm_s + stats.self_s + stats.exchange_s + stats.near_s,
-        output_s: prog.output_s,
-        threads,
-        cell_steps_per_core_second: (done * nc) as f64 / (prog.step_s * threads as f64).max(1e-12),
-        gmres_iterations_mean: prog.iters_sum as f64 / (done * nc).max(1) as f64,
-        gmres_iterations_max: prog.iters_max,
-        counters: Counters {
-            fmm_builds: stats.fmm_builds,
-            repulsion_points: stats.repulsion_points,
-            double_layer_assemblies: dl[0] as usize,
-            preconditioner_builds: dl[1] as usize,
-            near_points: stats.near_points,
-            near_pairs: stats.near_pairs,
-            double_layer_fmm_builds: stats.double_layer_fmm_builds,
-        },
-        area_drift: worst(|c| c.area_drift),
-        volume_drift: worst(|c| c.volume_drift),
-        centroid: mean3(|c| c.centroid),
-        centroid_velocity: mean3(|c| c.centroid_velocity),
-        inclination_deg: if nc == 1 {
-            per_cell[0].inclination_deg
-        } else {
-            per_cell.iter().map(|c| c.inclination_deg).sum::<f64>() / nc as f64
-        },
-        min_gap: prog.min_gap.is_finite().then_some(prog.min_gap),
-        per_cell,
-        frames: prog.frame_times.len(),
-        split,
-    };
-    let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
-    write_atomic(&out.join("summary.json"), json.as_bytes())?;
-    Ok(Some(summary))
+            m
+        };
+        let threads = rayon::current_num_threads() * k_ranks;
+        let done = prog.step;
+        let summary = CellRunSummary {
+            cells: nc,
+            order: p,
+            upsampled_order: q,
+            dt,
+            steps: done,
+            final_time: prog.time,
+            completed,
+            adaptive: adaptive.map(|a| AdaptiveSummary {
+                tolerance: a.tolerance,
+                dt_min: a.dt_min,
+                dt_max: a.dt_max,
+                rejected_steps: prog.rejected,
+                steps_above_tolerance: prog.above_tolerance,
+                dt_smallest: prog.dt_used[0],
+                dt_largest: prog.dt_used[1],
+                dt_last: prog.last_dt,
+            }),
+            area_volume_error_sum: prog.error_sum,
+            scheme: match scene.numerics.scheme {
+                Scheme::Euler => "euler",
+                Scheme::Bdf2 => "bdf2",
+            },
+            gmres_tol: scene.numerics.gmres_tol,
+            fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
+            near_field: susp.near_field_decision(),
+            effects: run_effects(scene, susp),
+            wall_s: prog.wall_s,
+            step_s: prog.step_s,
+            coupling_s: stats.setup_s
+                + stats.fmm_s
+                + stats.self_s
+                + stats.exchange_s
+                + stats.near_s,
+            output_s: prog.output_s,
+            threads,
+            cell_steps_per_core_second: (done * nc) as f64
+                / (prog.step_s * threads as f64).max(1e-12),
+            gmres_iterations_mean: prog.iters_sum as f64 / (done * nc).max(1) as f64,
+            gmres_iterations_max: prog.iters_max,
+            counters: Counters {
+                fmm_builds: stats.fmm_builds,
+                repulsion_points: stats.repulsion_points,
+                double_layer_assemblies: dl[0] as usize,
+                preconditioner_builds: dl[1] as usize,
+                near_points: stats.near_points,
+                near_pairs: stats.near_pairs,
+                double_layer_fmm_builds: stats.double_layer_fmm_builds,
+            },
+            area_drift: worst(|c| c.area_drift),
+            volume_drift: worst(|c| c.volume_drift),
+            centroid: mean3(|c| c.centroid),
+            centroid_velocity: mean3(|c| c.centroid_velocity),
+            inclination_deg: if nc == 1 {
+                per_cell[0].inclination_deg
+            } else {
+                per_cell.iter().map(|c| c.inclination_deg).sum::<f64>() / nc as f64
+            },
+            min_gap: prog.min_gap.is_finite().then_some(prog.min_gap),
+            per_cell,
+            frames: prog.frame_times.len(),
+            split,
+        };
+        let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+        write_atomic(&out.join("summary.json"), json.as_bytes())?;
+        Ok(Some(summary))
+    }
 }
 
 /// The progress bar (hidden when `hidden`).
