@@ -221,6 +221,21 @@ struct CellRun<'a> {
     wall0: f64,
 }
 
+/// Fixed steps of `scene` (`t_end / dt`).
+fn fixed_steps(scene: &CellScene) -> usize {
+    (scene.numerics.t_end / scene.numerics.dt).round().max(1.0) as usize
+}
+
+/// Whether step `k`, reaching time `t`, ends a run of `scene`: its fixed steps, or with an
+/// adaptive `dt` its `t_end` up to round-off in the sum of the steps.
+fn ends_run(scene: &CellScene, adaptive: bool, k: usize, t: f64) -> bool {
+    if adaptive {
+        t >= scene.numerics.t_end * (1.0 - 1e-12)
+    } else {
+        k >= fixed_steps(scene)
+    }
+}
+
 /// Double-layer assemblies and own-preconditioner builds of the cells held in `s`.
 fn counts(s: &Suspension) -> [usize; 2] {
     s.cells().iter().fold([0usize; 2], |[d, b], c| {
@@ -359,18 +374,12 @@ impl<'a> CellRun<'a> {
 
     /// Fixed steps of the scene (`t_end / dt`).
     fn steps(&self) -> usize {
-        (self.scene.numerics.t_end / self.scene.numerics.dt)
-            .round()
-            .max(1.0) as usize
+        fixed_steps(self.scene)
     }
 
-    /// Whether step `k`, reaching time `t`, ends the run (with an adaptive `dt`, at `t_end`
-    /// up to round-off in the sum of the steps).
+    /// Whether step `k`, reaching time `t`, ends the run ([`ends_run`]).
     fn ends_run(&self, k: usize, t: f64) -> bool {
-        match &self.adaptive {
-            None => k >= self.steps(),
-            Some(_) => t >= self.scene.numerics.t_end * (1.0 - 1e-12),
-        }
+        ends_run(self.scene, self.adaptive.is_some(), k, t)
     }
 
     /// One accepted step (the split checked first, the cells moved if it went stale), its
@@ -381,17 +390,8 @@ impl<'a> CellRun<'a> {
         let (p, dt, first) = (scene.numerics.order, scene.numerics.dt, self.first);
         let flow = scene.flow;
         let mut k = self.k;
-        let steps = self.steps();
-        let t_done = scene.numerics.t_end * (1.0 - 1e-12);
         let adaptive_on = self.adaptive.is_some();
-        // Whether step `k`, reaching time `t`, ends the run (as [`Self::ends_run`]).
-        let ends_run = |k: usize, t: f64| {
-            if adaptive_on {
-                t >= t_done
-            } else {
-                k >= steps
-            }
-        };
+        let ends_run = |k: usize, t: f64| ends_run(scene, adaptive_on, k, t);
         let CellRun {
             setups,
             calc,

@@ -59,20 +59,8 @@ impl VesicleStepper {
     /// Plans for order `p`; the state is that of a first step (no history, zero tension).
     pub fn new(p: usize, params: VesicleParams) -> Result<Self, TimestepError> {
         let stepper = CellStepper::new(p, params)?;
-        let state = CellState {
-            coefs: vec![0.0; 3 * stepper.n_coefs()],
-            sigma: vec![0.0; stepper.n_points()],
-            drift_targets: None,
-            previous_coefs: None,
-            previous_dt: None,
-            membrane_velocity: None,
-            skalak_reference: None,
-            material_labels: None,
-            velocity: None,
-            previous_velocity: None,
-            iterations: 0,
-            preconditioner: None,
-        };
+        // The surface is the caller's, taken in at every step.
+        let state = stepper.initial_state(&vec![0.0; 3 * stepper.n_coefs()], None)?;
         Ok(VesicleStepper { stepper, state })
     }
 
@@ -99,13 +87,7 @@ impl VesicleStepper {
         params: SkalakParams,
         reference: &[f64],
     ) -> Result<(), TimestepError> {
-        if reference.len() != 3 * self.stepper.n_coefs() {
-            return Err(TimestepError::DimensionMismatch {
-                what: "skalak reference",
-                expected: 3 * self.stepper.n_coefs(),
-                got: reference.len(),
-            });
-        }
+        // Checks the reference as a surface (its length included).
         let labels = self.stepper.identity_labels(reference)?;
         // Other elastic parameters change the Jacobian in the cell's own preconditioner.
         if self.stepper.skalak() != Some(params) {
@@ -261,23 +243,7 @@ impl VesicleStepper {
     /// [`TimestepError::DimensionMismatch`] for a wrong length, [`TimestepError::NonFinite`]
     /// for NaN or infinite coefficients.
     pub fn set_previous_coefs(&mut self, coefs: Option<&[f64]>) -> Result<(), TimestepError> {
-        if let Some(c) = coefs {
-            let expected = 3 * self.stepper.n_coefs();
-            if c.len() != expected {
-                return Err(TimestepError::DimensionMismatch {
-                    what: "previous coefficients",
-                    expected,
-                    got: c.len(),
-                });
-            }
-            if !c.iter().all(|v| v.is_finite()) {
-                return Err(TimestepError::NonFinite {
-                    what: "previous coefficients",
-                });
-            }
-        }
-        self.state.previous_coefs = coefs.map(|c| c.to_vec());
-        Ok(())
+        self.set_checked(|s| s.previous_coefs = coefs.map(|c| c.to_vec()))
     }
 
     /// The step `Δtⁿ⁻¹` from `Xⁿ⁻¹` to `Xⁿ` (`None`: the step size of the run so far, `dt`).
@@ -287,17 +253,7 @@ impl VesicleStepper {
 
     /// Set `Δtⁿ⁻¹` (restart of an adaptive BDF2 run).
     pub fn set_previous_dt(&mut self, dt: Option<f64>) -> Result<(), TimestepError> {
-        if let Some(v) = dt {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(TimestepError::InvalidParameter {
-                    name: "previous dt",
-                    value: format!("{v}"),
-                    reason: "must be positive and finite",
-                });
-            }
-        }
-        self.state.previous_dt = dt;
-        Ok(())
+        self.set_checked(|s| s.previous_dt = dt)
     }
 
     /// Change the time step (adaptive `dt`).
@@ -322,23 +278,7 @@ impl VesicleStepper {
     /// [`TimestepError::DimensionMismatch`] for a wrong length, [`TimestepError::NonFinite`]
     /// for NaN or infinite values.
     pub fn set_velocity(&mut self, velocity: Option<&[f64]>) -> Result<(), TimestepError> {
-        if let Some(v) = velocity {
-            let expected = 3 * self.stepper.n_points();
-            if v.len() != expected {
-                return Err(TimestepError::DimensionMismatch {
-                    what: "membrane velocity",
-                    expected,
-                    got: v.len(),
-                });
-            }
-            if !v.iter().all(|x| x.is_finite()) {
-                return Err(TimestepError::NonFinite {
-                    what: "membrane velocity",
-                });
-            }
-        }
-        self.state.membrane_velocity = velocity.map(|v| v.to_vec());
-        Ok(())
+        self.set_checked(|s| s.membrane_velocity = velocity.map(|v| v.to_vec()))
     }
 
     /// Parameters.
@@ -418,6 +358,16 @@ impl VesicleStepper {
         volume: f64,
     ) -> Result<(), TimestepError> {
         self.stepper.correct_area_volume(coefs, area, volume)
+    }
+
+    /// Change the state by `set`, kept only if the result passes
+    /// [`CellStepper::check_state`].
+    fn set_checked(&mut self, set: impl FnOnce(&mut CellState)) -> Result<(), TimestepError> {
+        let mut state = self.state.clone();
+        set(&mut state);
+        self.stepper.check_state(&state)?;
+        self.state = state;
+        Ok(())
     }
 
     /// The caller's surface as the state's.
