@@ -131,6 +131,7 @@ pub fn build_part(
     let (storage, preconditioning) = memory_plan(scene, setups.len(), contrast);
     susp.set_operator_storage(storage);
     susp.set_preconditioning(preconditioning);
+    susp.set_coupling_mode(scene.numerics.coupling);
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,

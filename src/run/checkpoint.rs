@@ -152,6 +152,17 @@ pub(crate) fn save(
             .collect(),
         3 * n,
     );
+    if states.iter().any(|s| s.previous_density.is_some()) {
+        optional_rows(
+            &mut ck,
+            "previous_coupling_densities",
+            states
+                .iter()
+                .map(|s| s.previous_density.as_deref())
+                .collect(),
+            6 * n,
+        );
+    }
     // Membrane velocities of the last solve: the explicit double-layer densities of the next
     // step (only where the inter-cell double layer is built; NaN rows for none yet).
     if double_layer {
@@ -321,6 +332,9 @@ pub(crate) fn load(
     }
     let velocity = optional("inter_cell_velocities", 3 * n)?;
     let previous_velocity = optional("previous_inter_cell_velocities", 3 * n)?;
+    // Absent from checkpoints of the explicit coupling (and from those written before the
+    // near-implicit one).
+    let previous_density = optional("previous_coupling_densities", 6 * n)?;
     let membrane = if double_layer {
         get("membrane_velocities", nc * 3 * n)?;
         optional("membrane_velocities", 3 * n)?
@@ -412,6 +426,7 @@ pub(crate) fn load(
             previous_velocity: previous_velocity[i].clone(),
             iterations: its as usize,
             preconditioner: records[i].take(),
+            previous_density: previous_density[i].clone(),
         });
     }
     let split = match (ck.meta["ranks"].as_u64(), ck.get("owners")) {

@@ -3,6 +3,7 @@
 //! [`super::spec::SceneSpec::build`] produce it.
 
 use crate::gpu::GpuChoice;
+use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
@@ -233,6 +234,9 @@ pub struct Numerics {
     /// Under MPI: the cost imbalance (largest rank over mean, minus 1) above which cells are
     /// moved at a check (default 0.1; see [`crate::run::partition`]).
     pub max_imbalance: f64,
+    /// How the cells' coupling enters a step (`[numerics] coupling`; default
+    /// [`CouplingMode::Explicit`]; see [`crate::timestep::near_implicit`]).
+    pub coupling: CouplingMode,
     /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
     /// ([`crate::fmm::gpu_near::choose`]).
     pub gpu: GpuChoice,

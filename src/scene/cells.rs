@@ -61,6 +61,9 @@
 //! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
 //! rebalance_every = 10            # under mpirun: steps between checks of the split of the cells
 //! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see run::partition)
+//! coupling = "explicit"          # cells' coupling: "explicit" (last step's densities) |
+//! #                               # "near_implicit" (cells in each other's near zone solved as
+//! #                               # one system; one rank; see timestep::near_implicit)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [output]
@@ -86,6 +89,7 @@ pub(crate) use super::cells_schema::Origin;
 use super::cells_schema::{File, NumericsSection};
 use super::{line_col, parse_toml, read_scene_file, SceneError};
 use crate::gpu::GpuChoice;
+use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::skalak::ElasticLaw;
 
@@ -363,6 +367,22 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             }
             Some(v) => *v.get_ref(),
             None => MAX_IMBALANCE,
+        },
+        coupling: match n.and_then(|n| n.coupling.as_ref()) {
+            None => CouplingMode::Explicit,
+            Some(c) => match c.get_ref().as_str() {
+                "explicit" => CouplingMode::Explicit,
+                "near_implicit" => CouplingMode::NearImplicit,
+                other => {
+                    return Err(at(
+                        c.span(),
+                        format!(
+                            "[numerics] coupling: unknown coupling \"{other}\" (explicit, \
+                             near_implicit)"
+                        ),
+                    ))
+                }
+            },
         },
         gpu: match n.and_then(|n| n.gpu.as_ref()) {
             None => GpuChoice::Auto,

@@ -83,6 +83,7 @@ pub(super) struct NumericsSection {
     pub(super) repulsion_strength: Option<Spanned<f64>>,
     pub(super) rebalance_every: Option<Spanned<u64>>,
     pub(super) max_imbalance: Option<Spanned<f64>>,
+    pub(super) coupling: Option<Spanned<String>>,
     pub(super) gpu: Option<Spanned<GpuFlag>>,
 }
 

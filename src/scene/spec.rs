@@ -290,6 +290,16 @@ pub enum PreconditionerKind {
     Cell,
 }
 
+/// `[numerics] coupling`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CouplingKind {
+    /// Every other cell through last step's densities.
+    Explicit,
+    /// Cells in each other's near zone solved as one system.
+    NearImplicit,
+}
+
 /// `[numerics]`; every key optional (defaults as in the file's schema).
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -354,6 +364,9 @@ pub struct NumericsSpec {
     /// `max_imbalance` (MPI runs).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_imbalance: Option<f64>,
+    /// `coupling`: how the cells' coupling enters a step.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub coupling: Option<CouplingKind>,
     /// `gpu`: `"auto"`, `true` or `false`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gpu: Option<GpuSpec>,

@@ -69,6 +69,11 @@ pub struct CellState {
     pub iterations: usize,
     /// The cell's own preconditioner, if it has one.
     pub preconditioner: Option<PreconditionerRecord>,
+    /// The densities this cell passed to the coupling at the step before (`6n`: the traction,
+    /// then the double-layer density `(1 − λ) u`, zero without one), kept by the
+    /// near-implicit coupling to extrapolate them as the explicit velocities are
+    /// ([`super::near_implicit`]); `None` with the explicit coupling.
+    pub previous_density: Option<Vec<f64>>,
 }
 
 /// A buffer that does not hold a cell state of the expected size.
@@ -87,6 +92,7 @@ const PREVIOUS_VELOCITY: u64 = 64;
 const PRECONDITIONER: u64 = 128;
 const PRECONDITIONER_JACOBIAN: u64 = 256;
 const LABELS: u64 = 512;
+const PREVIOUS_DENSITY: u64 = 1024;
 
 impl CellState {
     /// Bytes of the state's vectors (what a cell keeps between steps besides its stepper).
@@ -106,7 +112,8 @@ impl CellState {
             + self
                 .preconditioner
                 .as_ref()
-                .map_or(0, |r| r.surface.capacity() + opt(&r.jacobian_reference)))
+                .map_or(0, |r| r.surface.capacity() + opt(&r.jacobian_reference))
+            + opt(&self.previous_density))
             + std::mem::size_of::<Self>()
     }
 
@@ -115,7 +122,7 @@ impl CellState {
         // presence, iterations, coefs, sigma, targets (2), previous, previous dt,
         // membrane velocity, Skalak reference, velocity, previous velocity, preconditioner
         // (surface, τ, last iterations, Jacobian reference), material labels (first
-        // reference, label map).
+        // reference, label map), previous coupling densities.
         2 + ncoef
             + n
             + 2
@@ -129,6 +136,7 @@ impl CellState {
             + 2
             + ncoef
             + 2 * ncoef
+            + 6 * n
     }
 
     /// Append the state (see the module docs); `ncoef` and `n` are taken from `coefs` and
@@ -152,6 +160,7 @@ impl CellState {
                 PRECONDITIONER_JACOBIAN,
             ),
             (self.material_labels.is_some(), LABELS),
+            (self.previous_density.is_some(), PREVIOUS_DENSITY),
         ] {
             if present {
                 flags |= bit;
@@ -181,6 +190,7 @@ impl CellState {
         let labels = self.material_labels.as_ref();
         field(out, &labels.map(|l| l.original.clone()), ncoef);
         field(out, &labels.map(|l| l.map.clone()), ncoef);
+        field(out, &self.previous_density, 6 * n);
     }
 
     /// Read one state of a cell with `ncoef` coefficients and `n` grid points from the start
@@ -201,7 +211,7 @@ impl CellState {
             }
         };
         let flags = word(buf[0], "presence word")?;
-        if flags >= 1024 {
+        if flags >= 2048 {
             return Err(CellStateError(format!(
                 "presence word {flags} has unknown bits"
             )));
@@ -233,6 +243,7 @@ impl CellState {
         let original = take(ncoef).to_vec();
         let map = take(ncoef).to_vec();
         let material_labels = has(LABELS).then_some(MaterialLabels { original, map });
+        let previous_density = Some(take(6 * n).to_vec()).filter(|_| has(PREVIOUS_DENSITY));
         let preconditioner = if has(PRECONDITIONER) {
             Some(PreconditionerRecord {
                 surface,
@@ -256,6 +267,7 @@ impl CellState {
             previous_velocity,
             iterations,
             preconditioner,
+            previous_density,
         })
     }
 }
@@ -295,6 +307,7 @@ mod tests {
                 jacobian_reference: seed.is_multiple_of(2).then(|| v(ncoef)),
                 last_iterations: 5,
             }),
+            previous_density: full.then(|| v(6 * n)),
         }
     }
 
@@ -329,9 +342,9 @@ mod tests {
         assert!(CellState::decode(&buf[..buf.len() - 1], 48, 24).is_err());
         buf[0] = 0.5;
         assert!(CellState::decode(&buf, 48, 24).is_err());
-        buf[0] = 1024.0;
-        assert!(CellState::decode(&buf, 48, 24).is_err());
         buf[0] = 2048.0;
+        assert!(CellState::decode(&buf, 48, 24).is_err());
+        buf[0] = 4096.0;
         assert!(CellState::decode(&buf, 48, 24).is_err());
     }
 }

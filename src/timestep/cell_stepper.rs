@@ -153,6 +153,7 @@ impl CellStepper {
             previous_velocity: None,
             iterations: 0,
             preconditioner: None,
+            previous_density: None,
         })
     }
 

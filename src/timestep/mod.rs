@@ -96,6 +96,8 @@ pub mod cell_stepper;
 pub mod coupling;
 mod gmres;
 pub mod grid_frame;
+pub mod near_implicit;
+pub mod near_pairs;
 mod operator;
 pub mod operator_storage;
 mod own_preconditioner;

@@ -419,6 +419,25 @@ impl<'a> InextensibleOperator<'a> {
     }
 }
 
+impl InextensibleOperator<'_> {
+    /// `y ← A z` and `f ← B X + T σ (+ J X)`, the traction of `z` that the product passes
+    /// through the single layer (the density the near-implicit coupling passes to the other
+    /// cells, [`super::near_implicit`]). A failure writes NaN into both and is kept.
+    pub fn apply_with_traction(&self, z: &[f64], y: &mut [f64], f: &mut [f64]) {
+        match self.apply_one(z, y) {
+            Ok(()) => {
+                let w = self.work.lock().unwrap_or_else(|e| e.into_inner());
+                f.copy_from_slice(&w.fb);
+            }
+            Err(e) => {
+                self.fail(e);
+                y.fill(f64::NAN);
+                f.fill(f64::NAN);
+            }
+        }
+    }
+}
+
 impl LinearOperator for InextensibleOperator<'_> {
     fn nrows(&self) -> usize {
         4 * self.n

@@ -84,6 +84,32 @@ impl CellStepper {
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         extra: ExplicitTerms<'_>,
     ) -> Result<StepReport, TimestepError> {
+        self.check_step_inputs(state, &extra)?;
+        self.adopt_own_record(state.preconditioner.as_ref());
+        let mut lease = self.lease(state.skalak_reference.as_deref())?;
+        let engine: &mut StepEngine = &mut lease;
+        // Grid storage: the operators live in the engine (one pair per thread), lent to this
+        // cell for its step and handed back whatever the step's outcome.
+        let lent = !storage_keeps_per_cell(self.storage);
+        if lent {
+            std::mem::swap(&mut self.s_op, &mut engine.grid_single);
+            std::mem::swap(&mut self.d_op, &mut engine.grid_double);
+        }
+        let report = self.step_on(engine, state, u_inf, extra);
+        if lent {
+            std::mem::swap(&mut self.s_op, &mut engine.grid_single);
+            std::mem::swap(&mut self.d_op, &mut engine.grid_double);
+        }
+        state.preconditioner = self.own.as_ref().map(|o| o.record.clone());
+        report
+    }
+
+    /// The sizes of a step's state and explicit terms.
+    pub(super) fn check_step_inputs(
+        &self,
+        state: &CellState,
+        extra: &ExplicitTerms<'_>,
+    ) -> Result<(), TimestepError> {
         let (n, nc) = (self.n, self.nc);
         if state.coefs.len() != 3 * nc || state.sigma.len() != n {
             return Err(TimestepError::DimensionMismatch {
@@ -103,23 +129,21 @@ impl CellStepper {
                 }
             }
         }
-        self.adopt_own_record(state.preconditioner.as_ref());
-        let mut lease = self.lease(state.skalak_reference.as_deref())?;
-        let engine: &mut StepEngine = &mut lease;
-        // Grid storage: the operators live in the engine (one pair per thread), lent to this
-        // cell for its step and handed back whatever the step's outcome.
-        let lent = !storage_keeps_per_cell(self.storage);
-        if lent {
-            std::mem::swap(&mut self.s_op, &mut engine.grid_single);
-            std::mem::swap(&mut self.d_op, &mut engine.grid_double);
+        Ok(())
+    }
+
+    /// The operators' geometry `X*` of the next step of `state` (coefficients):
+    /// `(1 + ω) Xⁿ − ω Xⁿ⁻¹` for BDF2 (`ω = Δtⁿ/Δtⁿ⁻¹`), `Xⁿ` for Euler and a first step.
+    pub fn operator_surface(&self, state: &CellState) -> Vec<f64> {
+        match (&state.previous_coefs, self.extrapolation_ratio(state)) {
+            (Some(prev), Some(w)) => state
+                .coefs
+                .iter()
+                .zip(prev)
+                .map(|(c, o)| (1.0 + w) * c - w * o)
+                .collect(),
+            _ => state.coefs.clone(),
         }
-        let report = self.step_on(engine, state, u_inf, extra);
-        if lent {
-            std::mem::swap(&mut self.s_op, &mut engine.grid_single);
-            std::mem::swap(&mut self.d_op, &mut engine.grid_double);
-        }
-        state.preconditioner = self.own.as_ref().map(|o| o.record.clone());
-        report
     }
 
     /// [`Self::step_with`] on a leased engine, the sizes checked: the step's phases in order.

@@ -37,6 +37,8 @@ use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
 use super::cell_stepper::CellStepper;
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
+use super::near_implicit::{step_all, CouplingMode, JointCell, JointStats};
+use super::near_pairs::NearPairs;
 use super::semi_implicit::{
     ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
 };
@@ -132,6 +134,15 @@ pub struct Suspension {
     /// Seconds in this rank's per-cell work (tractions and solves), without waiting for other
     /// ranks (cumulative).
     solve_s: f64,
+    /// How the coupling enters a step, and the near-zone operator of the near-implicit one.
+    coupling_mode: CouplingMode,
+    near_pairs: Option<NearPairs>,
+    /// The coupling's settings and the cells' order (what the near-zone operator is built
+    /// from).
+    coupling_params: CouplingParams,
+    p: usize,
+    /// What the near-implicit coupling did (cumulative).
+    joint: JointStats,
 }
 
 impl Suspension {
@@ -178,6 +189,11 @@ impl Suspension {
             far_side: None,
             preconditioning: None,
             solve_s: 0.0,
+            coupling_mode: CouplingMode::Explicit,
+            near_pairs: None,
+            coupling_params: coupling,
+            p,
+            joint: JointStats::default(),
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
         for (id, c) in cells {
@@ -500,6 +516,27 @@ impl Suspension {
         self.inter_cell_double_layer = on;
     }
 
+    /// How the coupling enters a step ([`CouplingMode::Explicit`] unless set).
+    pub fn coupling_mode(&self) -> CouplingMode {
+        self.coupling_mode
+    }
+
+    /// Set how the coupling enters a step: [`CouplingMode::NearImplicit`] solves the cells in
+    /// each other's near zones as one system ([`super::near_implicit`]; one rank only).
+    pub fn set_coupling_mode(&mut self, mode: CouplingMode) {
+        self.coupling_mode = mode;
+        if mode == CouplingMode::NearImplicit && self.near_pairs.is_none() {
+            let c = &self.coupling_params;
+            self.near_pairs = Some(NearPairs::new(self.p, c.viscosity, c.near_factor));
+        }
+    }
+
+    /// What the near-implicit coupling did so far: clusters solved jointly, their cells, the
+    /// largest, and their GMRES iterations (cumulative; zero with the explicit coupling).
+    pub fn joint_stats(&self) -> JointStats {
+        self.joint
+    }
+
     /// Advance every cell by one step in the background flow `u_inf`.
     pub fn step(
         &mut self,
@@ -588,6 +625,8 @@ impl Suspension {
         } else {
             agree_cells(comm, self.user_tractions(time, forces))?
         };
+        // The densities passed to the coupling (the near-implicit step extrapolates them).
+        let mut densities: Option<(Vec<Vec<f64>>, Vec<Option<Vec<f64>>>)> = None;
         if let Some(coupling) = &mut self.coupling {
             let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
                 .cells
@@ -637,6 +676,7 @@ impl Suspension {
             for (c, v) in self.cells.iter_mut().zip(velocities) {
                 c.state.velocity = Some(v);
             }
+            densities = Some((tractions, scaled));
         }
         // BDF2 takes the explicit terms at X* = (1 + ω)Xⁿ − ωXⁿ⁻¹ (ω = Δtⁿ/Δtⁿ⁻¹):
         // v* = (1 + ω)vⁿ − ωvⁿ⁻¹ (second order; 2vⁿ − vⁿ⁻¹ at a constant step).
@@ -680,25 +720,87 @@ impl Suspension {
             })
             .collect();
         let t1 = std::time::Instant::now();
-        let reports: Result<Vec<StepReport>, CellStepError> = self
-            .cells
-            .par_iter_mut()
-            .enumerate()
-            .map(|(i, cell)| {
-                let extra = ExplicitTerms {
-                    velocity: explicit[i].as_deref(),
-                    traction: combined[i]
-                        .as_deref()
-                        .or_else(|| repulsion.map(|r| r[i].as_slice())),
-                };
-                cell.stepper
-                    .step_with(&mut cell.state, u_inf, extra)
-                    .map_err(|source| CellStepError {
-                        cell: Some(cell.id),
-                        source,
+        let traction_of = |i: usize| {
+            combined[i]
+                .as_deref()
+                .or_else(|| repulsion.map(|r| r[i].as_slice()))
+        };
+        let reports: Result<Vec<StepReport>, CellStepError> =
+            match (self.coupling_mode, &densities, self.near_pairs.as_ref()) {
+                (CouplingMode::NearImplicit, Some((tractions, scaled)), Some(near)) => {
+                    if comm.size() > 1 {
+                        return Err(CellStepError {
+                            cell: None,
+                            source: TimestepError::InvalidParameter {
+                                name: "coupling",
+                                value: "near_implicit".into(),
+                                reason: "the near-implicit coupling runs on one rank for now; \
+                                     over several ranks use coupling = \"explicit\"",
+                            },
+                        });
+                    }
+                    let with_dl = self.inter_cell_double_layer;
+                    let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
+                    let mut joint: Vec<JointCell<'_>> = self
+                        .cells
+                        .iter_mut()
+                        .enumerate()
+                        .map(|(i, c)| JointCell {
+                            stepper: &mut c.stepper,
+                            state: &mut c.state,
+                            extra: ExplicitTerms {
+                                velocity: explicit[i].as_deref(),
+                                traction: traction_of(i),
+                            },
+                            repulsion: repulsion.map(|r| r[i].as_slice()).filter(|r| !r.is_empty()),
+                            traction_now: &tractions[i],
+                            dl_now: scaled[i].as_deref(),
+                        })
+                        .collect();
+                    let stepped = step_all(&mut joint, near, u_inf, with_dl);
+                    drop(joint);
+                    match stepped {
+                        Ok((reports, stats)) => {
+                            self.joint.clusters += stats.clusters;
+                            self.joint.cells += stats.cells;
+                            self.joint.largest = self.joint.largest.max(stats.largest);
+                            self.joint.iterations += stats.iterations;
+                            // ρⁿ kept for the next step's extrapolation (module docs of
+                            // near_implicit).
+                            for ((c, f), g) in self.cells.iter_mut().zip(tractions).zip(scaled) {
+                                let mut rho = f.clone();
+                                match g {
+                                    Some(g) => rho.extend_from_slice(g),
+                                    None => rho.resize(2 * f.len(), 0.0),
+                                }
+                                c.state.previous_density = Some(rho);
+                            }
+                            Ok(reports)
+                        }
+                        Err((k, source)) => Err(CellStepError {
+                            cell: k.map(|k| ids[k]),
+                            source,
+                        }),
+                    }
+                }
+                _ => self
+                    .cells
+                    .par_iter_mut()
+                    .enumerate()
+                    .map(|(i, cell)| {
+                        let extra = ExplicitTerms {
+                            velocity: explicit[i].as_deref(),
+                            traction: traction_of(i),
+                        };
+                        cell.stepper
+                            .step_with(&mut cell.state, u_inf, extra)
+                            .map_err(|source| CellStepError {
+                                cell: Some(cell.id),
+                                source,
+                            })
                     })
-            })
-            .collect();
+                    .collect(),
+            };
         self.solve_s += t1.elapsed().as_secs_f64();
         let reports = agree_cells(comm, reports)?;
         for (c, r) in self.cells.iter_mut().zip(&reports) {

@@ -1,0 +1,648 @@
+//! Near cells coupled inside the solve: one linear system for the cells of a near cluster.
+//!
+//! With the explicit coupling ([`super::coupling`], [`super::suspension`]) every cell feels
+//! the others through the velocity of the last step's densities, extrapolated for BDF2:
+//! `v* = (1+ω) K ρⁿ − ω K ρⁿ⁻¹` (`ρ = (f, g)`: the traction and the double-layer density
+//! `g = (1 − λ) u`). On a density that alternates from step to step the extrapolation has the
+//! gain `1 + 2ω = 3`; two close cells with a viscosity contrast couple through the near part
+//! of `K` with a gain near `|1 − λ|/(1 + λ)` (the double layer's jump), and a dense
+//! suspension at `λ = 5` blows up whatever `Δt` (docs/hard_cases.md).
+//!
+//! The near-implicit coupling (Quaife & Biros, J. Comput. Phys. 274 (2014); Lu, Rahimian &
+//! Zorin, J. Comput. Phys. 347 (2017)) takes the near part of `K` at the new time. For the
+//! cells `i` of a cluster ([`super::near_pairs::NearZones::clusters`]) the step solves one
+//! system in all their unknowns `zᵢ = [Xᵢ; σᵢ]`:
+//!
+//! ```text
+//!     Aᵢ zᵢ − τᵢ Σ_j K*ᵢⱼ ρⱼ(zⱼ) = bᵢ + τᵢ Σ_j K*ᵢⱼ (cⱼ − ρⱼ*)
+//!     ρⱼ(zⱼ) = (B* Xⱼ + T* σⱼ,  (1 − λⱼ) Xⱼ / τⱼ)       (linear in zⱼ)
+//!     cⱼ     = (f_e(X*ⱼ) + F/A + f_user,  −(1 − λⱼ) X̂ⱼ / τⱼ)
+//!     ρⱼ*    = (1+ω) ρⱼⁿ − ω ρⱼⁿ⁻¹                      (the densities v* was built from)
+//! ```
+//!
+//! (`Aᵢ zᵢ = bᵢ` the cell's own step of [`super::semi_implicit`], whose right-hand side holds
+//! `τᵢ v*ᵢ`; `K*ᵢⱼ` the near-zone operator of [`super::near_pairs`] at the operators'
+//! geometry `X*`). The velocity cell `i` feels is then `v*ᵢ + Σ_j K*ᵢⱼ (ρⱼⁿ⁺¹ − ρⱼ*)`: the
+//! explicit field with its near part replaced, to `O(Δt²)`, by the implicit one. A density
+//! mode that alternates between steps cancels between `v*` and `K* ρ*`, so the near coupling
+//! no longer has the extrapolation's gain, and BDF2 keeps its order (the correction vanishes
+//! as `ρⁿ⁺¹ − ρ* = O(Δt²)`). The far field stays explicit through the FMM.
+//!
+//! GMRES solves the joint system, right-preconditioned block by block with each cell's own
+//! preconditioner (the cell's exact inverse, or its rotated sphere): the iterations are those
+//! of a single cell plus the coupling's. Each product applies every cell's own operator and
+//! the near-zone operator once. Cells whose step is not the inextensible `[X; σ]` system (a
+//! capsule, a linearly implicit elasticity) step alone with the explicit coupling.
+
+use std::sync::Mutex;
+
+use rayon::prelude::*;
+
+use super::cell_preconditioner::CellPreconditionerOp;
+use super::cell_state::CellState;
+use super::cell_stepper::CellStepper;
+use super::grid_frame::{relative_rotation, RotatedPreconditioner, Rotation};
+use super::near_pairs::{NearPairs, NearZones, ZoneCell};
+use super::own_preconditioner::{OwnInverse, OwnPreconditioner};
+use super::semi_implicit::{ElasticStepping, ExplicitTerms, StepReport};
+use super::sphere_preconditioner::SpherePreconditioner;
+use super::step_engine::{EngineLease, StepEngine};
+use super::step_operator::InextensibleOperator;
+use super::step_plan::{GridTerms, StepPlan, StepPreconditioners};
+use super::step_solve::{step_operators, storage_keeps_per_cell};
+use super::{gmres, GmresReport, GmresWorkspace, LinearOperator, Preconditioner, TimestepError};
+
+/// How the cells' hydrodynamic coupling enters a step (scene `[numerics] coupling`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CouplingMode {
+    /// Every other cell through last step's densities (extrapolated for BDF2).
+    #[default]
+    Explicit,
+    /// Cells in each other's near zone in one linear system (this module).
+    NearImplicit,
+}
+
+/// A cell's step between its phases 1–4 (plan, preconditioners, explicit terms, operators)
+/// and its phases 6–7 (advance, regrid), while the joint system is solved.
+pub(super) struct JointStep {
+    lease: EngineLease,
+    lent: bool,
+    plan: StepPlan,
+    pcs: StepPreconditioners,
+    terms: GridTerms,
+    b: Vec<f64>,
+    own_built: bool,
+}
+
+impl CellStepper {
+    /// Whether the cell's step is the inextensible `[X; σ]` system that a near cluster solves
+    /// jointly (not a capsule, no linearly implicit elasticity).
+    pub fn joins_near_solve(&self) -> bool {
+        let implicit_elastic = self.skalak.is_some()
+            && self.params.elastic_stepping == Some(ElasticStepping::LinearlyImplicit);
+        self.params.inextensible && !implicit_elastic
+    }
+
+    /// Phases 1–4 of a joint step and the cell's right-hand side (its own preconditioner
+    /// built if stale); the engine stays leased until [`Self::end_joint`] or
+    /// [`Self::abort_joint`].
+    pub(super) fn begin_joint(
+        &mut self,
+        state: &mut CellState,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        extra: ExplicitTerms<'_>,
+    ) -> Result<JointStep, TimestepError> {
+        self.check_step_inputs(state, &extra)?;
+        self.adopt_own_record(state.preconditioner.as_ref());
+        let mut lease = self.lease(state.skalak_reference.as_deref())?;
+        let lent = !storage_keeps_per_cell(self.storage);
+        if lent {
+            std::mem::swap(&mut self.s_op, &mut lease.grid_single);
+            std::mem::swap(&mut self.d_op, &mut lease.grid_double);
+        }
+        match self.joint_phases(&mut lease, state, u_inf, extra) {
+            Ok((plan, pcs, terms, b, own_built)) => Ok(JointStep {
+                lease,
+                lent,
+                plan,
+                pcs,
+                terms,
+                b,
+                own_built,
+            }),
+            Err(e) => {
+                self.release(lease, lent, state);
+                Err(e)
+            }
+        }
+    }
+
+    #[allow(clippy::type_complexity)] // the phases' products, handed on together
+    fn joint_phases(
+        &mut self,
+        engine: &mut StepEngine,
+        state: &mut CellState,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        extra: ExplicitTerms<'_>,
+    ) -> Result<(StepPlan, StepPreconditioners, GridTerms, Vec<f64>, bool), TimestepError> {
+        let plan = self.plan(engine, state)?;
+        let pcs = self.prepare_preconditioners(engine, &plan, state)?;
+        let terms = self.explicit_grid_terms(engine, &plan, u_inf, extra)?;
+        self.assemble(engine, &plan)?;
+        let c_d = plan.coef.double_layer;
+        let (s_op, d_op) = step_operators(
+            self.storage,
+            self.params.viscosity,
+            &self.s_op,
+            &self.d_op,
+            c_d,
+        );
+        let b = self.inextensible_rhs(engine, &plan, &terms, s_op, d_op)?;
+        let mut own_built = pcs.own_rebuilt;
+        if pcs.build_own {
+            let op = InextensibleOperator::new(
+                self.n,
+                &engine.work,
+                &engine.sht,
+                self.storage,
+                &plan.xstar,
+                (s_op, d_op),
+                [
+                    plan.coef.identity,
+                    c_d,
+                    plan.tau,
+                    self.params.bending_modulus,
+                ],
+                None,
+                terms.size,
+            );
+            let own = self.own_preconditioner(&op, &engine.sht, &plan, &pcs, None)?;
+            drop(op);
+            self.own = Some(own);
+            self.own_preconditioner_builds += 1;
+            own_built = true;
+        }
+        Ok((plan, pcs, terms, b, own_built))
+    }
+
+    /// The step operator of a joint step.
+    fn joint_operator<'a>(&'a self, step: &'a JointStep) -> InextensibleOperator<'a> {
+        let c_d = step.plan.coef.double_layer;
+        let (s_op, d_op) = step_operators(
+            self.storage,
+            self.params.viscosity,
+            &self.s_op,
+            &self.d_op,
+            c_d,
+        );
+        InextensibleOperator::new(
+            self.n,
+            &step.lease.work,
+            &step.lease.sht,
+            self.storage,
+            &step.plan.xstar,
+            (s_op, d_op),
+            [
+                step.plan.coef.identity,
+                c_d,
+                step.plan.tau,
+                self.params.bending_modulus,
+            ],
+            None,
+            step.terms.size,
+        )
+    }
+
+    /// The block of a joint step's preconditioner: the one [`Self::run_gmres`] would use.
+    fn joint_block<'a>(&'a self, step: &'a JointStep) -> Block<'a> {
+        let own = match self.own.as_ref() {
+            Some(OwnPreconditioner {
+                inverse: OwnInverse::Built(pc),
+                frame,
+                ..
+            }) => Some((pc, relative_rotation(&step.pcs.rotation, frame))),
+            _ => None,
+        };
+        match (step.pcs.sphere, own) {
+            (Some(_), Some((pc, turn))) => {
+                Block::Own(CellPreconditionerOp::new(pc, &step.lease.sht), turn)
+            }
+            (Some(i), None) => Block::Sphere(&self.preconditioners[i], step.pcs.rotation),
+            (None, _) => Block::Identity,
+        }
+    }
+
+    /// Phases 6–7 of a joint step from its solution `z = [Xⁿ⁺¹; σⁿ⁺¹]`; the engine goes back.
+    pub(super) fn end_joint(
+        &mut self,
+        mut step: JointStep,
+        state: &mut CellState,
+        z: &[f64],
+        report: &GmresReport,
+    ) -> Result<StepReport, TimestepError> {
+        let n = self.n;
+        if let Some(o) = &mut self.own {
+            o.record.last_iterations = report.iterations;
+        }
+        state.sigma.copy_from_slice(&z[3 * n..]);
+        let outcome = self
+            .advance(
+                &mut step.lease,
+                state,
+                &step.plan,
+                &z[..3 * n],
+                &step.terms.xh_grid,
+            )
+            .and_then(|area_volume_error| {
+                self.regrid_and_correct(&mut step.lease, state, &step.plan)?;
+                Ok(StepReport {
+                    gmres: report.clone(),
+                    scheme: step.plan.scheme,
+                    preconditioner_built: step.pcs.sphere_built || step.own_built,
+                    area_volume_error,
+                })
+            });
+        self.release(step.lease, step.lent, state);
+        outcome
+    }
+
+    /// A joint step given up: the engine goes back, the state keeps its own-preconditioner
+    /// record.
+    pub(super) fn abort_joint(&mut self, step: JointStep, state: &mut CellState) {
+        self.release(step.lease, step.lent, state);
+    }
+
+    fn release(&mut self, mut lease: EngineLease, lent: bool, state: &mut CellState) {
+        if lent {
+            std::mem::swap(&mut self.s_op, &mut lease.grid_single);
+            std::mem::swap(&mut self.d_op, &mut lease.grid_double);
+        }
+        state.preconditioner = self.own.as_ref().map(|o| o.record.clone());
+    }
+}
+
+/// One cell's block of the joint preconditioner.
+enum Block<'a> {
+    Own(CellPreconditionerOp<'a>, Rotation),
+    Sphere(&'a SpherePreconditioner, Rotation),
+    Identity,
+}
+
+impl Block<'_> {
+    fn apply(&self, n: usize, v: &[f64], z: &mut [f64]) {
+        match self {
+            Block::Own(pc, turn) => RotatedPreconditioner::new(pc, *turn, n).apply(v, z),
+            Block::Sphere(pc, rotation) => {
+                RotatedPreconditioner::new(*pc, *rotation, n).apply(v, z)
+            }
+            Block::Identity => z.copy_from_slice(v),
+        }
+    }
+}
+
+/// The block-diagonal preconditioner of a cluster.
+struct ClusterPreconditioner<'a> {
+    n: usize,
+    blocks: Vec<Block<'a>>,
+}
+
+impl Preconditioner for ClusterPreconditioner<'_> {
+    fn nrows(&self) -> usize {
+        4 * self.n * self.blocks.len()
+    }
+
+    fn apply(&self, v: &[f64], z: &mut [f64]) {
+        let n4 = 4 * self.n;
+        self.blocks
+            .par_iter()
+            .zip(v.par_chunks(n4))
+            .zip(z.par_chunks_mut(n4))
+            .for_each(|((b, vk), zk)| b.apply(self.n, vk, zk));
+    }
+}
+
+/// The joint operator of a cluster (module docs): each cell's own operator, minus `τᵢ` times
+/// the near-zone velocities of the other cells' densities.
+struct ClusterOperator<'a> {
+    n: usize,
+    ops: Vec<InextensibleOperator<'a>>,
+    near: &'a NearPairs,
+    zones: &'a NearZones,
+    surfaces: Vec<&'a [f64]>,
+    tau: Vec<f64>,
+    /// `(1 − λⱼ)/τⱼ` where the cell's double layer is coupled.
+    dl: Vec<Option<f64>>,
+    failure: Mutex<Option<TimestepError>>,
+}
+
+impl LinearOperator for ClusterOperator<'_> {
+    fn nrows(&self) -> usize {
+        4 * self.n * self.ops.len()
+    }
+
+    fn apply(&self, x: &[f64], y: &mut [f64]) {
+        let (n3, n4) = (3 * self.n, 4 * self.n);
+        let m = self.ops.len();
+        let mut f = vec![vec![0.0; n3]; m];
+        self.ops
+            .par_iter()
+            .zip(x.par_chunks(n4))
+            .zip(y.par_chunks_mut(n4))
+            .zip(f.par_iter_mut())
+            .for_each(|(((op, xk), yk), fk)| op.apply_with_traction(xk, yk, fk));
+        let g: Vec<Option<Vec<f64>>> = (0..m)
+            .map(|k| self.dl[k].map(|c| x[k * n4..k * n4 + n3].iter().map(|v| c * v).collect()))
+            .collect();
+        let fref: Vec<&[f64]> = f.iter().map(|v| v.as_slice()).collect();
+        let gref: Vec<Option<&[f64]>> = g.iter().map(|v| v.as_deref()).collect();
+        let mut w = vec![vec![0.0; n3]; m];
+        if let Err(e) = self
+            .near
+            .apply(self.zones, &self.surfaces, &fref, &gref, &mut w)
+        {
+            let mut slot = self.failure.lock().unwrap_or_else(|e| e.into_inner());
+            slot.get_or_insert(e);
+            y.fill(f64::NAN);
+            return;
+        }
+        for (k, wk) in w.iter().enumerate() {
+            for (yi, wi) in y[k * n4..k * n4 + n3].iter_mut().zip(wk) {
+                *yi -= self.tau[k] * wi;
+            }
+        }
+    }
+}
+
+/// One cell of a cluster's step.
+pub(super) struct JointCell<'a> {
+    pub stepper: &'a mut CellStepper,
+    pub state: &'a mut CellState,
+    /// The explicit terms of its own step (`v*`, the explicit tractions).
+    pub extra: ExplicitTerms<'a>,
+    /// The part of `extra.traction` that is the contact repulsion (not a coupling density).
+    pub repulsion: Option<&'a [f64]>,
+    /// `ρⁿ`: the traction and double-layer density the coupling was given this step.
+    pub traction_now: &'a [f64],
+    pub dl_now: Option<&'a [f64]>,
+}
+
+/// One step of the cells of a cluster (`zones` renumbered to them) as one linear system
+/// (module docs); `with_dl`: the double layers of cells with `λ ≠ 1` are coupled. An error
+/// names the cell (its index in `cells`) when it is one cell's.
+pub(super) fn step_cluster(
+    cells: &mut [&mut JointCell<'_>],
+    near: &NearPairs,
+    zones: &NearZones,
+    u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    with_dl: bool,
+) -> Result<Vec<StepReport>, (Option<usize>, TimestepError)> {
+    let omegas: Vec<Option<f64>> = cells
+        .iter()
+        .map(|c| c.stepper.extrapolation_ratio(c.state))
+        .collect();
+    let begun: Vec<Result<JointStep, TimestepError>> = cells
+        .par_iter_mut()
+        .map(|c| c.stepper.begin_joint(c.state, u_inf, c.extra))
+        .collect();
+    let mut steps = Vec::with_capacity(cells.len());
+    let mut first_error = None;
+    for (k, r) in begun.into_iter().enumerate() {
+        match r {
+            Ok(s) => steps.push(Some(s)),
+            Err(e) => {
+                steps.push(None);
+                first_error.get_or_insert((Some(k), e));
+            }
+        }
+    }
+    if let Some(e) = first_error {
+        for (c, s) in cells.iter_mut().zip(steps) {
+            if let Some(s) = s {
+                c.stepper.abort_joint(s, c.state);
+            }
+        }
+        return Err(e);
+    }
+    let steps: Vec<JointStep> = steps.into_iter().flatten().collect();
+    let solved = solve_joint(cells, &steps, &omegas, near, zones, with_dl);
+    let (z, report) = match solved {
+        Ok(r) => r,
+        Err(e) => {
+            for (c, s) in cells.iter_mut().zip(steps) {
+                c.stepper.abort_joint(s, c.state);
+            }
+            return Err((None, e));
+        }
+    };
+    let n4 = z.len() / cells.len();
+    let ended: Vec<Result<StepReport, TimestepError>> = cells
+        .par_iter_mut()
+        .zip(steps.into_par_iter())
+        .zip(z.par_chunks(n4))
+        .map(|((c, s), zk)| c.stepper.end_joint(s, c.state, zk, &report))
+        .collect();
+    ended
+        .into_iter()
+        .enumerate()
+        .map(|(k, r)| r.map_err(|e| (Some(k), e)))
+        .collect()
+}
+
+/// The joint system's right-hand side, operator and preconditioner, solved by GMRES.
+fn solve_joint(
+    cells: &[&mut JointCell<'_>],
+    steps: &[JointStep],
+    omegas: &[Option<f64>],
+    near: &NearPairs,
+    zones: &NearZones,
+    with_dl: bool,
+) -> Result<(Vec<f64>, GmresReport), TimestepError> {
+    let m = cells.len();
+    let n = cells[0].stepper.n_points();
+    let (n3, n4) = (3 * n, 4 * n);
+    let tau: Vec<f64> = steps.iter().map(|s| s.plan.tau).collect();
+    let dl: Vec<Option<f64>> = steps
+        .iter()
+        .map(|s| {
+            let c_d = s.plan.coef.double_layer;
+            (with_dl && c_d != 0.0).then_some(c_d / s.plan.tau)
+        })
+        .collect();
+    let surfaces: Vec<&[f64]> = steps.iter().map(|s| s.plan.xstar.as_slice()).collect();
+    // The constant densities cⱼ − ρⱼ* (module docs).
+    let extrapolated = |now: &[f64], prev: Option<&[f64]>, w: Option<f64>| -> Vec<f64> {
+        match (prev, w) {
+            (Some(p), Some(w)) => now
+                .iter()
+                .zip(p)
+                .map(|(a, b)| (1.0 + w) * a - w * b)
+                .collect(),
+            _ => now.to_vec(),
+        }
+    };
+    let mut fc = Vec::with_capacity(m);
+    let mut gc = Vec::with_capacity(m);
+    for k in 0..m {
+        let c = &cells[k];
+        let prev = c.state.previous_density.as_deref();
+        let f_star = extrapolated(c.traction_now, prev.map(|p| &p[..n3]), omegas[k]);
+        let mut f = steps[k].terms.traction.clone();
+        if let Some(r) = c.repulsion {
+            for (a, b) in f.iter_mut().zip(r) {
+                *a -= b;
+            }
+        }
+        for (a, b) in f.iter_mut().zip(&f_star) {
+            *a -= b;
+        }
+        fc.push(f);
+        gc.push(dl[k].map(|factor| {
+            let zero = vec![0.0; n3];
+            let g_now = c.dl_now.unwrap_or(&zero);
+            let g_star = extrapolated(g_now, prev.map(|p| &p[n3..]), omegas[k]);
+            steps[k]
+                .terms
+                .xh_grid
+                .iter()
+                .zip(&g_star)
+                .map(|(h, gs)| -factor * h - gs)
+                .collect::<Vec<f64>>()
+        }));
+    }
+    let mut w = vec![vec![0.0; n3]; m];
+    {
+        let fref: Vec<&[f64]> = fc.iter().map(|v| v.as_slice()).collect();
+        let gref: Vec<Option<&[f64]>> = gc.iter().map(|v| v.as_deref()).collect();
+        near.apply(zones, &surfaces, &fref, &gref, &mut w)?;
+    }
+    let mut b = vec![0.0; n4 * m];
+    let mut z0 = vec![0.0; n4 * m];
+    for k in 0..m {
+        let bk = &mut b[k * n4..(k + 1) * n4];
+        bk.copy_from_slice(&steps[k].b);
+        for (bi, wi) in bk[..n3].iter_mut().zip(&w[k]) {
+            *bi += tau[k] * wi;
+        }
+        z0[k * n4..k * n4 + n3].copy_from_slice(&steps[k].terms.xs_grid);
+        z0[k * n4 + n3..(k + 1) * n4].copy_from_slice(&cells[k].state.sigma);
+    }
+    let op = ClusterOperator {
+        n,
+        ops: cells
+            .iter()
+            .zip(steps)
+            .map(|(c, s)| c.stepper.joint_operator(s))
+            .collect(),
+        near,
+        zones,
+        surfaces,
+        tau,
+        dl,
+        failure: Mutex::new(None),
+    };
+    let pc = ClusterPreconditioner {
+        n,
+        blocks: cells
+            .iter()
+            .zip(steps)
+            .map(|(c, s)| c.stepper.joint_block(s))
+            .collect(),
+    };
+    let params = cells[0].stepper.params().gmres;
+    let mut ws = GmresWorkspace::new(n4 * m, params.restart);
+    let mut z = vec![0.0; n4 * m];
+    let report = gmres(&op, &pc, &b, Some(&z0), &mut z, &params, &mut ws);
+    if let Some(e) = op.failure.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        return Err(e);
+    }
+    for o in &op.ops {
+        if let Some(e) = o.take_failure() {
+            return Err(e.into());
+        }
+    }
+    Ok((z, report?))
+}
+
+/// What the near-implicit coupling did in a step.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct JointStats {
+    /// Clusters solved jointly.
+    pub clusters: usize,
+    /// Cells in them.
+    pub cells: usize,
+    /// Cells of the largest.
+    pub largest: usize,
+    /// GMRES iterations of the joint solves (summed over the clusters).
+    pub iterations: usize,
+}
+
+/// One step of all `cells` with the near-implicit coupling: the near zones found at the
+/// operators' geometry `X*`, each cluster's cells stepped as one system
+/// ([`step_cluster`]), every other cell alone with its explicit terms. An error names the
+/// cell (its index in `cells`) when it is one cell's.
+pub(super) fn step_all(
+    cells: &mut [JointCell<'_>],
+    near: &NearPairs,
+    u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    with_dl: bool,
+) -> Result<(Vec<StepReport>, JointStats), (Option<usize>, TimestepError)> {
+    type Placed = (Vec<f64>, Vec<[f64; 3]>, [f64; 3], f64);
+    let placed: Result<Vec<Placed>, (Option<usize>, TimestepError)> = cells
+        .par_iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let xs = c.stepper.operator_surface(c.state);
+            let (points, centroid) = c
+                .stepper
+                .with_geometry(&xs, |g| (g.x.clone(), g.centroid()))
+                .map_err(|e| (Some(k), e))?;
+            let radius = points
+                .iter()
+                .map(|x| {
+                    ((x[0] - centroid[0]).powi(2)
+                        + (x[1] - centroid[1]).powi(2)
+                        + (x[2] - centroid[2]).powi(2))
+                    .sqrt()
+                })
+                .fold(0.0, f64::max);
+            Ok((xs, points, centroid, radius))
+        })
+        .collect();
+    let placed = placed?;
+    let zone_cells: Vec<ZoneCell<'_>> = placed
+        .iter()
+        .zip(cells.iter())
+        .map(|((xs, points, centroid, radius), c)| ZoneCell {
+            surface: xs,
+            points,
+            centroid: *centroid,
+            radius: *radius,
+            joins: c.stepper.joins_near_solve(),
+        })
+        .collect();
+    let zones = near.zones(&zone_cells).map_err(|e| (None, e))?;
+    drop(zone_cells);
+    let clusters = zones.clusters(cells.len());
+    let mut cluster_of = vec![None; cells.len()];
+    for (ci, cl) in clusters.iter().enumerate() {
+        for &k in cl {
+            cluster_of[k] = Some(ci);
+        }
+    }
+    let mut reports: Vec<Option<StepReport>> = vec![None; cells.len()];
+    let alone: Vec<Result<(usize, StepReport), (Option<usize>, TimestepError)>> = cells
+        .par_iter_mut()
+        .enumerate()
+        .filter(|(k, _)| cluster_of[*k].is_none())
+        .map(|(k, c)| {
+            c.stepper
+                .step_with(c.state, u_inf, c.extra)
+                .map(|r| (k, r))
+                .map_err(|e| (Some(k), e))
+        })
+        .collect();
+    for r in alone {
+        let (k, report) = r?;
+        reports[k] = Some(report);
+    }
+    let mut stats = JointStats::default();
+    for (ci, cl) in clusters.iter().enumerate() {
+        let local = zones.restricted(cl);
+        let mut members: Vec<&mut JointCell<'_>> = cells
+            .iter_mut()
+            .enumerate()
+            .filter(|(k, _)| cluster_of[*k] == Some(ci))
+            .map(|(_, c)| c)
+            .collect();
+        let done = step_cluster(&mut members, near, &local, u_inf, with_dl)
+            .map_err(|(k, e)| (k.map(|k| cl[k]), e))?;
+        stats.clusters += 1;
+        stats.cells += cl.len();
+        stats.largest = stats.largest.max(cl.len());
+        stats.iterations += done.first().map_or(0, |r| r.gmres.iterations);
+        for (&k, r) in cl.iter().zip(done) {
+            reports[k] = Some(r);
+        }
+    }
+    Ok((reports.into_iter().flatten().collect(), stats))
+}
