@@ -365,3 +365,65 @@ fn a_run_with_a_viscosity_contrast_between_cells_resumes_to_bit_identical_result
         "stop at 5 + resume = one run, bit for bit"
     );
 }
+
+/// With the near-implicit coupling (`[numerics] coupling = "near_implicit"`) the two close
+/// cells with `λ = 5` are solved as one system each step; the extrapolation of their coupling
+/// densities needs last step's, which the checkpoint carries: stop + resume = one run, bit for
+/// bit.
+#[test]
+fn a_near_implicit_run_resumes_to_bit_identical_results() {
+    let dir = tmpdir("run-resume-near-implicit");
+    let text = TWO_CELLS
+        .replace(
+            "bending_modulus = 0.5\ncenter = [-1.3",
+            "bending_modulus = 0.5\nviscosity_ratio = 5.0\ncenter = [-1.3",
+        )
+        .replace(
+            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5",
+            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5\nviscosity_ratio = 5.0",
+        )
+        .replace(
+            "t_end = 1.2\nscheme = \"bdf2\"",
+            "t_end = 0.4\nscheme = \"bdf2\"\ncoupling = \"near_implicit\"",
+        );
+    assert!(text.contains("coupling = \"near_implicit\""));
+    let scene = write(&dir, "two.toml", &text);
+    let full = dir.join("full");
+    let o = mobo(&["run", &scene, "--out", full.to_str().unwrap(), "--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s = summary(&full);
+    assert_eq!(s["steps"].as_u64(), Some(8));
+    let joint = &s["counters"]["near_implicit"];
+    // Close at the start (the shear then moves them apart): joint solves in the first steps,
+    // around the stop at step 3.
+    assert!(
+        joint["clusters"].as_u64().unwrap() >= 3,
+        "the close cells were solved jointly: {joint}"
+    );
+    assert_eq!(joint["largest"].as_u64(), Some(2), "{joint}");
+    let want = frames_of(&full);
+    let part = dir.join("part");
+    stop_and_resume(&scene, &part, 3);
+    assert_eq!(
+        frames_of(&part),
+        want,
+        "stop at 3 + resume = one run, bit for bit"
+    );
+}
+
+#[test]
+fn an_unknown_coupling_is_refused_with_its_place() {
+    let dir = tmpdir("run-bad-coupling");
+    let text = TWO_CELLS.replace(
+        "scheme = \"bdf2\"",
+        "scheme = \"bdf2\"\ncoupling = \"implicit\"",
+    );
+    let scene = write(&dir, "two.toml", &text);
+    let o = mobo(&["run", &scene, "--out", dir.join("o").to_str().unwrap()]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("two.toml") && err.contains("coupling") && err.contains("\"implicit\""),
+        "{err}"
+    );
+}

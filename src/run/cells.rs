@@ -712,6 +712,7 @@ impl<'a> CellRun<'a> {
                 near_points: stats.near_points,
                 near_pairs: stats.near_pairs,
                 double_layer_fmm_builds: stats.double_layer_fmm_builds,
+                near_implicit: susp.joint_stats(),
             },
             area_drift: worst(|c| c.area_drift),
             volume_drift: worst(|c| c.volume_drift),

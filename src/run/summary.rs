@@ -2,6 +2,7 @@
 //! step, and how the work was split between ranks.
 
 use crate::fmm::gpu_near::NearDecision;
+use crate::timestep::near_implicit::JointStats;
 
 use serde::Serialize;
 
@@ -160,6 +161,10 @@ pub struct Counters {
     /// Cells' own preconditioners built (`[numerics] preconditioner = "cell"`; in this
     /// invocation, those rebuilt from a checkpoint's records included).
     pub preconditioner_builds: usize,
+    /// What the near-implicit coupling solved jointly (`[numerics] coupling =
+    /// "near_implicit"`; zeros otherwise): clusters, their cells, the largest, their GMRES
+    /// iterations.
+    pub near_implicit: JointStats,
 }
 
 /// How the run's work was split between ranks (`summary.json`'s `split`).

@@ -37,7 +37,7 @@ use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
 use super::cell_stepper::CellStepper;
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
-use super::near_implicit::{step_all, CouplingMode, JointCell, JointStats};
+use super::near_implicit::{step_all, CouplingMode, JointCell, JointStats, IMPLICIT_ZONE};
 use super::near_pairs::NearPairs;
 use super::semi_implicit::{
     ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
@@ -527,7 +527,7 @@ impl Suspension {
         self.coupling_mode = mode;
         if mode == CouplingMode::NearImplicit && self.near_pairs.is_none() {
             let c = &self.coupling_params;
-            self.near_pairs = Some(NearPairs::new(self.p, c.viscosity, c.near_factor));
+            self.near_pairs = Some(NearPairs::new(self.p, c.viscosity, IMPLICIT_ZONE));
         }
     }
 
@@ -626,7 +626,8 @@ impl Suspension {
             agree_cells(comm, self.user_tractions(time, forces))?
         };
         // The densities passed to the coupling (the near-implicit step extrapolates them).
-        let mut densities: Option<(Vec<Vec<f64>>, Vec<Option<Vec<f64>>>)> = None;
+        type Densities = (Vec<Vec<f64>>, Vec<Option<Vec<f64>>>);
+        let mut densities: Option<Densities> = None;
         if let Some(coupling) = &mut self.coupling {
             let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
                 .cells
