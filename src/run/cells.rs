@@ -37,6 +37,7 @@ use super::assembly::{build_part, run_effects, setups};
 use super::cell_step::{accepted_step, adaptive_control, flow_origin, step_error};
 use super::checkpoint::{self, Progress, Split};
 use super::error::{agreed, CellRunError};
+use super::observables::{FailedRunSummary, Observables, StepRow};
 use super::output::{gather_rows, gather_states, gathered_frame};
 use super::partition::{self, Reason};
 use super::summary::{
@@ -48,6 +49,7 @@ use crate::io::write_atomic;
 use crate::scene::cells::{CellScene, Scheme};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::adaptive::AdaptiveDt;
+use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
 use crate::timestep::TimestepError;
 use crate::vesicle::geometry::{Geometry, SurfaceCalculus};
@@ -177,7 +179,14 @@ pub fn run_on(
     let mut stopped = false;
     while !run.ends_run(run.k, run.prog.time) {
         let last;
-        (last, stopped) = run.step(&bar)?;
+        (last, stopped) = match run.step(&bar) {
+            Ok(s) => s,
+            Err(e) => {
+                bar.finish_and_clear();
+                run.record_failure(&e);
+                return Err(e);
+            }
+        };
         run.write_outputs(last, stopped)?;
         if stopped {
             break;
@@ -219,6 +228,10 @@ struct CellRun<'a> {
     left: [usize; 2],
     start: Instant,
     wall0: f64,
+    /// The per-step record (`observables.csv`; kept at rank 0), and the step of the last
+    /// checkpoint written or resumed from.
+    observed: Observables,
+    last_checkpoint: Option<usize>,
 }
 
 /// Fixed steps of `scene` (`t_end / dt`).
@@ -346,6 +359,13 @@ impl<'a> CellRun<'a> {
                 .map_err(|e| step_error(prog.step, prog.time, e))?;
         }
         let (first, k, wall0) = (prog.step + 1, prog.step, prog.wall_s);
+        let observed = if root && options.resume {
+            Observables::resume(out, prog.step)
+        } else {
+            Ok(Observables::default())
+        };
+        let observed = agreed(comm, observed)?;
+        let last_checkpoint = options.resume.then_some(prog.step);
         Ok(CellRun {
             comm,
             scene,
@@ -369,6 +389,8 @@ impl<'a> CellRun<'a> {
             left: [0; 2],
             start: Instant::now(),
             wall0,
+            observed,
+            last_checkpoint,
         })
     }
 
@@ -403,6 +425,7 @@ impl<'a> CellRun<'a> {
             clock,
             log,
             left,
+            observed,
             ..
         } = self;
         let held = counts(susp);
@@ -489,6 +512,18 @@ impl<'a> CellRun<'a> {
         if let Some(st) = susp.coupling_stats() {
             prog.min_gap = prog.min_gap.min(st.min_gap);
         }
+        observed.push(StepRow {
+            step: k,
+            time: prog.time,
+            dt: dt_try,
+            gmres_max: it,
+            gmres_mean: it_sum[0] as f64 / scene.cells.len() as f64,
+            min_gap: susp
+                .coupling_stats()
+                .map(|s| s.min_gap)
+                .filter(|g| g.is_finite()),
+            area_volume_error: acc.error,
+        });
         match &adaptive {
             None => {
                 bar.set_message(format!("t {:.3} dt {dt} gmres {it}", prog.time));
@@ -533,6 +568,8 @@ impl<'a> CellRun<'a> {
             prog,
             owners,
             clock,
+            observed,
+            last_checkpoint,
             ..
         } = self;
         let t0 = Instant::now();
@@ -555,15 +592,53 @@ impl<'a> CellRun<'a> {
                         owners: owners.clone(),
                     },
                     double_layer,
-                ),
+                )
+                .and_then(|_| observed.write(out)),
                 None => Ok(()),
             };
             agreed(comm, saved)?;
+            *last_checkpoint = Some(k);
         }
         let spent = t0.elapsed().as_secs_f64();
         prog.output_s += spent;
         clock.output_s += spent;
         Ok(())
+    }
+
+    /// After a failed step (rank 0): `summary.json` saying so and `observables.csv` up to the
+    /// last good step (see [`super::observables`]); the last checkpoint stays as it was. A
+    /// file that cannot be written is reported on stderr (the step's error is what the run
+    /// returns).
+    fn record_failure(&self, error: &CellRunError) {
+        if self.comm.rank() != 0 {
+            return;
+        }
+        let scene = self.scene;
+        let summary = FailedRunSummary {
+            completed: false,
+            error: error.to_string(),
+            last_good_step: self.prog.step,
+            last_good_time: self.prog.time,
+            last_checkpoint_step: self.last_checkpoint,
+            cells: scene.cells.len(),
+            order: scene.numerics.order,
+            dt: scene.numerics.dt,
+            scheme: match scene.numerics.scheme {
+                Scheme::Euler => "euler",
+                Scheme::Bdf2 => "bdf2",
+            },
+            coupling: coupling_name(scene.numerics.coupling),
+            last_observables: self.observed.last().copied(),
+            wall_s: self.start.elapsed().as_secs_f64(),
+        };
+        let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
+        let written = self.observed.write(self.out).and_then(|_| {
+            write_atomic(&self.out.join("summary.json"), json.as_bytes())?;
+            Ok(())
+        });
+        if let Err(e) = written {
+            eprintln!("mobo: the failed run's summary could not be written: {e}");
+        }
     }
 
     /// The end of the run: the frames closed (unless stopped), every cell observed, the
@@ -687,6 +762,7 @@ impl<'a> CellRun<'a> {
                 Scheme::Euler => "euler",
                 Scheme::Bdf2 => "bdf2",
             },
+            coupling: coupling_name(scene.numerics.coupling),
             gmres_tol: scene.numerics.gmres_tol,
             fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
             near_field: susp.near_field_decision(),
@@ -731,6 +807,14 @@ impl<'a> CellRun<'a> {
         let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
         write_atomic(&out.join("summary.json"), json.as_bytes())?;
         Ok(Some(summary))
+    }
+}
+
+/// A coupling mode as the scene key writes it.
+fn coupling_name(mode: CouplingMode) -> &'static str {
+    match mode {
+        CouplingMode::Explicit => "explicit",
+        CouplingMode::NearImplicit => "near_implicit",
     }
 }
 

@@ -18,6 +18,7 @@ pub mod cells;
 mod checkpoint;
 pub mod dpd;
 pub mod error;
+pub mod observables;
 mod output;
 pub mod partition;
 pub mod simulation;

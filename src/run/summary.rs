@@ -66,6 +66,8 @@ pub struct CellRunSummary {
     pub area_volume_error_sum: f64,
     /// Time-integration scheme: `"euler"` or `"bdf2"`.
     pub scheme: &'static str,
+    /// How the cells' coupling entered the steps: `"explicit"` or `"near_implicit"`.
+    pub coupling: &'static str,
     /// GMRES relative residual tolerance.
     pub gmres_tol: f64,
     /// Digits asked of the FMM (`null` for one cell: no FMM).
