@@ -375,7 +375,11 @@ pub(super) struct JointCell<'a> {
     pub repulsion: Option<&'a [f64]>,
     /// `ρⁿ`: the traction and double-layer density the coupling was given this step.
     pub traction_now: &'a [f64],
+    /// (`None`: no double layer.)
     pub dl_now: Option<&'a [f64]>,
+    /// `ρⁿ⁻¹` (`6n`: traction, double-layer density), on the grid of `Xⁿ` (relabelled by the
+    /// last step's reparametrisation); `None` before the second step.
+    pub previous: Option<&'a [f64]>,
 }
 
 /// One step of the cells of a cluster (`zones` renumbered to them) as one linear system
@@ -476,7 +480,7 @@ fn solve_joint(
     let mut gc = Vec::with_capacity(m);
     for k in 0..m {
         let c = &cells[k];
-        let prev = c.state.previous_density.as_deref();
+        let prev = c.previous;
         let f_star = extrapolated(c.traction_now, prev.map(|p| &p[..n3]), omegas[k]);
         let mut f = steps[k].terms.traction.clone();
         if let Some(r) = c.repulsion {

@@ -516,11 +516,31 @@ impl CellStepper {
             }
             None => None,
         };
+        // The near-implicit coupling's densities of this step (traction, double-layer density),
+        // extrapolated at the next step on the grid they will then sit on.
+        let mut density_c = match &state.previous_density {
+            Some(d) => {
+                let mut c = vec![0.0; 6 * nc];
+                for (block, cb) in d.chunks_exact(d.len() / 2).zip(c.chunks_exact_mut(3 * nc)) {
+                    engine
+                        .sht
+                        .forward(block, cb, &mut engine.ws)
+                        .map_err(VesicleError::from)?;
+                }
+                Some(c)
+            }
+            None => None,
+        };
         let mut surf = Surface::from_coefs(self.p, state.coefs.clone())?;
         {
             let mut passengers: Vec<&mut [f64]> = vec![&mut sigma_c[..]];
             if let Some(v) = velocity_c.as_mut() {
                 passengers.push(&mut v[..]);
+            }
+            if let Some(d) = density_c.as_mut() {
+                let (f, g) = d.split_at_mut(3 * nc);
+                passengers.push(f);
+                passengers.push(g);
             }
             // The Skalak reference moves with the grid through its labels (composed below;
             // `set_skalak` gives every Skalak cell labels): relabelled itself, its re-fits
@@ -552,6 +572,15 @@ impl CellStepper {
                 .sht
                 .inverse(&c, v, &mut engine.ws)
                 .map_err(VesicleError::from)?;
+        }
+        if let (Some(c), Some(d)) = (density_c, state.previous_density.as_mut()) {
+            let half = d.len() / 2;
+            for (cb, block) in c.chunks_exact(3 * nc).zip(d.chunks_exact_mut(half)) {
+                engine
+                    .sht
+                    .inverse(cb, block, &mut engine.ws)
+                    .map_err(VesicleError::from)?;
+            }
         }
         Ok(())
     }

@@ -742,6 +742,22 @@ impl Suspension {
                     }
                     let with_dl = self.inter_cell_double_layer;
                     let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
+                    // ρⁿ goes into the state before the step, so that the step's reparametrisation
+                    // relabels it with the grid; ρⁿ⁻¹ comes out for the extrapolation.
+                    let previous: Vec<Option<Vec<f64>>> = self
+                        .cells
+                        .iter_mut()
+                        .zip(tractions)
+                        .zip(scaled)
+                        .map(|((c, f), g)| {
+                            let mut rho = f.clone();
+                            match g {
+                                Some(g) => rho.extend_from_slice(g),
+                                None => rho.resize(2 * f.len(), 0.0),
+                            }
+                            c.state.previous_density.replace(rho)
+                        })
+                        .collect();
                     let mut joint: Vec<JointCell<'_>> = self
                         .cells
                         .iter_mut()
@@ -756,6 +772,7 @@ impl Suspension {
                             repulsion: repulsion.map(|r| r[i].as_slice()).filter(|r| !r.is_empty()),
                             traction_now: &tractions[i],
                             dl_now: scaled[i].as_deref(),
+                            previous: previous[i].as_deref(),
                         })
                         .collect();
                     let stepped = step_all(&mut joint, near, u_inf, with_dl);
@@ -766,16 +783,6 @@ impl Suspension {
                             self.joint.cells += stats.cells;
                             self.joint.largest = self.joint.largest.max(stats.largest);
                             self.joint.iterations += stats.iterations;
-                            // ρⁿ kept for the next step's extrapolation (module docs of
-                            // near_implicit).
-                            for ((c, f), g) in self.cells.iter_mut().zip(tractions).zip(scaled) {
-                                let mut rho = f.clone();
-                                match g {
-                                    Some(g) => rho.extend_from_slice(g),
-                                    None => rho.resize(2 * f.len(), 0.0),
-                                }
-                                c.state.previous_density = Some(rho);
-                            }
                             Ok(reports)
                         }
                         Err((k, source)) => Err(CellStepError {
