@@ -25,8 +25,11 @@
 //! geometry `X*`). The velocity cell `i` feels is then `v*ᵢ + Σ_j K*ᵢⱼ (ρⱼⁿ⁺¹ − ρⱼ*)`: the
 //! explicit field with its near part replaced, to `O(Δt²)`, by the implicit one. A density
 //! mode that alternates between steps cancels between `v*` and `K* ρ*`, so the near coupling
-//! no longer has the extrapolation's gain, and BDF2 keeps its order (the correction vanishes
-//! as `ρⁿ⁺¹ − ρ* = O(Δt²)`). The far field stays explicit through the FMM.
+//! no longer has the extrapolation's gain (the correction vanishes as `ρⁿ⁺¹ − ρ* = O(Δt²)`).
+//! The far field stays explicit through the FMM. Measured orders (tests/hard_cases.rs, two
+//! cells with `λ = 5`, docs/hard_cases.md): 2.00 and 1.89 with the surfaces 0.8 apart, where
+//! the explicit coupling gives 0.95 and 1.01 (its extrapolated double layer is first order);
+//! 1.22, 1.07 and 1.13 with them 0.1 apart, not yet understood.
 //!
 //! The zone where the coupling is implicit ([`IMPLICIT_ZONE`]) is wider than the coupling's
 //! near-singular zone: the double layer of a neighbour a little beyond it still couples
@@ -59,8 +62,10 @@ use super::{gmres, GmresReport, GmresWorkspace, LinearOperator, Preconditioner, 
 /// The implicit zone: the targets of cell `i` within `δ = IMPLICIT_ZONE · R_j / √p` of cell `j`
 /// take `j`'s densities implicitly (the coupling's near-singular zone is `2 R/√p`). Measured
 /// on 27 RBCs at 17 %, `λ = 5`, `p = 8`, BDF2, `Δt = 0.01` (`mobo run`): the explicit coupling
-/// fails at step 35, an implicit zone of `2 R/√p` at step 44, one of `8 R/√p` ran the 60 steps
-/// tried (6.3 joint GMRES iterations a step). The far field beyond it stays explicit.
+/// fails at step 35, an implicit zone of `2 R/√p` at step 44; zones of `4 R/√p` and `8 R/√p`
+/// ran the 60 steps tried (2.3 and 5.6 s a step against the explicit 1.08; benches/RESULTS.md).
+/// The wider is the default until longer runs show that the narrower holds. The far field
+/// beyond it stays explicit.
 pub const IMPLICIT_ZONE: f64 = 8.0;
 
 /// How the cells' hydrodynamic coupling enters a step (scene `[numerics] coupling`).
