@@ -216,6 +216,21 @@ every = 4
 vtk = false
 "#;
 
+/// [`TWO_CELLS`] with `λ = 5` for both cells.
+fn two_cells_lambda_5() -> String {
+    let text = TWO_CELLS
+        .replace(
+            "bending_modulus = 0.5\ncenter = [-1.3",
+            "bending_modulus = 0.5\nviscosity_ratio = 5.0\ncenter = [-1.3",
+        )
+        .replace(
+            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5",
+            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5\nviscosity_ratio = 5.0",
+        );
+    assert_eq!(text.matches("viscosity_ratio = 5.0").count(), 2);
+    text
+}
+
 fn frames_of(out: &std::path::Path) -> Vec<Vec<u64>> {
     frame_bits(out, true)
 }
@@ -317,16 +332,7 @@ fn a_stopped_or_interrupted_run_resumes_to_bit_identical_results() {
 #[test]
 fn a_run_with_a_viscosity_contrast_between_cells_resumes_to_bit_identical_results() {
     let dir = tmpdir("run-resume-lambda");
-    let text = TWO_CELLS
-        .replace(
-            "bending_modulus = 0.5\ncenter = [-1.3",
-            "bending_modulus = 0.5\nviscosity_ratio = 5.0\ncenter = [-1.3",
-        )
-        .replace(
-            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5",
-            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5\nviscosity_ratio = 5.0",
-        )
-        .replace("t_end = 1.2", "t_end = 0.6");
+    let text = two_cells_lambda_5().replace("t_end = 1.2", "t_end = 0.6");
     assert_eq!(text.matches("viscosity_ratio = 5.0").count(), 2);
     let scene = write(&dir, "two.toml", &text);
     let full = dir.join("full");
@@ -373,19 +379,10 @@ fn a_run_with_a_viscosity_contrast_between_cells_resumes_to_bit_identical_result
 #[test]
 fn a_near_implicit_run_resumes_to_bit_identical_results() {
     let dir = tmpdir("run-resume-near-implicit");
-    let text = TWO_CELLS
-        .replace(
-            "bending_modulus = 0.5\ncenter = [-1.3",
-            "bending_modulus = 0.5\nviscosity_ratio = 5.0\ncenter = [-1.3",
-        )
-        .replace(
-            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5",
-            "center = [1.3, -0.4, 0.0]\nbending_modulus = 0.5\nviscosity_ratio = 5.0",
-        )
-        .replace(
-            "t_end = 1.2\nscheme = \"bdf2\"",
-            "t_end = 0.4\nscheme = \"bdf2\"\ncoupling = \"near_implicit\"",
-        );
+    let text = two_cells_lambda_5().replace(
+        "t_end = 1.2\nscheme = \"bdf2\"",
+        "t_end = 0.4\nscheme = \"bdf2\"\ncoupling = \"near_implicit\"",
+    );
     assert!(text.contains("coupling = \"near_implicit\""));
     let scene = write(&dir, "two.toml", &text);
     let full = dir.join("full");

@@ -509,8 +509,9 @@ impl<'a> CellRun<'a> {
         let it = it[0] as usize;
         prog.iters_sum += it_sum[0] as usize;
         prog.iters_max = prog.iters_max.max(it);
-        if let Some(st) = susp.coupling_stats() {
-            prog.min_gap = prog.min_gap.min(st.min_gap);
+        let step_gap = susp.coupling_stats().map(|st| st.min_gap);
+        if let Some(g) = step_gap {
+            prog.min_gap = prog.min_gap.min(g);
         }
         observed.push(StepRow {
             step: k,
@@ -518,10 +519,7 @@ impl<'a> CellRun<'a> {
             dt: dt_try,
             gmres_max: it,
             gmres_mean: it_sum[0] as f64 / scene.cells.len() as f64,
-            min_gap: susp
-                .coupling_stats()
-                .map(|s| s.min_gap)
-                .filter(|g| g.is_finite()),
+            min_gap: step_gap.filter(|g| g.is_finite()),
             area_volume_error: acc.error,
         });
         match &adaptive {
@@ -623,10 +621,7 @@ impl<'a> CellRun<'a> {
             cells: scene.cells.len(),
             order: scene.numerics.order,
             dt: scene.numerics.dt,
-            scheme: match scene.numerics.scheme {
-                Scheme::Euler => "euler",
-                Scheme::Bdf2 => "bdf2",
-            },
+            scheme: scheme_name(scene.numerics.scheme),
             coupling: coupling_name(scene.numerics.coupling),
             last_observables: self.observed.last().copied(),
             wall_s: self.start.elapsed().as_secs_f64(),
@@ -758,10 +753,7 @@ impl<'a> CellRun<'a> {
                 dt_last: prog.last_dt,
             }),
             area_volume_error_sum: prog.error_sum,
-            scheme: match scene.numerics.scheme {
-                Scheme::Euler => "euler",
-                Scheme::Bdf2 => "bdf2",
-            },
+            scheme: scheme_name(scene.numerics.scheme),
             coupling: coupling_name(scene.numerics.coupling),
             gmres_tol: scene.numerics.gmres_tol,
             fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
@@ -807,6 +799,14 @@ impl<'a> CellRun<'a> {
         let json = serde_json::to_string_pretty(&summary).expect("summary serialises");
         write_atomic(&out.join("summary.json"), json.as_bytes())?;
         Ok(Some(summary))
+    }
+}
+
+/// A scheme as the scene key writes it.
+fn scheme_name(scheme: Scheme) -> &'static str {
+    match scheme {
+        Scheme::Euler => "euler",
+        Scheme::Bdf2 => "bdf2",
     }
 }
 

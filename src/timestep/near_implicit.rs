@@ -51,7 +51,7 @@ use super::cell_stepper::CellStepper;
 use super::grid_frame::{relative_rotation, RotatedPreconditioner, Rotation};
 use super::near_pairs::{NearPairs, NearZones, ZoneCell};
 use super::own_preconditioner::{OwnInverse, OwnPreconditioner};
-use super::semi_implicit::{ElasticStepping, ExplicitTerms, StepReport};
+use super::semi_implicit::{extrapolate, ElasticStepping, ExplicitTerms, StepReport};
 use super::sphere_preconditioner::SpherePreconditioner;
 use super::step_engine::{EngineLease, StepEngine};
 use super::step_operator::InextensibleOperator;
@@ -145,33 +145,17 @@ impl CellStepper {
         let pcs = self.prepare_preconditioners(engine, &plan, state)?;
         let terms = self.explicit_grid_terms(engine, &plan, u_inf, extra)?;
         self.assemble(engine, &plan)?;
-        let c_d = plan.coef.double_layer;
         let (s_op, d_op) = step_operators(
             self.storage,
             self.params.viscosity,
             &self.s_op,
             &self.d_op,
-            c_d,
+            plan.coef.double_layer,
         );
         let b = self.inextensible_rhs(engine, &plan, &terms, s_op, d_op)?;
         let mut own_built = pcs.own_rebuilt;
         if pcs.build_own {
-            let op = InextensibleOperator::new(
-                self.n,
-                &engine.work,
-                &engine.sht,
-                self.storage,
-                &plan.xstar,
-                (s_op, d_op),
-                [
-                    plan.coef.identity,
-                    c_d,
-                    plan.tau,
-                    self.params.bending_modulus,
-                ],
-                None,
-                terms.size,
-            );
+            let op = self.joint_operator(engine, &plan, terms.size);
             let own = self.own_preconditioner(&op, &engine.sht, &plan, &pcs, None)?;
             drop(op);
             self.own = Some(own);
@@ -181,9 +165,15 @@ impl CellStepper {
         Ok((plan, pcs, terms, b, own_built))
     }
 
-    /// The step operator of a joint step.
-    fn joint_operator<'a>(&'a self, step: &'a JointStep) -> InextensibleOperator<'a> {
-        let c_d = step.plan.coef.double_layer;
+    /// The step operator of a joint step (no elastic Jacobian: such cells step alone) on
+    /// `engine` with the plan `plan`; `size` the cell's area-equivalent radius.
+    fn joint_operator<'a>(
+        &'a self,
+        engine: &'a StepEngine,
+        plan: &'a StepPlan,
+        size: f64,
+    ) -> InextensibleOperator<'a> {
+        let c_d = plan.coef.double_layer;
         let (s_op, d_op) = step_operators(
             self.storage,
             self.params.viscosity,
@@ -193,19 +183,19 @@ impl CellStepper {
         );
         InextensibleOperator::new(
             self.n,
-            &step.lease.work,
-            &step.lease.sht,
+            &engine.work,
+            &engine.sht,
             self.storage,
-            &step.plan.xstar,
+            &plan.xstar,
             (s_op, d_op),
             [
-                step.plan.coef.identity,
+                plan.coef.identity,
                 c_d,
-                step.plan.tau,
+                plan.tau,
                 self.params.bending_modulus,
             ],
             None,
-            step.terms.size,
+            size,
         )
     }
 
@@ -471,22 +461,12 @@ fn solve_joint(
         .collect();
     let surfaces: Vec<&[f64]> = steps.iter().map(|s| s.plan.xstar.as_slice()).collect();
     // The constant densities cⱼ − ρⱼ* (module docs).
-    let extrapolated = |now: &[f64], prev: Option<&[f64]>, w: Option<f64>| -> Vec<f64> {
-        match (prev, w) {
-            (Some(p), Some(w)) => now
-                .iter()
-                .zip(p)
-                .map(|(a, b)| (1.0 + w) * a - w * b)
-                .collect(),
-            _ => now.to_vec(),
-        }
-    };
     let mut fc = Vec::with_capacity(m);
     let mut gc = Vec::with_capacity(m);
     for k in 0..m {
         let c = &cells[k];
         let prev = c.previous;
-        let f_star = extrapolated(c.traction_now, prev.map(|p| &p[..n3]), omegas[k]);
+        let f_star = extrapolate(c.traction_now, prev.map(|p| &p[..n3]), omegas[k]);
         let mut f = steps[k].terms.traction.clone();
         if let Some(r) = c.repulsion {
             for (a, b) in f.iter_mut().zip(r) {
@@ -500,7 +480,7 @@ fn solve_joint(
         gc.push(dl[k].map(|factor| {
             let zero = vec![0.0; n3];
             let g_now = c.dl_now.unwrap_or(&zero);
-            let g_star = extrapolated(g_now, prev.map(|p| &p[n3..]), omegas[k]);
+            let g_star = extrapolate(g_now, prev.map(|p| &p[n3..]), omegas[k]);
             steps[k]
                 .terms
                 .xh_grid
@@ -532,7 +512,7 @@ fn solve_joint(
         ops: cells
             .iter()
             .zip(steps)
-            .map(|(c, s)| c.stepper.joint_operator(s))
+            .map(|(c, s)| c.stepper.joint_operator(&s.lease, &s.plan, s.terms.size))
             .collect(),
         near,
         zones,

@@ -273,6 +273,20 @@ pub struct ExplicitTerms<'a> {
     pub traction: Option<&'a [f64]>,
 }
 
+/// BDF2's extrapolation of a quantity to the next step, `(1 + ω) now − ω previous`
+/// (`ω = Δtⁿ/Δtⁿ⁻¹`; `2 now − previous` at a constant step), or `now` itself without a previous
+/// value or without `ω` (Euler, a first step).
+pub(crate) fn extrapolate(now: &[f64], previous: Option<&[f64]>, omega: Option<f64>) -> Vec<f64> {
+    match (previous, omega) {
+        (Some(p), Some(w)) => now
+            .iter()
+            .zip(p)
+            .map(|(a, b)| (1.0 + w) * a - w * b)
+            .collect(),
+        _ => now.to_vec(),
+    }
+}
+
 /// What one step did.
 #[derive(Clone, Debug)]
 pub struct StepReport {

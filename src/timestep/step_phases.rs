@@ -12,7 +12,7 @@ use crate::vesicle::reparam::{ReparamParams, Reparametrizer};
 use crate::vesicle::shapes::Surface;
 
 use super::cell_stepper::CellStepper;
-use super::semi_implicit::{ElasticStepping, ExplicitTerms, StepReport, TimeScheme};
+use super::semi_implicit::{extrapolate, ElasticStepping, ExplicitTerms, StepReport, TimeScheme};
 use super::step_plan::{GridTerms, StepPlan, StepPreconditioners};
 use super::step_solve::{assemble_operator, storage_keeps_per_cell};
 
@@ -135,15 +135,11 @@ impl CellStepper {
     /// The operators' geometry `X*` of the next step of `state` (coefficients):
     /// `(1 + ω) Xⁿ − ω Xⁿ⁻¹` for BDF2 (`ω = Δtⁿ/Δtⁿ⁻¹`), `Xⁿ` for Euler and a first step.
     pub fn operator_surface(&self, state: &CellState) -> Vec<f64> {
-        match (&state.previous_coefs, self.extrapolation_ratio(state)) {
-            (Some(prev), Some(w)) => state
-                .coefs
-                .iter()
-                .zip(prev)
-                .map(|(c, o)| (1.0 + w) * c - w * o)
-                .collect(),
-            _ => state.coefs.clone(),
-        }
+        extrapolate(
+            &state.coefs,
+            state.previous_coefs.as_deref(),
+            self.extrapolation_ratio(state),
+        )
     }
 
     /// [`Self::step_with`] on a leased engine, the sizes checked: the step's phases in order.
@@ -202,22 +198,16 @@ impl CellStepper {
         if state.drift_targets.is_none() {
             state.drift_targets = Some((area0, volume0));
         }
-        let coefs = &state.coefs;
         // X* (geometry of the operators) and X̂ (the history term), as coefficients.
-        let (xstar, xhat): (Vec<f64>, Vec<f64>) = match (&state.previous_coefs, bdf2) {
-            (Some(prev), true) => (
-                coefs
-                    .iter()
-                    .zip(prev)
-                    .map(|(c, o)| (1.0 + w) * c - w * o)
-                    .collect(),
-                coefs
-                    .iter()
-                    .zip(prev)
-                    .map(|(c, o)| ((1.0 + w) * (1.0 + w) * c - w * w * o) / (1.0 + 2.0 * w))
-                    .collect(),
-            ),
-            _ => (coefs.to_vec(), coefs.to_vec()),
+        let xstar = self.operator_surface(state);
+        let xhat: Vec<f64> = match (&state.previous_coefs, bdf2) {
+            (Some(prev), true) => state
+                .coefs
+                .iter()
+                .zip(prev)
+                .map(|(c, o)| ((1.0 + w) * (1.0 + w) * c - w * w * o) / (1.0 + 2.0 * w))
+                .collect(),
+            _ => state.coefs.clone(),
         };
         let area_source = self.local_area_source(engine, state, &g_now.w, tau)?;
         drop(g_now);

@@ -40,7 +40,7 @@ use super::coupling::{Coupling, CouplingParams, CouplingStats};
 use super::near_implicit::{step_all, CouplingMode, JointCell, JointStats, IMPLICIT_ZONE};
 use super::near_pairs::NearPairs;
 use super::semi_implicit::{
-    ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
+    extrapolate, ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,
 };
 use super::TimestepError;
 use crate::comm::{text_words, words_text, Communicator, SerialComm};
@@ -136,11 +136,7 @@ pub struct Suspension {
     solve_s: f64,
     /// How the coupling enters a step, and the near-zone operator of the near-implicit one.
     coupling_mode: CouplingMode,
-    near_pairs: Option<NearPairs>,
-    /// The coupling's settings and the cells' order (what the near-zone operator is built
-    /// from).
-    coupling_params: CouplingParams,
-    p: usize,
+    near_pairs: NearPairs,
     /// What the near-implicit coupling did (cumulative).
     joint: JointStats,
 }
@@ -190,9 +186,7 @@ impl Suspension {
             preconditioning: None,
             solve_s: 0.0,
             coupling_mode: CouplingMode::Explicit,
-            near_pairs: None,
-            coupling_params: coupling,
-            p,
+            near_pairs: NearPairs::new(p, coupling.viscosity, IMPLICIT_ZONE),
             joint: JointStats::default(),
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
@@ -525,10 +519,6 @@ impl Suspension {
     /// each other's near zones as one system ([`super::near_implicit`]; one rank only).
     pub fn set_coupling_mode(&mut self, mode: CouplingMode) {
         self.coupling_mode = mode;
-        if mode == CouplingMode::NearImplicit && self.near_pairs.is_none() {
-            let c = &self.coupling_params;
-            self.near_pairs = Some(NearPairs::new(self.p, c.viscosity, IMPLICIT_ZONE));
-        }
     }
 
     /// What the near-implicit coupling did so far: clusters solved jointly, their cells, the
@@ -690,15 +680,12 @@ impl Suspension {
                 if v.is_empty() {
                     return None;
                 }
-                match c.stepper.extrapolation_ratio(&c.state) {
-                    Some(w) if !u.is_empty() => Some(
-                        v.iter()
-                            .zip(u)
-                            .map(|(a, b)| (1.0 + w) * a - w * b)
-                            .collect(),
-                    ),
-                    _ => Some(v.to_vec()),
-                }
+                let previous = (!u.is_empty()).then_some(u);
+                Some(extrapolate(
+                    v,
+                    previous,
+                    c.stepper.extrapolation_ratio(&c.state),
+                ))
             })
             .collect();
         let repulsion = self.coupling.as_ref().and_then(|c| c.repulsion());
@@ -726,89 +713,89 @@ impl Suspension {
                 .as_deref()
                 .or_else(|| repulsion.map(|r| r[i].as_slice()))
         };
-        let reports: Result<Vec<StepReport>, CellStepError> =
-            match (self.coupling_mode, &densities, self.near_pairs.as_ref()) {
-                (CouplingMode::NearImplicit, Some((tractions, scaled)), Some(near)) => {
-                    if comm.size() > 1 {
-                        return Err(CellStepError {
-                            cell: None,
-                            source: TimestepError::InvalidParameter {
-                                name: "coupling",
-                                value: "near_implicit".into(),
-                                reason: "the near-implicit coupling runs on one rank for now; \
+        let reports: Result<Vec<StepReport>, CellStepError> = match (self.coupling_mode, &densities)
+        {
+            (CouplingMode::NearImplicit, Some((tractions, scaled))) => {
+                if comm.size() > 1 {
+                    return Err(CellStepError {
+                        cell: None,
+                        source: TimestepError::InvalidParameter {
+                            name: "coupling",
+                            value: "near_implicit".into(),
+                            reason: "the near-implicit coupling runs on one rank for now; \
                                      over several ranks use coupling = \"explicit\"",
-                            },
-                        });
-                    }
-                    let with_dl = self.inter_cell_double_layer;
-                    let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
-                    // ρⁿ goes into the state before the step, so that the step's reparametrisation
-                    // relabels it with the grid; ρⁿ⁻¹ comes out for the extrapolation.
-                    let previous: Vec<Option<Vec<f64>>> = self
-                        .cells
-                        .iter_mut()
-                        .zip(tractions)
-                        .zip(scaled)
-                        .map(|((c, f), g)| {
-                            let mut rho = f.clone();
-                            match g {
-                                Some(g) => rho.extend_from_slice(g),
-                                None => rho.resize(2 * f.len(), 0.0),
-                            }
-                            c.state.previous_density.replace(rho)
-                        })
-                        .collect();
-                    let mut joint: Vec<JointCell<'_>> = self
-                        .cells
-                        .iter_mut()
-                        .enumerate()
-                        .map(|(i, c)| JointCell {
-                            stepper: &mut c.stepper,
-                            state: &mut c.state,
-                            extra: ExplicitTerms {
-                                velocity: explicit[i].as_deref(),
-                                traction: traction_of(i),
-                            },
-                            repulsion: repulsion.map(|r| r[i].as_slice()).filter(|r| !r.is_empty()),
-                            traction_now: &tractions[i],
-                            dl_now: scaled[i].as_deref(),
-                            previous: previous[i].as_deref(),
-                        })
-                        .collect();
-                    let stepped = step_all(&mut joint, near, u_inf, with_dl);
-                    drop(joint);
-                    match stepped {
-                        Ok((reports, stats)) => {
-                            self.joint.clusters += stats.clusters;
-                            self.joint.cells += stats.cells;
-                            self.joint.largest = self.joint.largest.max(stats.largest);
-                            self.joint.iterations += stats.iterations;
-                            Ok(reports)
-                        }
-                        Err((k, source)) => Err(CellStepError {
-                            cell: k.map(|k| ids[k]),
-                            source,
-                        }),
-                    }
+                        },
+                    });
                 }
-                _ => self
+                let with_dl = self.inter_cell_double_layer;
+                let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
+                // ρⁿ goes into the state before the step, so that the step's reparametrisation
+                // relabels it with the grid; ρⁿ⁻¹ comes out for the extrapolation.
+                let previous: Vec<Option<Vec<f64>>> = self
                     .cells
-                    .par_iter_mut()
+                    .iter_mut()
+                    .zip(tractions)
+                    .zip(scaled)
+                    .map(|((c, f), g)| {
+                        let mut rho = f.clone();
+                        match g {
+                            Some(g) => rho.extend_from_slice(g),
+                            None => rho.resize(2 * f.len(), 0.0),
+                        }
+                        c.state.previous_density.replace(rho)
+                    })
+                    .collect();
+                let mut joint: Vec<JointCell<'_>> = self
+                    .cells
+                    .iter_mut()
                     .enumerate()
-                    .map(|(i, cell)| {
-                        let extra = ExplicitTerms {
+                    .map(|(i, c)| JointCell {
+                        stepper: &mut c.stepper,
+                        state: &mut c.state,
+                        extra: ExplicitTerms {
                             velocity: explicit[i].as_deref(),
                             traction: traction_of(i),
-                        };
-                        cell.stepper
-                            .step_with(&mut cell.state, u_inf, extra)
-                            .map_err(|source| CellStepError {
-                                cell: Some(cell.id),
-                                source,
-                            })
+                        },
+                        repulsion: repulsion.map(|r| r[i].as_slice()).filter(|r| !r.is_empty()),
+                        traction_now: &tractions[i],
+                        dl_now: scaled[i].as_deref(),
+                        previous: previous[i].as_deref(),
                     })
-                    .collect(),
-            };
+                    .collect();
+                let stepped = step_all(&mut joint, &self.near_pairs, u_inf, with_dl);
+                drop(joint);
+                match stepped {
+                    Ok((reports, stats)) => {
+                        self.joint.clusters += stats.clusters;
+                        self.joint.cells += stats.cells;
+                        self.joint.largest = self.joint.largest.max(stats.largest);
+                        self.joint.iterations += stats.iterations;
+                        Ok(reports)
+                    }
+                    Err((k, source)) => Err(CellStepError {
+                        cell: k.map(|k| ids[k]),
+                        source,
+                    }),
+                }
+            }
+            _ => self
+                .cells
+                .par_iter_mut()
+                .enumerate()
+                .map(|(i, cell)| {
+                    let extra = ExplicitTerms {
+                        velocity: explicit[i].as_deref(),
+                        traction: traction_of(i),
+                    };
+                    cell.stepper
+                        .step_with(&mut cell.state, u_inf, extra)
+                        .map_err(|source| CellStepError {
+                            cell: Some(cell.id),
+                            source,
+                        })
+                })
+                .collect(),
+        };
         self.solve_s += t1.elapsed().as_secs_f64();
         let reports = agree_cells(comm, reports)?;
         for (c, r) in self.cells.iter_mut().zip(&reports) {
