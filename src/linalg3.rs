@@ -24,6 +24,32 @@ pub fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+/// The rotation by the angle `|w|` about the axis `w / |w|` (Rodrigues' formula,
+/// `R = I + sin θ K + (1 − cos θ) K²` with `K` the cross-product matrix of the unit axis); the
+/// identity for `w = 0`.
+pub fn rotation_from_vector(w: [f64; 3]) -> [[f64; 3]; 3] {
+    let theta = dot3(w, w).sqrt();
+    if theta == 0.0 {
+        return [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    }
+    let k = w.map(|v| v / theta);
+    let (s, c) = theta.sin_cos();
+    let kk = [[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]];
+    let mut r = [[0.0; 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            let k2 = k[i] * k[j] - if i == j { 1.0 } else { 0.0 };
+            r[i][j] = if i == j { 1.0 } else { 0.0 } + s * kk[i][j] + (1.0 - c) * k2;
+        }
+    }
+    r
+}
+
+/// `a b` of two 3 × 3 matrices.
+pub fn matmul3(a: [[f64; 3]; 3], b: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
+    std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| a[i][k] * b[k][j]).sum()))
+}
+
 /// Of an ellipsoid's semi-axes `semi` with unit directions `axes` (`axes[i]` belongs to
 /// `semi[i]`), the two in the plane most nearly normal to `vorticity`: the one whose axis is
 /// closest to `vorticity` (largest `|axes[i] · vorticity|`) is left out. Returns `(L, B, a_L)`,

@@ -93,6 +93,7 @@ pub mod cell_force;
 pub mod cell_preconditioner;
 pub mod cell_state;
 pub mod cell_stepper;
+pub mod contact;
 pub mod coupling;
 mod gmres;
 pub mod grid_frame;
