@@ -5,6 +5,7 @@ use super::cell_step::step_error;
 use super::error::CellRunError;
 use crate::scene::cells::{CellScene, Effect, Flow, Scheme};
 use crate::timestep::cell_preconditioner;
+use crate::timestep::contact::ContactParams;
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
 use crate::timestep::suspension::{CellSetup, Suspension};
@@ -132,6 +133,8 @@ pub fn build_part(
     susp.set_operator_storage(storage);
     susp.set_preconditioning(preconditioning);
     susp.set_coupling_mode(scene.numerics.coupling);
+    susp.set_contacts(p, scene.numerics.contact_distance.map(ContactParams::new))
+        .map_err(|e| step_error(0, 0.0, e))?;
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,

@@ -521,6 +521,7 @@ impl<'a> CellRun<'a> {
             gmres_mean: it_sum[0] as f64 / scene.cells.len() as f64,
             min_gap: step_gap.filter(|g| g.is_finite()),
             area_volume_error: acc.error,
+            end_gap: susp.contact_stats().last_gap,
         });
         match &adaptive {
             None => {
@@ -755,6 +756,7 @@ impl<'a> CellRun<'a> {
             area_volume_error_sum: prog.error_sum,
             scheme: scheme_name(scene.numerics.scheme),
             coupling: coupling_name(scene.numerics.coupling),
+            contact_distance: scene.numerics.contact_distance,
             gmres_tol: scene.numerics.gmres_tol,
             fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
             near_field: susp.near_field_decision(),
@@ -781,6 +783,7 @@ impl<'a> CellRun<'a> {
                 near_pairs: stats.near_pairs,
                 double_layer_fmm_builds: stats.double_layer_fmm_builds,
                 near_implicit: susp.joint_stats(),
+                contacts: susp.contact_stats(),
             },
             area_drift: worst(|c| c.area_drift),
             volume_drift: worst(|c| c.volume_drift),

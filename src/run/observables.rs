@@ -1,11 +1,14 @@
 //! The per-step record of a cell run, `DIR/observables.csv`, and what a failed run leaves.
 //!
 //! One row per accepted step: `step, time, dt, gmres_max, gmres_mean, min_gap,
-//! area_volume_error`. `gmres_max` and `gmres_mean` are the step's GMRES iterations over the
+//! area_volume_error, end_gap`. `gmres_max` and `gmres_mean` are the step's GMRES iterations over the
 //! cells, `min_gap` the smallest distance of a grid point to another cell's surface seen by
 //! the coupling's near-zone monitor (empty when no point was near another cell, and for one
 //! cell), `area_volume_error` the step's relative area/volume change before the drift
-//! correction (the adaptive step's error estimate). The file is rewritten atomically with
+//! correction (the adaptive step's error estimate), `end_gap` the smallest surface gap at the end
+//! of the step as the contact projection measured it (`[numerics] contact_distance` set; empty
+//! otherwise, and when no gap is below `3 d_min`). A table of the 7 columns before `end_gap` is
+//! read as one without it. The file is rewritten atomically with
 //! every checkpoint and when a run fails; a resumed run keeps the rows up to its checkpoint.
 //!
 //! When a step fails, `summary.json` says so (`completed = false`, the error, the last good
@@ -22,7 +25,10 @@ use crate::io::write_atomic;
 /// The file's name in the output directory.
 pub const FILE: &str = "observables.csv";
 
-const HEADER: &str = "step,time,dt,gmres_max,gmres_mean,min_gap,area_volume_error";
+const HEADER: &str = "step,time,dt,gmres_max,gmres_mean,min_gap,area_volume_error,end_gap";
+
+/// The header of the tables written before `end_gap`.
+const HEADER_7: &str = "step,time,dt,gmres_max,gmres_mean,min_gap,area_volume_error";
 
 /// One accepted step.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -41,6 +47,9 @@ pub struct StepRow {
     pub min_gap: Option<f64>,
     /// Relative area/volume change of the step before the drift correction.
     pub area_volume_error: f64,
+    /// Smallest surface gap at the end of the step measured by the contact projection
+    /// (`None`: no projection, or no gap below `3 d_min`).
+    pub end_gap: Option<f64>,
 }
 
 /// The rows so far.
@@ -65,25 +74,26 @@ impl Observables {
             Err(e) => return Err(io_error(&path, e.to_string())),
         };
         let mut lines = text.lines().enumerate();
-        match lines.next() {
-            Some((_, h)) if h == HEADER => {}
+        let columns = match lines.next() {
+            Some((_, h)) if h == HEADER => 8,
+            Some((_, h)) if h == HEADER_7 => 7,
             _ => {
                 return Err(io_error(
                     &path,
                     format!("line 1: expected the header \"{HEADER}\""),
                 ))
             }
-        }
+        };
         let mut rows = Vec::new();
         for (i, line) in lines {
             let f: Vec<&str> = line.split(',').collect();
             let bad = || {
                 io_error(
                     &path,
-                    format!("line {}: not a row of 7 numbers: {line}", i + 1),
+                    format!("line {}: not a row of {columns} numbers: {line}", i + 1),
                 )
             };
-            if f.len() != 7 {
+            if f.len() != columns {
                 return Err(bad());
             }
             let num = |s: &str| s.parse::<f64>().map_err(|_| bad());
@@ -100,6 +110,10 @@ impl Observables {
                     Some(num(f[5])?)
                 },
                 area_volume_error: num(f[6])?,
+                end_gap: match f.get(7) {
+                    Some(g) if !g.is_empty() => Some(num(g)?),
+                    _ => None,
+                },
             };
             if row.step <= up_to {
                 rows.push(row);
@@ -125,14 +139,15 @@ impl Observables {
         s.push('\n');
         for r in &self.rows {
             s.push_str(&format!(
-                "{},{:?},{:?},{},{:?},{},{:?}\n",
+                "{},{:?},{:?},{},{:?},{},{:?},{}\n",
                 r.step,
                 r.time,
                 r.dt,
                 r.gmres_max,
                 r.gmres_mean,
                 r.min_gap.map(|g| format!("{g:?}")).unwrap_or_default(),
-                r.area_volume_error
+                r.area_volume_error,
+                r.end_gap.map(|g| format!("{g:?}")).unwrap_or_default()
             ));
         }
         s
@@ -193,12 +208,22 @@ mod tests {
                 gmres_mean: 2.5,
                 min_gap: (k % 2 == 0).then_some(0.01 / k as f64),
                 area_volume_error: 1e-9 * k as f64,
+                end_gap: (k % 3 == 0).then_some(0.02 * k as f64),
             });
         }
         o.write(&dir).unwrap();
         assert_eq!(Observables::resume(&dir, 10).unwrap(), o);
         let kept = Observables::resume(&dir, 2).unwrap();
         assert_eq!(kept.rows, o.rows[..2].to_vec());
+        // A table written before end_gap reads with no end gaps.
+        std::fs::write(
+            dir.join(FILE),
+            format!("{HEADER_7}\n1,0.1,0.1,3,2.5,,1e-9\n"),
+        )
+        .unwrap();
+        let old = Observables::resume(&dir, 10).unwrap();
+        assert_eq!(old.rows.len(), 1);
+        assert_eq!((old.rows[0].end_gap, old.rows[0].gmres_max), (None, 3));
         // A damaged file names its line.
         std::fs::write(dir.join(FILE), format!("{HEADER}\n1,0.1,0.1,3\n")).unwrap();
         let e = Observables::resume(&dir, 10).unwrap_err().to_string();

@@ -2,6 +2,7 @@
 //! step, and how the work was split between ranks.
 
 use crate::fmm::gpu_near::NearDecision;
+use crate::timestep::contact::ContactStats;
 use crate::timestep::near_implicit::JointStats;
 
 use serde::Serialize;
@@ -68,6 +69,8 @@ pub struct CellRunSummary {
     pub scheme: &'static str,
     /// How the cells' coupling entered the steps: `"explicit"` or `"near_implicit"`.
     pub coupling: &'static str,
+    /// The smallest surface gap `d_min` the contact projection keeps (`null`: no projection).
+    pub contact_distance: Option<f64>,
     /// GMRES relative residual tolerance.
     pub gmres_tol: f64,
     /// Digits asked of the FMM (`null` for one cell: no FMM).
@@ -167,6 +170,11 @@ pub struct Counters {
     /// "near_implicit"`; zeros otherwise): clusters, their cells, the largest, their GMRES
     /// iterations.
     pub near_implicit: JointStats,
+    /// What the contact projection did (`[numerics] contact_distance`; zeros and no gaps
+    /// otherwise): steps, steps that moved cells, rounds, active contacts, cell moves, seconds
+    /// (its share of the time), the last and the smallest end-of-step gap (where below
+    /// `3 d_min`).
+    pub contacts: ContactStats,
 }
 
 /// How the run's work was split between ranks (`summary.json`'s `split`).

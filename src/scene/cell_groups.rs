@@ -14,6 +14,8 @@ use crate::vesicle::skalak::ElasticLaw;
 
 use super::cell_scene::{rotation, unit_shape, CellSpec, Shape};
 use super::cells_schema::{CellSection, Origin};
+use super::packing::{pack, PackingRequest};
+use crate::timestep::contact::{ContactParams, ContactSolver};
 
 pub(super) type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
 
@@ -30,6 +32,7 @@ pub(super) fn cell_specs(
     positive: &Check,
     finite: &Check,
     text: &str,
+    order: usize,
 ) -> Result<Vec<CellSpec>, SceneError> {
     let key = |name: &str| match origin {
         Origin::File => format!("[[cells]] #{} {name}", k + 1),
@@ -268,8 +271,62 @@ pub(super) fn cell_specs(
             ),
         ));
     }
+    for (v, name) in [
+        (&c.volume_fraction, "volume_fraction"),
+        (&c.min_gap, "min_gap"),
+    ] {
+        if let (Some(v), false) = (v, placement == Some("packed")) {
+            return Err(at(
+                v.span(),
+                format!("{} applies to placement = \"packed\" only", key(name)),
+            ));
+        }
+    }
     if count == 1 && placement.is_none() {
         return Ok(vec![base]);
+    }
+    if placement == Some("packed") {
+        let span = c.placement.as_ref().expect("set").span();
+        if let Some(s) = &c.spacing {
+            return Err(at(
+                s.span(),
+                format!(
+                    "{} does not apply to placement = \"packed\"",
+                    key("spacing")
+                ),
+            ));
+        }
+        let phi = match &c.volume_fraction {
+            None => {
+                return Err(at(
+                    span,
+                    format!("{} = \"packed\" needs volume_fraction", key("placement")),
+                ))
+            }
+            Some(v) if !(*v.get_ref() > 0.0 && *v.get_ref() <= 0.6) => {
+                return Err(at(
+                    v.span(),
+                    format!(
+                        "{} must be in (0, 0.6], got {}",
+                        key("volume_fraction"),
+                        v.get_ref()
+                    ),
+                ))
+            }
+            Some(v) => *v.get_ref(),
+        };
+        let min_gap = match &c.min_gap {
+            Some(g) => positive(g, &key("min_gap"))?,
+            None => 0.05 * radius,
+        };
+        let req = PackingRequest {
+            count,
+            volume_fraction: phi,
+            min_gap,
+            seed: c.seed.unwrap_or(1),
+            order,
+        };
+        return pack(&base, &req).map_err(|m| at(span, format!("{}: {m}", key("placement"))));
     }
     let spacing = match &c.spacing {
         Some(s) => positive(s, &key("spacing"))?,
@@ -359,7 +416,7 @@ pub(super) fn cell_specs(
             return Err(at(
                 c.placement.as_ref().expect("set").span(),
                 format!(
-                    "{}: unknown placement \"{other}\" (lattice, random)",
+                    "{}: unknown placement \"{other}\" (lattice, random, packed)",
                     key("placement")
                 ),
             ))
@@ -392,31 +449,67 @@ pub(super) fn bounding_radius(s: &Surface) -> Result<f64, crate::vesicle::Vesicl
         .fold(0.0, f64::max))
 }
 
-/// Cells whose bounding spheres intersect are an error naming both.
+/// Cells whose surfaces intersect are an error naming both. Bounding spheres that do not
+/// intersect clear a pair; the others are measured by the true surface distance (Newton's
+/// closest points from the samples of each surface at order `2p` to the other surface, and
+/// the closest pair of the two surfaces, [`crate::timestep::contact`]), at the scene's order `p`.
 pub(super) fn check_overlaps(
     cells: &[CellSpec],
     file: &Path,
     entry: &dyn Fn(usize) -> String,
+    p: usize,
 ) -> Result<(), SceneError> {
+    let err = |i: usize, message: String| SceneError {
+        file: file.to_path_buf(),
+        place: Some((cells[i].line, 1)),
+        message,
+    };
+    let mut pairs = Vec::new();
     for i in 0..cells.len() {
         for j in 0..i {
             let d = dist(cells[i].center, cells[j].center);
             if d < cells[i].bounding_radius + cells[j].bounding_radius {
-                return Err(SceneError {
-                    file: file.to_path_buf(),
-                    place: Some((cells[i].line, 1)),
-                    message: format!(
-                        "cells {} (of {}) and {} (of {}) overlap: centres {:.4} apart, bounding radii {:.4} and {:.4}",
-                        j,
-                        entry(cells[j].line),
-                        i,
-                        entry(cells[i].line),
-                        d,
-                        cells[j].bounding_radius,
-                        cells[i].bounding_radius
-                    ),
-                });
+                pairs.push((j, i, d));
             }
+        }
+    }
+    if pairs.is_empty() {
+        return Ok(());
+    }
+    let mut surfaces: Vec<Option<Vec<f64>>> = vec![None; cells.len()];
+    for &(j, i, _) in &pairs {
+        for k in [j, i] {
+            if surfaces[k].is_none() {
+                let s = cells[k]
+                    .surface(p)
+                    .map_err(|e| err(k, format!("cell {k} of {}: {e}", entry(cells[k].line))))?;
+                surfaces[k] = Some(s.coefs().to_vec());
+            }
+        }
+    }
+    // Any positive distance will do: only the measured gap is used.
+    let solver =
+        ContactSolver::new(p, ContactParams::new(1.0)).map_err(|e| err(0, e.to_string()))?;
+    for (j, i, d) in pairs {
+        let (a, b) = (
+            surfaces[j].as_deref().expect("built"),
+            surfaces[i].as_deref().expect("built"),
+        );
+        let gap = solver
+            .smallest_gap(&[a, b], &[], f64::INFINITY)
+            .map_err(|e| err(i, e.to_string()))?
+            .map_or(f64::INFINITY, |g| g.0);
+        if gap <= 0.0 {
+            return Err(err(
+                i,
+                format!(
+                    "cells {j} (of {}) and {i} (of {}) overlap: their surfaces intersect (the \
+                     deepest point of one is {:.4} inside the other; centres {d:.4} apart)",
+                    entry(cells[j].line),
+                    entry(cells[i].line),
+                    -gap
+                ),
+            ));
         }
     }
     Ok(())

@@ -237,6 +237,10 @@ pub struct Numerics {
     /// How the cells' coupling enters a step (`[numerics] coupling`; default
     /// [`CouplingMode::Explicit`]; see [`crate::timestep::near_implicit`]).
     pub coupling: CouplingMode,
+    /// The smallest surface gap `d_min` kept at the end of every step by the contact
+    /// projection (`[numerics] contact_distance`, a length; `None`: off, the default;
+    /// [`crate::timestep::contact`]).
+    pub contact_distance: Option<f64>,
     /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
     /// ([`crate::fmm::gpu_near::choose`]).
     pub gpu: GpuChoice,

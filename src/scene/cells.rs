@@ -64,6 +64,8 @@
 //! coupling = "explicit"          # cells' coupling: "explicit" (last step's densities) |
 //! #                               # "near_implicit" (cells in each other's near zone solved as
 //! #                               # one system; one rank; see timestep::near_implicit)
+//! # contact_distance = 0.02       # keep every surface gap >= 0.02 at the end of each step
+//! #                               # (a length; off by default; see timestep::contact)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [output]
@@ -384,6 +386,10 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
                 }
             },
         },
+        contact_distance: match n.and_then(|n| n.contact_distance.as_ref()) {
+            Some(v) => Some(positive(v, "[numerics] contact_distance")?),
+            None => None,
+        },
         gpu: match n.and_then(|n| n.gpu.as_ref()) {
             None => GpuChoice::Auto,
             Some(g) => g
@@ -467,10 +473,20 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
     };
     let mut cells = Vec::new();
     for (k, c) in sections.iter().enumerate() {
-        let group = cell_specs(c, k, origin, &cells, &at, &positive, &finite, text)?;
+        let group = cell_specs(
+            c,
+            k,
+            origin,
+            &cells,
+            &at,
+            &positive,
+            &finite,
+            text,
+            numerics.order.max(RBC_MIN_ORDER),
+        )?;
         cells.extend(group);
     }
-    check_overlaps(&cells, file, &entry)?;
+    check_overlaps(&cells, file, &entry, numerics.order.max(RBC_MIN_ORDER))?;
     if let Some(c) = cells
         .iter()
         .find(|c| matches!(c.shape, Shape::Rbc) && numerics.order < RBC_MIN_ORDER)

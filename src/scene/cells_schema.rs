@@ -58,6 +58,8 @@ pub(super) struct CellSection {
     pub(super) spacing: Option<Spanned<f64>>,
     pub(super) region: Option<Spanned<[[f64; 3]; 2]>>,
     pub(super) seed: Option<u64>,
+    pub(super) volume_fraction: Option<Spanned<f64>>,
+    pub(super) min_gap: Option<Spanned<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -84,6 +86,7 @@ pub(super) struct NumericsSection {
     pub(super) rebalance_every: Option<Spanned<u64>>,
     pub(super) max_imbalance: Option<Spanned<f64>>,
     pub(super) coupling: Option<Spanned<String>>,
+    pub(super) contact_distance: Option<Spanned<f64>>,
     pub(super) gpu: Option<Spanned<GpuFlag>>,
 }
 

@@ -9,6 +9,7 @@ mod cell_scene;
 pub mod cells;
 mod cells_schema;
 pub mod dpd;
+pub mod packing;
 pub mod spec;
 
 use std::path::{Path, PathBuf};

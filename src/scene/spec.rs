@@ -367,6 +367,10 @@ pub struct NumericsSpec {
     /// `coupling`: how the cells' coupling enters a step.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub coupling: Option<CouplingKind>,
+    /// `contact_distance`: the smallest surface gap `d_min` the contact projection keeps at
+    /// the end of every step (absent: no projection).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contact_distance: Option<f64>,
     /// `gpu`: `"auto"`, `true` or `false`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gpu: Option<GpuSpec>,

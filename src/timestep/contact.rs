@@ -47,11 +47,11 @@ const RANGE: f64 = 3.0;
 const MAX_TURN: f64 = 0.1;
 
 /// Errors of the contact projection.
-#[derive(Debug, thiserror::Error)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum ContactError {
-    /// A surface could not be prepared for distance queries.
+    /// A surface could not be prepared for distance queries (the surface error's message).
     #[error("contact: {0}")]
-    Vesicle(#[from] VesicleError),
+    Vesicle(String),
     /// `d_min` outside `(0, ∞)`.
     #[error("contact distance d_min = {0} must be positive and finite")]
     Distance(f64),
@@ -83,6 +83,12 @@ pub enum ContactError {
         /// The other body (`None`: a wall).
         b: Option<usize>,
     },
+}
+
+impl From<VesicleError> for ContactError {
+    fn from(e: VesicleError) -> Self {
+        ContactError::Vesicle(e.to_string())
+    }
 }
 
 /// What the projection guarantees and how it may move bodies.
@@ -177,6 +183,27 @@ pub struct ContactOutcome {
     pub gap_before: f64,
     /// The smallest measured gap after.
     pub gap_after: f64,
+}
+
+/// What the contact projection did over a run's steps.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ContactStats {
+    /// Steps that ran the projection.
+    pub steps: usize,
+    /// Steps in which some gap was below `d_min` (cells were moved).
+    pub steps_with_moves: usize,
+    /// Rounds of projection, summed.
+    pub rounds: usize,
+    /// Active contacts (positive multipliers), summed over the rounds.
+    pub active: usize,
+    /// Cell moves, summed over the steps.
+    pub moves: usize,
+    /// Seconds in the projection (gathering, measuring, solving, moving).
+    pub seconds: f64,
+    /// The smallest gap at the end of the last step, where below `3 d_min`.
+    pub last_gap: Option<f64>,
+    /// The smallest end-of-step gap over the steps, where below `3 d_min`.
+    pub smallest_gap: Option<f64>,
 }
 
 /// One linearised contact.

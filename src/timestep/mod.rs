@@ -201,6 +201,9 @@ pub enum TimestepError {
     /// Communication between ranks failed, or another rank failed (its message).
     #[error("{0}")]
     Comm(#[from] crate::comm::CommError),
+    /// The contact projection could not keep the cells `d_min` apart.
+    #[error("{0}")]
+    Contact(#[from] contact::ContactError),
     /// A cell sent to this rank could not be taken in (its state does not decode, or it is
     /// not one of the run's cells).
     #[error("a cell moving to rank {rank}: {source}")]

@@ -33,9 +33,12 @@
 
 use rayon::prelude::*;
 
+mod contacts;
+
 use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
 use super::cell_stepper::CellStepper;
+use super::contact::{ContactSolver, ContactStats};
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
 use super::near_implicit::{step_all, CouplingMode, JointCell, JointStats, IMPLICIT_ZONE};
 use super::near_pairs::NearPairs;
@@ -139,6 +142,9 @@ pub struct Suspension {
     near_pairs: NearPairs,
     /// What the near-implicit coupling did (cumulative).
     joint: JointStats,
+    /// The contact projection after every step (`None`: off) and what it did.
+    contacts: Option<ContactSolver>,
+    contact_stats: ContactStats,
 }
 
 impl Suspension {
@@ -188,6 +194,8 @@ impl Suspension {
             coupling_mode: CouplingMode::Explicit,
             near_pairs: NearPairs::new(p, coupling.viscosity, IMPLICIT_ZONE),
             joint: JointStats::default(),
+            contacts: None,
+            contact_stats: ContactStats::default(),
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
         for (id, c) in cells {
@@ -801,6 +809,7 @@ impl Suspension {
         for (c, r) in self.cells.iter_mut().zip(&reports) {
             c.state.iterations = r.gmres.iterations;
         }
+        self.resolve_contacts(comm)?;
         Ok(SuspensionReport { cells: reports })
     }
 }

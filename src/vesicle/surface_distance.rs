@@ -206,7 +206,7 @@ impl SurfaceDistance {
         // the better answer (its normal from the neighbouring surface directions is not known,
         // so take the direction from the centre as the fallback normal).
         let sample = self.samples[start];
-        if !(dist2(x, y) <= dist2(x, sample)) {
+        if dist2(x, y).is_nan() || dist2(x, y) > dist2(x, sample) {
             y = sample;
             nv = [
                 sample[0] - self.centre[0],

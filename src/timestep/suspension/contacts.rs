@@ -1,0 +1,117 @@
+//! The contact projection at the end of a suspension's step ([`super::super::contact`]): the
+//! cells that came closer than `d_min` are translated apart, each with its whole history, so
+//! that the step's extrapolations (`X* = 2Xⁿ − Xⁿ⁻¹`, the BDF2 derivative) see a rigid shift
+//! and no spurious velocity. Over several ranks every rank gathers every cell's surface and
+//! solves the same projection (deterministic: the same moves on every rank), then moves its
+//! own cells.
+
+use super::super::contact::{ContactParams, ContactSolver, ContactStats};
+use super::super::TimestepError;
+use super::{CellStepError, Suspension};
+use crate::comm::Communicator;
+
+impl Suspension {
+    /// Keep every pair of cells at least `params.distance` apart at the end of every step
+    /// (`None`: no contact projection, the default). Rotations are not used in a step.
+    pub fn set_contacts(
+        &mut self,
+        p: usize,
+        params: Option<ContactParams>,
+    ) -> Result<(), CellStepError> {
+        self.contacts = match params {
+            None => None,
+            Some(mut params) => {
+                params.rotations = false;
+                Some(ContactSolver::new(p, params).map_err(|e| CellStepError {
+                    cell: None,
+                    source: TimestepError::Contact(e),
+                })?)
+            }
+        };
+        Ok(())
+    }
+
+    /// What the contact projection did (cumulative; zeros without contacts).
+    pub fn contact_stats(&self) -> ContactStats {
+        self.contact_stats
+    }
+
+    /// The projection after a step (collective; nothing without contacts or with one cell).
+    pub(super) fn resolve_contacts(
+        &mut self,
+        comm: &dyn Communicator,
+    ) -> Result<(), CellStepError> {
+        let Some(solver) = &self.contacts else {
+            return Ok(());
+        };
+        if self.n_global < 2 {
+            return Ok(());
+        }
+        let t0 = std::time::Instant::now();
+        let fail = |source| CellStepError { cell: None, source };
+        let mut local = Vec::new();
+        for c in &self.cells {
+            local.push(c.id as f64);
+            local.push(c.state.coefs.len() as f64);
+            local.extend_from_slice(&c.state.coefs);
+        }
+        let gathered = comm
+            .all_gather_f64(&local)
+            .map_err(|e| fail(TimestepError::Comm(e)))?;
+        let mut all: Vec<(usize, &[f64])> = Vec::with_capacity(self.n_global);
+        for part in &gathered {
+            let mut at = 0;
+            while at < part.len() {
+                let (id, len) = (part[at] as usize, part[at + 1] as usize);
+                all.push((id, &part[at + 2..at + 2 + len]));
+                at += 2 + len;
+            }
+        }
+        all.sort_by_key(|a| a.0);
+        let ids: Vec<usize> = all.iter().map(|a| a.0).collect();
+        let coefs: Vec<&[f64]> = all.iter().map(|a| a.1).collect();
+        let out = solver.resolve(&coefs, &[]).map_err(|e| {
+            fail(TimestepError::Contact(match e {
+                super::super::contact::ContactError::Unresolved {
+                    rounds,
+                    gap,
+                    d_min,
+                    a,
+                    b,
+                } => super::super::contact::ContactError::Unresolved {
+                    rounds,
+                    gap,
+                    d_min,
+                    a: ids[a],
+                    b: b.map(|b| ids[b]),
+                },
+                other => other,
+            }))
+        })?;
+        for c in &mut self.cells {
+            let k = ids.binary_search(&c.id).expect("every cell was gathered");
+            let m = &out.moves[k];
+            if m.is_identity() {
+                continue;
+            }
+            m.apply(&mut c.state.coefs);
+            if let Some(prev) = &mut c.state.previous_coefs {
+                m.apply(prev);
+            }
+        }
+        let s = &mut self.contact_stats;
+        s.steps += 1;
+        if out.rounds > 0 {
+            s.steps_with_moves += 1;
+        }
+        s.rounds += out.rounds;
+        s.active += out.active;
+        s.moves += out.moved;
+        s.seconds += t0.elapsed().as_secs_f64();
+        s.last_gap = out.gap_after.is_finite().then_some(out.gap_after);
+        if let Some(g) = s.last_gap {
+            s.smallest_gap = Some(s.smallest_gap.map_or(g, |m| m.min(g)));
+        }
+        Ok(())
+    }
+}
