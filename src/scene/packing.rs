@@ -13,8 +13,9 @@
 //!    (true distance: Newton's closest points, [`crate::vesicle::surface_distance`]) and every
 //!    gap to the cube's faces is at least `min_gap`.
 //! 4. The size grows by a factor `1 + g` (`g = 4 %` at first) and step 3 repeats; a growth the
-//!    projection cannot resolve is undone and retried with `g / 2`. The protocol ends at full
-//!    size, or fails (jammed) when `g` falls below `10⁻⁴`.
+//!    projection cannot resolve in 25 rounds is undone and retried with `g / 2`, a resolved one
+//!    lets `g` grow back by 1.5 (up to 4 %). The protocol ends at full size, or fails (jammed)
+//!    when `g` falls below `10⁻⁴` or after 30 failed growths.
 //!
 //! Deterministic for a given `seed`. The surfaces are those of the scene's order `p`.
 
@@ -30,6 +31,9 @@ const GROWTH: f64 = 0.04;
 
 /// Growth below which the packing is jammed.
 const MIN_GROWTH: f64 = 1e-4;
+
+/// Failed growths after which the packing is jammed.
+const MAX_FAILURES: usize = 30;
 
 /// Size at which the cells start.
 const START: f64 = 0.5;
@@ -88,7 +92,7 @@ pub fn pack(base: &CellSpec, req: &PackingRequest) -> Result<Vec<CellSpec>, Stri
         .collect();
     let mut params = ContactParams::new(req.min_gap);
     params.rotations = true;
-    params.max_rounds = 40;
+    params.max_rounds = 25;
     let solver = ContactSolver::new(req.order, params).map_err(|e| e.to_string())?;
     let surfaces = |size: f64, centres: &[[f64; 3]], rotations: &[[[f64; 3]; 3]]| {
         (0..n)
@@ -104,7 +108,7 @@ pub fn pack(base: &CellSpec, req: &PackingRequest) -> Result<Vec<CellSpec>, Stri
             .collect::<Result<Vec<Vec<f64>>, String>>()
     };
     let (mut size, mut growth) = (START, GROWTH);
-    let mut trial = size;
+    let (mut trial, mut failures) = (size, 0);
     loop {
         let coefs = surfaces(trial, &centres, &rotations)?;
         let refs: Vec<&[f64]> = coefs.iter().map(|v| v.as_slice()).collect();
@@ -127,10 +131,12 @@ pub fn pack(base: &CellSpec, req: &PackingRequest) -> Result<Vec<CellSpec>, Stri
                 if size >= 1.0 {
                     break;
                 }
+                growth = (1.5 * growth).min(GROWTH);
             }
             Err(_) => {
                 growth /= 2.0;
-                if growth < MIN_GROWTH {
+                failures += 1;
+                if growth < MIN_GROWTH || failures > MAX_FAILURES {
                     return Err(format!(
                         "could not pack {n} cells at a volume fraction of {:.1} % with gaps of at \
                          least {}: jammed at {:.1} % of the cells' size (a volume fraction of \

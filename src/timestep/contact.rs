@@ -22,7 +22,8 @@
 //! linear complementarity problem `0 ≤ λ ⊥ g + J M⁻¹ Jᵀ λ − d_target ≥ 0`, solved by projected
 //! Gauss–Seidel (Moreau's and Jean's contact dynamics). `d_target = 1.2 d_min` so that the
 //! curvature neglected by the linearisation is absorbed; the gaps are then measured again at
-//! the moved surfaces, and the rounds repeat until every gap is at least `d_min`.
+//! the moved surfaces, and the rounds repeat until every gap is at least `d_min` (or fail after
+//! `max_rounds`, or after 5 rounds in which the smallest gap did not grow).
 //!
 //! This is the position-level counterpart of the space-time interference volumes of Lu,
 //! Rahimian & Zorin (J. Comput. Phys. 347, 2017): the same guarantee (no pair closer than
@@ -42,6 +43,10 @@ const OVERSHOOT: f64 = 1.2;
 /// Gaps below `RANGE · d_min` enter the projection as constraints (met ones stay inactive but
 /// keep a move from pushing their points through).
 const RANGE: f64 = 3.0;
+
+/// Rounds without the smallest gap growing (by `10⁻³ d_min`) after which the projection gives
+/// up (an infeasible set: cells jammed between others or walls).
+const STALLED_ROUNDS: usize = 5;
 
 /// Largest rotation of one round, in radians (the linearisation's domain).
 const MAX_TURN: f64 = 0.1;
@@ -65,7 +70,7 @@ pub enum ContactError {
         /// The number of order `p`.
         expected: usize,
     },
-    /// The rounds ran out with a gap below `d_min`.
+    /// The rounds ran out, or stalled, with a gap below `d_min`.
     #[error(
         "contacts unresolved after {rounds} rounds: the smallest gap is {gap:.3e} < d_min = \
          {d_min:.3e}, between body {a} and {}",
@@ -266,6 +271,7 @@ impl ContactSolver {
         let mut bodies = self.bodies(coefs)?;
         let mut moves: Vec<Move> = bodies.iter().map(|b| Move::identity(b.centre())).collect();
         let (mut active, mut gap_before) = (0, f64::INFINITY);
+        let (mut best, mut stalled) = (f64::NEG_INFINITY, 0);
         for round in 0..=self.params.max_rounds {
             let (cons, least) = self.measure(&bodies, walls, range);
             let gap = least.map_or(f64::INFINITY, |l| l.0);
@@ -283,7 +289,12 @@ impl ContactSolver {
                     gap_after: gap,
                 });
             }
-            if round == self.params.max_rounds {
+            if gap > best + 1e-3 * d_min {
+                (best, stalled) = (gap, 0);
+            } else {
+                stalled += 1;
+            }
+            if round == self.params.max_rounds || stalled >= STALLED_ROUNDS {
                 let (gap, a, b) = least.expect("a gap below d_min was measured");
                 return Err(ContactError::Unresolved {
                     rounds: round,
