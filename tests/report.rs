@@ -135,3 +135,60 @@ fn bad_report_arguments_are_refused_with_a_message() {
     assert!(e.contains("/nonexistent/scene.toml"), "{e}");
     assert!(!e.contains("panicked"), "{e}");
 }
+
+/// With two cells the study also varies the coupling mode (the other one than the scene's) and
+/// the contact projection's `d_min`; each run records the settings it ran with. (About 3
+/// minutes on 2 cores; the knobs' values and settings are unit-tested in `report::accuracy`.)
+#[test]
+#[ignore = "about 3 minutes: two cells through every knob"]
+fn two_cells_add_the_coupling_and_contact_distance_knobs() {
+    let text = r#"
+[flow]
+kind = "shear"
+rate = 1.0
+[[cells]]
+shape = "rbc"
+center = [-1.3, 0.0, 0.0]
+orientation = [0, 1, 0, 90]
+bending_modulus = 0.1
+viscosity_ratio = 5.0
+[[cells]]
+shape = "rbc"
+center = [1.3, 0.2, 0.0]
+orientation = [0, 1, 0, 90]
+bending_modulus = 0.1
+viscosity_ratio = 5.0
+"#;
+    let scene = parse(std::path::Path::new("two-rbcs"), text).unwrap();
+    let opts = StudyOptions {
+        budget_s: 600.0,
+        t_end: 0.04,
+        progress: false,
+        levels: vec![(6, 1, 4)],
+    };
+    let study = run_study(&scene, "two RBCs", &opts).unwrap();
+    let of = |k: Knob| -> Vec<&mobo::report::accuracy::RunRow> {
+        study.rows.iter().filter(|r| r.knob == Some(k)).collect()
+    };
+    let coupling = of(Knob::Coupling);
+    assert_eq!(coupling.len(), 1, "one other coupling mode");
+    assert!(coupling[0].failure.is_none(), "{:?}", coupling[0].failure);
+    assert_eq!(
+        coupling[0].settings.coupling,
+        mobo::timestep::near_implicit::CouplingMode::NearImplicit
+    );
+    // The near-implicit step changes the answer, but only by about the reference's own error.
+    assert!(coupling[0].surface_error > 0.0 && coupling[0].surface_error < 1e-2);
+    let contact = of(Knob::ContactDistance);
+    let ds: Vec<Option<f64>> = contact
+        .iter()
+        .map(|r| r.settings.contact_distance)
+        .collect();
+    assert_eq!(ds, vec![Some(0.02), Some(0.05), Some(0.1)]);
+    assert!(contact.iter().all(|r| r.failure.is_none()));
+    let md = to_markdown(&study, None);
+    assert!(
+        md.contains("coupling (0 explicit, 1 near-implicit)"),
+        "{md}"
+    );
+}

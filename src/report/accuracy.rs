@@ -8,7 +8,11 @@
 //! * `upsample` — quadrature order `q = upsample · p` of the singular and coupling quadrature;
 //! * `fmm_digits` — FMM accuracy of the inter-cell velocity;
 //! * `gmres_tol` — relative residual of each step's Krylov solve;
-//! * `dt` — time step (`T/dt` steps), per scheme (Euler and BDF2; the reference is BDF2).
+//! * `dt` — time step (`T/dt` steps), per scheme (Euler and BDF2; the reference is BDF2);
+//! * `coupling` — with several cells, the other coupling mode than the scene's (`explicit`: last
+//!   step's densities; `near_implicit`: near cells in one solve), shown as 0 and 1;
+//! * `contact distance` — with several cells, the contact projection's `d_min` at 0.02, 0.05
+//!   and 0.1 (the reference keeps the scene's: off unless `[numerics] contact_distance`).
 //!
 //! Each run is compared with the reference at `T`:
 //!
@@ -51,6 +55,7 @@ use crate::run::{assembly::build, CellRunError};
 use crate::scene::cells::{self, CellScene, Scheme};
 use crate::sph_harmonics::layout::CoefLayout;
 use crate::sph_harmonics::{resample_coefs, ShTransform};
+use crate::timestep::near_implicit::CouplingMode;
 use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::{NearParams, OffSurface};
 
@@ -367,6 +372,14 @@ fn knob_values(knob: Knob, reference: &Settings, t_end: f64) -> Vec<f64> {
             }
             v
         }
+        Knob::Coupling => vec![match reference.coupling {
+            CouplingMode::Explicit => 1.0,
+            CouplingMode::NearImplicit => 0.0,
+        }],
+        Knob::ContactDistance => [0.02, 0.05, 0.1]
+            .into_iter()
+            .filter(|&d| Some(d) != reference.contact_distance)
+            .collect(),
     }
 }
 
@@ -385,6 +398,14 @@ fn with_knob(reference: &Settings, knob: Knob, value: f64) -> Settings {
             s.dt = value;
             s.scheme = Scheme::Bdf2;
         }
+        Knob::Coupling => {
+            s.coupling = if value == 1.0 {
+                CouplingMode::NearImplicit
+            } else {
+                CouplingMode::Explicit
+            }
+        }
+        Knob::ContactDistance => s.contact_distance = Some(value),
     }
     s
 }
@@ -463,6 +484,8 @@ pub fn run_study(
             gmres_tol: REFERENCE_GMRES_TOL,
             dt: opts.t_end / n as f64,
             scheme: ref_scheme,
+            coupling: scene.numerics.coupling,
+            contact_distance: scene.numerics.contact_distance,
         };
         let label = format!("probe p = {p}, upsample = {up}");
         let probe = simulate(scene, &s, opts.t_end, Some(2), &label)?;
@@ -524,11 +547,19 @@ pub fn run_study(
     if scene.cells.len() > 1 {
         knobs.push(Knob::FmmDigits);
     } else {
-        notes.push("One cell: no FMM is built, the fmm digits knob is left out.".into());
+        notes.push(
+            "One cell: no FMM is built and nothing is coupled or in contact; the fmm digits, \
+             coupling and contact distance knobs are left out."
+                .into(),
+        );
     }
     knobs.push(Knob::GmresTol);
     knobs.push(Knob::DtEuler);
     knobs.push(Knob::DtBdf2);
+    if scene.cells.len() > 1 {
+        knobs.push(Knob::Coupling);
+        knobs.push(Knob::ContactDistance);
+    }
     let lists: Vec<Vec<f64>> = knobs
         .iter()
         .map(|&k| knob_values(k, &reference_settings, opts.t_end))
@@ -646,4 +677,44 @@ pub fn study_scene() -> Result<CellScene, ReportError> {
         Path::new("<built-in study scene>"),
         super::STUDY_SCENE,
     )?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The coupling knob tries the other mode, the contact knob three distances other than the
+    /// reference's, and the settings reach the scene a run is built from.
+    #[test]
+    fn coupling_and_contact_knobs_set_what_the_run_uses() {
+        let reference = Settings {
+            order: 8,
+            upsample: 2,
+            fmm_digits: 8,
+            gmres_tol: 1e-10,
+            dt: 0.01,
+            scheme: Scheme::Bdf2,
+            coupling: CouplingMode::Explicit,
+            contact_distance: Some(0.05),
+        };
+        assert_eq!(knob_values(Knob::Coupling, &reference, 0.1), vec![1.0]);
+        assert_eq!(
+            knob_values(Knob::ContactDistance, &reference, 0.1),
+            vec![0.02, 0.1]
+        );
+        let s = with_knob(&reference, Knob::Coupling, 1.0);
+        assert_eq!(s.coupling, CouplingMode::NearImplicit);
+        let back = Settings {
+            coupling: CouplingMode::NearImplicit,
+            ..reference
+        };
+        assert_eq!(knob_values(Knob::Coupling, &back, 0.1), vec![0.0]);
+        let s = with_knob(&reference, Knob::ContactDistance, 0.1);
+        assert_eq!(s.contact_distance, Some(0.1));
+        let mut scene = study_scene().unwrap();
+        s.apply(&mut scene, 0.3);
+        assert_eq!(scene.numerics.contact_distance, Some(0.1));
+        assert_eq!(scene.numerics.coupling, CouplingMode::Explicit);
+        assert!(s.describe().contains("contact_distance = 0.1"));
+    }
 }

@@ -55,6 +55,8 @@ fn knob_color(k: Knob) -> RGBColor {
         Knob::GmresTol => RGBColor(214, 39, 40),
         Knob::DtEuler => RGBColor(148, 103, 189),
         Knob::DtBdf2 => RGBColor(140, 86, 75),
+        Knob::Coupling => RGBColor(227, 119, 194),
+        Knob::ContactDistance => RGBColor(23, 190, 207),
     }
 }
 

@@ -3,6 +3,7 @@
 //! ([`super::accuracy`]), its tables ([`super::tables`]) and its plot ([`super::plot`]).
 
 use crate::scene::cells::{CellScene, Scheme};
+use crate::timestep::near_implicit::CouplingMode;
 
 /// A numerical knob of the study.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -19,6 +20,10 @@ pub enum Knob {
     DtEuler,
     /// Time step with BDF2.
     DtBdf2,
+    /// How the cells' coupling enters a step: 0 explicit, 1 near-implicit.
+    Coupling,
+    /// The contact projection's smallest gap `d_min`.
+    ContactDistance,
 }
 
 impl Knob {
@@ -31,6 +36,8 @@ impl Knob {
             Knob::GmresTol => "gmres tol",
             Knob::DtEuler => "dt (euler)",
             Knob::DtBdf2 => "dt (bdf2)",
+            Knob::Coupling => "coupling (0 explicit, 1 near-implicit)",
+            Knob::ContactDistance => "contact distance",
         }
     }
 }
@@ -50,6 +57,10 @@ pub struct Settings {
     pub dt: f64,
     /// Time-stepping scheme.
     pub scheme: Scheme,
+    /// How the cells' coupling enters a step.
+    pub coupling: CouplingMode,
+    /// The contact projection's `d_min` (`None`: no projection).
+    pub contact_distance: Option<f64>,
 }
 
 impl Settings {
@@ -61,19 +72,28 @@ impl Settings {
         n.gmres_tol = self.gmres_tol;
         n.dt = self.dt;
         n.scheme = self.scheme;
+        n.coupling = self.coupling;
+        n.contact_distance = self.contact_distance;
         n.t_end = t_end;
         n.adaptive_dt = false;
     }
 
     pub(super) fn describe(&self) -> String {
         format!(
-            "p = {}, upsample = {}, fmm_digits = {}, gmres_tol = {:.0e}, dt = {}, scheme = {}",
+            "p = {}, upsample = {}, fmm_digits = {}, gmres_tol = {:.0e}, dt = {}, scheme = {}, \
+             coupling = {}, contact_distance = {}",
             self.order,
             self.upsample,
             self.fmm_digits,
             self.gmres_tol,
             self.dt,
-            scheme_name(self.scheme)
+            scheme_name(self.scheme),
+            match self.coupling {
+                CouplingMode::Explicit => "explicit",
+                CouplingMode::NearImplicit => "near_implicit",
+            },
+            self.contact_distance
+                .map_or("off".to_string(), |d| format!("{d}"))
         )
     }
 }
