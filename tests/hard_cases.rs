@@ -891,8 +891,10 @@ fn blood_case(case: &str, n: usize, p: usize, lambda: f64, steps: usize) {
 /// The failure this case guards against: with the explicit coupling, 8 RBCs at 17 % and
 /// `λ = 5` stop within 40 steps (step 31, a cell's surface turned inside out: BDF2's
 /// extrapolation of the near double layer has a gain above one); the near-implicit coupling
-/// runs them on with drift below 1e-5 and no contact.
+/// runs them on with drift below 1e-5 and no contact. (Run by `scripts/hard_cases.sh`: the
+/// default suite has the denser `dense_packed_blood_at_30_percent_short` in its place.)
 #[test]
+#[ignore = "replaced in the default suite by dense_packed_blood_at_30_percent_short"]
 fn blood_lambda_5_at_17_percent_short() {
     let explicit = blood_lattice(2, 6, 5.0, "explicit", 40);
     let mut susp = build(&explicit).unwrap();
@@ -995,4 +997,150 @@ fn near_implicit_bdf2_order_in_a_pair_with_lambda_5() {
     study(0.1, CouplingMode::NearImplicit);
     let first = (apart[0] / apart[1]).log2();
     assert!(first >= 1.7, "order {first:.2} between Δt = 0.04 and 0.02");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Dense blood: packed RBCs at 30 % and 45 %, viscosity ratio 5, contacts.
+
+/// `count` RBCs (Skalak, shear modulus 1, bending 0.1, `λ = 5`) packed at volume fraction `phi`
+/// with surfaces `gap` apart (`placement = "packed"`), in shear, BDF2 at `Δt = 0.01`, coupled as
+/// `coupling` says, the contact projection keeping `gap` at the end of every step.
+fn packed_blood(
+    count: usize,
+    phi: f64,
+    gap: f64,
+    p: usize,
+    coupling: &str,
+    steps: usize,
+) -> CellScene {
+    let text = format!(
+        r#"
+[flow]
+kind = "shear"
+rate = 1.0
+[[cells]]
+shape = "rbc"
+count = {count}
+placement = "packed"
+volume_fraction = {phi}
+min_gap = {gap}
+seed = 7
+bending_modulus = 0.1
+shear_modulus = 1.0
+viscosity_ratio = 5.0
+[numerics]
+order = {p}
+dt = 0.01
+t_end = {}
+scheme = "bdf2"
+coupling = "{coupling}"
+contact_distance = {gap}
+"#,
+        0.01 * steps as f64
+    );
+    scene(&text)
+}
+
+/// The packed suspension stepped with the near-implicit coupling and contacts: no overlap at
+/// the checked steps (independent closest points), the contact projection's end-of-step gap
+/// never below `gap`, drift within `drift`.
+fn dense_blood_case(
+    case: &str,
+    count: usize,
+    phi: f64,
+    gap: f64,
+    p: usize,
+    steps: usize,
+    drift: f64,
+) {
+    let sc = packed_blood(count, phi, gap, p, "near_implicit", steps);
+    let mut susp = build(&sc).unwrap();
+    let checks = Checks {
+        drift,
+        speed: 50.0,
+        contact_every: Some(10),
+    };
+    let o = run_case(case, &sc, &mut susp, steps, checks).unwrap_or_else(|e| panic!("{e}"));
+    let contacts = susp.contact_stats();
+    assert_eq!(
+        contacts.steps, steps,
+        "{case}: the projection ran every step"
+    );
+    let least = contacts.smallest_gap.unwrap_or(f64::INFINITY);
+    assert!(
+        least >= gap,
+        "{case}: a step ended {least} apart (d_min {gap})"
+    );
+    assert!(o.min_gap > 0.0, "{case}: surfaces crossed ({})", o.min_gap);
+    let joint = susp.joint_stats();
+    report(
+        case,
+        &o,
+        &format!(
+            "{count} cells packed at {:.0} %, λ = 5, near-implicit + contacts (d_min {gap}): \
+             {:.1} joint GMRES iterations a step, largest cluster {}, contact moves in {} of {} \
+             steps ({} cell moves), smallest end-of-step gap {least:.4}, contacts {:.1} % of the \
+             time",
+            100.0 * phi,
+            joint.iterations as f64 / steps as f64,
+            joint.largest,
+            contacts.steps_with_moves,
+            steps,
+            contacts.moves,
+            100.0 * contacts.seconds / o.wall_s.max(1e-9)
+        ),
+    );
+}
+
+/// 8 RBCs packed at 30 %, `λ = 5`, p = 6: the explicit coupling fails within 40 steps; the
+/// near-implicit coupling with contacts runs 40 steps with no step ending closer than 0.05.
+#[test]
+fn dense_packed_blood_at_30_percent_short() {
+    let explicit = packed_blood(8, 0.3, 0.05, 6, "explicit", 40);
+    let mut susp = build(&explicit).unwrap();
+    let loose = Checks {
+        drift: 1e-2,
+        speed: 100.0,
+        contact_every: None,
+    };
+    let failed = run_case("dense, explicit", &explicit, &mut susp, 40, loose);
+    assert!(
+        failed.is_err(),
+        "the explicit coupling ran 40 steps at 30 %: the case no longer shows its failure"
+    );
+    println!("explicit coupling: {}", failed.unwrap_err());
+    dense_blood_case(
+        "dense 8 RBCs, 30 %, λ = 5, p = 6 (short, 40 steps)",
+        8,
+        0.3,
+        0.05,
+        6,
+        40,
+        1e-5,
+    );
+}
+
+/// The dense set of `docs/hard_cases.md`: 16 RBCs at 30 % (gaps 0.05) and at 45 % (gaps 0.02: 16
+/// cells jam at about 42 % with 0.05, the cube's faces taking a large share), p = 8.
+#[test]
+#[ignore = "long version (scripts/hard_cases.sh): 16 cells at 30 % and 45 %, 300 steps each"]
+fn dense_packed_blood_at_30_and_45_percent_long() {
+    dense_blood_case(
+        "dense 16 RBCs, 30 %, λ = 5, p = 8 (long)",
+        16,
+        0.3,
+        0.05,
+        8,
+        300,
+        1e-5,
+    );
+    dense_blood_case(
+        "dense 16 RBCs, 45 %, λ = 5, p = 8 (long)",
+        16,
+        0.45,
+        0.02,
+        8,
+        300,
+        1e-5,
+    );
 }

@@ -13,7 +13,7 @@
 //!    (true distance: Newton's closest points, [`crate::vesicle::surface_distance`]) and every
 //!    gap to the cube's faces is at least `min_gap`.
 //! 4. The size grows by a factor `1 + g` (`g = 4 %` at first) and step 3 repeats; a growth the
-//!    projection cannot resolve in 25 rounds is undone and retried with `g / 2`, a resolved one
+//!    projection cannot resolve in 40 rounds (or 10 without progress) is undone and retried with `g / 2`, a resolved one
 //!    lets `g` grow back by 1.5 (up to 4 %). The protocol ends at full size, or fails (jammed)
 //!    when `g` falls below `10⁻⁴` or after 30 failed growths.
 //!
@@ -92,7 +92,8 @@ pub fn pack(base: &CellSpec, req: &PackingRequest) -> Result<Vec<CellSpec>, Stri
         .collect();
     let mut params = ContactParams::new(req.min_gap);
     params.rotations = true;
-    params.max_rounds = 25;
+    params.max_rounds = 40;
+    params.stall_rounds = 10;
     let solver = ContactSolver::new(req.order, params).map_err(|e| e.to_string())?;
     let surfaces = |size: f64, centres: &[[f64; 3]], rotations: &[[[f64; 3]; 3]]| {
         (0..n)

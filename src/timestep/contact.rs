@@ -23,7 +23,7 @@
 //! Gauss–Seidel (Moreau's and Jean's contact dynamics). `d_target = 1.2 d_min` so that the
 //! curvature neglected by the linearisation is absorbed; the gaps are then measured again at
 //! the moved surfaces, and the rounds repeat until every gap is at least `d_min` (or fail after
-//! `max_rounds`, or after 5 rounds in which the smallest gap did not grow).
+//! `max_rounds`, or after `stall_rounds` rounds in which the smallest gap did not grow).
 //!
 //! This is the position-level counterpart of the space-time interference volumes of Lu,
 //! Rahimian & Zorin (J. Comput. Phys. 347, 2017): the same guarantee (no pair closer than
@@ -43,10 +43,6 @@ const OVERSHOOT: f64 = 1.2;
 /// Gaps below `RANGE · d_min` enter the projection as constraints (met ones stay inactive but
 /// keep a move from pushing their points through).
 const RANGE: f64 = 3.0;
-
-/// Rounds without the smallest gap growing (by `10⁻³ d_min`) after which the projection gives
-/// up (an infeasible set: cells jammed between others or walls).
-const STALLED_ROUNDS: usize = 5;
 
 /// Largest rotation of one round, in radians (the linearisation's domain).
 const MAX_TURN: f64 = 0.1;
@@ -106,15 +102,19 @@ pub struct ContactParams {
     pub rotations: bool,
     /// Rounds of measure-and-project before giving up.
     pub max_rounds: usize,
+    /// Rounds without the smallest gap growing (by `10⁻³ d_min`) after which the projection
+    /// gives up (an infeasible set: cells jammed between others or walls).
+    pub stall_rounds: usize,
 }
 
 impl ContactParams {
-    /// Translations only, at most 30 rounds.
+    /// Translations only, at most 30 rounds, giving up after 5 stalled ones.
     pub fn new(distance: f64) -> Self {
         ContactParams {
             distance,
             rotations: false,
             max_rounds: 30,
+            stall_rounds: 5,
         }
     }
 }
@@ -294,7 +294,7 @@ impl ContactSolver {
             } else {
                 stalled += 1;
             }
-            if round == self.params.max_rounds || stalled >= STALLED_ROUNDS {
+            if round == self.params.max_rounds || stalled >= self.params.stall_rounds {
                 let (gap, a, b) = least.expect("a gap below d_min was measured");
                 return Err(ContactError::Unresolved {
                     rounds: round,

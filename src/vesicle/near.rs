@@ -236,7 +236,26 @@ impl OffSurface {
             .iter()
             .map(|x| ((x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)).sqrt())
             .fold(0.0, f64::max);
-        self.spacing = 2.0 * PI * rmax / self.far_grid.order() as f64;
+        // A deformed surface's grid can be stretched well beyond a sphere's: the bound is also
+        // at least the largest diagonal of a grid cell (neighbours in θ and φ), so that a point
+        // within δ of the surface always reaches the closest-point solve below.
+        let nl = self.far_grid.n_lon();
+        let x = &self.geom_far.x;
+        let mut diag = 0.0f64;
+        for i in 0..self.far_grid.n_lat().saturating_sub(1) {
+            for k in 0..nl {
+                let (a, b) = (i * nl + k, i * nl + (k + 1) % nl);
+                let (c, d) = (a + nl, b + nl);
+                let len = |u: usize, v: usize| {
+                    ((x[u][0] - x[v][0]).powi(2)
+                        + (x[u][1] - x[v][1]).powi(2)
+                        + (x[u][2] - x[v][2]).powi(2))
+                    .sqrt()
+                };
+                diag = diag.max(len(a, d)).max(len(b, c));
+            }
+        }
+        self.spacing = (2.0 * PI * rmax / self.far_grid.order() as f64).max(diag);
         self.rmax = rmax;
         for l in &mut self.levels {
             l.geometry_set = false;
@@ -274,8 +293,16 @@ impl OffSurface {
         let best = best.sqrt();
         // The nearest grid point can be farther than the surface by about one grid spacing.
         if best > self.delta + self.spacing {
+            // The solid angle decides, unless the nearest grid point's outward normal says
+            // outside (the quadrature of the solid angle can err a grid spacing or two off a
+            // stretched surface).
+            let r = [
+                x[0] - g.x[jbest][0],
+                x[1] - g.x[jbest][1],
+                x[2] - g.x[jbest][2],
+            ];
             return Ok(TargetInfo {
-                inside: solid / (4.0 * PI) > 0.5,
+                inside: solid / (4.0 * PI) > 0.5 && dot(r, g.normal[jbest]) < 0.0,
                 near: false,
                 distance: best,
                 closest: start,
