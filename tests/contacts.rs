@@ -303,3 +303,28 @@ fn bad_packing_and_contact_keys_are_refused_with_their_place() {
         .to_string();
     assert!(e.contains("jam.toml:") && e.contains("jammed"), "{e}");
 }
+
+/// The typed scene spec of a research code packs the same cells as the file.
+#[test]
+fn a_packed_group_from_the_typed_spec_equals_the_file() {
+    use mobo::scene::spec::{CellGroupSpec, PlacementKind, SceneSpec, ShapeKind};
+    let spec = SceneSpec {
+        cells: vec![CellGroupSpec {
+            count: Some(6),
+            placement: Some(PlacementKind::Packed),
+            volume_fraction: Some(0.3),
+            min_gap: Some(0.05),
+            seed: Some(2),
+            ..CellGroupSpec::new(ShapeKind::Sphere)
+        }],
+        ..Default::default()
+    };
+    let from_spec = spec.build().unwrap();
+    let text = "[[cells]]\nshape = \"sphere\"\ncount = 6\nplacement = \"packed\"\n\
+                volume_fraction = 0.3\nmin_gap = 0.05\nseed = 2\n";
+    let from_file = parse(std::path::Path::new("packed.toml"), text).unwrap();
+    assert_eq!(from_spec.cells.len(), 6);
+    for (a, b) in from_spec.cells.iter().zip(&from_file.cells) {
+        assert_eq!((a.center, a.rotation), (b.center, b.rotation));
+    }
+}

@@ -137,6 +137,9 @@ pub enum PlacementKind {
     Lattice,
     /// At random in `region`, clear of each other and of earlier groups.
     Random,
+    /// Packed at `volume_fraction` in a cube about `center`, surfaces `min_gap` apart
+    /// ([`crate::scene::packing`]).
+    Packed,
 }
 
 /// One `[[cells]]` entry: a cell, or `count` cells placed alike.
@@ -193,9 +196,15 @@ pub struct CellGroupSpec {
     /// `region` of random placement: lower and upper corners.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub region: Option<[[f64; 3]; 2]>,
-    /// `seed` of random placement (default 1).
+    /// `seed` of random and packed placement (default 1).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+    /// `volume_fraction` of packed placement, in (0, 0.6].
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub volume_fraction: Option<f64>,
+    /// `min_gap` of packed placement: the smallest surface gap (default 0.05 radius).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub min_gap: Option<f64>,
 }
 
 impl CellGroupSpec {
@@ -220,6 +229,8 @@ impl CellGroupSpec {
             spacing: None,
             region: None,
             seed: None,
+            volume_fraction: None,
+            min_gap: None,
         }
     }
 }

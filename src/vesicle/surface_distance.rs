@@ -3,7 +3,7 @@
 //!
 //! The surface `X(θ, φ) = Σ c_nm Y_n^m(θ, φ)` is sampled on the grid of an order `q ≥ p`
 //! (spacing about `2π R_max / (2q)`); the nearest sample starts Newton's method on
-//! `½ |X(θ, φ) − x|²` ([`super::point`]), which converges to the closest point `y` of the
+//! `½ |X(θ, φ) − x|²` (the crate's closest-point solve), which converges to the closest point `y` of the
 //! continuous surface. The distance is `|x − y|`, negative when `x − y` points against the
 //! outward normal `X_θ × X_φ` (the point is inside). A point farther than `far` from every sample
 //! (with the grid spacing added) returns its distance to the nearest sample, an upper bound, and
