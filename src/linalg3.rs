@@ -14,6 +14,19 @@ pub fn sub3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
 }
 
+/// `|a − b|²`.
+#[inline]
+pub fn dist3_squared(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let d = sub3(a, b);
+    dot3(d, d)
+}
+
+/// `|a − b|`.
+#[inline]
+pub fn dist3(a: [f64; 3], b: [f64; 3]) -> f64 {
+    dist3_squared(a, b).sqrt()
+}
+
 /// `a × b`.
 #[inline]
 pub fn cross3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {

@@ -860,6 +860,23 @@ coupling = "{coupling}"
     scene(&text)
 }
 
+/// The failure a blood case guards against: `scene` (explicit coupling) stops within `steps`
+/// steps under loose checks (drift 1e-2, speed 100); the error is printed.
+fn explicit_fails(case: &str, scene: &CellScene, steps: usize) {
+    let mut susp = build(scene).unwrap();
+    let loose = Checks {
+        drift: 1e-2,
+        speed: 100.0,
+        contact_every: None,
+    };
+    let failed = run_case(case, scene, &mut susp, steps, loose);
+    assert!(
+        failed.is_err(),
+        "{case}: the explicit coupling ran {steps} steps: the case no longer shows its failure"
+    );
+    println!("explicit coupling: {}", failed.unwrap_err());
+}
+
 fn blood_case(case: &str, n: usize, p: usize, lambda: f64, steps: usize) {
     let sc = blood_lattice(n, p, lambda, "near_implicit", steps);
     let mut susp = build(&sc).unwrap();
@@ -896,19 +913,11 @@ fn blood_case(case: &str, n: usize, p: usize, lambda: f64, steps: usize) {
 #[test]
 #[ignore = "replaced in the default suite by dense_packed_blood_at_30_percent_short"]
 fn blood_lambda_5_at_17_percent_short() {
-    let explicit = blood_lattice(2, 6, 5.0, "explicit", 40);
-    let mut susp = build(&explicit).unwrap();
-    let loose = Checks {
-        drift: 1e-2,
-        speed: 100.0,
-        contact_every: None,
-    };
-    let failed = run_case("blood, explicit", &explicit, &mut susp, 40, loose);
-    assert!(
-        failed.is_err(),
-        "the explicit coupling ran 40 steps: the case no longer shows its failure"
+    explicit_fails(
+        "blood, explicit",
+        &blood_lattice(2, 6, 5.0, "explicit", 40),
+        40,
     );
-    println!("explicit coupling: {}", failed.unwrap_err());
     blood_case("blood 2×2×2, λ = 5, p = 6 (short, 50 steps)", 2, 6, 5.0, 50);
 }
 
@@ -1096,19 +1105,11 @@ fn dense_blood_case(
 /// near-implicit coupling with contacts runs 40 steps with no step ending closer than 0.05.
 #[test]
 fn dense_packed_blood_at_30_percent_short() {
-    let explicit = packed_blood(8, 0.3, 0.05, 6, "explicit", 40);
-    let mut susp = build(&explicit).unwrap();
-    let loose = Checks {
-        drift: 1e-2,
-        speed: 100.0,
-        contact_every: None,
-    };
-    let failed = run_case("dense, explicit", &explicit, &mut susp, 40, loose);
-    assert!(
-        failed.is_err(),
-        "the explicit coupling ran 40 steps at 30 %: the case no longer shows its failure"
+    explicit_fails(
+        "dense 30 %, explicit",
+        &packed_blood(8, 0.3, 0.05, 6, "explicit", 40),
+        40,
     );
-    println!("explicit coupling: {}", failed.unwrap_err());
     dense_blood_case(
         "dense 8 RBCs, 30 %, λ = 5, p = 6 (short, 40 steps)",
         8,

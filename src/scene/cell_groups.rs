@@ -15,7 +15,7 @@ use crate::vesicle::skalak::ElasticLaw;
 use super::cell_scene::{rotation, unit_shape, CellSpec, Shape};
 use super::cells_schema::{CellSection, Origin};
 use super::packing::{pack, PackingRequest};
-use crate::timestep::contact::{ContactParams, ContactSolver};
+use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 
 pub(super) type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
 
@@ -452,7 +452,7 @@ pub(super) fn bounding_radius(s: &Surface) -> Result<f64, crate::vesicle::Vesicl
 /// Cells whose surfaces intersect are an error naming both. Bounding spheres that do not
 /// intersect clear a pair; the others are measured by the true surface distance (Newton's
 /// closest points from the samples of each surface at order `2p` to the other surface, and
-/// the closest pair of the two surfaces, [`crate::timestep::contact`]), at the scene's order `p`.
+/// the closest pair of the two surfaces, [`SurfaceDistance::gaps_to`]), at the scene's order `p`.
 pub(super) fn check_overlaps(
     cells: &[CellSpec],
     file: &Path,
@@ -476,29 +476,31 @@ pub(super) fn check_overlaps(
     if pairs.is_empty() {
         return Ok(());
     }
-    let mut surfaces: Vec<Option<Vec<f64>>> = vec![None; cells.len()];
+    let sht = crate::sph_harmonics::ShTransform::new(2 * p).map_err(|e| err(0, e.to_string()))?;
+    let mut surfaces: Vec<Option<SurfaceDistance>> = vec![None; cells.len()];
     for &(j, i, _) in &pairs {
         for k in [j, i] {
             if surfaces[k].is_none() {
-                let s = cells[k]
-                    .surface(p)
-                    .map_err(|e| err(k, format!("cell {k} of {}: {e}", entry(cells[k].line))))?;
-                surfaces[k] = Some(s.coefs().to_vec());
+                let cell = |e: crate::vesicle::VesicleError| {
+                    err(k, format!("cell {k} of {}: {e}", entry(cells[k].line)))
+                };
+                let s = cells[k].surface(p).map_err(cell)?;
+                surfaces[k] = Some(SurfaceDistance::new(p, s.coefs(), &sht).map_err(cell)?);
             }
         }
     }
-    // Any positive distance will do: only the measured gap is used.
-    let solver =
-        ContactSolver::new(p, ContactParams::new(1.0)).map_err(|e| err(0, e.to_string()))?;
+    let mut scratch = DistanceScratch::new(p);
     for (j, i, d) in pairs {
         let (a, b) = (
-            surfaces[j].as_deref().expect("built"),
-            surfaces[i].as_deref().expect("built"),
+            surfaces[j].as_ref().expect("built"),
+            surfaces[i].as_ref().expect("built"),
         );
-        let gap = solver
-            .smallest_gap(&[a, b], &[], f64::INFINITY)
-            .map_err(|e| err(i, e.to_string()))?
-            .map_or(f64::INFINITY, |g| g.0);
+        let gap = a
+            .gaps_to(b, &mut scratch, f64::INFINITY)
+            .into_iter()
+            .chain(b.gaps_to(a, &mut scratch, f64::INFINITY))
+            .map(|(_, c)| c.distance)
+            .fold(f64::INFINITY, f64::min);
         if gap <= 0.0 {
             return Err(err(
                 i,

@@ -32,9 +32,9 @@
 
 use rayon::prelude::*;
 
-use crate::linalg3::{cross3, dot3, matmul3, rotation_from_vector};
+use crate::linalg3::{cross3, dist3 as dist, dot3, matmul3, rotation_from_vector, sub3};
 use crate::sph_harmonics::ShTransform;
-use crate::vesicle::surface_distance::{Closest, DistanceScratch, SurfaceDistance};
+use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 use crate::vesicle::VesicleError;
 
 /// The margin `d_target / d_min` the projection aims at.
@@ -245,19 +245,6 @@ impl ContactSolver {
         self.params
     }
 
-    /// The smallest gap between the bodies (and the walls), measured where it is below
-    /// `range`; `None` when no gap is that small. Returns `(gap, a, b)`.
-    pub fn smallest_gap(
-        &self,
-        coefs: &[&[f64]],
-        walls: &[Wall],
-        range: f64,
-    ) -> Result<Option<(f64, usize, Option<usize>)>, ContactError> {
-        let bodies = self.bodies(coefs)?;
-        let (_, least) = self.measure(&bodies, walls, range);
-        Ok(least)
-    }
-
     /// Move the bodies with `coefs` (order `p`, unchanged here) so that no gap is below
     /// `d_min`: the moves, or [`ContactError::Unresolved`].
     pub fn resolve(
@@ -385,41 +372,21 @@ impl ContactSolver {
                 |scratch, &(a, b)| {
                     let (ba, bb) = (&bodies[a], &bodies[b]);
                     let (ca, cb) = (ba.centre(), bb.centre());
-                    let mut out = Vec::new();
-                    let constraint = |x: [f64; 3], cl: Closest| {
-                        let nrm = cl.normal;
-                        let ra = cross3(sub(x, ca), nrm);
-                        let rb = cross3(sub(cl.point, cb), nrm);
-                        Constraint {
-                            a,
-                            b: Some(b),
-                            ja: [nrm[0], nrm[1], nrm[2], ra[0], ra[1], ra[2]],
-                            jb: [-nrm[0], -nrm[1], -nrm[2], -rb[0], -rb[1], -rb[2]],
-                            gap: cl.distance,
-                        }
-                    };
-                    let mut nearest: Option<(usize, f64)> = None;
-                    for (j, &x) in ba.samples().iter().enumerate() {
-                        let Some(cl) = bb.closest_within(scratch, x, range) else {
-                            continue;
-                        };
-                        if cl.distance >= range {
-                            continue;
-                        }
-                        if nearest.is_none_or(|(_, g)| cl.distance < g) {
-                            nearest = Some((j, cl.distance));
-                        }
-                        out.push(constraint(x, cl));
-                    }
-                    // Between samples the surfaces can be closer: from the nearest sample, the
-                    // pair of closest points of the continuous surfaces (where they are apart).
-                    if let Some((j, g0)) = nearest.filter(|n| n.1 > 0.0) {
-                        let (x, cl) = ba.closest_pair(scratch, bb, j);
-                        if cl.distance < g0 {
-                            out.push(constraint(x, cl));
-                        }
-                    }
-                    out
+                    ba.gaps_to(bb, scratch, range)
+                        .into_iter()
+                        .map(|(x, cl)| {
+                            let nrm = cl.normal;
+                            let ra = cross3(sub3(x, ca), nrm);
+                            let rb = cross3(sub3(cl.point, cb), nrm);
+                            Constraint {
+                                a,
+                                b: Some(b),
+                                ja: [nrm[0], nrm[1], nrm[2], ra[0], ra[1], ra[2]],
+                                jb: [-nrm[0], -nrm[1], -nrm[2], -rb[0], -rb[1], -rb[2]],
+                                gap: cl.distance,
+                            }
+                        })
+                        .collect::<Vec<_>>()
                 },
             )
             .flatten()
@@ -433,7 +400,7 @@ impl ContactSolver {
                 for &x in body.samples() {
                     let g = dot3(w.normal, x) - w.offset;
                     if g < range {
-                        let ra = cross3(sub(x, c), w.normal);
+                        let ra = cross3(sub3(x, c), w.normal);
                         let nm = w.normal;
                         cons.push(Constraint {
                             a,
@@ -517,15 +484,6 @@ impl ContactSolver {
 
 fn dot6(a: [f64; 6], b: [f64; 6]) -> f64 {
     (0..6).map(|k| a[k] * b[k]).sum()
-}
-
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    let d = sub(a, b);
-    dot3(d, d).sqrt()
 }
 
 #[cfg(test)]

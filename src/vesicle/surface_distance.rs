@@ -16,6 +16,7 @@
 use super::point::{closest_point, PointEval};
 use super::shapes::Surface;
 use super::{cross, dot, VesicleError};
+use crate::linalg3::{dist3 as dist, dist3_squared as dist2};
 use crate::sph_harmonics::{CoefLayout, Grid, ShTransform};
 
 /// The closest point of a surface to a target.
@@ -131,6 +132,40 @@ impl SurfaceDistance {
         Some(self.newton(scratch, x, jbest))
     }
 
+    /// Every sample of this surface within `range` of `other` (signed distance below `range`),
+    /// with its closest point on `other`; and, when the nearest of them is outside `other`,
+    /// the pair of closest points of the two continuous surfaces near it
+    /// ([`SurfaceDistance::closest_pair`]) if it is closer still (between samples the surfaces
+    /// can come closer than at any sample).
+    pub fn gaps_to(
+        &self,
+        other: &SurfaceDistance,
+        scratch: &mut DistanceScratch,
+        range: f64,
+    ) -> Vec<([f64; 3], Closest)> {
+        let mut out = Vec::new();
+        let mut nearest: Option<(usize, f64)> = None;
+        for (j, &x) in self.samples.iter().enumerate() {
+            let Some(cl) = other.closest_within(scratch, x, range) else {
+                continue;
+            };
+            if cl.distance >= range {
+                continue;
+            }
+            if nearest.is_none_or(|(_, g)| cl.distance < g) {
+                nearest = Some((j, cl.distance));
+            }
+            out.push((x, cl));
+        }
+        if let Some((j, g0)) = nearest.filter(|n| n.1 > 0.0) {
+            let (x, cl) = self.closest_pair(scratch, other, j);
+            if cl.distance < g0 {
+                out.push((x, cl));
+            }
+        }
+        out
+    }
+
     /// The closest point to `x` (Newton from the nearest sample).
     pub fn closest(&self, scratch: &mut DistanceScratch, x: [f64; 3]) -> Closest {
         self.closest_within(scratch, x, f64::INFINITY)
@@ -228,14 +263,6 @@ impl SurfaceDistance {
             normal,
         }
     }
-}
-
-fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
-    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
-}
-
-fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
-    dist2(a, b).sqrt()
 }
 
 #[cfg(test)]
