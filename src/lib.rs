@@ -32,6 +32,8 @@
 //!   or many ranks, with the near field on the CPU or the GPU.
 //! * [`vesicle`]: cells as spherical-harmonic surfaces: shapes, geometry, membrane forces,
 //!   layer potentials with singular and near-singular quadrature.
+//! * [`wall`]: rigid containers and bodies with a prescribed surface velocity, by the completed
+//!   double layer (Power & Miranda), assembled and factored once.
 //! * [`timestep`]: GMRES and preconditioners, the semi-implicit step of one cell, many cells
 //!   coupled through the FMM, adaptive `dt`.
 //! * [`brownian`]: Brownian dynamics with hydrodynamic interactions.
@@ -84,6 +86,7 @@ pub mod scene;
 pub mod sph_harmonics;
 pub mod timestep;
 pub mod vesicle;
+pub mod wall;
 
 pub use fmm::{Fmm, Kernel};
 
