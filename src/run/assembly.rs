@@ -8,11 +8,15 @@ use crate::timestep::cell_preconditioner;
 use crate::timestep::contact::ContactParams;
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
+use crate::timestep::suspension::CellStepError;
 use crate::timestep::suspension::{CellSetup, Suspension};
+use crate::timestep::wall_coupling::WallCoupling;
 use crate::timestep::GmresParams;
+use crate::timestep::TimestepError;
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::reparam::ReparamParams;
 use crate::vesicle::skalak::SkalakParams;
+use crate::wall::{Wall, WallParams};
 
 /// The setup of every cell of `scene`, in scene order (the settings `mobo run` uses: drift
 /// correction and reparametrisation every step, GMRES restart 200).
@@ -135,6 +139,9 @@ pub fn build_part(
     susp.set_coupling_mode(scene.numerics.coupling);
     susp.set_contacts(p, scene.numerics.contact_distance.map(ContactParams::new))
         .map_err(|e| step_error(0, 0.0, e))?;
+    if !scene.walls.is_empty() {
+        susp.set_walls(Some(walls(scene).map_err(|e| step_error(0, 0.0, e))?));
+    }
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,
@@ -144,6 +151,21 @@ pub fn build_part(
             .map_err(|e| step_error(0, 0.0, e))?;
     }
     Ok(susp)
+}
+
+/// The scene's rigid walls, assembled and factored ([`WallCoupling`]).
+fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
+    let fail = |e: String| CellStepError {
+        cell: None,
+        source: TimestepError::Wall(e),
+    };
+    let mut walls = vec![];
+    for (k, w) in scene.walls.iter().enumerate() {
+        let surface = w.surface().map_err(|e| fail(format!("wall {k}: {e}")))?;
+        walls.push(Wall::new(w.kind, surface).map_err(|e| fail(format!("wall {k}: {e}")))?);
+    }
+    WallCoupling::new(walls, None, scene.viscosity, WallParams::default())
+        .map_err(|source| CellStepError { cell: None, source })
 }
 
 /// The scene's effects, and the cells' own preconditioners where [`memory_plan`] left them

@@ -784,6 +784,7 @@ impl<'a> CellRun<'a> {
                 double_layer_fmm_builds: stats.double_layer_fmm_builds,
                 near_implicit: susp.joint_stats(),
                 contacts: susp.contact_stats(),
+                walls: susp.wall_stats(),
             },
             area_drift: worst(|c| c.area_drift),
             volume_drift: worst(|c| c.volume_drift),

@@ -175,6 +175,9 @@ pub struct Counters {
     /// (its share of the time), the last and the smallest end-of-step gap (where below
     /// `3 d_min`).
     pub contacts: ContactStats,
+    /// What the rigid walls did (`[[walls]]`; zeros otherwise): walls, unknowns, setup
+    /// seconds, solves, seconds, the largest wall velocity at a cell in the last step.
+    pub walls: crate::timestep::wall_coupling::WallStats,
 }
 
 /// How the run's work was split between ranks (`summary.json`'s `split`).

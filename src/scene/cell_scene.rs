@@ -7,6 +7,8 @@ use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
+use crate::vesicle::VesicleError;
+use crate::wall::WallKind;
 
 /// The lowest SH order that holds the red blood cell's shape ([`shapes::rbc`]: its height is
 /// `sin⁴θ cosθ` at most, a polynomial of degree 5).
@@ -276,6 +278,53 @@ pub struct CellScene {
     pub output: OutputSettings,
     /// What the scene needs, decided from its contents (see [`super::cells::effects`]).
     pub effects: Vec<Effect>,
+    /// Rigid walls (`[[walls]]`; none: free space).
+    pub walls: Vec<WallSpec>,
+}
+
+/// The shape of a wall.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum WallShape {
+    /// A sphere of the given radius.
+    Sphere {
+        /// Its radius.
+        radius: f64,
+    },
+    /// An ellipsoid with semi-axes along x, y, z.
+    Ellipsoid {
+        /// The semi-axes.
+        axes: [f64; 3],
+    },
+}
+
+/// One validated `[[walls]]` entry.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WallSpec {
+    /// Container or body.
+    pub kind: WallKind,
+    /// Its shape.
+    pub shape: WallShape,
+    /// Its centre.
+    pub center: [f64; 3],
+    /// Its spherical-harmonic order.
+    pub order: usize,
+    /// The line of its entry (1-based; 0 for a spec).
+    pub line: usize,
+}
+
+/// Default order of a wall.
+pub const DEFAULT_WALL_ORDER: usize = 16;
+
+impl WallSpec {
+    /// The wall's surface.
+    pub fn surface(&self) -> Result<Surface, VesicleError> {
+        let mut s = match self.shape {
+            WallShape::Sphere { radius } => shapes::sphere(self.order, radius)?,
+            WallShape::Ellipsoid { axes } => shapes::ellipsoid(self.order, axes)?,
+        };
+        s.translate(self.center);
+        Ok(s)
+    }
 }
 
 pub(super) fn unit_shape(shape: &Shape, p: usize) -> Result<Surface, crate::vesicle::VesicleError> {

@@ -487,6 +487,14 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         cells.extend(group);
     }
     check_overlaps(&cells, file, &entry, numerics.order.max(RBC_MIN_ORDER))?;
+    let walls = super::walls::walls(f.walls.as_deref().unwrap_or(&[]), origin, text, &at)?;
+    super::walls::check_cells_in_fluid(
+        &cells,
+        &walls,
+        file,
+        &entry,
+        numerics.order.max(RBC_MIN_ORDER),
+    )?;
     if let Some(c) = cells
         .iter()
         .find(|c| matches!(c.shape, Shape::Rbc) && numerics.order < RBC_MIN_ORDER)
@@ -527,6 +535,23 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             format!("fixed dt = {} (adaptive_dt = false)", numerics.dt)
         },
     });
+    if !walls.is_empty() {
+        let containers = walls
+            .iter()
+            .filter(|w| w.kind == crate::wall::WallKind::Container)
+            .count();
+        effects.push(Effect {
+            name: "walls",
+            enabled: true,
+            reason: format!(
+                "{} rigid wall(s) ({containers} container, {} bodies), order {}: the completed \
+                 double layer, factored once, solved every step (one rank)",
+                walls.len(),
+                walls.len() - containers,
+                walls.iter().map(|w| w.order).max().unwrap_or(0)
+            ),
+        });
+    }
     Ok(CellScene {
         viscosity,
         flow,
@@ -535,6 +560,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         output_every,
         output,
         effects,
+        walls,
     })
 }
 

@@ -15,6 +15,8 @@ pub(super) struct File {
     pub(super) cells: Option<Vec<CellSection>>,
     pub(super) numerics: Option<NumericsSection>,
     pub(super) output: Option<OutputSection>,
+    /// `[[walls]]` ([`super::walls`]).
+    pub(super) walls: Option<Vec<WallSection>>,
     /// `mobo dpd`'s section: the same file runs both ways (its `[dpd.from_cells]` maps these
     /// cells into the DPD fluid); `mobo run` does not read it.
     #[serde(rename = "dpd")]
@@ -109,4 +111,16 @@ pub(crate) enum Origin {
     /// The text of a [`super::spec::SceneSpec`]: its `cells[k]` (from 0), no lines (the user
     /// never saw the text).
     Spec,
+}
+
+/// A `[[walls]]` entry as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct WallSection {
+    pub(super) kind: Spanned<String>,
+    pub(super) shape: Spanned<String>,
+    pub(super) radius: Option<Spanned<f64>>,
+    pub(super) axes: Option<Spanned<[f64; 3]>>,
+    pub(super) center: Option<Spanned<[f64; 3]>>,
+    pub(super) order: Option<Spanned<usize>>,
 }

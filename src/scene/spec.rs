@@ -58,6 +58,51 @@ pub struct SceneSpec {
     /// `[output]`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub output: Option<OutputSpec>,
+    /// `[[walls]]`, rigid walls (none: free space).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub walls: Vec<WallEntrySpec>,
+}
+
+/// `[[walls]] kind`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WallKindSpec {
+    /// The fluid inside.
+    Container,
+    /// A fixed obstacle, the fluid outside.
+    Body,
+}
+
+/// `[[walls]] shape`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WallShapeKind {
+    /// Needs `radius`.
+    Sphere,
+    /// Needs `axes`.
+    Ellipsoid,
+}
+
+/// One `[[walls]]` entry ([`super::walls`]).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallEntrySpec {
+    /// `kind`.
+    pub kind: WallKindSpec,
+    /// `shape`.
+    pub shape: WallShapeKind,
+    /// `radius` of a sphere.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub radius: Option<f64>,
+    /// `axes` of an ellipsoid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub axes: Option<[f64; 3]>,
+    /// `center` (default the origin).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub center: Option<[f64; 3]>,
+    /// `order` (default 16).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub order: Option<usize>,
 }
 
 /// `[fluid]`.

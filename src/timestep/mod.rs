@@ -111,6 +111,7 @@ mod step_plan;
 pub mod step_solve;
 pub mod suspension;
 pub mod vesicle_stepper;
+pub mod wall_coupling;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};
 pub use operator::{
@@ -204,6 +205,9 @@ pub enum TimestepError {
     /// The contact projection could not keep the cells `d_min` apart.
     #[error("{0}")]
     Contact(#[from] contact::ContactError),
+    /// The walls' solve or evaluation failed (its message; [`crate::wall::WallError`]).
+    #[error("walls: {0}")]
+    Wall(String),
     /// A cell sent to this rank could not be taken in (its state does not decode, or it is
     /// not one of the run's cells).
     #[error("a cell moving to rank {rank}: {source}")]

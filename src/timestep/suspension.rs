@@ -34,6 +34,7 @@
 use rayon::prelude::*;
 
 mod contacts;
+mod walls;
 
 use super::cell_force::{CellForce, CellView};
 use super::cell_state::CellState;
@@ -145,6 +146,8 @@ pub struct Suspension {
     /// The contact projection after every step (`None`: off) and what it did.
     contacts: Option<ContactSolver>,
     contact_stats: ContactStats,
+    /// Rigid walls around or among the cells (`None`: free space).
+    walls: Option<super::wall_coupling::WallCoupling>,
 }
 
 impl Suspension {
@@ -196,6 +199,7 @@ impl Suspension {
             joint: JointStats::default(),
             contacts: None,
             contact_stats: ContactStats::default(),
+            walls: None,
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
         for (id, c) in cells {
@@ -626,7 +630,7 @@ impl Suspension {
         // The densities passed to the coupling (the near-implicit step extrapolates them).
         type Densities = (Vec<Vec<f64>>, Vec<Option<Vec<f64>>>);
         let mut densities: Option<Densities> = None;
-        if let Some(coupling) = &mut self.coupling {
+        if self.coupling.is_some() || self.walls.is_some() {
             let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
                 .cells
                 .par_iter_mut()
@@ -669,13 +673,18 @@ impl Suspension {
                 })
                 .collect();
             let dref: Vec<Option<&[f64]>> = scaled.iter().map(|d| d.as_deref()).collect();
-            let velocities = coupling
-                .velocities_on(comm, &ids, &cref, &fref, &dref)
-                .map_err(|source| CellStepError { cell: None, source })?;
-            for (c, v) in self.cells.iter_mut().zip(velocities) {
-                c.state.velocity = Some(v);
+            if let Some(coupling) = &mut self.coupling {
+                let velocities = coupling
+                    .velocities_on(comm, &ids, &cref, &fref, &dref)
+                    .map_err(|source| CellStepError { cell: None, source })?;
+                for (c, v) in self.cells.iter_mut().zip(velocities) {
+                    c.state.velocity = Some(v);
+                }
             }
-            densities = Some((tractions, scaled));
+            self.add_wall_velocities(comm, u_inf, &tractions, &scaled)?;
+            if self.coupling.is_some() {
+                densities = Some((tractions, scaled));
+            }
         }
         // BDF2 takes the explicit terms at X* = (1 + ω)Xⁿ − ωXⁿ⁻¹ (ω = Δtⁿ/Δtⁿ⁻¹):
         // v* = (1 + ω)vⁿ − ωvⁿ⁻¹ (second order; 2vⁿ − vⁿ⁻¹ at a constant step).

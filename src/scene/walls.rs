@@ -1,0 +1,203 @@
+//! A cell scene's rigid walls (`[[walls]]`): validated with located errors, and the check that
+//! every cell lies in the fluid they bound.
+//!
+//! ```toml
+//! [[walls]]
+//! kind = "container"       # "container" (the fluid inside: a cavity, a closed vessel) |
+//! #                        # "body" (a fixed obstacle, the fluid outside)
+//! shape = "sphere"         # "sphere" | "ellipsoid"
+//! radius = 4.0             # sphere
+//! # axes = [6.0, 4.0, 3.0] # ellipsoid semi-axes
+//! center = [0.0, 0.0, 0.0]
+//! order = 16               # spherical-harmonic order of the wall (4 to 64)
+//! ```
+//!
+//! Walls are at rest; `[flow]` is the flow the walls disturb (a container at rest in a shear
+//! flow holds its fluid still at the wall). See [`crate::wall`] for the method.
+
+use std::path::Path;
+
+use super::cell_scene::CellSpec;
+pub use super::cell_scene::{WallShape, WallSpec, DEFAULT_WALL_ORDER};
+use super::cells_schema::{Origin, WallSection};
+use super::line_col;
+use super::SceneError;
+use crate::sph_harmonics::ShTransform;
+use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
+use crate::vesicle::VesicleError;
+use crate::wall::WallKind;
+
+/// Validate the `[[walls]]` entries.
+pub(super) fn walls(
+    sections: &[WallSection],
+    origin: Origin,
+    text: &str,
+    at: &dyn Fn(std::ops::Range<usize>, String) -> SceneError,
+) -> Result<Vec<WallSpec>, SceneError> {
+    let mut out: Vec<WallSpec> = vec![];
+    for (k, w) in sections.iter().enumerate() {
+        let line = match origin {
+            Origin::File => line_col(text, w.kind.span().start).0,
+            Origin::Spec => 0,
+        };
+        let name = match origin {
+            Origin::File => format!("[[walls]] entry #{} (line {line})", k + 1),
+            Origin::Spec => format!("walls[{k}] of the spec"),
+        };
+        let kind = match w.kind.get_ref().as_str() {
+            "container" => WallKind::Container,
+            "body" => WallKind::Body,
+            other => {
+                return Err(at(
+                    w.kind.span(),
+                    format!("{name}: kind must be \"container\" or \"body\", got \"{other}\""),
+                ))
+            }
+        };
+        if kind == WallKind::Container {
+            if let Some(first) = out.iter().position(|o| o.kind == WallKind::Container) {
+                return Err(at(
+                    w.kind.span(),
+                    format!(
+                        "{name}: a second container (wall {first} is one); the fluid has at \
+                         most one"
+                    ),
+                ));
+            }
+        }
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        let shape = match w.shape.get_ref().as_str() {
+            "sphere" => {
+                if let Some(a) = &w.axes {
+                    return Err(at(a.span(), format!("{name}: axes is for an ellipsoid")));
+                }
+                let Some(r) = &w.radius else {
+                    return Err(at(w.shape.span(), format!("{name}: a sphere needs radius")));
+                };
+                if !positive(*r.get_ref()) {
+                    return Err(at(
+                        r.span(),
+                        format!("{name}: radius must be positive, got {}", r.get_ref()),
+                    ));
+                }
+                WallShape::Sphere {
+                    radius: *r.get_ref(),
+                }
+            }
+            "ellipsoid" => {
+                if let Some(r) = &w.radius {
+                    return Err(at(r.span(), format!("{name}: radius is for a sphere")));
+                }
+                let Some(a) = &w.axes else {
+                    return Err(at(
+                        w.shape.span(),
+                        format!("{name}: an ellipsoid needs axes"),
+                    ));
+                };
+                if !a.get_ref().iter().all(|&v| positive(v)) {
+                    return Err(at(
+                        a.span(),
+                        format!(
+                            "{name}: axes must be three positive semi-axes, got {:?}",
+                            a.get_ref()
+                        ),
+                    ));
+                }
+                WallShape::Ellipsoid { axes: *a.get_ref() }
+            }
+            other => {
+                return Err(at(
+                    w.shape.span(),
+                    format!("{name}: shape must be \"sphere\" or \"ellipsoid\", got \"{other}\""),
+                ))
+            }
+        };
+        let center = match &w.center {
+            Some(c) if !c.get_ref().iter().all(|v| v.is_finite()) => {
+                return Err(at(c.span(), format!("{name}: center must be finite")))
+            }
+            Some(c) => *c.get_ref(),
+            None => [0.0; 3],
+        };
+        let order = match &w.order {
+            Some(o) if !(4..=64).contains(o.get_ref()) => {
+                return Err(at(
+                    o.span(),
+                    format!("{name}: order must be from 4 to 64, got {}", o.get_ref()),
+                ))
+            }
+            Some(o) => *o.get_ref(),
+            None => DEFAULT_WALL_ORDER,
+        };
+        out.push(WallSpec {
+            kind,
+            shape,
+            center,
+            order,
+            line,
+        });
+    }
+    Ok(out)
+}
+
+/// Every cell must lie in the fluid: inside the container, outside every body (the signed
+/// distance of each of its order-`2p` samples to the wall, by Newton's closest point).
+pub(super) fn check_cells_in_fluid(
+    cells: &[CellSpec],
+    walls: &[WallSpec],
+    file: &Path,
+    entry: &dyn Fn(usize) -> String,
+    p: usize,
+) -> Result<(), SceneError> {
+    if walls.is_empty() {
+        return Ok(());
+    }
+    let fail = |line: usize, message: String| SceneError {
+        file: file.to_path_buf(),
+        place: (line > 0).then_some((line, 1)),
+        message,
+    };
+    let mut wall_distance = vec![];
+    for (k, w) in walls.iter().enumerate() {
+        let e = |e: VesicleError| fail(w.line, format!("wall {k}: {e}"));
+        let s = w.surface().map_err(e)?;
+        let sht = ShTransform::new(2 * w.order).map_err(|x| e(x.into()))?;
+        wall_distance.push(SurfaceDistance::new(w.order, s.coefs(), &sht).map_err(e)?);
+    }
+    let sht = ShTransform::new(2 * p).map_err(|e| fail(0, e.to_string()))?;
+    for (i, c) in cells.iter().enumerate() {
+        let e = |e: VesicleError| fail(c.line, format!("cell {i} of {}: {e}", entry(c.line)));
+        let s = c.surface(p).map_err(e)?;
+        let samples = SurfaceDistance::new(p, s.coefs(), &sht).map_err(e)?;
+        for (k, (w, d)) in walls.iter().zip(&wall_distance).enumerate() {
+            let mut scratch = DistanceScratch::new(w.order);
+            let margin = samples
+                .samples()
+                .iter()
+                .map(|&x| {
+                    let s = d.closest(&mut scratch, x).distance;
+                    match w.kind {
+                        WallKind::Container => -s,
+                        WallKind::Body => s,
+                    }
+                })
+                .fold(f64::INFINITY, f64::min);
+            if margin <= 0.0 {
+                let (side, what) = match w.kind {
+                    WallKind::Container => ("outside", "container"),
+                    WallKind::Body => ("inside", "body"),
+                };
+                return Err(fail(
+                    c.line,
+                    format!(
+                        "cell {i} of {} reaches {:.4} {side} wall {k} (a {what}): every cell \
+                         must lie in the fluid",
+                        entry(c.line),
+                        -margin
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
