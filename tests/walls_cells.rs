@@ -195,3 +195,52 @@ fn mobo_run_reports_the_walls() {
         "{effects:?}"
     );
 }
+
+/// A vesicle pushed hard against a fixed body by a force: the contact projection keeps it
+/// `contact_distance` from the wall at the end of every step (the walls' gap monitor, the
+/// near-zone evaluator's closest points at the next step's start, agrees), and the cell is
+/// moved. Measured: 2 moves in 40 steps, smallest gap 0.2011 by both. (With `d_min = 0.1`
+/// the wall's lubrication alone holds the cell at 0.162 after 40 steps, without a move.)
+#[test]
+fn contacts_keep_a_pushed_cell_off_a_wall() {
+    let text = r#"
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+radius = 1.0
+force = [30.0, 0.0, 0.0]
+bending_modulus = 0.05
+
+[[walls]]
+kind = "body"
+shape = "sphere"
+radius = 1.0
+center = [2.1, 0.1, 0.0]
+order = 12
+
+[numerics]
+order = 8
+dt = 0.02
+t_end = 1.0
+scheme = "euler"
+contact_distance = 0.2
+"#;
+    let scene = parse(Path::new("pushed.toml"), text).unwrap();
+    let mut susp = build(&scene).unwrap();
+    for k in 0..40 {
+        susp.step(&|_| [0.0; 3])
+            .unwrap_or_else(|e| panic!("step {k}: {e:?}"));
+    }
+    let contacts = susp.contact_stats();
+    let walls = susp.wall_stats();
+    println!("contacts {contacts:?}\nwalls {walls:?}");
+    assert!(
+        contacts.moves > 0,
+        "the force pushed the cell into the wall's range"
+    );
+    let least = contacts.smallest_gap.unwrap();
+    assert!(least >= 0.2, "a step ended {least} from the wall");
+    // The wall monitor sees the cell's grid points at the start of each step's wall solve.
+    let seen = walls.smallest_gap.unwrap();
+    assert!(seen >= 0.2 - 1e-3, "the wall monitor saw {seen}");
+}

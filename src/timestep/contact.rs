@@ -128,6 +128,40 @@ pub struct Wall {
     pub offset: f64,
 }
 
+/// A fixed curved wall (a rigid body or a container of [`crate::wall`]): the allowed side is
+/// outside a body and inside a container. A cell's order-`2p` samples are measured against it
+/// by Newton's closest point; only the cell moves.
+pub struct FixedSurface {
+    surface: SurfaceDistance,
+    p: usize,
+    container: bool,
+    /// The smallest distance of the surface from its centre, less a sample spacing (a
+    /// container's samples closer to its centre than this less the range need no test).
+    r_min: f64,
+}
+
+impl FixedSurface {
+    /// The surface of order `p` with coefficients `coefs`; `container`: the allowed side is
+    /// inside.
+    pub fn new(p: usize, coefs: &[f64], container: bool) -> Result<Self, ContactError> {
+        let sht = ShTransform::new(2 * p).map_err(VesicleError::Sph)?;
+        let surface = SurfaceDistance::new(p, coefs, &sht)?;
+        let c = surface.centre();
+        let lo = surface
+            .samples()
+            .iter()
+            .map(|&y| dist(y, c))
+            .fold(f64::INFINITY, f64::min);
+        let r_min = lo - std::f64::consts::PI * surface.reach() / (2 * p) as f64;
+        Ok(FixedSurface {
+            surface,
+            p,
+            container,
+            r_min,
+        })
+    }
+}
+
 /// A rigid move of a body: `x ↦ centre + R (x − centre) + translation`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Move {
@@ -252,6 +286,16 @@ impl ContactSolver {
         coefs: &[&[f64]],
         walls: &[Wall],
     ) -> Result<ContactOutcome, ContactError> {
+        self.resolve_with(coefs, walls, &[])
+    }
+
+    /// [`Self::resolve`] with fixed curved walls as well.
+    pub fn resolve_with(
+        &self,
+        coefs: &[&[f64]],
+        walls: &[Wall],
+        fixed: &[FixedSurface],
+    ) -> Result<ContactOutcome, ContactError> {
         let d_min = self.params.distance;
         let range = RANGE * d_min;
         let mut current: Vec<Vec<f64>> = coefs.iter().map(|c| c.to_vec()).collect();
@@ -260,7 +304,7 @@ impl ContactSolver {
         let (mut active, mut gap_before) = (0, f64::INFINITY);
         let (mut best, mut stalled) = (f64::NEG_INFINITY, 0);
         for round in 0..=self.params.max_rounds {
-            let (cons, least) = self.measure(&bodies, walls, range);
+            let (cons, least) = self.measure(&bodies, walls, fixed, range);
             let gap = least.map_or(f64::INFINITY, |l| l.0);
             if round == 0 {
                 gap_before = gap;
@@ -351,6 +395,7 @@ impl ContactSolver {
         &self,
         bodies: &[SurfaceDistance],
         walls: &[Wall],
+        fixed: &[FixedSurface],
         range: f64,
     ) -> (Vec<Constraint>, Option<(f64, usize, Option<usize>)>) {
         let n = bodies.len();
@@ -402,6 +447,43 @@ impl ContactSolver {
                     if g < range {
                         let ra = cross3(sub3(x, c), w.normal);
                         let nm = w.normal;
+                        cons.push(Constraint {
+                            a,
+                            b: None,
+                            ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
+                            jb: [0.0; 6],
+                            gap: g,
+                        });
+                    }
+                }
+            }
+        }
+        for f in fixed {
+            let mut scratch = DistanceScratch::new(f.p);
+            let fc = f.surface.centre();
+            for (a, body) in bodies.iter().enumerate() {
+                let c = body.centre();
+                let d = dist(c, fc);
+                let far = if f.container {
+                    d + body.reach() + range < f.r_min
+                } else {
+                    d > body.reach() + f.surface.reach() + range
+                };
+                if far {
+                    continue;
+                }
+                for &x in body.samples() {
+                    if f.container && dist(x, fc) + range < f.r_min {
+                        continue;
+                    }
+                    let cl = f.surface.closest(&mut scratch, x);
+                    let (g, nm) = if f.container {
+                        (-cl.distance, cl.normal.map(|v| -v))
+                    } else {
+                        (cl.distance, cl.normal)
+                    };
+                    if g < range {
+                        let ra = cross3(sub3(x, c), nm);
                         cons.push(Constraint {
                             a,
                             b: None,

@@ -87,6 +87,7 @@ pub mod reparam;
 pub mod shapes;
 pub mod skalak;
 mod skalak_reference;
+pub mod smooth_layer;
 pub mod surface_distance;
 pub mod tank_treading;
 pub mod tension;

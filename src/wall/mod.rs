@@ -72,7 +72,7 @@ mod quadrature;
 mod surface;
 mod system;
 
-pub use field::WallField;
+pub use field::{scatter_add, WallField};
 pub use surface::{Wall, WallKind};
 pub use system::{WallParams, WallSolution, WallSystem, MAX_NET_FLUX};
 

@@ -36,7 +36,8 @@ impl Suspension {
         self.contact_stats
     }
 
-    /// The projection after a step (collective; nothing without contacts or with one cell).
+    /// The projection after a step (collective; nothing without contacts, or with one cell
+    /// and no walls). Rigid walls are fixed surfaces the cells are kept `d_min` from.
     pub(super) fn resolve_contacts(
         &mut self,
         comm: &dyn Communicator,
@@ -44,7 +45,12 @@ impl Suspension {
         let Some(solver) = &self.contacts else {
             return Ok(());
         };
-        if self.n_global < 2 {
+        let fixed = self
+            .walls
+            .as_ref()
+            .map(|w| w.fixed_surfaces())
+            .unwrap_or(&[]);
+        if self.n_global < 2 && fixed.is_empty() {
             return Ok(());
         }
         let t0 = std::time::Instant::now();
@@ -70,7 +76,7 @@ impl Suspension {
         all.sort_by_key(|a| a.0);
         let ids: Vec<usize> = all.iter().map(|a| a.0).collect();
         let coefs: Vec<&[f64]> = all.iter().map(|a| a.1).collect();
-        let out = solver.resolve(&coefs, &[]).map_err(|e| {
+        let out = solver.resolve_with(&coefs, &[], fixed).map_err(|e| {
             fail(TimestepError::Contact(match e {
                 super::super::contact::ContactError::Unresolved {
                     rounds,
