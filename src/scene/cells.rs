@@ -68,6 +68,12 @@
 //! #                               # (a length; off by default; see timestep::contact)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
+//! [[walls]]                       # rigid walls (optional; see scene::walls, docs/walls.md)
+//! kind = "container"              # "container" (fluid inside) | "body" (fixed obstacle)
+//! shape = "sphere"                # "sphere" (radius) | "ellipsoid" (axes)
+//! radius = 6.0
+//! # center = [0.0, 0.0, 0.0], order = 16
+//!
 //! [output]
 //! every = 10                      # steps between saved frames
 //! npy = true                      # DIR/frames/*.npy
