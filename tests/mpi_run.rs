@@ -5,6 +5,8 @@
 //! at 2 ranks resumes at 2 ranks bit for bit and at 3 and 1 ranks to 1e-10; a failing step
 //! ends every rank with one message naming the step and the cell and leaves the last
 //! checkpoint as it was; SIGUSR1 and Ctrl-C on `mpirun` stop every rank with a checkpoint.
+//! Cells between rigid walls (a container and an obstacle) give the one-rank result bit for
+//! bit on 2 and 3 ranks.
 //! `mpirun -n K mobo brownian` writes the one-process trajectory byte for byte.
 //!
 //! Needs `mpirun` (Debian's `openmpi-bin`) and the `mpi` feature (the binary must be built
@@ -244,6 +246,72 @@ fn contrast_and_skalak_cells_moving_between_ranks_give_the_one_rank_result() {
         ] {
             assert_eq!(s["counters"][c], s1["counters"][c], "{c} at {k} ranks");
         }
+    }
+}
+
+/// Four RBCs (`λ = 3`) in shear inside an ellipsoidal container, with a fixed sphere as an
+/// obstacle and contacts on: cells move between ranks every step, every rank gathers every
+/// cell's layers at the walls and solves the same wall system.
+const WALLS: &str = r#"
+[flow]
+kind = "shear"
+rate = 1.0
+
+[[cells]]
+shape = "rbc"
+count = 4
+placement = "random"
+region = [[-4.0, -4.0, -1.6], [4.0, 4.0, 1.6]]
+seed = 5
+bending_modulus = 0.1
+shear_modulus = 1.0
+viscosity_ratio = 3.0
+
+[[walls]]
+kind = "container"
+shape = "ellipsoid"
+axes = [6.0, 6.0, 4.5]
+order = 12
+
+[[walls]]
+kind = "body"
+shape = "sphere"
+radius = 0.6
+center = [0.0, 0.0, -2.9]
+order = 8
+
+[numerics]
+order = 6
+dt = 0.01
+t_end = 0.06
+scheme = "bdf2"
+contact_distance = 0.1
+rebalance_every = 1
+max_imbalance = 0.0
+
+[output]
+every = 6
+vtk = false
+"#;
+
+#[test]
+fn cells_between_walls_give_the_one_rank_result_on_2_and_3_ranks() {
+    let dir = tmpdir("mpi-run-walls");
+    let scene = write(&dir, "walls.toml", WALLS);
+    let scene = scene.to_str().unwrap();
+    let one = dir.join("k0");
+    ok(&run_scene(0, scene, &one, &[]), "one process");
+    let reference = last_coefs(&one);
+    let s1 = summary(&one);
+    assert_eq!(s1["counters"]["walls"]["solves"].as_u64(), Some(6));
+    for k in [2, 3] {
+        let out = dir.join(format!("k{k}"));
+        ok(&run_scene(k, scene, &out, &[]), &format!("{k} ranks"));
+        let e = worst_rel(&last_coefs(&out), &reference);
+        eprintln!("cells between walls, {k} ranks: largest relative difference {e:.2e}");
+        assert!(e <= 1e-10, "{k} ranks differ from one by {e:.2e}");
+        let s = summary(&out);
+        assert_eq!(s["counters"]["walls"]["solves"].as_u64(), Some(6));
     }
 }
 

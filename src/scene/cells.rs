@@ -551,7 +551,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             enabled: true,
             reason: format!(
                 "{} rigid wall(s) ({containers} container, {} bodies), order {}: the completed \
-                 double layer, factored once, solved every step (one rank)",
+                 double layer, factored once, solved every step",
                 walls.len(),
                 walls.len() - containers,
                 walls.iter().map(|w| w.order).max().unwrap_or(0)

@@ -1,11 +1,12 @@
 //! Rigid walls in a suspension's step ([`super::super::wall_coupling`]): after the inter-cell
 //! velocity, the walls are solved for the cells' tractions and double layers at the start of
 //! the step, and their velocity at each cell's grid points is added to that cell's explicit
-//! velocity (so BDF2 extrapolates it with the rest).
+//! velocity (so BDF2 extrapolates it with the rest). Over MPI ranks every rank gathers every
+//! cell's layers at the walls and solves the same wall system.
 
 use super::super::wall_coupling::{WallCoupling, WallStats};
 use super::super::TimestepError;
-use super::{CellStepError, Suspension};
+use super::{agree_cells, CellStepError, Suspension};
 use crate::comm::Communicator;
 
 impl Suspension {
@@ -24,7 +25,8 @@ impl Suspension {
         self.walls.as_ref().map(|w| w.stats()).unwrap_or_default()
     }
 
-    /// Add the walls' velocity to every cell's explicit velocity (nothing without walls).
+    /// Add the walls' velocity to every cell's explicit velocity (nothing without walls;
+    /// collective over the ranks of `comm`).
     pub(super) fn add_wall_velocities(
         &mut self,
         comm: &dyn Communicator,
@@ -36,34 +38,63 @@ impl Suspension {
             return Ok(());
         };
         let fail = |source| CellStepError { cell: None, source };
-        if comm.size() > 1 {
-            return Err(fail(TimestepError::InvalidParameter {
-                name: "walls",
-                value: format!("{} ranks", comm.size()),
-                reason: "cells between walls run on one rank for now",
-            }));
+        let nw = walls.n_wall_points();
+        // This rank's cells at the walls, each tagged with its global index.
+        let mut local = Vec::with_capacity(self.cells.len() * (1 + 3 * nw));
+        let mut mine = Ok(());
+        for (slot, c) in self.cells.iter().enumerate() {
+            let at = walls.cell_at_walls(
+                slot,
+                c.stepper.order(),
+                &c.state.coefs,
+                &tractions[slot],
+                double_layers[slot].as_deref(),
+            );
+            match at {
+                Ok(v) => {
+                    local.push(c.id as f64);
+                    local.extend_from_slice(&v);
+                }
+                Err(source) => {
+                    mine = Err(CellStepError {
+                        cell: Some(c.id),
+                        source,
+                    });
+                    break;
+                }
+            }
         }
-        let Some(first) = self.cells.first() else {
-            return Ok(());
-        };
-        let p = first.stepper.order();
-        let mut points = Vec::with_capacity(self.cells.len());
-        for c in &self.cells {
-            points.push(
+        agree_cells(comm, mine)?;
+        let gathered = comm
+            .all_gather_f64(&local)
+            .map_err(|e| fail(TimestepError::Comm(e)))?;
+        let mut all: Vec<(usize, &[f64])> = gathered
+            .iter()
+            .flat_map(|part| part.chunks_exact(1 + 3 * nw))
+            .map(|c| (c[0] as usize, &c[1..]))
+            .collect();
+        all.sort_by_key(|a| a.0);
+        let mut total = vec![0.0; 3 * nw];
+        for (_, v) in all {
+            for (t, x) in total.iter_mut().zip(v) {
+                *t += x;
+            }
+        }
+        let points: Result<Vec<Vec<[f64; 3]>>, CellStepError> = self
+            .cells
+            .iter()
+            .map(|c| {
                 c.stepper
                     .with_geometry(&c.state.coefs, |g| g.x.clone())
                     .map_err(|source| CellStepError {
                         cell: Some(c.id),
                         source,
-                    })?,
-            );
-        }
-        let coefs: Vec<&[f64]> = self.cells.iter().map(|c| &c.state.coefs[..]).collect();
-        let fref: Vec<&[f64]> = tractions.iter().map(|f| f.as_slice()).collect();
-        let dref: Vec<Option<&[f64]>> = double_layers.iter().map(|d| d.as_deref()).collect();
-        let velocities = walls
-            .velocities(p, u_inf, &coefs, &points, &fref, &dref)
-            .map_err(fail)?;
+                    })
+            })
+            .collect();
+        let points = agree_cells(comm, points)?;
+        // The same data and system on every rank: a failure is every rank's.
+        let velocities = walls.velocities(u_inf, &total, &points).map_err(fail)?;
         for (c, v) in self.cells.iter_mut().zip(velocities) {
             match &mut c.state.velocity {
                 Some(u) => {
