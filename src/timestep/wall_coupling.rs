@@ -28,7 +28,7 @@ use std::time::Instant;
 use super::contact::FixedSurface;
 use super::TimestepError;
 use crate::vesicle::smooth_layer::{Side, SmoothLayer};
-use crate::vesicle::{Geometry, LayerKernel, NearParams, OffSurface, SurfaceCalculus};
+use crate::vesicle::{Geometry, LayerKernel, NearParams, OffSurface};
 use crate::wall::{
     scatter_add, Wall, WallError, WallField, WallKind, WallParams, WallSolution, WallSystem,
 };
@@ -85,8 +85,6 @@ pub struct WallCoupling {
     cells: Vec<(OffSurface, SmoothLayer)>,
     last: Option<WallSolution>,
     stats: WallStats,
-    /// Geometry of the cells at their order (for the double layer's flux).
-    calc: Option<SurfaceCalculus>,
     /// The walls as fixed surfaces of the contact projection.
     fixed: Vec<FixedSurface>,
 }
@@ -149,7 +147,6 @@ impl WallCoupling {
             points,
             viscosity,
             cells: vec![],
-            calc: None,
             last: None,
             stats,
         })
@@ -177,19 +174,21 @@ impl WallCoupling {
     }
 
     /// Cell `slot`'s layers at every wall point (component-major over all wall points, walls
-    /// in order, `3 N_wall`): `S[f](x_w) + D[g](x_w)` for a cell of order `p` with surface
-    /// `coefs`, traction `traction` and double-layer density `g = (1 − λ) u` (`None`: no
-    /// contrast). `slot` picks the evaluators kept for that cell position.
+    /// in order, `3 N_wall`): `S[f](x_w) + D[g](x_w)` for a cell with surface `coefs` (its
+    /// geometry `geom` on the grid of its order `p`), traction `traction` and double-layer
+    /// density `g = (1 − λ) u` (`None`: no contrast). `slot` picks the evaluators kept for that
+    /// cell position.
     pub fn cell_at_walls(
         &mut self,
         slot: usize,
-        p: usize,
         coefs: &[f64],
+        geom: &Geometry,
         traction: &[f64],
         double_layer: Option<&[f64]>,
     ) -> Result<Vec<f64>, TimestepError> {
         let t0 = Instant::now();
         let nw = self.points.len();
+        let p = geom.order();
         while self.cells.len() <= slot {
             self.cells.push((
                 OffSurface::new(p, NearParams::default())?,
@@ -212,11 +211,7 @@ impl WallCoupling {
         // The double layer's density without its net normal flux (see `without_net_flux`).
         let double_layer = match double_layer {
             Some(g) => {
-                if self.calc.as_ref().map(|c| c.order()) != Some(p) {
-                    self.calc = Some(SurfaceCalculus::new(p)?);
-                }
-                let geom = self.calc.as_mut().expect("built above").geometry(coefs)?;
-                let (g, relative) = without_net_flux(&geom, g);
+                let (g, relative) = without_net_flux(geom, g);
                 self.stats.largest_cell_flux = self.stats.largest_cell_flux.max(relative);
                 Some(g)
             }
@@ -270,15 +265,27 @@ impl WallCoupling {
                 got: cells_at_walls.len(),
             });
         }
+        // The cells' part in the layout of the walls' unknowns (component-major per wall).
+        let mut cells = vec![0.0; 3 * nw];
+        let mut offset = 0;
+        for w in self.system.walls() {
+            let n = w.n_points();
+            for a in 0..3 {
+                for j in 0..n {
+                    cells[offset + a * n + j] = cells_at_walls[a * nw + offset / 3 + j];
+                }
+            }
+            offset += 3 * n;
+        }
         let mut data = self.velocity.clone();
         let mut offset = 0;
         for w in self.system.walls() {
             let n = w.n_points();
+            let mine = &cells[offset..offset + 3 * n];
             for (j, &x) in w.geometry().x.iter().enumerate() {
                 let u = u_inf(x);
                 for a in 0..3 {
-                    // cells_at_walls is component-major over all wall points.
-                    data[offset + a * n + j] -= u[a] + cells_at_walls[a * nw + offset / 3 + j];
+                    data[offset + a * n + j] -= u[a] + mine[a * n + j];
                 }
             }
             if w.kind() == WallKind::Container {
@@ -286,14 +293,8 @@ impl WallCoupling {
                 // what the wall's quadrature measures is its under-resolution of cells close
                 // to it. Remove it (the completion would), and report it.
                 let g = w.geometry();
-                let (mut flux, mut size, mut area) = (0.0, 0.0, 0.0);
-                for j in 0..n {
-                    let v: [f64; 3] =
-                        std::array::from_fn(|a| cells_at_walls[a * nw + offset / 3 + j]);
-                    flux += (0..3).map(|a| v[a] * g.normal[j][a]).sum::<f64>() * g.da[j];
-                    size += (0..3).map(|a| v[a] * v[a]).sum::<f64>().sqrt() * g.da[j];
-                    area += g.da[j];
-                }
+                let (flux, size) = g.normal_flux(mine);
+                let area = g.area();
                 for j in 0..n {
                     for a in 0..3 {
                         data[offset + a * n + j] += g.normal[j][a] * flux / area;
@@ -347,14 +348,8 @@ impl WallCoupling {
 /// removed at the cell.
 pub fn without_net_flux(geom: &Geometry, g: &[f64]) -> (Vec<f64>, f64) {
     let n = geom.n_points();
-    let (mut flux, mut size, mut area) = (0.0, 0.0, 0.0);
-    for j in 0..n {
-        let v = [g[j], g[n + j], g[2 * n + j]];
-        let nm = geom.normal[j];
-        flux += (v[0] * nm[0] + v[1] * nm[1] + v[2] * nm[2]) * geom.da[j];
-        size += (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() * geom.da[j];
-        area += geom.da[j];
-    }
+    let (flux, size) = geom.normal_flux(g);
+    let area = geom.area();
     let mut out = g.to_vec();
     for j in 0..n {
         for a in 0..3 {
@@ -367,7 +362,7 @@ pub fn without_net_flux(geom: &Geometry, g: &[f64]) -> (Vec<f64>, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::vesicle::shapes;
+    use crate::vesicle::{shapes, SurfaceCalculus};
 
     /// The projection leaves no net normal flux, changes `g` only along the normal, and leaves
     /// a density without flux (a rigid motion) as it was.

@@ -103,6 +103,20 @@ impl Geometry {
     pub fn area(&self) -> f64 {
         self.da.iter().sum()
     }
+    /// `(∫ u·n dA, ∫ |u| dA)` of a vector field `u` on the grid (component-major, `3n`): its
+    /// net flux through the surface and its size.
+    pub fn normal_flux(&self, u: &[f64]) -> (f64, f64) {
+        let n = self.n_points();
+        assert_eq!(u.len(), 3 * n, "a vector field on the grid has 3n values");
+        let (mut flux, mut size) = (0.0, 0.0);
+        for j in 0..n {
+            let v = [u[j], u[n + j], u[2 * n + j]];
+            let nm = self.normal[j];
+            flux += (v[0] * nm[0] + v[1] * nm[1] + v[2] * nm[2]) * self.da[j];
+            size += (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt() * self.da[j];
+        }
+        (flux, size)
+    }
     /// Enclosed volume `⅓ ∫ X·n dA`.
     pub fn volume(&self) -> f64 {
         (0..self.n_points())

@@ -215,14 +215,7 @@ impl WallSystem {
         if let Some(c) = self.container {
             let w = &self.walls[c];
             let u = &velocity[self.offsets[c]..self.offsets[c + 1]];
-            let np = w.n_points();
-            let g = w.geometry();
-            let (mut flux, mut size) = (0.0, 0.0);
-            for j in 0..np {
-                let uj = [u[j], u[np + j], u[2 * np + j]];
-                flux += dot3(uj, g.normal[j]) * g.da[j];
-                size += dot3(uj, uj).sqrt() * g.da[j];
-            }
+            let (flux, size) = w.geometry().normal_flux(u);
             if flux.abs() > MAX_NET_FLUX * size {
                 return Err(WallError::NetFlux {
                     flux,

@@ -8,6 +8,7 @@ use super::super::wall_coupling::{WallCoupling, WallStats};
 use super::super::TimestepError;
 use super::{agree_cells, CellStepError, Suspension};
 use crate::comm::Communicator;
+use crate::vesicle::Geometry;
 
 impl Suspension {
     /// Put the cells between rigid walls (`None`: free space, the default).
@@ -39,14 +40,29 @@ impl Suspension {
         };
         let fail = |source| CellStepError { cell: None, source };
         let nw = walls.n_wall_points();
+        // Each cell's geometry, once: its normals and weights for the double layer's flux, its
+        // grid points as the targets of the walls' velocity.
+        let geometries: Result<Vec<Geometry>, CellStepError> = self
+            .cells
+            .iter()
+            .map(|c| {
+                c.stepper
+                    .with_geometry(&c.state.coefs, |g| g.clone())
+                    .map_err(|source| CellStepError {
+                        cell: Some(c.id),
+                        source,
+                    })
+            })
+            .collect();
+        let geometries = agree_cells(comm, geometries)?;
         // This rank's cells at the walls, each tagged with its global index.
         let mut local = Vec::with_capacity(self.cells.len() * (1 + 3 * nw));
         let mut mine = Ok(());
         for (slot, c) in self.cells.iter().enumerate() {
             let at = walls.cell_at_walls(
                 slot,
-                c.stepper.order(),
                 &c.state.coefs,
+                &geometries[slot],
                 &tractions[slot],
                 double_layers[slot].as_deref(),
             );
@@ -80,19 +96,7 @@ impl Suspension {
                 *t += x;
             }
         }
-        let points: Result<Vec<Vec<[f64; 3]>>, CellStepError> = self
-            .cells
-            .iter()
-            .map(|c| {
-                c.stepper
-                    .with_geometry(&c.state.coefs, |g| g.x.clone())
-                    .map_err(|source| CellStepError {
-                        cell: Some(c.id),
-                        source,
-                    })
-            })
-            .collect();
-        let points = agree_cells(comm, points)?;
+        let points: Vec<Vec<[f64; 3]>> = geometries.into_iter().map(|g| g.x).collect();
         // The same data and system on every rank: a failure is every rank's.
         let velocities = walls.velocities(u_inf, &total, &points).map_err(fail)?;
         for (c, v) in self.cells.iter_mut().zip(velocities) {
