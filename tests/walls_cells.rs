@@ -41,6 +41,14 @@ vtk = false
     )
 }
 
+/// The centroid of the suspension's first cell.
+fn centroid(s: &mobo::timestep::suspension::Suspension) -> [f64; 3] {
+    let c = &s.cells()[0];
+    c.stepper
+        .with_geometry(&c.state.coefs, |g| g.centroid())
+        .unwrap()
+}
+
 /// The exact drag factor of a sphere of radius `λR` at the centre of a container of radius
 /// `R` (Williams 1915; Haberman & Sayre 1958).
 fn williams(l: f64) -> f64 {
@@ -57,12 +65,6 @@ fn a_sphere_settles_in_a_spherical_container_at_the_exact_rate() {
     let text = settling_scene(2.0, 8, 12);
     let scene = parse(Path::new("settling.toml"), &text).unwrap();
     let mut susp = build(&scene).unwrap();
-    let centroid = |s: &mobo::timestep::suspension::Suspension| {
-        let c = &s.cells()[0];
-        c.stepper
-            .with_geometry(&c.state.coefs, |g| g.centroid())
-            .unwrap()
-    };
     let mut z = vec![centroid(&susp)[2]];
     for _ in 0..12 {
         susp.step(&|_| [0.0; 3]).unwrap();
@@ -243,4 +245,171 @@ contact_distance = 0.2
     // The wall monitor sees the cell's grid points at the start of each step's wall solve.
     let seen = walls.smallest_gap.unwrap();
     assert!(seen >= 0.2 - 1e-3, "the wall monitor saw {seen}");
+}
+
+fn tube_scene(flow: &str, wall_extra: &str) -> String {
+    format!(
+        r#"
+[fluid]
+viscosity = 2.0
+
+[flow]
+kind = "tube"
+{flow}
+
+[[cells]]
+shape = "sphere"
+radius = 1.0
+bending_modulus = 0.05
+
+[[walls]]
+kind = "container"
+shape = "tube"
+radius = {}
+length = 20.0
+order = 28
+{wall_extra}
+
+[numerics]
+order = 8
+dt = 0.01
+t_end = 0.08
+scheme = "euler"
+
+[output]
+every = 8
+vtk = false
+"#,
+        1.0 / 0.3
+    )
+}
+
+/// A spherical vesicle (inextensible: it moves rigidly) of radius `a = 0.3 R` on the axis of a
+/// tube carrying Poiseuille's flow of centreline speed `U` travels at Haberman & Sayre's (1958)
+/// speed of a freely suspended sphere, `V/U = (1 − 2λ²/3 − 0.20217λ⁵)/(1 − 0.75857λ⁵)` (the
+/// Faxén term `1 − 2λ²/3` and the wall's reflections). The flow is given by its rate, and the
+/// tube's wall carries it in at one end and out at the other.
+#[test]
+fn a_sphere_on_the_axis_of_a_tube_flow_moves_at_haberman_and_sayres_speed() {
+    let (r, u) = (1.0 / 0.3, 1.0);
+    let q = std::f64::consts::PI * r * r * u / 2.0;
+    let text = tube_scene(&format!("flow_rate = {q}"), "");
+    let scene = parse(Path::new("tube.toml"), &text).unwrap();
+    match scene.flow {
+        mobo::scene::cells::Flow::Tube { speed, radius } => {
+            assert!((speed - u).abs() < 1e-12 && (radius - r).abs() < 1e-12)
+        }
+        other => panic!("flow {other:?}"),
+    }
+    let mut susp = build(&scene).unwrap();
+    let mut x = vec![centroid(&susp)];
+    for _ in 0..8 {
+        susp.step(&|_| [0.0; 3]).unwrap();
+        x.push(centroid(&susp));
+    }
+    let l: f64 = 0.3;
+    let want = u * (1.0 - 2.0 * l * l / 3.0 - 0.20217 * l.powi(5)) / (1.0 - 0.75857 * l.powi(5));
+    let speeds: Vec<f64> = x.windows(2).map(|w| (w[1][0] - w[0][0]) / 0.01).collect();
+    println!("speeds along the tube {speeds:?}; Haberman & Sayre {want}");
+    for (k, v) in speeds.iter().enumerate().skip(4) {
+        let rel = (v - want).abs() / want;
+        assert!(rel < 1e-3, "step {k}: {v} against {want} ({rel:.2e})");
+    }
+    let off_axis = x.last().unwrap()[1].hypot(x.last().unwrap()[2]);
+    assert!(
+        off_axis < 1e-8,
+        "the sphere left the axis by {off_axis:.1e}"
+    );
+}
+
+/// The drives of a tube flow give the same centreline speed, and bad tube flows and tube walls
+/// are refused with the place and the reason.
+#[test]
+fn tube_flows_are_read_and_checked() {
+    let speed = |flow: &str| match parse(Path::new("t.toml"), &tube_scene(flow, ""))
+        .unwrap()
+        .flow
+    {
+        mobo::scene::cells::Flow::Tube { speed, .. } => speed,
+        other => panic!("{other:?}"),
+    };
+    let r: f64 = 1.0 / 0.3;
+    // U = 2Q/πR² = 2ū = GR²/4μ, with μ = 2.
+    for (flow, want) in [
+        ("speed = 1.5".to_string(), 1.5),
+        ("mean_speed = 0.75".to_string(), 1.5),
+        (
+            format!("flow_rate = {}", 0.75 * std::f64::consts::PI * r * r),
+            1.5,
+        ),
+        (
+            format!("pressure_gradient = {}", 1.5 * 4.0 * 2.0 / (r * r)),
+            1.5,
+        ),
+    ] {
+        let got = speed(&flow);
+        assert!((got - want).abs() < 1e-12, "{flow}: {got}");
+    }
+    // The spec round-trips a tube and its flow.
+    let spec = SceneSpec::from_toml(&tube_scene("mean_speed = 0.5", "")).unwrap();
+    assert_eq!(
+        SceneSpec::from_toml(&spec.to_toml().unwrap()).unwrap(),
+        spec
+    );
+    for (text, line, needle) in [
+        (tube_scene("", ""), 6, "needs one of"),
+        (
+            tube_scene("speed = 1.0\nflow_rate = 2.0", ""),
+            7,
+            "takes one drive",
+        ),
+        (
+            tube_scene("speed = 1.0\nradius = 2.0", ""),
+            8,
+            "radius of the tube wall",
+        ),
+        (
+            tube_scene("speed = 1.0", "center = [0.0, 0.5, 0.0]"),
+            7,
+            "x axis",
+        ),
+        (
+            tube_scene("speed = 1.0", "").replace("length = 20.0", ""),
+            16,
+            "needs radius and length",
+        ),
+        (
+            tube_scene("speed = 1.0", "").replace("length = 20.0", "length = 5.0"),
+            18,
+            "at least twice the radius",
+        ),
+        (
+            tube_scene("speed = 1.0", "").replace("kind = \"container\"", "kind = \"body\""),
+            7,
+            "needs a [[walls]] entry",
+        ),
+        (
+            tube_scene("speed = 1.0", "")
+                .replace("radius = 1.0\n", "radius = 1.0\ncenter = [0.0, 2.6, 0.0]\n"),
+            10,
+            "outside wall 0",
+        ),
+        (
+            settling_scene(2.0, 8, 4).replace("order = 16", "order = 16\nlength = 3.0"),
+            13,
+            "length is for a tube",
+        ),
+        (
+            settling_scene(2.0, 8, 4) + "[flow]\nkind = \"shear\"\nrate = 1.0\nflow_rate = 2.0\n",
+            26,
+            "applies to kind = \"tube\" only",
+        ),
+    ] {
+        let e = scene_error(&text);
+        assert!(
+            e.starts_with(&format!("walls.toml:{line}:")),
+            "{line} {needle}: {e}"
+        );
+        assert!(e.contains(needle), "{needle}: {e}");
+    }
 }

@@ -4,6 +4,7 @@
 use super::cell_step::step_error;
 use super::error::CellRunError;
 use crate::scene::cells::{CellScene, Effect, Flow, Scheme};
+use crate::scene::walls::WallShape;
 use crate::timestep::cell_preconditioner;
 use crate::timestep::contact::ContactParams;
 use crate::timestep::coupling::CouplingParams;
@@ -16,7 +17,7 @@ use crate::timestep::TimestepError;
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::reparam::ReparamParams;
 use crate::vesicle::skalak::SkalakParams;
-use crate::wall::{Wall, WallParams};
+use crate::wall::{Wall, WallKind, WallParams};
 
 /// The setup of every cell of `scene`, in scene order (the settings `mobo run` uses: drift
 /// correction and reparametrisation every step, GMRES restart 200).
@@ -78,7 +79,7 @@ pub(super) fn coupling_params(scene: &CellScene) -> CouplingParams {
     let rate = match scene.flow {
         Flow::None => 0.0,
         Flow::Shear { rate } | Flow::Extensional { rate, .. } => rate.abs(),
-        Flow::Poiseuille { speed, radius } => (speed / radius).abs(),
+        Flow::Poiseuille { speed, radius } | Flow::Tube { speed, radius } => (speed / radius).abs(),
     };
     let auto_strength = scene
         .cells
@@ -160,12 +161,34 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
         source: TimestepError::Wall(e),
     };
     let mut walls = vec![];
+    // A tube container carrying a tube flow moves with it (in at one end, out at the other);
+    // every other wall is at rest.
+    let mut velocity = vec![];
     for (k, w) in scene.walls.iter().enumerate() {
         let surface = w.surface().map_err(|e| fail(format!("wall {k}: {e}")))?;
-        walls.push(Wall::new(w.kind, surface).map_err(|e| fail(format!("wall {k}: {e}")))?);
+        let wall = Wall::new(w.kind, surface).map_err(|e| fail(format!("wall {k}: {e}")))?;
+        let n = wall.n_points();
+        let mut u = vec![0.0; 3 * n];
+        if let (Flow::Tube { .. }, WallShape::Tube { .. }, WallKind::Container) =
+            (scene.flow, w.shape, w.kind)
+        {
+            for (j, &x) in wall.geometry().x.iter().enumerate() {
+                let v = scene.flow.velocity(x);
+                for a in 0..3 {
+                    u[a * n + j] = v[a];
+                }
+            }
+        }
+        velocity.extend(u);
+        walls.push(wall);
     }
-    WallCoupling::new(walls, None, scene.viscosity, WallParams::default())
-        .map_err(|source| CellStepError { cell: None, source })
+    WallCoupling::new(
+        walls,
+        Some(velocity),
+        scene.viscosity,
+        WallParams::default(),
+    )
+    .map_err(|source| CellStepError { cell: None, source })
 }
 
 /// The scene's effects, and the cells' own preconditioners where [`memory_plan`] left them

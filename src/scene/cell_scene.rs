@@ -7,8 +7,7 @@ use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
-use crate::vesicle::VesicleError;
-use crate::wall::WallKind;
+use crate::wall::{tube_surface, WallError, WallKind};
 
 /// The lowest SH order that holds the red blood cell's shape ([`shapes::rbc`]: its height is
 /// `sin⁴θ cosθ` at most, a polynomial of degree 5).
@@ -67,6 +66,16 @@ pub enum Flow {
         /// wall at `R`), so `u` turns negative beyond it.
         radius: f64,
     },
+    /// Poiseuille's flow through the scene's tube wall (`[flow] kind = "tube"`):
+    /// `u = (U (1 − (y² + z²)/R²), 0, 0)` with `R` the tube's radius; the tube's wall takes
+    /// this velocity (zero on its side, the inflow and outflow across its ends).
+    Tube {
+        /// Centreline speed `U` (from `flow_rate` `Q = πR²U/2`, `mean_speed` `U/2`, `speed`,
+        /// or `pressure_gradient` `G = 4μU/R²`).
+        speed: f64,
+        /// The tube's radius `R`.
+        radius: f64,
+    },
 }
 
 impl Flow {
@@ -98,7 +107,7 @@ impl Flow {
             Flow::None => [0.0; 3],
             Flow::Shear { rate } => [rate * x[1], 0.0, 0.0],
             Flow::Extensional { rate, .. } => [rate * x[0], -rate * x[1], 0.0],
-            Flow::Poiseuille { speed, radius } => [
+            Flow::Poiseuille { speed, radius } | Flow::Tube { speed, radius } => [
                 speed * (1.0 - (x[1] * x[1] + x[2] * x[2]) / (radius * radius)),
                 0.0,
                 0.0,
@@ -295,6 +304,13 @@ pub enum WallShape {
         /// The semi-axes.
         axes: [f64; 3],
     },
+    /// A tube along x with rounded ends ([`crate::wall::tube_surface`]).
+    Tube {
+        /// Its radius.
+        radius: f64,
+        /// Its length end to end.
+        length: f64,
+    },
 }
 
 /// One validated `[[walls]]` entry.
@@ -315,12 +331,17 @@ pub struct WallSpec {
 /// Default order of a wall.
 pub const DEFAULT_WALL_ORDER: usize = 16;
 
+/// Default order of a tube wall (Poiseuille's flow to 2·10⁻⁵ through a tube 6 radii long;
+/// longer tubes need more: `docs/walls.md`).
+pub const DEFAULT_TUBE_ORDER: usize = 32;
+
 impl WallSpec {
     /// The wall's surface.
-    pub fn surface(&self) -> Result<Surface, VesicleError> {
+    pub fn surface(&self) -> Result<Surface, WallError> {
         let mut s = match self.shape {
             WallShape::Sphere { radius } => shapes::sphere(self.order, radius)?,
             WallShape::Ellipsoid { axes } => shapes::ellipsoid(self.order, axes)?,
+            WallShape::Tube { radius, length } => tube_surface(self.order, radius, length)?,
         };
         s.translate(self.center);
         Ok(s)

@@ -7,9 +7,12 @@
 //! viscosity = 1.0                 # μ of the suspending fluid
 //!
 //! [flow]
-//! kind = "shear"                  # "none" | "shear" | "extensional" | "poiseuille"
+//! kind = "shear"                  # "none" | "shear" | "extensional" | "poiseuille" | "tube"
 //! rate = 1.0                      # shear: u = (γ̇ y, 0, 0); extensional: u = ε̇ (x, −y, 0)
 //! # speed = 1.0, radius = 5.0     # poiseuille along x: u = U (1 − (y² + z²)/R²), free space
+//! # flow_rate = 2.0               # tube: Poiseuille's flow through the tube wall, driven by
+//! #                               # one of flow_rate, mean_speed, speed, pressure_gradient
+//! #                               # (see `super::tube_flow`)
 //! # frame = "cells"               # extensional: stagnation point at the cells' centre ("cells",
 //! #                               # the default: a uniform translation) or at 0 ("lab")
 //!
@@ -143,6 +146,10 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         Some(fl) => positive(&fl.viscosity, "[fluid] viscosity")?,
         None => 1.0,
     };
+    let tube_drive = match &f.flow {
+        Some(fl) => super::tube_flow::tube_drive(fl, &at)?,
+        None => None,
+    };
     let flow = match &f.flow {
         None => Flow::None,
         Some(fl) => {
@@ -187,11 +194,13 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
                     }
                     Flow::Poiseuille { speed, radius }
                 }
+                // Set once the walls are read (the tube's radius drives it).
+                "tube" => Flow::None,
                 other => {
                     return Err(at(
                         fl.kind.span(),
                         format!(
-                            "[flow] kind: unknown flow \"{other}\" (none, shear, extensional, poiseuille)"
+                            "[flow] kind: unknown flow \"{other}\" (none, shear, extensional, poiseuille, tube)"
                         ),
                     ))
                 }
@@ -494,6 +503,10 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
     }
     check_overlaps(&cells, file, &entry, numerics.order.max(RBC_MIN_ORDER))?;
     let walls = super::walls::walls(f.walls.as_deref().unwrap_or(&[]), origin, text, &at)?;
+    let flow = match tube_drive {
+        Some(d) => super::tube_flow::tube_flow(&d, &walls, viscosity, &at)?,
+        None => flow,
+    };
     super::walls::check_cells_in_fluid(
         &cells,
         &walls,

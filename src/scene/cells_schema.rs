@@ -37,6 +37,9 @@ pub(super) struct FlowSection {
     pub(super) speed: Option<Spanned<f64>>,
     pub(super) radius: Option<Spanned<f64>>,
     pub(super) frame: Option<Spanned<String>>,
+    pub(super) flow_rate: Option<Spanned<f64>>,
+    pub(super) mean_speed: Option<Spanned<f64>>,
+    pub(super) pressure_gradient: Option<Spanned<f64>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -121,6 +124,7 @@ pub(crate) struct WallSection {
     pub(super) shape: Spanned<String>,
     pub(super) radius: Option<Spanned<f64>>,
     pub(super) axes: Option<Spanned<[f64; 3]>>,
+    pub(super) length: Option<Spanned<f64>>,
     pub(super) center: Option<Spanned<[f64; 3]>>,
     pub(super) order: Option<Spanned<usize>>,
 }

@@ -11,6 +11,7 @@ mod cells_schema;
 pub mod dpd;
 pub mod packing;
 pub mod spec;
+pub mod tube_flow;
 pub mod walls;
 
 use std::path::{Path, PathBuf};

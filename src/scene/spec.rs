@@ -81,6 +81,8 @@ pub enum WallShapeKind {
     Sphere,
     /// Needs `axes`.
     Ellipsoid,
+    /// Needs `radius` and `length` (axis along x).
+    Tube,
 }
 
 /// One `[[walls]]` entry ([`super::walls`]).
@@ -97,10 +99,13 @@ pub struct WallEntrySpec {
     /// `axes` of an ellipsoid.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub axes: Option<[f64; 3]>,
+    /// `length` of a tube (end to end).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub length: Option<f64>,
     /// `center` (default the origin).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub center: Option<[f64; 3]>,
-    /// `order` (default 16).
+    /// `order` (default 16, a tube 32).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub order: Option<usize>,
 }
@@ -126,6 +131,9 @@ pub enum FlowKind {
     Extensional,
     /// `u = (U (1 − (y² + z²)/R²), 0, 0)`; needs `speed` and `radius`.
     Poiseuille,
+    /// Poiseuille's flow through the scene's tube wall; needs one of `flow_rate`,
+    /// `mean_speed`, `speed`, `pressure_gradient`.
+    Tube,
 }
 
 /// `[flow] frame` of an extensional flow.
@@ -153,6 +161,15 @@ pub struct FlowSpec {
     /// `radius`: Poiseuille radius.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub radius: Option<f64>,
+    /// `flow_rate` through a tube.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flow_rate: Option<f64>,
+    /// `mean_speed` through a tube.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_speed: Option<f64>,
+    /// `pressure_gradient` `−dp/dx` along a tube.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub pressure_gradient: Option<f64>,
     /// `frame` of an extensional flow.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frame: Option<FrameKind>,

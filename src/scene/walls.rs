@@ -5,20 +5,24 @@
 //! [[walls]]
 //! kind = "container"       # "container" (the fluid inside: a cavity, a closed vessel) |
 //! #                        # "body" (a fixed obstacle, the fluid outside)
-//! shape = "sphere"         # "sphere" | "ellipsoid"
-//! radius = 4.0             # sphere
+//! shape = "sphere"         # "sphere" | "ellipsoid" | "tube"
+//! radius = 4.0             # sphere, tube
 //! # axes = [6.0, 4.0, 3.0] # ellipsoid semi-axes
+//! # length = 24.0          # tube: end to end along x (at least 2 radii), rounded ends
 //! center = [0.0, 0.0, 0.0]
-//! order = 16               # spherical-harmonic order of the wall (4 to 64)
+//! order = 16               # spherical-harmonic order of the wall (4 to 64; default 16, a
+//!                          # tube 32)
 //! ```
 //!
 //! Walls are at rest; `[flow]` is the flow the walls disturb (a container at rest in a shear
-//! flow holds its fluid still at the wall). See [`crate::wall`] for the method.
+//! flow holds its fluid still at the wall). A tube container with `[flow] kind = "tube"` is
+//! the exception: it carries Poiseuille's flow, in at one end and out at the other
+//! ([`super::tube_flow`]). See [`crate::wall`] for the method.
 
 use std::path::Path;
 
 use super::cell_scene::CellSpec;
-pub use super::cell_scene::{WallShape, WallSpec, DEFAULT_WALL_ORDER};
+pub use super::cell_scene::{WallShape, WallSpec, DEFAULT_TUBE_ORDER, DEFAULT_WALL_ORDER};
 use super::cells_schema::{Origin, WallSection};
 use super::line_col;
 use super::SceneError;
@@ -66,7 +70,38 @@ pub(super) fn walls(
             }
         }
         let positive = |v: f64| v.is_finite() && v > 0.0;
+        if let (Some(l), false) = (&w.length, w.shape.get_ref() == "tube") {
+            return Err(at(l.span(), format!("{name}: length is for a tube")));
+        }
         let shape = match w.shape.get_ref().as_str() {
+            "tube" => {
+                if let Some(a) = &w.axes {
+                    return Err(at(a.span(), format!("{name}: axes is for an ellipsoid")));
+                }
+                let (Some(r), Some(l)) = (&w.radius, &w.length) else {
+                    return Err(at(
+                        w.shape.span(),
+                        format!("{name}: a tube needs radius and length"),
+                    ));
+                };
+                let (radius, length) = (*r.get_ref(), *l.get_ref());
+                if !positive(radius) {
+                    return Err(at(
+                        r.span(),
+                        format!("{name}: radius must be positive, got {radius}"),
+                    ));
+                }
+                if !(length.is_finite() && length >= 2.0 * radius) {
+                    return Err(at(
+                        l.span(),
+                        format!(
+                            "{name}: length (end to end) must be at least twice the radius \
+                             {radius}, got {length}"
+                        ),
+                    ));
+                }
+                WallShape::Tube { radius, length }
+            }
             "sphere" => {
                 if let Some(a) = &w.axes {
                     return Err(at(a.span(), format!("{name}: axes is for an ellipsoid")));
@@ -108,7 +143,10 @@ pub(super) fn walls(
             other => {
                 return Err(at(
                     w.shape.span(),
-                    format!("{name}: shape must be \"sphere\" or \"ellipsoid\", got \"{other}\""),
+                    format!(
+                        "{name}: shape must be \"sphere\", \"ellipsoid\" or \"tube\", got \
+                         \"{other}\""
+                    ),
                 ))
             }
         };
@@ -127,6 +165,7 @@ pub(super) fn walls(
                 ))
             }
             Some(o) => *o.get_ref(),
+            None if matches!(shape, WallShape::Tube { .. }) => DEFAULT_TUBE_ORDER,
             None => DEFAULT_WALL_ORDER,
         };
         out.push(WallSpec {
@@ -160,7 +199,9 @@ pub(super) fn check_cells_in_fluid(
     let mut wall_distance = vec![];
     for (k, w) in walls.iter().enumerate() {
         let e = |e: VesicleError| fail(w.line, format!("wall {k}: {e}"));
-        let s = w.surface().map_err(e)?;
+        let s = w
+            .surface()
+            .map_err(|e| fail(w.line, format!("wall {k}: {e}")))?;
         let sht = ShTransform::new(2 * w.order).map_err(|x| e(x.into()))?;
         wall_distance.push(SurfaceDistance::new(w.order, s.coefs(), &sht).map_err(e)?);
     }

@@ -228,7 +228,7 @@ impl SurfaceDistance {
     }
 
     fn newton(&self, scratch: &mut DistanceScratch, x: [f64; 3], start: usize) -> Closest {
-        let (_, pd) = closest_point(
+        let (u, pd) = closest_point(
             &mut scratch.point,
             &self.lay,
             &self.coefs,
@@ -237,6 +237,24 @@ impl SurfaceDistance {
         );
         let mut y = pd.x;
         let mut nv = cross(pd.xt, pd.xp);
+        if dot(nv, nv).sqrt() <= 1e-8 * dot(pd.xt, pd.xt) {
+            // At a pole `X_φ` vanishes and `X_θ × X_φ` has no direction of its own. There
+            // `X_θ(φ)` is linear in `(cos φ, sin φ)`, so `X_φ/sin θ → ±∂_φ X_θ = ±X_θ(φ + π/2)`
+            // (`+` at θ = 0, `−` at θ = π): the limit normal is `±X_θ(φ) × X_θ(φ + π/2)`.
+            let xt = pd.xt;
+            let quarter = scratch.point.eval(
+                &self.lay,
+                &self.coefs,
+                u.0,
+                u.1 + 0.5 * std::f64::consts::PI,
+            );
+            let sign = if u.0 < 0.5 * std::f64::consts::PI {
+                1.0
+            } else {
+                -1.0
+            };
+            nv = cross(xt, quarter.xt).map(|v| sign * v);
+        }
         // Newton can stall at a pole's degenerate parametrisation; the nearest sample is then
         // the better answer (its normal from the neighbouring surface directions is not known,
         // so take the direction from the centre as the fallback normal).
@@ -284,6 +302,8 @@ mod tests {
             [2.0, 0.3, -0.5],
             [0.5, -0.1, 0.4],
             [0.2, -0.4, 1.45],
+            // On the axis below the south pole, where `X_θ × X_φ` vanishes.
+            [0.2, -0.4, -2.5],
             [-1.0, 0.9, 0.7],
             [0.21, -0.38, 0.12],
         ] {

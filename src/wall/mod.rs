@@ -51,7 +51,9 @@
 //! `tests/walls.rs`: the interior field of a Stokeslet outside a spherical and an ellipsoidal
 //! container (exact), a translating and rotating sphere in free space (Stokes' drag and torque,
 //! and the field), and a sphere at the centre of a spherical container against the exact drag
-//! of Williams (1915) / Haberman & Sayre (1958), `K = (1 − λ⁵)/(1 − 9λ/4 + 5λ³/2 − 9λ⁵/4 + λ⁶)`.
+//! of Williams (1915) / Haberman & Sayre (1958), `K = (1 − λ⁵)/(1 − 9λ/4 + 5λ³/2 − 9λ⁵/4 + λ⁶)`;
+//! Poiseuille's flow through a [`tube_surface`] (exact), and a sphere on the axis of the tube
+//! against the drag of Haberman & Sayre (1958) and Bohlin (1960).
 //!
 //! ```
 //! use mobo::vesicle::shapes;
@@ -71,10 +73,12 @@ mod field;
 mod quadrature;
 mod surface;
 mod system;
+mod tube;
 
 pub use field::{scatter_add, WallField};
 pub use surface::{Wall, WallKind};
 pub use system::{WallParams, WallSolution, WallSystem, MAX_NET_FLUX};
+pub use tube::{straight_length, tube_surface, TUBE_END_EXPONENT};
 
 use crate::vesicle::VesicleError;
 

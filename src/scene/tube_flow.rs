@@ -1,0 +1,165 @@
+//! `[flow] kind = "tube"`: Poiseuille's flow through the scene's tube wall, driven by a flow
+//! rate, a mean or centreline speed, or a pressure gradient.
+//!
+//! ```toml
+//! [[walls]]
+//! kind = "container"
+//! shape = "tube"            # axis along x, through y = z = 0
+//! radius = 5.0
+//! length = 30.0
+//!
+//! [flow]
+//! kind = "tube"
+//! flow_rate = 39.27         # Q through a cross-section; or one of
+//! # mean_speed = 0.5        # Q / (πR²)
+//! # speed = 1.0             # the centreline speed U
+//! # pressure_gradient = 0.16  # G = −dp/dx
+//! ```
+//!
+//! The profile is `u = (U (1 − (y² + z²)/R²), 0, 0)` with `R` the tube's radius and
+//! `U = 2Q/(πR²) = 2ū = G R²/(4μ)` (Hagen–Poiseuille; `μ` the `[fluid]` viscosity). The tube's
+//! wall takes this velocity: zero along its straight side, the inflow and outflow profile across
+//! its rounded ends ([`crate::wall::tube_surface`]). Without cells the flow inside is exactly
+//! Poiseuille's; cells disturb it, and the wall keeps the disturbance from leaving the tube.
+
+use std::ops::Range;
+
+use super::cell_scene::{Flow, WallShape, WallSpec};
+use super::cells_schema::FlowSection;
+use super::SceneError;
+use crate::wall::WallKind;
+
+/// What drives the flow through the tube.
+#[derive(Clone, Copy, Debug)]
+enum Drive {
+    FlowRate,
+    MeanSpeed,
+    Speed,
+    PressureGradient,
+}
+
+/// A tube flow's drive as the file gives it, before the tube's radius is known.
+#[derive(Clone, Debug)]
+pub(super) struct TubeDrive {
+    drive: Drive,
+    value: f64,
+    span: Range<usize>,
+}
+
+type At<'a> = &'a dyn Fn(Range<usize>, String) -> SceneError;
+
+/// The drive of a `kind = "tube"` flow (`None` for every other kind, which must not carry a
+/// tube's keys).
+pub(super) fn tube_drive(fl: &FlowSection, at: At) -> Result<Option<TubeDrive>, SceneError> {
+    let keys = [
+        ("flow_rate", &fl.flow_rate, Drive::FlowRate),
+        ("mean_speed", &fl.mean_speed, Drive::MeanSpeed),
+        (
+            "pressure_gradient",
+            &fl.pressure_gradient,
+            Drive::PressureGradient,
+        ),
+    ];
+    if fl.kind.get_ref() != "tube" {
+        for (key, v, _) in &keys {
+            if let Some(v) = v {
+                return Err(at(
+                    v.span(),
+                    format!("[flow] {key} applies to kind = \"tube\" only"),
+                ));
+            }
+        }
+        return Ok(None);
+    }
+    if let Some(r) = &fl.radius {
+        return Err(at(
+            r.span(),
+            "[flow] radius: a tube flow takes the radius of the tube wall ([[walls]] shape = \
+             \"tube\")"
+                .into(),
+        ));
+    }
+    if let Some(r) = &fl.rate {
+        return Err(at(
+            r.span(),
+            "[flow] rate is for shear and extensional flows".into(),
+        ));
+    }
+    if let Some(f) = &fl.frame {
+        return Err(at(
+            f.span(),
+            "[flow] frame is for an extensional flow".into(),
+        ));
+    }
+    let given: Vec<_> = keys
+        .iter()
+        .map(|(k, v, d)| (*k, *v, *d))
+        .chain(std::iter::once(("speed", &fl.speed, Drive::Speed)))
+        .filter_map(|(k, v, d)| v.as_ref().map(|v| (k, v, d)))
+        .collect();
+    match given.as_slice() {
+        [] => Err(at(
+            fl.kind.span(),
+            "[flow] kind = \"tube\" needs one of flow_rate, mean_speed, speed, \
+             pressure_gradient"
+                .into(),
+        )),
+        [(key, v, drive)] => {
+            let value = *v.get_ref();
+            if !value.is_finite() {
+                return Err(at(
+                    v.span(),
+                    format!("[flow] {key} must be finite, got {value}"),
+                ));
+            }
+            Ok(Some(TubeDrive {
+                drive: *drive,
+                value,
+                span: v.span(),
+            }))
+        }
+        [(first, ..), (second, v, _), ..] => Err(at(
+            v.span(),
+            format!("[flow] {second}: a tube flow takes one drive, and {first} is given"),
+        )),
+    }
+}
+
+/// The tube flow through the scene's tube container, with the centreline speed from the drive.
+pub(super) fn tube_flow(
+    drive: &TubeDrive,
+    walls: &[WallSpec],
+    viscosity: f64,
+    at: At,
+) -> Result<Flow, SceneError> {
+    let tube = walls.iter().find_map(|w| match (w.kind, w.shape) {
+        (WallKind::Container, WallShape::Tube { radius, .. }) => Some((w, radius)),
+        _ => None,
+    });
+    let Some((wall, radius)) = tube else {
+        return Err(at(
+            drive.span.clone(),
+            "[flow] kind = \"tube\" needs a [[walls]] entry with kind = \"container\" and \
+             shape = \"tube\""
+                .into(),
+        ));
+    };
+    let [_, y, z] = wall.center;
+    if y != 0.0 || z != 0.0 {
+        return Err(at(
+            drive.span.clone(),
+            format!(
+                "[flow] kind = \"tube\": the tube wall (line {}) must have its axis on the x \
+                 axis, center = [x, 0, 0]; got center = {:?}",
+                wall.line, wall.center
+            ),
+        ));
+    }
+    let speed = match drive.drive {
+        Drive::Speed => drive.value,
+        Drive::MeanSpeed => 2.0 * drive.value,
+        Drive::FlowRate => 2.0 * drive.value / (std::f64::consts::PI * radius * radius),
+        Drive::PressureGradient => drive.value * radius * radius / (4.0 * viscosity),
+    };
+    Ok(Flow::Tube { speed, radius })
+}
