@@ -413,3 +413,181 @@ fn specs_and_files_describe_the_same_scenes() {
     let none = SceneSpec::default().build().unwrap_err();
     assert!(none.to_string().contains("no [[cells]]"), "{none}");
 }
+
+/// A scene in SI units (`[units] system = "SI"`) is the dimensionless scene a user would write
+/// by hand: lengths over the first cells' radius `a`, moduli over their shear modulus `G`,
+/// times over `μa/G`, forces over `Ga`, energies over `Ga²`.
+#[test]
+fn a_scene_in_si_units_is_the_hand_made_dimensionless_scene() {
+    let (a, mu, g, kappa, rate) = (2.8e-6, 1.2e-3, 6e-6, 2e-19, 100.0);
+    let t = mu * a / g;
+    let si = format!(
+        r#"
+[units]
+system = "SI"
+[fluid]
+viscosity = {mu}
+[flow]
+kind = "shear"
+rate = {rate}
+[[cells]]
+shape = "rbc"
+radius = {a}
+center = [0.0, 0.0, 0.0]
+shear_modulus = {g}
+bending_modulus = {kappa}
+viscosity_ratio = 5.0
+[[cells]]
+shape = "sphere"
+radius = {}
+center = [{}, 0.0, 0.0]
+bending_modulus = {}
+force = [{}, 0.0, 0.0]
+[[walls]]
+kind = "container"
+shape = "sphere"
+radius = {}
+[numerics]
+order = 6
+dt = {}
+t_end = {}
+contact_distance = {}
+"#,
+        0.5 * a,
+        4.0 * a,
+        3.0 * kappa,
+        2.0 * g * a,
+        9.0 * a,
+        0.01 * t,
+        0.5 * t,
+        0.05 * a,
+    );
+    let by_hand = format!(
+        r#"
+[fluid]
+viscosity = 1.0
+[flow]
+kind = "shear"
+rate = {}
+[[cells]]
+shape = "rbc"
+radius = 1.0
+center = [0.0, 0.0, 0.0]
+shear_modulus = 1.0
+bending_modulus = {}
+viscosity_ratio = 5.0
+[[cells]]
+shape = "sphere"
+radius = 0.5
+center = [4.0, 0.0, 0.0]
+bending_modulus = {}
+force = [2.0, 0.0, 0.0]
+[[walls]]
+kind = "container"
+shape = "sphere"
+radius = 9.0
+[numerics]
+order = 6
+dt = 0.01
+t_end = 0.5
+contact_distance = 0.05
+"#,
+        rate * t,
+        kappa / (g * a * a),
+        3.0 * kappa / (g * a * a),
+    );
+    let got = parse(file(), &si).unwrap();
+    let want = parse(file(), &by_hand).unwrap();
+    let close = |x: f64, y: f64, what: &str| {
+        assert!(
+            (x - y).abs() <= 1e-12 * y.abs().max(1e-300),
+            "{what}: {x} against {y}"
+        )
+    };
+    close(got.viscosity, want.viscosity, "viscosity");
+    close(got.flow.rate_scale(), want.flow.rate_scale(), "shear rate");
+    close(got.numerics.dt, want.numerics.dt, "dt");
+    close(got.numerics.t_end, want.numerics.t_end, "t_end");
+    close(
+        got.numerics.contact_distance.unwrap(),
+        want.numerics.contact_distance.unwrap(),
+        "contact_distance",
+    );
+    for (c, w) in got.cells.iter().zip(&want.cells) {
+        close(c.radius, w.radius, "radius");
+        close(
+            c.shear_modulus.max(1e-300),
+            w.shear_modulus.max(1e-300),
+            "G",
+        );
+        close(c.bending_modulus, w.bending_modulus, "κ");
+        for k in 0..3 {
+            assert!((c.center[k] - w.center[k]).abs() < 1e-12, "center");
+            assert!((c.force[k] - w.force[k]).abs() < 1e-12, "force");
+        }
+    }
+    match (got.walls[0].shape, want.walls[0].shape) {
+        (
+            mobo::scene::walls::WallShape::Sphere { radius: x },
+            mobo::scene::walls::WallShape::Sphere { radius: y },
+        ) => close(x, y, "wall radius"),
+        other => panic!("{other:?}"),
+    }
+    // The scales, and the groups of the first cells.
+    let u = got.units.expect("SI scales");
+    assert!(want.units.is_none());
+    close(u.length_m, a, "length scale");
+    close(u.time_s, t, "time scale");
+    close(u.force_n(), g * a, "force scale");
+    let groups = mobo::scene::units::groups(&got).unwrap();
+    close(groups.capillary_number.unwrap(), mu * rate * a / g, "Ca");
+    close(
+        groups.reduced_bending.unwrap(),
+        kappa / (g * a * a),
+        "reduced bending",
+    );
+    let by_hand = mobo::scene::units::groups(&want).unwrap();
+    close(groups.rate, by_hand.rate, "rate");
+    close(
+        groups.bending_capillary_number.unwrap(),
+        by_hand.bending_capillary_number.unwrap(),
+        "bending capillary number",
+    );
+    assert!(got
+        .effects
+        .iter()
+        .any(|e| e.name == "units" && e.reason.contains("5.6000e-4 s")));
+    // Bad units are refused with the place and the reason.
+    for (text, line, needle) in [
+        (
+            si.replace("system = \"SI\"", "system = \"cgs\""),
+            3,
+            "must be \"SI\"",
+        ),
+        (
+            si.replace("[fluid]\nviscosity = 0.0012\n", ""),
+            3,
+            "needs [fluid] viscosity",
+        ),
+        (
+            si.replacen("radius = 0.0000028\n", "", 1),
+            10,
+            "needs a positive radius",
+        ),
+        (
+            si.replacen(
+                "shear_modulus = 0.000006\nbending_modulus = 0.0000000000000000002\n",
+                "",
+                1,
+            ),
+            10,
+            "shear_modulus (N/m) or bending_modulus (J)",
+        ),
+    ] {
+        let e = parse(file(), &text).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!(":{line}:")) && e.contains(needle),
+            "{needle}: {e}"
+        );
+    }
+}

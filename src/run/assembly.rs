@@ -76,11 +76,7 @@ pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
 /// The coupling settings of `scene` (the contact repulsion's strength, when the scene leaves
 /// it out, from the cells' bending, the flow and the forces).
 pub(super) fn coupling_params(scene: &CellScene) -> CouplingParams {
-    let rate = match scene.flow {
-        Flow::None => 0.0,
-        Flow::Shear { rate } | Flow::Extensional { rate, .. } => rate.abs(),
-        Flow::Poiseuille { speed, radius } | Flow::Tube { speed, radius } => (speed / radius).abs(),
-    };
+    let rate = scene.flow.rate_scale();
     let auto_strength = scene
         .cells
         .iter()

@@ -786,6 +786,8 @@ impl<'a> CellRun<'a> {
                 contacts: susp.contact_stats(),
                 walls: susp.wall_stats(),
             },
+            units: scene.units,
+            dimensionless: crate::scene::units::groups(scene),
             area_drift: worst(|c| c.area_drift),
             volume_drift: worst(|c| c.volume_drift),
             centroid: mean3(|c| c.centroid),

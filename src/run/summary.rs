@@ -11,6 +11,7 @@ use super::error::CellRunError;
 use super::partition::Reason;
 use crate::comm::{spread, Communicator};
 use crate::scene::cells::Effect;
+use crate::scene::units::{Groups, UnitScales};
 use crate::timestep::suspension::Suspension;
 
 /// Per-cell observables at the end of the run (`summary.json`'s `per_cell`, in scene order).
@@ -98,6 +99,12 @@ pub struct CellRunSummary {
     pub gmres_iterations_max: usize,
     /// Counters of what was built (checked by the tests: a one-cell scene builds no FMM).
     pub counters: Counters,
+    /// The physical scales of a scene written in SI units (`null`: the file's numbers were
+    /// the solver's own); every other number here is in the solver's units.
+    pub units: Option<UnitScales>,
+    /// The dimensionless groups of the first cells (capillary number, reduced bending,
+    /// viscosity ratio).
+    pub dimensionless: Option<Groups>,
     /// The area drift of the cell whose drift is largest in magnitude (signed; see
     /// [`CellSummary::area_drift`]).
     pub area_drift: f64,

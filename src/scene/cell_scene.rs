@@ -2,6 +2,7 @@
 //! the numerics and the output, as [`super::cells::parse`] and
 //! [`super::spec::SceneSpec::build`] produce it.
 
+use super::units::UnitScales;
 use crate::gpu::GpuChoice;
 use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
@@ -99,6 +100,18 @@ impl Flow {
                 ..
             }
         )
+    }
+
+    /// The flow's rate scale `γ̇`: the shear or strain rate, `|U|/R` of a Poiseuille or tube
+    /// flow, 0 without a flow.
+    pub fn rate_scale(&self) -> f64 {
+        match *self {
+            Flow::None => 0.0,
+            Flow::Shear { rate } | Flow::Extensional { rate, .. } => rate.abs(),
+            Flow::Poiseuille { speed, radius } | Flow::Tube { speed, radius } => {
+                (speed / radius).abs()
+            }
+        }
     }
 
     /// The background velocity at `x` (lab frame).
@@ -261,8 +274,9 @@ pub struct Numerics {
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Effect {
     /// What is built: `"fmm"`, `"double_layer"`, `"inter_cell_double_layer"`, `"skalak"`,
-    /// `"background_flow"`, `"body_force"`, `"adaptive_dt"`, or (in a run's summary, where
-    /// memory left them out) `"cell_preconditioner"`.
+    /// `"background_flow"`, `"body_force"`, `"adaptive_dt"`, `"walls"`, `"units"` (a scene in
+    /// SI units, with its scales), or (in a run's summary, where memory left them out)
+    /// `"cell_preconditioner"`.
     pub name: &'static str,
     /// Whether it is built.
     pub enabled: bool,
@@ -289,6 +303,9 @@ pub struct CellScene {
     pub effects: Vec<Effect>,
     /// Rigid walls (`[[walls]]`; none: free space).
     pub walls: Vec<WallSpec>,
+    /// The physical scales of a scene written in SI units (`[units] system = "SI"`; `None`:
+    /// the file's numbers are the solver's own). Every value above is dimensionless.
+    pub units: Option<UnitScales>,
 }
 
 /// The shape of a wall.

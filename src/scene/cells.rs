@@ -6,6 +6,9 @@
 //! [fluid]
 //! viscosity = 1.0                 # μ of the suspending fluid
 //!
+//! [units]                         # optional: system = "SI" reads every number below in SI
+//! system = "dimensionless"        # units (see `super::units`); the default is the solver's own
+//!
 //! [flow]
 //! kind = "shear"                  # "none" | "shear" | "extensional" | "poiseuille" | "tube"
 //! rate = 1.0                      # shear: u = (γ̇ y, 0, 0); extensional: u = ε̇ (x, −y, 0)
@@ -117,12 +120,13 @@ pub fn parse(file: &Path, text: &str) -> Result<CellScene, SceneError> {
 
 /// [`parse`], with messages that cite the scene as `origin` does.
 pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<CellScene, SceneError> {
-    let f: File = parse_toml(file, text)?;
+    let mut f: File = parse_toml(file, text)?;
     let at = |span: std::ops::Range<usize>, msg: String| SceneError {
         file: file.to_path_buf(),
         place: Some(line_col(text, span.start)),
         message: msg,
     };
+    let units = super::units::to_dimensionless(&mut f, &at)?;
     let positive = |v: &Spanned<f64>, key: &str| -> Result<f64, SceneError> {
         let x = *v.get_ref();
         if x.is_finite() && x > 0.0 {
@@ -541,6 +545,23 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         ));
     }
     let mut effects = effects(&cells, &flow);
+    if let Some(u) = &units {
+        effects.push(Effect {
+            name: "units",
+            enabled: true,
+            reason: format!(
+                "[units] system = \"SI\": the run is dimensionless with length {:.4e} m, time \
+                 {:.4e} s, viscosity {:.4e} Pa·s, tension {:.4e} N/m (velocity {:.4e} m/s, force \
+                 {:.4e} N)",
+                u.length_m,
+                u.time_s,
+                u.viscosity_pa_s,
+                u.tension_n_per_m,
+                u.velocity_m_per_s(),
+                u.force_n()
+            ),
+        });
+    }
     effects.push(Effect {
         name: "adaptive_dt",
         enabled: numerics.adaptive_dt,
@@ -580,6 +601,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         output,
         effects,
         walls,
+        units,
     })
 }
 

@@ -17,10 +17,19 @@ pub(super) struct File {
     pub(super) output: Option<OutputSection>,
     /// `[[walls]]` ([`super::walls`]).
     pub(super) walls: Option<Vec<WallSection>>,
+    /// `[units]` ([`super::units`]).
+    pub(super) units: Option<UnitsSection>,
     /// `mobo dpd`'s section: the same file runs both ways (its `[dpd.from_cells]` maps these
     /// cells into the DPD fluid); `mobo run` does not read it.
     #[serde(rename = "dpd")]
     pub(super) _dpd: Option<serde::de::IgnoredAny>,
+}
+
+/// `[units]` as written.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct UnitsSection {
+    pub(super) system: Spanned<String>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -12,6 +12,7 @@ pub mod dpd;
 pub mod packing;
 pub mod spec;
 pub mod tube_flow;
+pub mod units;
 pub mod walls;
 
 use std::path::{Path, PathBuf};

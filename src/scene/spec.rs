@@ -61,6 +61,29 @@ pub struct SceneSpec {
     /// `[[walls]]`, rigid walls (none: free space).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub walls: Vec<WallEntrySpec>,
+    /// `[units]` (absent: the numbers are the solver's own; see [`super::units`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub units: Option<UnitsSpec>,
+}
+
+/// `[units]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct UnitsSpec {
+    /// `system`.
+    pub system: UnitSystem,
+}
+
+/// `[units] system`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum UnitSystem {
+    /// The file's numbers are SI values, made dimensionless by the first cells' radius and
+    /// modulus and the fluid's viscosity.
+    #[serde(rename = "SI")]
+    Si,
+    /// The numbers are the solver's own (the default).
+    #[serde(rename = "dimensionless")]
+    Dimensionless,
 }
 
 /// `[[walls]] kind`.
