@@ -402,3 +402,50 @@ fn a_sphere_on_the_axis_of_a_tube_has_the_drag_of_bohlin_and_haberman_sayre() {
         assert!(f[1].abs() < 1e-6 * f[0].abs() && f[2].abs() < 1e-6 * f[0].abs());
     }
 }
+
+/// A lone wall's own double layer on its grid comes from the solve's equation
+/// (`WallSolution::own_double_layer`): the near-zone evaluator given it returns what its own
+/// singular quadrature gives, for a container (a tube carrying Poiseuille's flow) and a body (a
+/// translating sphere), at points down to 0.02 from the wall.
+#[test]
+fn a_lone_walls_own_double_layer_from_the_solve_matches_its_quadrature() {
+    let tube = Wall::new(WallKind::Container, tube_surface(20, 1.0, 5.0).unwrap()).unwrap();
+    let u_tube = on_wall(&tube, |x| [1.0 - x[1] * x[1] - x[2] * x[2], 0.0, 0.0]);
+    let sphere = Wall::new(WallKind::Body, shapes::sphere(12, 1.0).unwrap()).unwrap();
+    let u_sphere = sphere.rigid_velocity([1.0, 0.3, 0.0], [0.0, 0.0, 0.5]);
+    for (wall, u, r0, r1) in [(tube, u_tube, 0.5, 0.98), (sphere, u_sphere, 1.001, 1.3)] {
+        let system = WallSystem::new(vec![wall.clone()], WallParams::default()).unwrap();
+        let solution = system.solve(&u).unwrap();
+        let own = solution.own_double_layer(0).expect("a lone wall");
+        let targets: Vec<[f64; 3]> = (0..40)
+            .map(|j| {
+                let (r, phi) = (r0 + (r1 - r0) * j as f64 / 39.0, 0.9 * j as f64);
+                [0.3 - 0.01 * j as f64, r * phi.cos(), r * phi.sin()]
+            })
+            .collect();
+        // No refined quadratures: every near target takes the check points, which use the
+        // on-surface values.
+        let params = NearParams {
+            max_order: Some(1),
+            ..NearParams::default()
+        };
+        let mut near = mobo::vesicle::OffSurface::new(wall.order(), params).unwrap();
+        near.set_surface(wall.surface().coefs()).unwrap();
+        let (mut a, mut b) = (vec![0.0; 120], vec![0.0; 120]);
+        let kernel = mobo::vesicle::LayerKernel::DoubleLayer;
+        near.evaluate(kernel, solution.density(0), &targets, &mut a)
+            .unwrap();
+        near.evaluate_given_on_surface(kernel, solution.density(0), own, &targets, &mut b)
+            .unwrap();
+        let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let diff = a
+            .iter()
+            .zip(&b)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+        println!(
+            "{:?}: largest difference {diff:.1e} of {scale:.2}",
+            wall.kind()
+        );
+        assert!(diff < 1e-9 * scale, "{:?}: {diff:.2e}", wall.kind());
+    }
+}

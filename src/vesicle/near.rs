@@ -428,6 +428,37 @@ impl OffSurface {
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<Vec<TargetInfo>, VesicleError> {
+        self.evaluate_inner(kernel, density, None, targets, out)
+    }
+
+    /// [`Self::evaluate`] with the layer's on-surface (principal) values at the grid points
+    /// given by the caller (`3 · n_points`, component-major), where a solve already holds them
+    /// (a wall's own double layer: `WallSolution::own_double_layer` of `crate::wall`), in place of
+    /// the singular quadrature over the whole surface that near targets otherwise cost.
+    pub fn evaluate_given_on_surface(
+        &mut self,
+        kernel: LayerKernel,
+        density: &[f64],
+        on_surface: &[f64],
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+    ) -> Result<Vec<TargetInfo>, VesicleError> {
+        check_len(
+            "on-surface values",
+            on_surface.len(),
+            3 * self.sht_p.n_points(),
+        )?;
+        self.evaluate_inner(kernel, density, Some(on_surface), targets, out)
+    }
+
+    fn evaluate_inner(
+        &mut self,
+        kernel: LayerKernel,
+        density: &[f64],
+        given: Option<&[f64]>,
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+    ) -> Result<Vec<TargetInfo>, VesicleError> {
         self.require_surface()?;
         let np = self.sht_p.n_points();
         check_len("density", density.len(), 3 * np)?;
@@ -456,8 +487,13 @@ impl OffSurface {
             .iter()
             .any(|i| i.near && self.resolving_order(i.distance).is_none())
         {
-            self.self_layer
-                .evaluate(kernel, &self.coefs, density, &mut self.on_surface)?;
+            match given {
+                Some(v) => self.on_surface.copy_from_slice(v),
+                None => {
+                    self.self_layer
+                        .evaluate(kernel, &self.coefs, density, &mut self.on_surface)?
+                }
+            }
             self.sht_p
                 .forward(&self.on_surface, &mut self.on_surface_coef, &mut self.ws_p)?;
         }

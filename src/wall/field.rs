@@ -110,12 +110,21 @@ impl WallField {
             if !near_targets.is_empty() {
                 self.buf.clear();
                 self.buf.resize(3 * near_targets.len(), 0.0);
-                let infos = self.surfaces[k].evaluate(
-                    LayerKernel::DoubleLayer,
-                    density,
-                    &near_targets,
-                    &mut self.buf,
-                )?;
+                let infos = match solution.own_double_layer(k) {
+                    Some(on_surface) => self.surfaces[k].evaluate_given_on_surface(
+                        LayerKernel::DoubleLayer,
+                        density,
+                        on_surface,
+                        &near_targets,
+                        &mut self.buf,
+                    )?,
+                    None => self.surfaces[k].evaluate(
+                        LayerKernel::DoubleLayer,
+                        density,
+                        &near_targets,
+                        &mut self.buf,
+                    )?,
+                };
                 for (j, info) in infos.iter().enumerate() {
                     closest = closest.min(info.distance);
                     let wrong = match kind {

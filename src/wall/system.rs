@@ -60,6 +60,9 @@ pub struct WallSolution {
     moments: Vec<([f64; 3], [f64; 3])>,
     kinds: Vec<WallKind>,
     centroids: Vec<[f64; 3]>,
+    /// `K_kk ψ_k` per wall where the equation gives it (one wall), see
+    /// [`WallSolution::own_double_layer`].
+    own: Vec<Option<Vec<f64>>>,
 }
 
 impl WallSystem {
@@ -238,20 +241,62 @@ impl WallSystem {
                 WallKind::Body => body_moments(w, &densities[self.offsets[k]..self.offsets[k + 1]]),
             })
             .collect();
-        Ok(WallSolution {
+        let mut solution = WallSolution {
             densities,
             offsets: self.offsets.clone(),
             moments,
             kinds: self.walls.iter().map(|w| w.kind()).collect(),
             centroids: self.walls.iter().map(|w| w.centroid()).collect(),
-        })
+            own: vec![None; self.walls.len()],
+        };
+        if let [w] = self.walls.as_slice() {
+            solution.own[0] = Some(own_double_layer(w, velocity, &solution));
+        }
+        Ok(solution)
     }
+}
+
+/// `K ψ` of a lone wall at its grid points, from the equation its solve met:
+/// `K ψ = U + ½ψ − n (1/A) ∫ n·ψ dA` in a container, `K ψ = U − ½ψ − (its Stokeslet and rotlet)`
+/// on a body. Exact up to the solve's residual, and `O(N)` where the singular quadrature is
+/// `O(N²)` with a large constant.
+fn own_double_layer(w: &Wall, velocity: &[f64], solution: &WallSolution) -> Vec<f64> {
+    let np = w.n_points();
+    let g = w.geometry();
+    let psi = solution.density(0);
+    let mut v = velocity.to_vec();
+    match w.kind() {
+        WallKind::Container => {
+            let (flux, _) = g.normal_flux(psi);
+            let area = w.area();
+            for j in 0..np {
+                for a in 0..3 {
+                    v[a * np + j] += 0.5 * psi[a * np + j] - g.normal[j][a] * flux / area;
+                }
+            }
+        }
+        WallKind::Body => {
+            for (j, &x) in g.x.iter().enumerate() {
+                let c = solution.completion_at(x);
+                for a in 0..3 {
+                    v[a * np + j] -= 0.5 * psi[a * np + j] + c[a];
+                }
+            }
+        }
+    }
+    v
 }
 
 impl WallSolution {
     /// Wall `i`'s density `ψ_i` (component-major on its grid).
     pub fn density(&self, i: usize) -> &[f64] {
         &self.densities[self.offsets[i]..self.offsets[i + 1]]
+    }
+    /// The principal value of wall `i`'s own double layer, `K_ii ψ_i` at its grid points
+    /// (component-major), where the solve's equation gives it without a quadrature: a system of
+    /// one wall, where no other wall's layer enters. `None` otherwise.
+    pub fn own_double_layer(&self, i: usize) -> Option<&[f64]> {
+        self.own.get(i)?.as_deref()
     }
     /// The hydrodynamic force of the fluid (viscosity `viscosity`) on body `i`, `−μ ∫ψ_i dA`
     /// (zero for the container).
