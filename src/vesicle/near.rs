@@ -309,7 +309,7 @@ impl OffSurface {
             });
         }
         let (tp, pd) = closest_point(&mut self.point, &self.lay_p, &self.coefs, x, start);
-        let nv = super::cross(pd.xt, pd.xp);
+        let nv = self.point.normal(&self.lay_p, &self.coefs, tp, &pd);
         let r = [x[0] - pd.x[0], x[1] - pd.x[1], x[2] - pd.x[2]];
         let d = dot(r, r).sqrt();
         Ok(TargetInfo {
@@ -516,7 +516,9 @@ impl OffSurface {
                 let pd = self
                     .point
                     .eval(&self.lay_p, &self.coefs, info.closest.0, info.closest.1);
-                let nv = super::cross(pd.xt, pd.xp);
+                let nv = self
+                    .point
+                    .normal(&self.lay_p, &self.coefs, info.closest, &pd);
                 let nn = dot(nv, nv).sqrt();
                 let side = if info.inside { -1.0 } else { 1.0 };
                 let n = nv.map(|c| side * c / nn);

@@ -131,6 +131,26 @@ impl PointEval {
         }
     }
 
+    /// The outward normal `X_θ × X_φ` (not normalised) at `u = (θ, φ)`, with `pd` the
+    /// derivatives there. At a pole `X_φ` vanishes and the cross product has no direction of
+    /// its own; there `X_θ(φ)` is linear in `(cos φ, sin φ)`, so `X_φ/sin θ → ±X_θ(φ + π/2)`
+    /// (`+` at θ = 0, `−` at θ = π) and the limit `±X_θ(φ) × X_θ(φ + π/2)` is returned.
+    pub(crate) fn normal(
+        &mut self,
+        lay: &CoefLayout,
+        coefs: &[f64],
+        u: (f64, f64),
+        pd: &PointDerivs,
+    ) -> [f64; 3] {
+        let nv = super::cross(pd.xt, pd.xp);
+        if dot(nv, nv).sqrt() > 1e-8 * dot(pd.xt, pd.xt) {
+            return nv;
+        }
+        let quarter = self.eval(lay, coefs, u.0, u.1 + 0.5 * PI);
+        let sign = if u.0 < 0.5 * PI { 1.0 } else { -1.0 };
+        super::cross(pd.xt, quarter.xt).map(|v| sign * v)
+    }
+
     /// `X` and its first and second derivatives at `(θ, φ)` for `x, y, z` coefficients.
     pub(crate) fn eval(
         &mut self,

@@ -15,7 +15,7 @@
 
 use super::point::{closest_point, PointEval};
 use super::shapes::Surface;
-use super::{cross, dot, VesicleError};
+use super::{dot, VesicleError};
 use crate::linalg3::{dist3 as dist, dist3_squared as dist2};
 use crate::sph_harmonics::{CoefLayout, Grid, ShTransform};
 
@@ -236,25 +236,8 @@ impl SurfaceDistance {
             self.angles[start],
         );
         let mut y = pd.x;
-        let mut nv = cross(pd.xt, pd.xp);
-        if dot(nv, nv).sqrt() <= 1e-8 * dot(pd.xt, pd.xt) {
-            // At a pole `X_φ` vanishes and `X_θ × X_φ` has no direction of its own. There
-            // `X_θ(φ)` is linear in `(cos φ, sin φ)`, so `X_φ/sin θ → ±∂_φ X_θ = ±X_θ(φ + π/2)`
-            // (`+` at θ = 0, `−` at θ = π): the limit normal is `±X_θ(φ) × X_θ(φ + π/2)`.
-            let xt = pd.xt;
-            let quarter = scratch.point.eval(
-                &self.lay,
-                &self.coefs,
-                u.0,
-                u.1 + 0.5 * std::f64::consts::PI,
-            );
-            let sign = if u.0 < 0.5 * std::f64::consts::PI {
-                1.0
-            } else {
-                -1.0
-            };
-            nv = cross(xt, quarter.xt).map(|v| sign * v);
-        }
+        // The limit normal where the closest point is a pole.
+        let mut nv = scratch.point.normal(&self.lay, &self.coefs, u, &pd);
         // Newton can stall at a pole's degenerate parametrisation; the nearest sample is then
         // the better answer (its normal from the neighbouring surface directions is not known,
         // so take the direction from the centre as the fallback normal).
