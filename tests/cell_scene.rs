@@ -539,14 +539,14 @@ contact_distance = 0.05
     close(u.length_m, a, "length scale");
     close(u.time_s, t, "time scale");
     close(u.force_n(), g * a, "force scale");
-    let groups = mobo::scene::units::groups(&got).unwrap();
+    let groups = got.groups().unwrap();
     close(groups.capillary_number.unwrap(), mu * rate * a / g, "Ca");
     close(
         groups.reduced_bending.unwrap(),
         kappa / (g * a * a),
         "reduced bending",
     );
-    let by_hand = mobo::scene::units::groups(&want).unwrap();
+    let by_hand = want.groups().unwrap();
     close(groups.rate, by_hand.rate, "rate");
     close(
         groups.bending_capillary_number.unwrap(),

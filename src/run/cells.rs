@@ -787,7 +787,7 @@ impl<'a> CellRun<'a> {
                 walls: susp.wall_stats(),
             },
             units: scene.units,
-            dimensionless: crate::scene::units::groups(scene),
+            dimensionless: scene.groups(),
             area_drift: worst(|c| c.area_drift),
             volume_drift: worst(|c| c.volume_drift),
             centroid: mean3(|c| c.centroid),

@@ -2,7 +2,7 @@
 //! the numerics and the output, as [`super::cells::parse`] and
 //! [`super::spec::SceneSpec::build`] produce it.
 
-use super::units::UnitScales;
+use super::units::{Groups, UnitScales};
 use crate::gpu::GpuChoice;
 use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
@@ -306,6 +306,21 @@ pub struct CellScene {
     /// The physical scales of a scene written in SI units (`[units] system = "SI"`; `None`:
     /// the file's numbers are the solver's own). Every value above is dimensionless.
     pub units: Option<UnitScales>,
+}
+
+impl CellScene {
+    /// The dimensionless groups of the first cells (`None` without cells; in `summary.json`).
+    pub fn groups(&self) -> Option<Groups> {
+        let c = self.cells.first()?;
+        Some(Groups::of(
+            self.viscosity,
+            self.flow.rate_scale(),
+            c.radius,
+            c.shear_modulus,
+            c.bending_modulus,
+            c.viscosity_ratio,
+        ))
+    }
 }
 
 /// The shape of a wall.

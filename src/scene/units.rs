@@ -50,7 +50,6 @@ use std::ops::Range;
 use serde::Serialize;
 use toml::Spanned;
 
-use super::cell_scene::CellScene;
 use super::cells_schema::{File, UnitsSection};
 use super::SceneError;
 
@@ -229,17 +228,18 @@ pub struct Groups {
     pub viscosity_ratio: f64,
 }
 
-/// The groups of `scene`'s first cells (`None` without cells).
-pub fn groups(scene: &CellScene) -> Option<Groups> {
-    let c = scene.cells.first()?;
-    let (mu, rate, a) = (scene.viscosity, scene.flow.rate_scale(), c.radius);
-    let g = (c.shear_modulus > 0.0).then_some(c.shear_modulus);
-    let k = (c.bending_modulus > 0.0).then_some(c.bending_modulus);
-    Some(Groups {
-        rate,
-        capillary_number: g.map(|g| mu * rate * a / g),
-        reduced_bending: g.map(|g| c.bending_modulus / (g * a * a)),
-        bending_capillary_number: k.map(|k| mu * rate * a.powi(3) / k),
-        viscosity_ratio: c.viscosity_ratio,
-    })
+impl Groups {
+    /// The groups of cells of radius `a`, shear modulus `g` and bending modulus `k` (each ≤ 0 when
+    /// absent) and viscosity ratio `lambda`, in a fluid of viscosity `mu` at rate scale `rate`.
+    pub fn of(mu: f64, rate: f64, a: f64, g: f64, k: f64, lambda: f64) -> Groups {
+        let gs = (g > 0.0).then_some(g);
+        let ks = (k > 0.0).then_some(k);
+        Groups {
+            rate,
+            capillary_number: gs.map(|g| mu * rate * a / g),
+            reduced_bending: gs.map(|g| k / (g * a * a)),
+            bending_capillary_number: ks.map(|k| mu * rate * a.powi(3) / k),
+            viscosity_ratio: lambda,
+        }
+    }
 }
