@@ -80,6 +80,7 @@ pub mod fmm;
 pub mod gpu;
 pub mod io;
 pub mod linalg3;
+pub mod lu_pivots;
 pub mod report;
 pub mod run;
 pub mod scene;

@@ -51,6 +51,7 @@
 
 use std::sync::Mutex;
 
+use crate::lu_pivots;
 use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::DenseSolveCore;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
@@ -159,14 +160,8 @@ impl CellPreconditioner {
         drop(outputs);
         let abb = MatRef::from_column_major_slice(&abb, m, m);
         let lu = abb.partial_piv_lu();
-        let u = lu.U();
-        let (mut lo, mut hi) = (f64::INFINITY, 0.0_f64);
-        for i in 0..m {
-            lo = lo.min(u[(i, i)].abs());
-            hi = hi.max(u[(i, i)].abs());
-        }
-        let pivot_ratio = if hi > 0.0 { lo / hi } else { 0.0 };
-        if pivot_ratio.is_nan() || pivot_ratio <= MIN_PIVOT_RATIO {
+        let pivot_ratio = lu_pivots::pivot_ratio(lu.U());
+        if !lu_pivots::accepts(pivot_ratio, MIN_PIVOT_RATIO) {
             return Err(TimestepError::SingularBlock {
                 index: 0,
                 size: m,

@@ -1,5 +1,6 @@
 //! Linear operators `y = A x` and preconditioners `z = M⁻¹ v` for the Krylov solver.
 
+use crate::lu_pivots;
 use faer::linalg::matmul::matmul;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
 
@@ -285,15 +286,8 @@ impl BlockDiagonal {
                 }
             }
             let lu = b.partial_piv_lu();
-            let u = lu.U().to_owned();
-            let (mut lo, mut hi) = (f64::INFINITY, 0.0_f64);
-            for i in 0..nr {
-                let d = u[(i, i)].abs();
-                lo = lo.min(d);
-                hi = hi.max(d);
-            }
-            let pivot_ratio = if hi > 0.0 { lo / hi } else { 0.0 };
-            if pivot_ratio <= nr as f64 * f64::EPSILON {
+            let pivot_ratio = lu_pivots::pivot_ratio(lu.U());
+            if !lu_pivots::accepts(pivot_ratio, lu_pivots::roundoff_floor(nr)) {
                 return Err(TimestepError::SingularBlock {
                     index,
                     size: nr,
@@ -304,7 +298,7 @@ impl BlockDiagonal {
             out.push(LuBlock {
                 perm,
                 l: lu.L().to_owned(),
-                u,
+                u: lu.U().to_owned(),
             });
             offsets.push(offsets[index] + nr);
         }

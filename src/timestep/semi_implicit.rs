@@ -158,7 +158,8 @@
 //! and degrades the parametrisation; without it long runs at large `Δt` degenerate). The grid
 //! points then move along the surface, and everything the cell keeps per membrane point moves
 //! with them (relabelled by the same parameter map): the Skalak reference (otherwise the move
-//! reads as a strain), the tension, the membrane velocity and the BDF2 history `Xⁿ⁻¹`. The
+//! reads as a strain), the tension, the membrane velocity, the coupling velocity `vⁿ` (the next
+//! step's `vⁿ⁻¹`) and the BDF2 history `Xⁿ⁻¹`. The
 //! reference moves through its material labels and is composed afresh from its first surface
 //! ([`crate::vesicle::material_labels`]): relabelled itself, its re-fits at every move added up
 //! to a change of its shape. The

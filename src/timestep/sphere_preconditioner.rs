@@ -74,6 +74,7 @@
 
 use std::sync::{Arc, Mutex, Weak};
 
+use crate::lu_pivots;
 use faer::linalg::matmul::matmul;
 use faer::linalg::solvers::DenseSolveCore;
 use faer::{Accum, Mat, MatMut, MatRef, Par};
@@ -357,14 +358,8 @@ impl SpherePreconditioner {
             largest = largest.max(k);
             let blk = Mat::<f64>::from_fn(k, k, |i, j| b[(idx[i], idx[j])]);
             let lu = blk.partial_piv_lu();
-            let (mut lo, mut hi) = (f64::INFINITY, 0.0_f64);
-            let u = lu.U();
-            for i in 0..k {
-                lo = lo.min(u[(i, i)].abs());
-                hi = hi.max(u[(i, i)].abs());
-            }
-            let pivot_ratio = if hi > 0.0 { lo / hi } else { 0.0 };
-            if pivot_ratio <= k as f64 * f64::EPSILON {
+            let pivot_ratio = lu_pivots::pivot_ratio(lu.U());
+            if !lu_pivots::accepts(pivot_ratio, lu_pivots::roundoff_floor(k)) {
                 return Err(TimestepError::SingularBlock {
                     index,
                     size: k,

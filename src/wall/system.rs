@@ -3,6 +3,7 @@
 
 use std::f64::consts::PI;
 
+use crate::lu_pivots;
 use faer::linalg::solvers::{PartialPivLu, Solve};
 use faer::{Mat, MatMut};
 
@@ -157,14 +158,8 @@ impl WallSystem {
             }
         }
         let lu = m.partial_piv_lu();
-        let (mut lo, mut hi) = (f64::INFINITY, 0.0_f64);
-        let u = lu.U();
-        for i in 0..n {
-            lo = lo.min(u[(i, i)].abs());
-            hi = hi.max(u[(i, i)].abs());
-        }
-        let pivot_ratio = if hi > 0.0 { lo / hi } else { 0.0 };
-        if pivot_ratio.is_nan() || pivot_ratio <= n as f64 * f64::EPSILON {
+        let pivot_ratio = lu_pivots::pivot_ratio(lu.U());
+        if !lu_pivots::accepts(pivot_ratio, lu_pivots::roundoff_floor(n)) {
             return Err(WallError::Singular { pivot_ratio });
         }
         Ok(WallSystem {
