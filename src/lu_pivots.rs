@@ -25,11 +25,14 @@
 use faer::MatRef;
 
 /// `min_i |U_ii| / max_i |U_ii|` over the diagonal of the upper factor `u` (0 when every pivot
-/// is zero).
+/// is zero; NaN when a pivot is NaN, which [`accepts`] refuses).
 pub fn pivot_ratio(u: MatRef<'_, f64>) -> f64 {
     let (mut lo, mut hi) = (f64::INFINITY, 0.0_f64);
     for i in 0..u.nrows().min(u.ncols()) {
         let d = u[(i, i)].abs();
+        if d.is_nan() {
+            return f64::NAN;
+        }
         lo = lo.min(d);
         hi = hi.max(d);
     }
@@ -72,14 +75,18 @@ mod tests {
 
     #[test]
     fn a_singular_matrix_is_refused() {
-        // Rank 2: the third row is the sum of the first two.
-        let rows = [[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [5.0, 7.0, 9.0]];
+        // Rank 2: the third row is (first − second)/2, and every multiplier of the elimination
+        // (1/2, 1/4, then −1/2) is exact in binary, so the last pivot is exactly zero.
+        let rows = [[8.0, 1.0, 2.0], [4.0, 3.0, 1.0], [2.0, -1.0, 0.5]];
         let a = Mat::<f64>::from_fn(3, 3, |i, j| rows[i][j]);
         let lu = a.partial_piv_lu();
         let r = pivot_ratio(lu.U());
-        assert!(r <= roundoff_floor(3), "ratio {r:e}");
+        assert_eq!(r, 0.0);
         assert!(!accepts(r, roundoff_floor(3)));
         assert_eq!(pivot_ratio(Mat::<f64>::zeros(2, 2).as_ref()), 0.0);
         assert!(!accepts(f64::NAN, 0.0));
+        let nan_pivot =
+            Mat::<f64>::from_fn(2, 2, |i, j| if i == j { [1.0, f64::NAN][i] } else { 0.0 });
+        assert!(pivot_ratio(nan_pivot.as_ref()).is_nan());
     }
 }

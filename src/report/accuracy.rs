@@ -132,6 +132,7 @@ fn simulate(
     let mut times = Vec::with_capacity(steps);
     let mut iters = 0usize;
     let mut coupling = None;
+    susp.record_coupling(susp.len() > 1);
     let mut before: Vec<[f64; 3]> = Vec::new();
     for k in 1..=steps {
         if k == steps {
@@ -182,12 +183,10 @@ fn simulate(
             }
         }
         if k == 1 && susp.len() > 1 {
-            coupling = Some(
-                susp.cells()
-                    .iter()
-                    .map(|c| c.state.velocity.clone().unwrap_or_default())
-                    .collect(),
-            );
+            // As computed at the start of the step, before the reparametrisation relabelled
+            // the cells' copies onto a grid that depends on the step taken.
+            coupling = susp.recorded_coupling().map(<[Vec<f64>]>::to_vec);
+            susp.record_coupling(false);
         }
     }
     let mut velocity = Vec::with_capacity(susp.len());

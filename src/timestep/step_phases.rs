@@ -477,7 +477,8 @@ impl CellStepper {
     /// Relax the parametrisation after a step ([`Reparametrizer::run_with`]), relabelling every
     /// material quantity of the cell with the grid: the Skalak reference (otherwise the shear
     /// elasticity would see the tangential move as a strain), the tension, the membrane
-    /// velocity and the BDF2 history, so that each stays attached to the same membrane point.
+    /// velocity, the coupling's velocity, the near-implicit densities and the BDF2 history, so
+    /// that each stays attached to the same membrane point.
     pub(super) fn regrid(
         &self,
         engine: &mut StepEngine,
@@ -499,8 +500,8 @@ impl CellStepper {
         // The coupling's velocity of this step, `vⁿ`: the next step extrapolates
         // `(1 + ω) vⁿ⁺¹ − ω vⁿ` point by point, so `vⁿ` must sit on the grid `vⁿ⁺¹` is computed
         // on. Left on the old grid, the two differ by the reparametrisation's move (`O(Δt)`)
-        // times the velocity's gradient along the surface, a first-order error that shows
-        // where a neighbour is close (two RBCs 0.1 apart: order 1.1, 2.0 with the relabelling).
+        // times the velocity's gradient along the surface (docs/hard_cases.md: small beside the
+        // re-fit's own error in the cases measured).
         let mut coupling_c = vector_coefs(engine, state.velocity.as_deref(), nc)?;
         // The near-implicit coupling's densities of this step (traction, double-layer density),
         // extrapolated at the next step on the grid they will then sit on.

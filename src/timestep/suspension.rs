@@ -148,6 +148,9 @@ pub struct Suspension {
     contact_stats: ContactStats,
     /// Rigid walls around or among the cells (`None`: free space).
     walls: Option<super::wall_coupling::WallCoupling>,
+    /// The velocity each cell felt from the others (and the walls) at the start of the last
+    /// step, on the grid that step began on (`None`: not recorded; [`Suspension::record_coupling`]).
+    coupling_record: Option<Vec<Vec<f64>>>,
 }
 
 impl Suspension {
@@ -189,6 +192,7 @@ impl Suspension {
             n_global,
             coupling: None,
             inter_cell_double_layer: true,
+            coupling_record: None,
             contrast,
             storage: None,
             far_side: None,
@@ -533,6 +537,23 @@ impl Suspension {
         self.coupling_mode = mode;
     }
 
+    /// Record, at every step, the velocity each cell feels from the other cells and the walls,
+    /// as computed at the start of the step on the grid the step began on
+    /// ([`Suspension::recorded_coupling`]; off by default: it copies `3n` values per cell a
+    /// step). The cell's own copy, [`CellState::velocity`], is relabelled by the step's
+    /// reparametrisation for the next step's extrapolation, so it sits on a grid that depends on
+    /// the step taken.
+    pub fn record_coupling(&mut self, on: bool) {
+        self.coupling_record = on.then(Vec::new);
+    }
+
+    /// The velocities recorded at the start of the last step (per cell of this rank, in the
+    /// order of [`Suspension::ids`]); `None` when not recording, or before the first step (or
+    /// with a single cell and no walls: nothing couples).
+    pub fn recorded_coupling(&self) -> Option<&[Vec<f64>]> {
+        self.coupling_record.as_deref().filter(|r| !r.is_empty())
+    }
+
     /// What the near-implicit coupling did so far: clusters solved jointly, their cells, the
     /// largest, and their GMRES iterations (cumulative; zero with the explicit coupling).
     pub fn joint_stats(&self) -> JointStats {
@@ -682,6 +703,13 @@ impl Suspension {
                 }
             }
             self.add_wall_velocities(comm, u_inf, &tractions, &scaled)?;
+            if let Some(record) = &mut self.coupling_record {
+                *record = self
+                    .cells
+                    .iter()
+                    .map(|c| c.state.velocity.clone().unwrap_or_default())
+                    .collect();
+            }
             if self.coupling.is_some() {
                 densities = Some((tractions, scaled));
             }
