@@ -359,6 +359,10 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         fmm.comm.let_bytes_sent as f64,
         fmm.comm.top_bytes_received as f64,
         fmm.tree.roots[fmm.tree.rank].len() as f64,
+        {
+            let (repeated, all) = fmm.tree.repeated_far_work();
+            repeated as f64 / all.max(1) as f64
+        },
     ];
     let all = comm.gather_f64(&stats, 0)?;
     if comm.rank() != 0 {
@@ -420,6 +424,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         "rank_let_bytes_sent": as_int(col(15)),
         "rank_top_bytes_received": as_int(col(16)),
         "rank_local_roots": as_int(col(17)),
+        "rank_repeated_far_fraction": col(18),
         "rank_comm_s": col(4),
         "phases_max_s": phases_max,
     });

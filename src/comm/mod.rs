@@ -53,6 +53,9 @@ pub enum CommError {
     /// A message too long for MPI's 32-bit counts.
     #[error("communicator: a message of {0} values exceeds MPI's count limit")]
     TooLong(usize),
+    /// Two ranks disagree about what one sends the other (a bug, caught before it can hang).
+    #[error("communicator: ranks disagree: {0}")]
+    Disagree(String),
     /// Another rank failed; its message, agreed by every rank.
     #[error("rank {rank}: {message}")]
     Remote {

@@ -4,6 +4,7 @@ use std::cell::Cell;
 
 use mpi::collective::SystemOperation;
 use mpi::datatype::{Partition, PartitionMut};
+use mpi::environment::Threading;
 use mpi::topology::Communicator as _;
 use mpi::topology::SimpleCommunicator;
 use mpi::traits::*;
@@ -20,9 +21,18 @@ pub struct MpiComm {
 }
 
 impl MpiComm {
-    /// Initialise MPI (once per process); `None` if it was already initialised.
+    /// Initialise MPI (once per process) for ranks × threads: the thread that calls this is
+    /// the only one that calls MPI, while rayon's threads compute (`MPI_THREAD_FUNNELED`; an
+    /// `MpiComm` is not `Sync`, so the compiler keeps it on its thread). `None` if MPI was
+    /// already initialised.
     pub fn init() -> Option<Self> {
-        let universe = mpi::initialize()?;
+        let (universe, provided) = mpi::initialize_with_threading(Threading::Funneled)?;
+        if provided < Threading::Funneled && rayon::current_num_threads() > 1 {
+            eprintln!(
+                "warning: this MPI library provides {provided:?} threading, not Funneled; \
+                 run one thread per rank (RAYON_NUM_THREADS=1)"
+            );
+        }
         let world = universe.world();
         Some(MpiComm {
             world,

@@ -60,14 +60,26 @@ impl BoxKey {
         self.morton + (1u64 << Self::shift(self.level))
     }
 
-    /// Whether the key interval of the box overlaps `[lo, hi)`.
+    /// Whether the key interval of the box overlaps `[lo, hi)` (an empty interval overlaps
+    /// nothing).
     pub fn overlaps(&self, lo: u64, hi: u64) -> bool {
-        self.morton < hi && lo < self.end()
+        lo < hi && self.morton < hi && lo < self.end()
     }
 
     /// The parent box (`None` for the root).
     pub fn parent(&self) -> Option<Self> {
         (self.level > 0).then(|| Self::containing(self.morton, self.level - 1))
+    }
+
+    /// The 8 children, in octant order (`None` at the finest level).
+    pub fn children(&self) -> Option<[BoxKey; 8]> {
+        (self.level < FINE).then(|| {
+            let s = Self::shift(self.level + 1);
+            std::array::from_fn(|o| BoxKey {
+                level: self.level + 1,
+                morton: self.morton | ((o as u64) << s),
+            })
+        })
     }
 
     /// Which child of its parent the box is (x bit 2, y bit 1, z bit 0).
@@ -179,5 +191,38 @@ impl Domain {
     /// Half edge of the boxes at `level`.
     pub fn half(&self, level: u32) -> f64 {
         self.side / (1u64 << (level + 1)) as f64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A box's children are its octants in order, each with the box as parent, tiling its key
+    /// interval; the finest boxes have none.
+    #[test]
+    fn children_tile_the_parent() {
+        let b = BoxKey::containing(0x1234_5678_9abc, 5);
+        let ch = b.children().unwrap();
+        for (o, c) in ch.iter().enumerate() {
+            assert_eq!(c.parent(), Some(b));
+            assert_eq!(c.octant(), o);
+        }
+        assert_eq!(ch[0].morton, b.morton);
+        for w in ch.windows(2) {
+            assert_eq!(w[0].end(), w[1].morton);
+        }
+        assert_eq!(ch[7].end(), b.end());
+        assert!(BoxKey::containing(77, FINE).children().is_none());
+    }
+
+    /// An empty key interval (a rank that holds no keys) overlaps no box, not even the root.
+    #[test]
+    fn an_empty_interval_overlaps_nothing() {
+        let b = BoxKey::containing(1 << 40, 3);
+        assert!(b.overlaps(b.morton, b.morton + 1));
+        assert!(!b.overlaps(b.morton + 1, b.morton + 1));
+        assert!(!BoxKey::ROOT.overlaps(5, 5));
+        assert!(!b.overlaps(b.end(), b.end() + 10));
     }
 }

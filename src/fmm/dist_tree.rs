@@ -17,16 +17,36 @@
 //!    split regardless (its global count is known to exceed `leaf_size`). Boxes inside the
 //!    rank's key interval are *owned*; the others are *top* boxes.
 //! 4. **Top of the tree.** The owned boxes whose parent is not owned are the rank's *local
-//!    roots*. All ranks gather all local roots (key, leaf flag, counts; their upward
-//!    expansions at each evaluation) and compute the top boxes, their common ancestors, alike.
-//!    Its size is `O(K · depth)` records per rank: the cost that bites first at large `K`
-//!    (measured in `docs/scaling.md`).
-//! 5. **Locally essential tree.** Every owned box `S` with sources is sent to each other rank
-//!    whose key interval overlaps the 27 boxes around `S`'s parent: its upward expansion, and
-//!    its sources if it is a leaf. Any target box `T` that interacts with `S` (`S` in `T`'s U,
-//!    V, W or X list) lies in that region, so each rank receives exactly the boxes its lists
-//!    need (proof in `docs/scaling.md`), from neighbouring ranks only. The pattern is built once;
-//!    each evaluation moves only expansions and densities.
+//!    roots*. All ranks gather all local roots' records (key, leaf flag, counts) once, at
+//!    build, and so hold the same *top* boxes, the roots' common ancestors: `O(K · depth)`
+//!    records per rank. Their expansions do not travel to everyone. A top box is shared by the
+//!    ranks whose key intervals overlap it (at most two per level for each rank); the first of
+//!    them *owns* it. At each evaluation each sharer computes the box's partial upward expansion
+//!    from its own points (M2M and the fit are linear) and sends it to the owner, which sums
+//!    them and sends the whole expansion on to the ranks that overlap the box's far region
+//!    (below), the only ones whose V and W lists can hold it. Levels 0 and 1 are in no one's
+//!    lists and are skipped. So a rank receives `O(depth)` top expansions, not all `O(K ·
+//!    depth)` local roots (PVFMM's owner-based variant of the shared-box reduction).
+//! 5. **Locally essential tree.** Every owned box `S` with sources is described (key, leaf
+//!    flag, counts) to each other rank whose key interval overlaps the 27 boxes around `S`'s
+//!    parent, so that the rank's tree holds the structure its lists are found in. What moves at
+//!    each evaluation is narrower, the minimal LET of Lashuk et al. (SC'09):
+//!    * `S`'s upward expansion goes only to the ranks overlapping its *far region*, the boxes of
+//!      `S`'s level around its parent that do not touch `S`. A target `T` with `S` in its V list
+//!      is such a box; a leaf `T` with `S` in its W list is coarser, touches `S`'s parent and
+//!      not `S`, so it holds such a box.
+//!    * A leaf's sources (positions once, densities at each evaluation) go only to the ranks
+//!      overlapping the 27 boxes around `S` itself: `S` in the U list of `T` means `T` touches
+//!      `S`, and `S` in the X list of `T` means `T`'s parent touches `S`; either way `T` lies in
+//!      a box of `S`'s level that touches `S`. A leaf small enough to act on its W lists'
+//!      targets directly ([`TreeInput::direct_sources`]) also sends its sources to the ranks
+//!      that own a whole neighbour of its parent, the only ones that can own such a target.
+//!
+//!    A rank computes only boxes that overlap its key interval, so it receives exactly what its
+//!    lists use ([`DistTree::let_is_complete`] checks it), from neighbouring ranks only. Before
+//!    this split the expansion and the sources both went to the whole region around the parent
+//!    (216 boxes of `S`'s level instead of 189 and 27). The pattern is built once; each
+//!    evaluation moves only expansions and densities.
 //!
 //! Lists are found from keys by descending from the root through adjacent boxes, and kept in
 //! key order, so the same target box gets the same lists on any number of ranks.
@@ -171,6 +191,18 @@ impl GhostLink {
     }
 }
 
+/// The far region of `key`: the boxes of its level around its parent (the children of the
+/// parent's 27 neighbours) that do not touch it. The targets of `key`'s expansion (its V and W
+/// lists' owners) lie in it.
+fn far_region(key: &BoxKey) -> impl Iterator<Item = BoxKey> + '_ {
+    key.parent()
+        .into_iter()
+        .flat_map(|p| p.neighbourhood())
+        .filter_map(|n| n.children())
+        .flatten()
+        .filter(move |c| !c.adjacent(key))
+}
+
 /// Points as one rank receives them: sorted by (key, global index).
 struct Sorted {
     points: Vec<[f64; 3]>,
@@ -205,6 +237,9 @@ pub struct DistTree {
     /// Most points (sources and targets together) in a leaf, unless the leaf is at the
     /// smallest width allowed.
     pub leaf_size: usize,
+    /// Leaves with at most this many sources act on their W-list targets directly
+    /// ([`TreeInput::direct_sources`]).
+    pub direct_sources: usize,
     /// How source densities reach `sources` from the caller's order.
     pub source_route: Route,
     /// How results at `targets` go back to the caller's order.
@@ -215,6 +250,15 @@ pub struct DistTree {
     pub ghosts_out: Vec<GhostLink>,
     /// What this rank receives at each evaluation, one link per sending rank.
     pub ghosts_in: Vec<GhostLink>,
+    /// Top boxes this rank shares but does not own: its partial upward expansions, one link
+    /// per owner.
+    pub top_partials_out: Vec<GhostLink>,
+    /// Top boxes this rank owns: the other sharers' partial expansions, one link per sharer.
+    pub top_partials_in: Vec<GhostLink>,
+    /// Top boxes this rank owns: their whole expansions, one link per rank whose lists use them.
+    pub top_out: Vec<GhostLink>,
+    /// Top boxes this rank's lists use and another rank owns, one link per owner.
+    pub top_in: Vec<GhostLink>,
     /// Interaction lists of the boxes this rank computes.
     pub lists: Lists,
 }
@@ -432,6 +476,10 @@ pub struct TreeInput<'a> {
     pub leaf_size: usize,
     /// Boxes are not split below this edge length (RPY: the bead diameter).
     pub min_width: f64,
+    /// A leaf with at most this many sources acts on the leaves of its W lists directly, not
+    /// through its expansion (the point count of an equivalent surface; 0: never), so its
+    /// sources travel where its expansion goes ([`crate::fmm::near_field::NearList::w_direct`]).
+    pub direct_sources: usize,
 }
 
 impl DistTree {
@@ -493,11 +541,16 @@ impl DistTree {
             normals: src.normals,
             targets: tgt.points,
             leaf_size,
+            direct_sources: input.direct_sources,
             source_route: src.route,
             target_route: tgt.route,
             roots: vec![Vec::new(); k],
             ghosts_out: Vec::new(),
             ghosts_in: Vec::new(),
+            top_partials_out: Vec::new(),
+            top_partials_in: Vec::new(),
+            top_out: Vec::new(),
+            top_in: Vec::new(),
             lists: Lists::default(),
         };
         let mut boxes: HashMap<BoxKey, TreeBox> = HashMap::new();
@@ -580,10 +633,24 @@ impl DistTree {
                 continue;
             };
             let b = &boxes[key];
-            for r in tree.ranks_near(&parent) {
+            let far = tree.ranks_overlapping(far_region(key));
+            let near = if !b.leaf {
+                Vec::new()
+            } else if b.n_sources <= input.direct_sources {
+                // W lists use the sources of a small leaf.
+                let mut r = tree.ranks_overlapping(key.neighbourhood());
+                r.extend(tree.w_ranks(key));
+                r.sort_unstable();
+                r.dedup();
+                r
+            } else {
+                tree.ranks_overlapping(key.neighbourhood())
+            };
+            for r in tree.ranks_overlapping(parent.neighbourhood()) {
                 if r == me {
                     continue;
                 }
+                let expansion = far.binary_search(&r).is_ok();
                 let buf = &mut send[r];
                 buf.extend([
                     key.level as u64,
@@ -591,9 +658,12 @@ impl DistTree {
                     b.leaf as u64,
                     b.n_sources as u64,
                     b.n_targets as u64,
+                    expansion as u64,
                 ]);
-                sent_keys[r].push(*key);
-                if b.leaf {
+                if expansion {
+                    sent_keys[r].push(*key);
+                }
+                if near.binary_search(&r).is_ok() {
                     buf.push(b.sources.len() as u64);
                     for i in b.sources.clone() {
                         buf.extend(bits(tree.sources[i]));
@@ -628,8 +698,9 @@ impl DistTree {
                     morton: buf[at + 1],
                 };
                 let (leaf, ns, nt) = (buf[at + 2] == 1, buf[at + 3] as usize, buf[at + 4]);
-                let np = buf[at + 5] as usize;
-                at += 6;
+                let expansion = buf[at + 5] == 1;
+                let np = buf[at + 6] as usize;
+                at += 7;
                 let start = tree.sources.len();
                 for j in 0..np {
                     let p = &buf[at + j * w..at + (j + 1) * w];
@@ -647,7 +718,9 @@ impl DistTree {
                     e.sources = start..start + np;
                     link.sources.push(start..start + np);
                 }
-                keys.push(key);
+                if expansion {
+                    keys.push(key);
+                }
             }
             in_keys.push((r, keys));
             in_links.push(link);
@@ -679,15 +752,17 @@ impl DistTree {
         for (link, keys) in out_links.iter_mut().zip(&sent_keys) {
             link.boxes = keys.iter().map(idx).collect();
         }
-        tree.ghosts_out = out_links
-            .into_iter()
-            .filter(|l| !l.boxes.is_empty())
-            .collect();
+        // A link carries expansions, sources or both; one that carries neither (the rank
+        // only learns the structure) is dropped on both sides alike.
+        let carries = |l: &GhostLink| !l.boxes.is_empty() || !l.sources.is_empty();
+        tree.ghosts_out = out_links.into_iter().filter(carries).collect();
         for (link, (_, keys)) in in_links.iter_mut().zip(&in_keys) {
             link.boxes = keys.iter().map(idx).collect();
         }
-        tree.ghosts_in = in_links;
+        tree.ghosts_in = in_links.into_iter().filter(carries).collect();
         tree.lists = tree.interaction_lists();
+        tree.top_links();
+        tree.check_links(comm)?;
         Ok(tree)
     }
 
@@ -708,10 +783,10 @@ impl DistTree {
         }
     }
 
-    /// Ranks whose key intervals overlap the 27 boxes around `b` (b included).
-    fn ranks_near(&self, b: &BoxKey) -> Vec<usize> {
+    /// Ranks whose key intervals overlap any of `region`'s boxes, sorted.
+    fn ranks_overlapping(&self, region: impl IntoIterator<Item = BoxKey>) -> Vec<usize> {
         let mut out = Vec::new();
-        for n in b.neighbourhood() {
+        for n in region {
             let first = self.splitters.partition_point(|&s| s <= n.morton) - 1;
             let mut r = first;
             while r + 1 < self.splitters.len() && self.splitters[r] < n.end() {
@@ -726,6 +801,204 @@ impl DistTree {
         out
     }
 
+    /// The ranks sharing a top box (their key intervals overlap it), the first its owner.
+    fn sharers(&self, key: &BoxKey) -> Vec<usize> {
+        self.ranks_overlapping([*key])
+    }
+
+    /// The top boxes whose expansions move at each evaluation (levels from 2, with sources),
+    /// in key order on every rank: partials from sharers to owners, whole ones from owners to
+    /// the ranks overlapping each box's far region.
+    fn top_links(&mut self) {
+        let k = self.splitters.len() - 1;
+        let me = self.rank;
+        let links = || -> Vec<GhostLink> {
+            (0..k)
+                .map(|rank| GhostLink {
+                    rank,
+                    ..Default::default()
+                })
+                .collect()
+        };
+        let (mut p_out, mut p_in, mut t_out, mut t_in) = (links(), links(), links(), links());
+        for (b, bx) in self.boxes.iter().enumerate() {
+            if bx.role != Role::Top || bx.n_sources == 0 || bx.key.level < 2 {
+                continue;
+            }
+            let sharers = self.sharers(&bx.key);
+            let Some(&owner) = sharers.first() else {
+                continue;
+            };
+            if owner == me {
+                for &s in &sharers[1..] {
+                    p_in[s].boxes.push(b);
+                }
+                for r in self.ranks_overlapping(far_region(&bx.key)) {
+                    if r != me {
+                        t_out[r].boxes.push(b);
+                    }
+                }
+            } else {
+                if sharers.contains(&me) {
+                    p_out[owner].boxes.push(b);
+                }
+                if self
+                    .ranks_overlapping(far_region(&bx.key))
+                    .binary_search(&me)
+                    .is_ok()
+                {
+                    t_in[owner].boxes.push(b);
+                }
+            }
+        }
+        let keep = |v: Vec<GhostLink>| v.into_iter().filter(|l| !l.boxes.is_empty()).collect();
+        self.top_partials_out = keep(p_out);
+        self.top_partials_in = keep(p_in);
+        self.top_out = keep(t_out);
+        self.top_in = keep(t_in);
+    }
+
+    /// Check that every rank expects what its partners will send at each evaluation (the
+    /// three exchanges: top partials, LET, whole top boxes) and receives all its lists read
+    /// ([`DistTree::let_is_complete`]), so that a fault fails the build on every rank with its
+    /// reason instead of hanging, mixing messages or reading zeros later.
+    fn check_links(&self, comm: &dyn Communicator) -> Result<(), CommError> {
+        let k = self.splitters.len() - 1;
+        let kinds = [
+            (&self.top_partials_out, &self.top_partials_in),
+            (&self.ghosts_out, &self.ghosts_in),
+            (&self.top_out, &self.top_in),
+        ];
+        let counts = |l: &GhostLink| [l.boxes.len() as u64, l.len(0, 1) as u64];
+        let mut send = vec![vec![0u64; 2 * kinds.len()]; k];
+        let mut expect = vec![vec![0u64; 2 * kinds.len()]; k];
+        for (i, (out, inn)) in kinds.iter().enumerate() {
+            for l in out.iter() {
+                send[l.rank][2 * i..2 * i + 2].copy_from_slice(&counts(l));
+            }
+            for l in inn.iter() {
+                expect[l.rank][2 * i..2 * i + 2].copy_from_slice(&counts(l));
+            }
+        }
+        let got = comm.all_to_all_u64(&send)?;
+        let local = match (0..k).find(|&r| got[r] != expect[r]) {
+            Some(r) => Err(format!(
+                "rank {} expects (boxes, sources) per exchange {:?} from rank {r}, which sends {:?}",
+                self.rank, expect[r], got[r]
+            )),
+            None => self.let_is_complete(),
+        };
+        comm.agree(local).map_err(|e| match e {
+            CommError::Remote { message, .. } => CommError::Disagree(message),
+            e => e,
+        })
+    }
+
+    /// The ranks that may hold `key` in the W list of one of their owned leaves. Such a leaf
+    /// `T` is at least as large as `key`'s parent, touches the parent and not `key`, and lies
+    /// inside its owner's key interval; so it covers a whole neighbour `N` of the parent that
+    /// does not touch `key`, and the owner's interval contains all of `N`'s keys (one rank at
+    /// most per `N`).
+    fn w_ranks(&self, key: &BoxKey) -> Vec<usize> {
+        let Some(parent) = key.parent() else {
+            return Vec::new();
+        };
+        let mut out: Vec<usize> = parent
+            .neighbourhood()
+            .into_iter()
+            .filter(|n| !n.adjacent(key))
+            .filter_map(|n| {
+                let r = self.splitters.partition_point(|&s| s <= n.morton) - 1;
+                (r + 1 < self.splitters.len() && n.end() <= self.splitters[r + 1]).then_some(r)
+            })
+            .collect();
+        out.sort_unstable();
+        out.dedup();
+        out
+    }
+
+    /// The far-field work this rank repeats: the M2L pairs (V-list entries) and P2L sources
+    /// (X-list entries) of the top boxes it computes and does not own, which their owner and
+    /// every other sharer compute too; `(repeated, all)` over the boxes this rank computes.
+    pub fn repeated_far_work(&self) -> (u64, u64) {
+        let (mut repeated, mut all) = (0u64, 0u64);
+        for (b, bx) in self.boxes.iter().enumerate() {
+            if !self.computes_down(b) {
+                continue;
+            }
+            let work = (self.lists.v[b].len() + self.lists.x[b].len()) as u64;
+            all += work;
+            if bx.role == Role::Top && self.sharers(&bx.key).first() != Some(&self.rank) {
+                repeated += work;
+            }
+        }
+        (repeated, all)
+    }
+
+    /// Whether the key interval of this rank overlaps box `key`.
+    pub fn overlaps_mine(&self, key: &BoxKey) -> bool {
+        key.overlaps(self.splitters[self.rank], self.splitters[self.rank + 1])
+    }
+
+    /// Whether every box of another rank (ghost) or shared (top) in the lists of the boxes this
+    /// rank computes arrives at each evaluation with what the list uses: its whole upward
+    /// expansion (V and W lists) or its sources (U and X lists). `Err` names the first box that would be read without its data.
+    pub fn let_is_complete(&self) -> Result<(), String> {
+        let mut expansion = vec![false; self.boxes.len()];
+        for l in &self.ghosts_in {
+            for &b in &l.boxes {
+                expansion[b] = true;
+            }
+        }
+        for l in &self.top_in {
+            for &b in &l.boxes {
+                expansion[b] = true;
+            }
+        }
+        for (b, bx) in self.boxes.iter().enumerate() {
+            if bx.role == Role::Top && self.sharers(&bx.key).first() == Some(&self.rank) {
+                expansion[b] = true;
+            }
+        }
+        let ghost = |b: usize| self.boxes[b].role == Role::Ghost && self.boxes[b].n_sources > 0;
+        let elsewhere = |b: usize| self.boxes[b].role != Role::Owned && self.boxes[b].n_sources > 0;
+        for t in 0..self.boxes.len() {
+            let needs_expansion = self.lists.v[t].iter().chain(&self.lists.w[t]);
+            if let Some(&s) = needs_expansion
+                .filter(|&&s| elsewhere(s))
+                .find(|&&s| !expansion[s])
+            {
+                return Err(format!(
+                    "box {:?} is in a V or W list of {:?} without its expansion",
+                    self.boxes[s].key, self.boxes[t].key
+                ));
+            }
+            let direct_w = self.lists.w[t]
+                .iter()
+                .filter(|&&w| self.boxes[w].leaf && self.boxes[w].n_sources <= self.direct_sources);
+            let needs_sources = self.lists.u[t]
+                .iter()
+                .chain(&self.lists.x[t])
+                .chain(direct_w);
+            let missing = |&&s: &&usize| self.boxes[s].sources.len() != self.boxes[s].n_sources;
+            if let Some(&s) = needs_sources.filter(|&&s| ghost(s)).find(missing) {
+                let sb = &self.boxes[s];
+                return Err(format!(
+                    "rank {}: box {:?} (leaf {}, {} of {} sources here) is in a U, X or direct W \
+                     list of {:?} without its sources (splitters {:?})",
+                    self.rank,
+                    sb.key,
+                    sb.leaf,
+                    sb.sources.len(),
+                    sb.n_sources,
+                    self.boxes[t].key,
+                    self.splitters
+                ));
+            }
+        }
+        Ok(())
+    }
+
     /// Number of levels.
     pub fn depth(&self) -> u32 {
         (self.level_start.len() - 1) as u32
@@ -738,9 +1011,7 @@ impl DistTree {
         bx.n_targets > 0
             && match bx.role {
                 Role::Owned => true,
-                Role::Top => bx
-                    .key
-                    .overlaps(self.splitters[self.rank], self.splitters[self.rank + 1]),
+                Role::Top => self.overlaps_mine(&bx.key),
                 Role::Ghost => false,
             }
     }

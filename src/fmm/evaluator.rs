@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use super::blocks::SourceBlock;
 use super::calibration;
-use super::dist_tree::{DistTree, Role, TreeInput};
+use super::dist_tree::{DistTree, GhostLink, Role, TreeInput};
 use super::fit_cache;
 pub use super::kernels::FmmKernel;
 use super::kernels::Kernel;
@@ -159,10 +159,13 @@ pub struct FmmComm {
     pub ranks: usize,
     /// Bytes this rank sent to other ranks during the evaluation (both parts below).
     pub bytes_sent: u64,
-    /// Of these, the locally essential tree sent point to point to neighbouring ranks.
+    /// Of these, the locally essential tree (ghost boxes' expansions and leaf densities, point
+    /// to point to neighbouring ranks) and the routing of densities and results between the
+    /// caller's ranks and the owners: all but the top of the tree.
     pub let_bytes_sent: u64,
-    /// Bytes of every other rank's local-root expansions this rank received in the all-gather
-    /// of the top of the tree (`ne · 8 · Σ_{r≠me} roots_r`: the part that grows with `K`).
+    /// Bytes of top-box expansions this rank received: other sharers' partial expansions of the
+    /// top boxes it owns, and the whole expansions of the top boxes its lists use
+    /// (`8 · ne` per box; `O(depth)` boxes, see [`super::dist_tree`]).
     pub top_bytes_received: u64,
     /// Seconds spent in communication (included in the phase total).
     pub seconds: f64,
@@ -346,6 +349,7 @@ impl Fmm {
             targets,
             leaf_size,
             min_width,
+            direct_sources: CubeSurface::new(order).len(),
         };
         // Operators on a helper thread while this one (which owns the communicator) builds
         // the tree.
@@ -551,6 +555,9 @@ impl Fmm {
         let clock = PhaseClock::new();
         let mut up = vec![0.0; self.tree.boxes.len() * ne];
         self.upward(&mut up, Role::Owned, &clock);
+        // This rank's partial expansions of the top boxes it shares (from its own points only:
+        // the other ranks' boxes are still zero), summed by their owners in `share_upward`.
+        self.upward(&mut up, Role::Top, &clock);
         let tc = Instant::now();
         self.share_upward(comm, &mut up, &mut dens)?;
         comm_s += tc.elapsed().as_secs_f64();
@@ -562,9 +569,8 @@ impl Fmm {
         }
         let dt = self.near.output_dim();
         let n_sorted = self.tree.targets.len() * dt;
-        let mut far = |clock: &PhaseClock| {
+        let far = |clock: &PhaseClock| {
             let t = Instant::now();
-            self.upward(&mut up, Role::Top, clock);
             let down = self.downward(&up, clock);
             let sorted = self.leaves(&up, &down, clock);
             (sorted, t.elapsed().as_secs_f64())
@@ -615,27 +621,31 @@ impl Fmm {
             far_wall,
             total: t0.elapsed().as_secs_f64(),
         };
-        let ne = self.ops.n_equiv() as u64;
         let tree = &self.tree;
-        let roots_elsewhere: usize = (0..ranks)
-            .filter(|&r| r != tree.rank)
-            .map(|r| tree.roots[r].len())
-            .sum();
-        let gathered = 8 * ne * tree.roots[tree.rank].len() as u64 * (ranks as u64 - 1);
+        let top_bytes = |links: [&[GhostLink]; 2]| -> u64 {
+            let boxes: usize = links
+                .iter()
+                .flat_map(|l| l.iter())
+                .map(|l| l.boxes.len())
+                .sum();
+            8 * (ne * boxes) as u64
+        };
+        let top_sent = top_bytes([&tree.top_partials_out, &tree.top_out]);
         let bytes_sent = comm.bytes_sent() - bytes0;
         self.comm = FmmComm {
             ranks,
             bytes_sent,
-            let_bytes_sent: bytes_sent.saturating_sub(gathered),
-            top_bytes_received: 8 * ne * roots_elsewhere as u64,
+            let_bytes_sent: bytes_sent.saturating_sub(top_sent),
+            top_bytes_received: top_bytes([&tree.top_partials_in, &tree.top_in]),
             seconds: comm_s,
         };
         Ok(())
     }
 
-    /// After the owned upward pass: every rank's local roots' expansions to all ranks (the top
-    /// of the tree), and the ghost boxes' expansions and leaf densities to the neighbours that
-    /// need them (into `up` and the ghost part of `dens`).
+    /// After the upward pass over this rank's own boxes and its partial top boxes: the top
+    /// boxes' partial expansions to their owners, who sum them; the ghost boxes' expansions and
+    /// leaf densities to the neighbours that need them (into `up` and the ghost part of
+    /// `dens`); the owned top boxes' whole expansions to the ranks whose lists use them.
     fn share_upward(
         &self,
         comm: &dyn Communicator,
@@ -645,45 +655,23 @@ impl Fmm {
         let ne = self.ops.n_equiv();
         let ds = self.near.density_dim();
         let tree = &self.tree;
-        let mine: Vec<f64> = tree.roots[tree.rank]
-            .iter()
-            .flat_map(|&b| up[b * ne..(b + 1) * ne].iter().copied())
-            .collect();
-        let all = comm.all_gather_f64(&mine)?;
-        for (r, vals) in all.iter().enumerate() {
-            if r == tree.rank {
-                continue;
-            }
-            for (&b, v) in tree.roots[r].iter().zip(vals.chunks_exact(ne)) {
-                up[b * ne..(b + 1) * ne].copy_from_slice(v);
+        let got = exchange_links(
+            comm,
+            &tree.top_partials_out,
+            &tree.top_partials_in,
+            up,
+            dens,
+            ne,
+            ds,
+        )?;
+        for (l, buf) in tree.top_partials_in.iter().zip(&got) {
+            for (&bx, v) in l.boxes.iter().zip(buf.chunks_exact(ne)) {
+                for (u, x) in up[bx * ne..(bx + 1) * ne].iter_mut().zip(v) {
+                    *u += x;
+                }
             }
         }
-        let bufs: Vec<Vec<f64>> = tree
-            .ghosts_out
-            .iter()
-            .map(|l| {
-                let mut b = Vec::with_capacity(l.len(ne, ds));
-                for &bx in &l.boxes {
-                    b.extend_from_slice(&up[bx * ne..(bx + 1) * ne]);
-                }
-                for r in &l.sources {
-                    b.extend_from_slice(&dens[r.start * ds..r.end * ds]);
-                }
-                b
-            })
-            .collect();
-        let sends: Vec<(usize, &[f64])> = tree
-            .ghosts_out
-            .iter()
-            .zip(&bufs)
-            .map(|(l, b)| (l.rank, b.as_slice()))
-            .collect();
-        let recvs: Vec<(usize, usize)> = tree
-            .ghosts_in
-            .iter()
-            .map(|l| (l.rank, l.len(ne, ds)))
-            .collect();
-        let got = comm.exchange_f64(&sends, &recvs)?;
+        let got = exchange_links(comm, &tree.ghosts_out, &tree.ghosts_in, up, dens, ne, ds)?;
         for (l, buf) in tree.ghosts_in.iter().zip(&got) {
             let mut at = 0;
             for &bx in &l.boxes {
@@ -694,6 +682,12 @@ impl Fmm {
                 let n = r.len() * ds;
                 dens[r.start * ds..r.end * ds].copy_from_slice(&buf[at..at + n]);
                 at += n;
+            }
+        }
+        let got = exchange_links(comm, &tree.top_out, &tree.top_in, up, dens, ne, ds)?;
+        for (l, buf) in tree.top_in.iter().zip(&got) {
+            for (&bx, v) in l.boxes.iter().zip(buf.chunks_exact(ne)) {
+                up[bx * ne..(bx + 1) * ne].copy_from_slice(v);
             }
         }
         Ok(())
@@ -707,8 +701,14 @@ impl Fmm {
         let nc = self.ops.n_check();
         let tree = &self.tree;
         for level in (0..tree.depth() as usize).rev() {
+            // A top box that does not overlap this rank has no part of this rank's points.
             let sel: Vec<usize> = (tree.level_start[level]..tree.level_start[level + 1])
-                .filter(|&b| tree.boxes[b].role == role && tree.boxes[b].n_sources > 0)
+                .filter(|&b| {
+                    let bx = &tree.boxes[b];
+                    bx.role == role
+                        && bx.n_sources > 0
+                        && (role != Role::Top || tree.overlaps_mine(&bx.key))
+                })
                 .collect();
             if sel.is_empty() {
                 continue;
@@ -991,7 +991,6 @@ impl Fmm {
     fn leaves(&self, up: &[f64], down: &[f64], clock: &PhaseClock) -> Vec<f64> {
         let dt = self.near.output_dim();
         let ne = self.ops.n_equiv();
-        let n_surf = self.ops.surf.len();
         let tree = &self.tree;
         let mut leaves: Vec<usize> = (0..tree.boxes.len())
             .filter(|&b| {
@@ -1033,7 +1032,7 @@ impl Fmm {
                 // M2P (the W list's small leaves are in the near field).
                 for &w in &tree.lists.w[bx] {
                     let wn = &tree.boxes[w];
-                    if wn.n_sources == 0 || NearList::w_direct(tree, w, n_surf) {
+                    if wn.n_sources == 0 || NearList::w_direct(tree, w) {
                         continue;
                     }
                     self.equivalent_to_targets(s, &up[w * ne..(w + 1) * ne], w, INNER, tgts, vals);
@@ -1094,4 +1093,38 @@ fn gather_gemm_scatter(
     for (k, &(d, _)) in pairs.iter().enumerate() {
         reflection.scatter_add(&y[k * nr..(k + 1) * nr], &mut out[d * nr..(d + 1) * nr]);
     }
+}
+
+/// One exchange over `out` (sent) and `inn` (received) links: each link's boxes' expansions
+/// from `up`, then its sources' densities from `dens`, in the link's order; one buffer per
+/// received link.
+fn exchange_links(
+    comm: &dyn Communicator,
+    out: &[GhostLink],
+    inn: &[GhostLink],
+    up: &[f64],
+    dens: &[f64],
+    ne: usize,
+    ds: usize,
+) -> Result<Vec<Vec<f64>>, FmmError> {
+    let bufs: Vec<Vec<f64>> = out
+        .iter()
+        .map(|l| {
+            let mut b = Vec::with_capacity(l.len(ne, ds));
+            for &bx in &l.boxes {
+                b.extend_from_slice(&up[bx * ne..(bx + 1) * ne]);
+            }
+            for r in &l.sources {
+                b.extend_from_slice(&dens[r.start * ds..r.end * ds]);
+            }
+            b
+        })
+        .collect();
+    let sends: Vec<(usize, &[f64])> = out
+        .iter()
+        .zip(&bufs)
+        .map(|(l, b)| (l.rank, b.as_slice()))
+        .collect();
+    let recvs: Vec<(usize, usize)> = inn.iter().map(|l| (l.rank, l.len(ne, ds))).collect();
+    Ok(comm.exchange_f64(&sends, &recvs)?)
 }

@@ -281,6 +281,7 @@ mod tests {
                 targets: &pts,
                 leaf_size: 60,
                 min_width: 0.0,
+                direct_sources: 0,
             };
             let tree = DistTree::build(&SerialComm, &input).unwrap();
             let (mut blocks, mut pairs) = (0, 0);

@@ -41,7 +41,7 @@ impl NearList {
                 }
             };
             for &w in &tree.lists.w[b] {
-                if Self::w_direct(tree, w, n_surf) {
+                if Self::w_direct(tree, w) {
                     push(&tree.boxes[w].sources);
                 }
             }
@@ -59,11 +59,12 @@ impl NearList {
         list
     }
 
-    /// Whether W-list box `w` acts on a leaf's targets directly (a leaf with fewer sources than
-    /// surface points) rather than through its equivalent density (M2P).
-    pub fn w_direct(tree: &DistTree, w: usize, n_surf: usize) -> bool {
+    /// Whether W-list box `w` acts on a leaf's targets directly (a leaf with at most
+    /// [`DistTree::direct_sources`] sources: fewer than the surface points) rather than
+    /// through its equivalent density (M2P).
+    pub fn w_direct(tree: &DistTree, w: usize) -> bool {
         let wn = &tree.boxes[w];
-        wn.leaf && wn.n_sources > 0 && wn.n_sources <= n_surf
+        wn.leaf && wn.n_sources > 0 && wn.n_sources <= tree.direct_sources
     }
 
     /// Whether the X list of leaf `b` acts directly on its targets (a leaf with fewer targets
