@@ -22,9 +22,9 @@ pub struct MpiComm {
 
 impl MpiComm {
     /// Initialise MPI (once per process) for ranks × threads: the thread that calls this is
-    /// the only one that calls MPI, while rayon's threads compute (`MPI_THREAD_FUNNELED`; an
-    /// `MpiComm` is not `Sync`, so the compiler keeps it on its thread). `None` if MPI was
-    /// already initialised.
+    /// the only one that should call MPI, while rayon's threads compute (`MPI_THREAD_FUNNELED`;
+    /// an `MpiComm` is not `Sync`, so it cannot be shared with rayon's workers, and the run
+    /// loops keep it on the thread that made it). `None` if MPI was already initialised.
     pub fn init() -> Option<Self> {
         let (universe, provided) = mpi::initialize_with_threading(Threading::Funneled)?;
         if provided < Threading::Funneled && rayon::current_num_threads() > 1 {

@@ -25,8 +25,11 @@
 //!    from its own points (M2M and the fit are linear) and sends it to the owner, which sums
 //!    them and sends the whole expansion on to the ranks that overlap the box's far region
 //!    (below), the only ones whose V and W lists can hold it. Levels 0 and 1 are in no one's
-//!    lists and are skipped. So a rank receives `O(depth)` top expansions, not all `O(K ·
-//!    depth)` local roots (PVFMM's owner-based variant of the shared-box reduction).
+//!    lists and are skipped. So a rank receives the top expansions its lists use (up to 189
+//!    per level for each box it computes) and, as an owner, one partial per other sharer, not
+//!    all `O(K · depth)` local roots. A box of level `ℓ` has about `K / 8^ℓ + 2` sharers, so
+//!    past `K ≈ 64` the owner of a level-2 box receives `O(K)` partials and sends to `O(K)`
+//!    ranks: a reduction over the sharers in `log K` stages (PVFMM's hypercube) would bound it.
 //! 5. **Locally essential tree.** Every owned box `S` with sources is described (key, leaf
 //!    flag, counts) to each other rank whose key interval overlaps the 27 boxes around `S`'s
 //!    parent, so that the rank's tree holds the structure its lists are found in. What moves at
@@ -478,7 +481,8 @@ pub struct TreeInput<'a> {
     pub min_width: f64,
     /// A leaf with at most this many sources acts on the leaves of its W lists directly, not
     /// through its expansion (the point count of an equivalent surface; 0: never), so its
-    /// sources travel where its expansion goes ([`crate::fmm::near_field::NearList::w_direct`]).
+    /// sources also travel to the ranks that can own such a W-list leaf
+    /// ([`crate::fmm::near_field::NearList::w_direct`]).
     pub direct_sources: usize,
 }
 

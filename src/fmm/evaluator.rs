@@ -165,7 +165,7 @@ pub struct FmmComm {
     pub let_bytes_sent: u64,
     /// Bytes of top-box expansions this rank received: other sharers' partial expansions of the
     /// top boxes it owns, and the whole expansions of the top boxes its lists use
-    /// (`8 · ne` per box; `O(depth)` boxes, see [`super::dist_tree`]).
+    /// (`8 · ne` per box; see [`super::dist_tree`] for how many).
     pub top_bytes_received: u64,
     /// Seconds spent in communication (included in the phase total).
     pub seconds: f64,
@@ -694,8 +694,9 @@ impl Fmm {
     }
 
     /// Upward pass over the boxes of one role with sources (owned: from this rank's points;
-    /// top: from the local roots of all ranks), level by level: P2M and M2M into upward check
-    /// potentials, one fit (GEMM) per level.
+    /// top: the partial expansions of the top boxes overlapping this rank, from its own local
+    /// roots, before any other rank's data has arrived), level by level: P2M and M2M into
+    /// upward check potentials, one fit (GEMM) per level.
     fn upward(&self, up: &mut [f64], role: Role, clock: &PhaseClock) {
         let ne = self.ops.n_equiv();
         let nc = self.ops.n_check();
