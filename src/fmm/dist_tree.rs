@@ -791,8 +791,7 @@ impl DistTree {
     fn ranks_overlapping(&self, region: impl IntoIterator<Item = BoxKey>) -> Vec<usize> {
         let mut out = Vec::new();
         for n in region {
-            let first = self.splitters.partition_point(|&s| s <= n.morton) - 1;
-            let mut r = first;
+            let mut r = self.rank_of(n.morton);
             while r + 1 < self.splitters.len() && self.splitters[r] < n.end() {
                 if self.splitters[r] < self.splitters[r + 1] {
                     out.push(r);
@@ -805,9 +804,21 @@ impl DistTree {
         out
     }
 
+    /// The rank whose key interval holds the finest key `key` (the last of equal splitters:
+    /// never an empty interval).
+    fn rank_of(&self, key: u64) -> usize {
+        self.splitters.partition_point(|&s| s <= key) - 1
+    }
+
     /// The ranks sharing a top box (their key intervals overlap it), the first its owner.
     fn sharers(&self, key: &BoxKey) -> Vec<usize> {
         self.ranks_overlapping([*key])
+    }
+
+    /// Whether box `b` is a top box this rank owns (its first sharer).
+    fn owns_top(&self, b: usize) -> bool {
+        let bx = &self.boxes[b];
+        bx.role == Role::Top && self.sharers(&bx.key).first() == Some(&self.rank)
     }
 
     /// The top boxes whose expansions move at each evaluation (levels from 2, with sources),
@@ -833,24 +844,19 @@ impl DistTree {
             let Some(&owner) = sharers.first() else {
                 continue;
             };
+            let users = self.ranks_overlapping(far_region(&bx.key));
             if owner == me {
                 for &s in &sharers[1..] {
                     p_in[s].boxes.push(b);
                 }
-                for r in self.ranks_overlapping(far_region(&bx.key)) {
-                    if r != me {
-                        t_out[r].boxes.push(b);
-                    }
+                for &r in users.iter().filter(|&&r| r != me) {
+                    t_out[r].boxes.push(b);
                 }
             } else {
                 if sharers.contains(&me) {
                     p_out[owner].boxes.push(b);
                 }
-                if self
-                    .ranks_overlapping(far_region(&bx.key))
-                    .binary_search(&me)
-                    .is_ok()
-                {
+                if users.binary_search(&me).is_ok() {
                     t_in[owner].boxes.push(b);
                 }
             }
@@ -912,7 +918,7 @@ impl DistTree {
             .into_iter()
             .filter(|n| !n.adjacent(key))
             .filter_map(|n| {
-                let r = self.splitters.partition_point(|&s| s <= n.morton) - 1;
+                let r = self.rank_of(n.morton);
                 (r + 1 < self.splitters.len() && n.end() <= self.splitters[r + 1]).then_some(r)
             })
             .collect();
@@ -932,7 +938,7 @@ impl DistTree {
             }
             let work = (self.lists.v[b].len() + self.lists.x[b].len()) as u64;
             all += work;
-            if bx.role == Role::Top && self.sharers(&bx.key).first() != Some(&self.rank) {
+            if bx.role == Role::Top && !self.owns_top(b) {
                 repeated += work;
             }
         }
@@ -959,10 +965,8 @@ impl DistTree {
                 expansion[b] = true;
             }
         }
-        for (b, bx) in self.boxes.iter().enumerate() {
-            if bx.role == Role::Top && self.sharers(&bx.key).first() == Some(&self.rank) {
-                expansion[b] = true;
-            }
+        for (b, e) in expansion.iter_mut().enumerate() {
+            *e |= self.owns_top(b);
         }
         let ghost = |b: usize| self.boxes[b].role == Role::Ghost && self.boxes[b].n_sources > 0;
         let elsewhere = |b: usize| self.boxes[b].role != Role::Owned && self.boxes[b].n_sources > 0;

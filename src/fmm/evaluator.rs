@@ -671,23 +671,22 @@ impl Fmm {
                 }
             }
         }
-        let got = exchange_links(comm, &tree.ghosts_out, &tree.ghosts_in, up, dens, ne, ds)?;
-        for (l, buf) in tree.ghosts_in.iter().zip(&got) {
-            let mut at = 0;
-            for &bx in &l.boxes {
-                up[bx * ne..(bx + 1) * ne].copy_from_slice(&buf[at..at + ne]);
-                at += ne;
-            }
-            for r in &l.sources {
-                let n = r.len() * ds;
-                dens[r.start * ds..r.end * ds].copy_from_slice(&buf[at..at + n]);
-                at += n;
-            }
-        }
-        let got = exchange_links(comm, &tree.top_out, &tree.top_in, up, dens, ne, ds)?;
-        for (l, buf) in tree.top_in.iter().zip(&got) {
-            for (&bx, v) in l.boxes.iter().zip(buf.chunks_exact(ne)) {
-                up[bx * ne..(bx + 1) * ne].copy_from_slice(v);
+        for (out, inn) in [
+            (&tree.ghosts_out, &tree.ghosts_in),
+            (&tree.top_out, &tree.top_in),
+        ] {
+            let got = exchange_links(comm, out, inn, up, dens, ne, ds)?;
+            for (l, buf) in inn.iter().zip(&got) {
+                let mut at = 0;
+                for &bx in &l.boxes {
+                    up[bx * ne..(bx + 1) * ne].copy_from_slice(&buf[at..at + ne]);
+                    at += ne;
+                }
+                for r in &l.sources {
+                    let n = r.len() * ds;
+                    dens[r.start * ds..r.end * ds].copy_from_slice(&buf[at..at + n]);
+                    at += n;
+                }
             }
         }
         Ok(())
