@@ -10,8 +10,9 @@ on a 2-core machine with `--oversubscribe`:
 
 Prints one Markdown row per K: max over ranks of the bytes sent (all of the evaluation: routing,
 LET, top), of the LET + routing part, of the top-of-tree bytes received, and their ratios to
-the first K, and the largest share of a rank's far-field work (M2L pairs and P2L sources) spent on
-top boxes that other ranks compute too.
+the first K, the largest share of a rank's far-field work (M2L pairs and P2L sources) spent on
+top boxes that other ranks compute too, the most bytes a rank sent while building the tree
+(splitters, routing of the points, LET structure), and the points' balance over ranks.
 """
 import argparse, json, os, subprocess, sys, tempfile
 import numpy as np
@@ -33,8 +34,9 @@ def main():
     ap.add_argument("--digits", type=int, default=6)
     a = ap.parse_args()
     print("| K | N | max MB sent | max LET + routing MB | max top MB received | "
-          "ratio sent | ratio LET | ratio top | max repeated far work |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "ratio sent | ratio LET | ratio top | max repeated far work | max setup MB sent | "
+          "points max/mean |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     base = None
     with tempfile.TemporaryDirectory() as tmp:
         for k in [int(x) for x in a.ranks.split(",")]:
@@ -61,7 +63,15 @@ def main():
             r = [x / b if b else float("nan") for x, b in zip(row, base)]
             print(f"| {k} | {n} | {row[0] / 1e6:.2f} | {row[1] / 1e6:.2f} | {row[2] / 1e6:.2f} | "
                   f"{r[0]:.2f} | {r[1]:.2f} | {r[2]:.2f} | "
-                  f"{100 * max(info['rank_repeated_far_fraction']):.1f} % |", flush=True)
+                  f"{100 * max(info['rank_repeated_far_fraction']):.1f} % | "
+                  f"{max(info.get('rank_setup_bytes_sent', [0])) / 1e6:.3f} | "
+                  f"{balance(info):.3f} |", flush=True)
+
+
+def balance(info):
+    """Largest rank's share of the points (sources and targets) over the mean."""
+    load = [s + t for s, t in zip(info["rank_sources"], info["rank_targets"])]
+    return max(load) / (sum(load) / len(load))
 
 
 if __name__ == "__main__":

@@ -4,8 +4,9 @@
 //! each rank holding a scattered share of the points: the gathered K-rank result equals the
 //! one-rank result to 1e-12 relative, and both equal direct sums to the requested digits.
 //! New densities on the same tree (at 3 digits), separate targets, a rank with bad input
-//! (every rank gets one error naming that rank; none hangs), and `mpirun -n K mobo fmm` (the
-//! same file for K = 1 and 3; a NaN in one rank's rows stops all with one message) too.
+//! (every rank gets one error naming that rank; none hangs), the cuts of the key line between
+//! ranks (equal point counts to 0.5 % and a leaf, whatever rank the points start on), and `mpirun -n K mobo fmm` (the same file for K = 1 and 3; a NaN in one rank's rows stops
+//! all with one message) too.
 //!
 //! K = 1 runs first: it also evaluates with `Fmm::new` (no MPI), checks that both agree, and
 //! keeps that result as the reference of K = 2, 3, 4. The fits of the translation operators
@@ -274,6 +275,102 @@ fn bad_rank(comm: &dyn Communicator) -> Vec<String> {
     }
 }
 
+/// The cuts between ranks (`fmm::splitters`, a selection by histograms), on the cell-like
+/// cloud (Laplace, 6 digits): whether the points come scattered over the ranks, in pieces of
+/// the curve of uneven length (1.2 : 1), or all on the last rank, every rank ends up with
+/// `N/K` points (sources and targets) to within the selection's 0.5 % and one leaf per cut
+/// (the cuts move to leaf boundaries); the pieces move no points but those of the leaves the
+/// cuts fall in and those of the uneven pieces' excess; and the answer is one rank's to 1e-12.
+fn partition_checks(comm: &dyn Communicator) -> Vec<String> {
+    let (k, me) = (comm.size(), comm.rank());
+    let kernel = FmmKernel::Laplace;
+    let pts = Cloud::Spheres.points(N, 7);
+    let dens = Cloud::densities(N, 8);
+    let order = order_for_digits(kernel, 6).unwrap();
+    let leaf = leaf_for(order);
+    let mut one = Fmm::new(kernel, &pts, None, &pts, order, leaf).unwrap();
+    let mut want = vec![0.0; N];
+    one.evaluate(&dens, &mut want).unwrap();
+    // Contiguous pieces of the tree's curve, rank r's piece 1.2 times as long for odd r.
+    let mut by_key: Vec<usize> = (0..N).collect();
+    by_key.sort_by_key(|&i| (one.tree.domain.key(pts[i]), i));
+    let weight = |r: usize| if r % 2 == 1 { 1.2 } else { 1.0 };
+    let total: f64 = (0..k).map(weight).sum();
+    let mut piece = vec![0usize; N];
+    let mut at = 0.0;
+    for r in 0..k {
+        let (a, b) = (at, at + weight(r) / total * N as f64);
+        for &i in &by_key[a.round() as usize..(b.round() as usize).min(N)] {
+            piece[i] = r;
+        }
+        at = b;
+    }
+    // Points a piece holds beyond its share.
+    let excess: f64 = (0..k)
+        .map(|r| (weight(r) / total - 1.0 / k as f64).max(0.0) * N as f64)
+        .sum();
+    let scattered: Vec<usize> = (0..N).map(|i| holder(i, k)).collect();
+    let last = vec![k - 1; N];
+    let mut fails = Vec::new();
+    for (name, holders) in [
+        ("scattered", &scattered),
+        ("pieces", &piece),
+        ("all on the last rank", &last),
+    ] {
+        let mine: Vec<usize> = (0..N).filter(|&i| holders[i] == me).collect();
+        let my_pts: Vec<[f64; 3]> = mine.iter().map(|&i| pts[i]).collect();
+        let my_dens: Vec<f64> = mine.iter().map(|&i| dens[i]).collect();
+        let mut fmm = Fmm::new_on(comm, kernel, &my_pts, None, &my_pts, order, leaf).unwrap();
+        let mut u = vec![0.0; mine.len()];
+        fmm.evaluate_on(comm, &my_dens, &mut u).unwrap();
+        // Into the global order.
+        let ids: Vec<f64> = mine.iter().map(|&i| i as f64).collect();
+        let (all_ids, all_u) = (
+            comm.all_gather_f64(&ids).unwrap(),
+            comm.all_gather_f64(&u).unwrap(),
+        );
+        let mut got = vec![f64::NAN; N];
+        for (ids, vals) in all_ids.iter().zip(&all_u) {
+            for (&i, &v) in ids.iter().zip(vals) {
+                got[i as usize] = v;
+            }
+        }
+        let e = rel(&got, &want);
+        let load = (fmm.tree.n_owned_sources + fmm.tree.targets.len()) as f64;
+        let moved = fmm.tree.source_route.n_moved(me) + fmm.tree.target_route.n_moved(me);
+        let loads = comm.all_gather_f64(&[load, moved as f64]).unwrap();
+        // Sources and targets are the same points: both count.
+        let mean = 2.0 * N as f64 / k as f64;
+        let worst = loads
+            .iter()
+            .map(|l| (l[0] - mean).abs())
+            .fold(0.0, f64::max);
+        let moved_all: f64 = loads.iter().map(|l| l[1]).sum();
+        if me == 0 {
+            println!(
+                "cuts K={k} {name}: vs 1 rank {e:.1e}, loads {:?}, points moved {moved_all}",
+                loads.iter().map(|l| l[0]).collect::<Vec<_>>()
+            );
+        }
+        if !at_most(e, 1e-12) {
+            fails.push(format!("cuts {name}: K-rank vs 1-rank {e:.2e}"));
+        }
+        let bound = 2.0 * (mean / 200.0 + 1.0 + leaf as f64);
+        if worst > bound {
+            fails.push(format!(
+                "cuts {name}: a rank's load is {worst} off the mean {mean} (bound {bound})"
+            ));
+        }
+        let moved_bound = 2.0 * excess + ((k - 1) * (leaf + 1)) as f64 + k as f64 * bound;
+        if name == "pieces" && moved_all > moved_bound {
+            fails.push(format!(
+                "cuts {name}: {moved_all} points moved, more than {moved_bound}"
+            ));
+        }
+    }
+    fails
+}
+
 /// A comma-separated list from the environment variable `name`, or from `default`.
 fn env_list<T: std::str::FromStr>(name: &str, default: &str) -> Vec<T> {
     std::env::var(name)
@@ -313,6 +410,7 @@ fn child() -> i32 {
         fails.extend(run_case(&comm, &case));
     }
     fails.extend(bad_rank(&comm));
+    fails.extend(partition_checks(&comm));
     for f in &fails {
         eprintln!("rank {}: FAILED {f}", comm.rank());
     }

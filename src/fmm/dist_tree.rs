@@ -6,12 +6,13 @@
 //!
 //! 1. **Domain.** The root cube is the serial one over the global bounding box (min/max
 //!    reductions), so every rank computes the same keys ([`super::box_key`]).
-//! 2. **Partition.** Splitters on the key line are chosen by weighted regular sampling of
-//!    every rank's sorted keys (sources and targets together), then each is moved down to the
+//! 2. **Partition.** Splitters on the key line ([`super::splitters`]) cut the points (sources
+//!    and targets together) into equal counts by a parallel selection with histograms
+//!    (a few reductions of `O(K)` integers); then each is moved down to the
 //!    first key of the leaf of the global tree that contains it: the global point counts of the
 //!    boxes on each splitter's chain (one sum reduction of `22·(K−1)` integers) say where the
-//!    global tree stops splitting. Points are then sent to their owners (one all-to-all that
-//!    every point crosses once). So no leaf is cut, and no rank holds all points.
+//!    global tree stops splitting. Points are then sent to their owners (one all-to-all; a
+//!    point already on its owner stays). So no leaf is cut, and no rank holds all points.
 //! 3. **Local tree.** Each rank refines its points top-down with the serial rule (split while a
 //!    box has more than `leaf_size` points); a box whose key interval contains a splitter is
 //!    split regardless (its global count is known to exceed `leaf_size`). Boxes inside the
@@ -61,6 +62,7 @@ use super::box_key::{BoxKey, Domain, FINE, KEY_END};
 /// Interaction lists, per box of the rank's tree (empty for the boxes it does not compute).
 pub use super::octree::Lists;
 use super::octree::{bounding_box, MAX_DEPTH};
+use super::splitters::{histogram_splitters, snap_splitters, SPLIT_TOLERANCE};
 use crate::comm::{CommError, Communicator};
 
 /// What a rank holds of a box.
@@ -174,6 +176,17 @@ impl Route {
     pub fn n_caller(&self) -> usize {
         self.outgoing.iter().map(Vec::len).sum()
     }
+
+    /// Number of the caller's points that another rank owns (`rank`: the caller's): the
+    /// points whose positions, densities and results cross between ranks.
+    pub fn n_moved(&self, rank: usize) -> usize {
+        self.outgoing
+            .iter()
+            .enumerate()
+            .filter(|&(r, _)| r != rank)
+            .map(|(_, v)| v.len())
+            .sum()
+    }
 }
 
 /// The boxes one rank sends to, or receives from, one other rank at each evaluation.
@@ -276,83 +289,6 @@ fn unbits(v: &[u64]) -> [f64; 3] {
         f64::from_bits(v[1]),
         f64::from_bits(v[2]),
     ]
-}
-
-/// Splitters of the key line: weighted regular sampling of the ranks' sorted keys.
-fn sample_splitters(comm: &dyn Communicator, keys: &[u64]) -> Result<Vec<u64>, CommError> {
-    let k = comm.size();
-    let per = (4 * k).max(16).min(keys.len());
-    let mut local = Vec::with_capacity(2 * per);
-    for i in 0..per {
-        local.push(keys[(2 * i + 1) * keys.len() / (2 * per)]);
-        local.push(keys.len() as u64);
-    }
-    let mut all: Vec<(u64, f64)> = comm
-        .all_gather_u64(&local)?
-        .into_iter()
-        .flat_map(|v| {
-            let n = v.len() / 2;
-            v.chunks_exact(2)
-                .map(|c| (c[0], c[1] as f64 / n as f64))
-                .collect::<Vec<_>>()
-        })
-        .collect();
-    all.sort_by_key(|s| s.0);
-    let total: f64 = all.iter().map(|s| s.1).sum();
-    let mut out = vec![0u64];
-    let mut acc = 0.0;
-    let mut it = all.iter().peekable();
-    for b in 1..k {
-        let goal = total * b as f64 / k as f64;
-        while let Some(s) = it.peek() {
-            if acc + s.1 / 2.0 >= goal {
-                break;
-            }
-            acc += s.1;
-            it.next();
-        }
-        out.push(it.peek().map(|s| s.0).unwrap_or(KEY_END));
-    }
-    out.push(KEY_END);
-    Ok(out)
-}
-
-/// Move each inner splitter down to the first key of the global leaf that contains it.
-fn snap_splitters(
-    comm: &dyn Communicator,
-    domain: &Domain,
-    keys: &[u64],
-    splitters: &mut [u64],
-    leaf_size: usize,
-    min_width: f64,
-) -> Result<(), CommError> {
-    let k = splitters.len() - 1;
-    let levels = (MAX_DEPTH + 1) as usize;
-    let mut counts = vec![0u64; (k - 1) * levels];
-    for b in 1..k {
-        for l in 0..levels {
-            let bx = BoxKey::containing(splitters[b].min(KEY_END - 1), l as u32);
-            let lo = keys.partition_point(|&x| x < bx.morton);
-            let hi = keys.partition_point(|&x| x < bx.end());
-            counts[(b - 1) * levels + l] = (hi - lo) as u64;
-        }
-    }
-    comm.all_sum_u64(&mut counts)?;
-    for b in 1..k {
-        if splitters[b] >= KEY_END {
-            continue;
-        }
-        for l in 0..levels {
-            let splits = counts[(b - 1) * levels + l] as usize > leaf_size
-                && (l as u32) < MAX_DEPTH
-                && domain.half(l as u32) >= min_width;
-            if !splits {
-                splitters[b] = BoxKey::containing(splitters[b], l as u32).morton;
-                break;
-            }
-        }
-    }
-    Ok(())
 }
 
 /// Send points to the owners of their keys and sort them by (key, global index).
@@ -507,7 +443,7 @@ impl DistTree {
         let mut splitters = if k == 1 {
             vec![0, KEY_END]
         } else {
-            sample_splitters(comm, &keys)?
+            histogram_splitters(comm, &keys, SPLIT_TOLERANCE)?
         };
         if k > 1 {
             snap_splitters(

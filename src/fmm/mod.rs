@@ -3,8 +3,9 @@
 //! * [`kernels`]: the kernels of the `mobo fmm` contract and their normalisations;
 //!   [`direct`]: exact sums, the reference.
 //! * [`octree`]: adaptive Morton octree with U, V, W, X lists (the reference of the lists);
-//!   [`dist_tree`]: the same tree split over ranks by keys ([`box_key`]), with the locally
-//!   essential tree each rank needs, which the evaluator runs on (one rank: the whole tree).
+//!   [`dist_tree`]: the same tree split over ranks by keys ([`box_key`]) at the cuts of
+//!   [`splitters`], with the locally essential tree each rank needs, which the evaluator runs
+//!   on (one rank: the whole tree).
 //! * [`evaluator::Fmm`]: the KIFMM of Ying, Biros & Zorin (J. Comput. Phys. 196, 2004) with
 //!   level-independent operators ([`operators`]), M2L by FFT ([`m2l_fft`], the scheme of PVFMM,
 //!   Malhotra & Biros 2015) and batched P2P ([`p2p`]) over the near field's one list
@@ -47,6 +48,7 @@ pub mod octree;
 pub mod operators;
 pub mod p2p;
 pub mod pinv;
+pub mod splitters;
 pub mod surface;
 
 pub use calibration::order_for_digits;

@@ -215,6 +215,12 @@ pub struct SplitSummary {
     /// Bytes a rank sent per step (largest and mean over ranks): in the FMM, of ghost cells,
     /// of moving cells.
     pub fmm_bytes_per_step: [f64; 2],
+    /// Bytes a rank sent per step building the FMM trees (cuts, points to their owners, the
+    /// LET's structure), largest and mean.
+    pub fmm_setup_bytes_per_step: [f64; 2],
+    /// FMM points (sources and targets) a rank sent to another rank's tree per step, largest
+    /// and mean: the points of cells that straddle the tree's cuts.
+    pub fmm_points_moved_per_step: [f64; 2],
     /// Bytes of ghost cells a rank sent per step, largest and mean.
     pub ghost_bytes_per_step: [f64; 2],
     /// Bytes of moving cells a rank sent per step, largest and mean.
@@ -277,6 +283,8 @@ pub(super) fn split_summary(
         per_step(st.ghost_bytes as f64),
         per_step(clock.migration_bytes as f64),
         per_step(st.ghost_cells as f64),
+        per_step(st.fmm_setup_bytes as f64),
+        per_step(st.fmm_points_moved as f64),
     ];
     let s = spread(comm, &mine).map_err(CellRunError::Comm)?;
     let max_mean = |j: usize| [s[j].max, s[j].mean];
@@ -295,6 +303,8 @@ pub(super) fn split_summary(
         ghost_bytes_per_step: max_mean(9),
         migration_bytes_per_step: max_mean(10),
         ghost_cells_per_step: max_mean(11),
+        fmm_setup_bytes_per_step: max_mean(12),
+        fmm_points_moved_per_step: max_mean(13),
         solve_imbalance: if solve[1] > 0.0 {
             solve[0] / solve[1] - 1.0
         } else {

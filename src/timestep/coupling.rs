@@ -144,6 +144,27 @@ pub struct CouplingStats {
     pub ghost_bytes: u64,
     /// Bytes this rank sent in the FMM evaluations (cumulative).
     pub fmm_bytes: u64,
+    /// Bytes this rank sent building the FMM trees (cuts, points to their owners, the LET's
+    /// structure; cumulative).
+    pub fmm_setup_bytes: u64,
+    /// This rank's FMM points (sources and targets) that another rank owned (cumulative).
+    pub fmm_points_moved: u64,
+}
+
+impl CouplingStats {
+    fn add_fmm_traffic(&mut self, t: FmmTraffic) {
+        self.fmm_bytes += t.eval_bytes;
+        self.fmm_setup_bytes += t.setup_bytes;
+        self.fmm_points_moved += t.points_moved;
+    }
+}
+
+/// What one FMM sum of the coupling sent.
+#[derive(Clone, Copy, Debug, Default)]
+struct FmmTraffic {
+    eval_bytes: u64,
+    setup_bytes: u64,
+    points_moved: u64,
 }
 
 /// A near-singular correction: target cell, its grid point, the velocity change, the distance
@@ -376,7 +397,7 @@ impl Coupling {
             .iter()
             .flat_map(|c| c.targets.iter().copied())
             .collect();
-        let (u_all, bytes) = fmm_sum(
+        let (u_all, traffic) = fmm_sum(
             comm,
             FmmKernel::Stokeslet,
             (&sources, None, &targets),
@@ -386,7 +407,7 @@ impl Coupling {
             &mut self.near_field,
         )?;
         self.stats.fmm_builds += 1;
-        self.stats.fmm_bytes += bytes;
+        self.stats.add_fmm_traffic(traffic);
         // 2b. The double layers of the cells that have one: one stresslet FMM, sources only on
         //     those cells, the same targets.
         let dl_all = if with_dl {
@@ -398,7 +419,7 @@ impl Coupling {
             let density: Vec<f64> = dl_cells()
                 .flat_map(|c| c.dl_density.iter().copied())
                 .collect();
-            let (u, bytes) = fmm_sum(
+            let (u, traffic) = fmm_sum(
                 comm,
                 FmmKernel::Stresslet,
                 (&sources, Some(&normals), &targets),
@@ -408,7 +429,7 @@ impl Coupling {
                 &mut self.near_field,
             )?;
             self.stats.double_layer_fmm_builds += 1;
-            self.stats.fmm_bytes += bytes;
+            self.stats.add_fmm_traffic(traffic);
             u
         } else {
             Vec::new()
@@ -886,7 +907,7 @@ type SumPoints<'a> = (&'a [[f64; 3]], Option<&'a [[f64; 3]]>, &'a [[f64; 3]]);
 
 /// One FMM evaluation of `kind` (3-vector densities, interleaved) at the targets, over the
 /// ranks of `comm` (each passes its own points), its near field where `gpu` (with the digits
-/// asked for) puts it, recorded in `decision`; also the bytes this rank sent.
+/// asked for) puts it, recorded in `decision`; also what this rank sent.
 fn fmm_sum(
     comm: &dyn Communicator,
     kind: FmmKernel,
@@ -895,7 +916,7 @@ fn fmm_sum(
     order: usize,
     (gpu, digits): (GpuChoice, u32),
     decision: &mut Option<NearDecision>,
-) -> Result<(Vec<f64>, u64), TimestepError> {
+) -> Result<(Vec<f64>, FmmTraffic), TimestepError> {
     let fail = |e: FmmError| match e {
         FmmError::Comm(c) => TimestepError::Comm(c),
         e => TimestepError::Vesicle(format!("FMM ({kind:?}): {e}")),
@@ -906,11 +927,23 @@ fn fmm_sum(
         } else {
             COUPLING_LEAF_FACTOR
         };
+    let bytes0 = comm.bytes_sent();
     let mut fmm = Fmm::new_on(comm, kind, sources, normals, targets, order, leaf).map_err(fail)?;
+    let setup_bytes = comm.bytes_sent() - bytes0;
     *decision = Some(choose(&mut fmm, gpu, None, Some(digits)).map_err(fail)?);
     let mut u = vec![0.0; 3 * targets.len()];
     fmm.evaluate_on(comm, density, &mut u).map_err(fail)?;
-    Ok((u, fmm.comm.bytes_sent))
+    let me = comm.rank();
+    let points_moved =
+        fmm.tree.source_route.n_moved(me) as u64 + fmm.tree.target_route.n_moved(me) as u64;
+    Ok((
+        u,
+        FmmTraffic {
+            eval_bytes: fmm.comm.bytes_sent,
+            setup_bytes,
+            points_moved,
+        },
+    ))
 }
 
 /// Checks of [`Coupling::velocities_on`]'s arguments (one rank's).
