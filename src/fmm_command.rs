@@ -342,22 +342,17 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
     // Gather the values (rows in rank order are the file's order) and per-rank statistics.
     let parts = comm.gather_f64(&u, 0)?;
     let t = fmm.timings;
-    let stats = [
+    let mut stats = vec![
         fmm.tree.n_owned_sources as f64,
         fmm.tree.targets.len() as f64,
         eval,
         fmm.comm.bytes_sent as f64,
         fmm.comm.seconds,
         setup,
-        t.p2m,
-        t.m2m,
-        t.m2l_fft,
-        t.m2l_hadamard,
-        t.p2l,
-        t.l2l,
-        t.l2p,
-        t.m2p,
-        t.p2p,
+    ];
+    // Columns 6..15: the phases.
+    stats.extend(t.phases().map(|(_, seconds)| seconds));
+    stats.extend([
         fmm.comm.let_bytes_sent as f64,
         fmm.comm.top_bytes_received as f64,
         fmm.tree.roots[fmm.tree.rank].len() as f64,
@@ -366,7 +361,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
             repeated as f64 / all.max(1) as f64
         },
         setup_bytes as f64,
-    ];
+    ]);
     let all = comm.gather_f64(&stats, 0)?;
     if comm.rank() != 0 {
         return Ok(());
@@ -382,17 +377,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
     let max = |i: usize| col(i).into_iter().fold(0.0, f64::max);
     let evals = col(2);
     let mean_eval = evals.iter().sum::<f64>() / k as f64;
-    let names = [
-        "p2m",
-        "m2m",
-        "m2l_fft",
-        "m2l_hadamard",
-        "p2l",
-        "l2l",
-        "l2p",
-        "m2p",
-        "p2p",
-    ];
+    let names = t.phases().map(|(name, _)| name);
     let phases_max: serde_json::Map<String, serde_json::Value> = names
         .iter()
         .enumerate()

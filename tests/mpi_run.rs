@@ -193,6 +193,21 @@ fn the_125_rbc_suspension_gives_the_one_rank_result_on_2_3_4_ranks() {
         assert_eq!(cells[1].as_f64().unwrap() * k as f64, 125.0);
         assert!(cells[0].as_f64().unwrap() >= 1.0, "a rank without cells");
         assert!(split["ghost_cells_per_step"][0].as_f64().unwrap() > 0.0);
+        // Where the FMM's time and bytes went: the build and the communication are parts of
+        // the FMM's seconds; every phase is reported; points cross ranks at the cuts.
+        let f = |key: &str, i: usize| split[key][i].as_f64().unwrap();
+        for key in ["fmm_build_s", "fmm_comm_s"] {
+            assert!(
+                f(key, 0) > 0.0 && f(key, 0) <= f("fmm_s", 0),
+                "{key}: {split}"
+            );
+        }
+        let phases = split["fmm_phases_max_s"].as_object().unwrap();
+        assert_eq!(phases.len(), 9, "{phases:?}");
+        assert!(phases.values().all(|v| v.as_f64().unwrap() >= 0.0));
+        assert!(phases["p2p"].as_f64().unwrap() > 0.0);
+        assert!(f("fmm_points_moved_per_step", 0) > 0.0);
+        assert!(f("fmm_setup_bytes_per_step", 0) > 0.0);
     }
 }
 

@@ -121,7 +121,7 @@ fn poisoned() -> FmmError {
 
 /// Wall time of each phase of the last evaluation, in seconds (phases that run inside one
 /// parallel loop are split by summed thread time).
-#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct FmmTimings {
     /// P2M: leaf sources at their upward check surfaces (thread time).
     pub p2m: f64,
@@ -150,6 +150,40 @@ pub struct FmmTimings {
     pub far_wall: f64,
     /// Wall seconds of the whole evaluation, communication included.
     pub total: f64,
+}
+
+impl FmmTimings {
+    /// Add another evaluation's phases to these (totals over several evaluations; the flag is
+    /// set if either ran its near field concurrently).
+    pub fn accumulate(&mut self, other: &FmmTimings) {
+        self.p2m += other.p2m;
+        self.m2m += other.m2m;
+        self.m2l_fft += other.m2l_fft;
+        self.m2l_hadamard += other.m2l_hadamard;
+        self.p2l += other.p2l;
+        self.l2l += other.l2l;
+        self.l2p += other.l2p;
+        self.m2p += other.m2p;
+        self.p2p += other.p2p;
+        self.near_concurrent |= other.near_concurrent;
+        self.far_wall += other.far_wall;
+        self.total += other.total;
+    }
+
+    /// The phases by name, as `mobo fmm`'s JSON and `summary.json` list them.
+    pub fn phases(&self) -> [(&'static str, f64); 9] {
+        [
+            ("p2m", self.p2m),
+            ("m2m", self.m2m),
+            ("m2l_fft", self.m2l_fft),
+            ("m2l_hadamard", self.m2l_hadamard),
+            ("p2l", self.p2l),
+            ("l2l", self.l2l),
+            ("l2p", self.l2p),
+            ("m2p", self.m2p),
+            ("p2p", self.p2p),
+        ]
+    }
 }
 
 /// Communication of the last evaluation on this rank.

@@ -204,6 +204,15 @@ pub struct SplitSummary {
     pub coupling_s: [f64; 2],
     /// Seconds in the FMM (build and evaluation), largest and mean; part of `coupling_s`.
     pub fmm_s: [f64; 2],
+    /// Seconds building the FMM trees (cuts, routing of the points, lists, LET pattern),
+    /// largest and mean; part of `fmm_s`.
+    pub fmm_build_s: [f64; 2],
+    /// Seconds of the FMM evaluations' communication, largest and mean; part of `fmm_s`.
+    pub fmm_comm_s: [f64; 2],
+    /// Seconds of each FMM phase (`p2m`, `m2m`, `m2l_fft`, `m2l_hadamard`, `p2l`, `l2l`,
+    /// `l2p`, `m2p`, `p2p`), the largest over the ranks; part of `fmm_s` (thread-summed
+    /// where the FMM's own timings are: see [`crate::fmm::FmmTimings`]).
+    pub fmm_phases_max_s: std::collections::BTreeMap<String, f64>,
     /// Seconds exchanging ghost cells, largest and mean; part of `coupling_s`.
     pub ghost_exchange_s: [f64; 2],
     /// Seconds of the near-singular corrections, largest and mean; part of `coupling_s`.
@@ -285,7 +294,12 @@ pub(super) fn split_summary(
         per_step(st.ghost_cells as f64),
         per_step(st.fmm_setup_bytes as f64),
         per_step(st.fmm_points_moved as f64),
+        st.fmm_build_s,
+        st.fmm_comm_s,
     ];
+    let phases = st.fmm_phases.phases();
+    let mut mine = mine.to_vec();
+    mine.extend(phases.iter().map(|p| p.1));
     let s = spread(comm, &mine).map_err(CellRunError::Comm)?;
     let max_mean = |j: usize| [s[j].max, s[j].mean];
     let solve = max_mean(1);
@@ -305,6 +319,13 @@ pub(super) fn split_summary(
         ghost_cells_per_step: max_mean(11),
         fmm_setup_bytes_per_step: max_mean(12),
         fmm_points_moved_per_step: max_mean(13),
+        fmm_build_s: max_mean(14),
+        fmm_comm_s: max_mean(15),
+        fmm_phases_max_s: phases
+            .iter()
+            .enumerate()
+            .map(|(j, (name, _))| (name.to_string(), s[16 + j].max))
+            .collect(),
         solve_imbalance: if solve[1] > 0.0 {
             solve[0] / solve[1] - 1.0
         } else {

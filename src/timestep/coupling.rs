@@ -149,6 +149,12 @@ pub struct CouplingStats {
     pub fmm_setup_bytes: u64,
     /// This rank's FMM points (sources and targets) that another rank owned (cumulative).
     pub fmm_points_moved: u64,
+    /// Seconds building the FMM trees, their lists and exchange patterns (part of `fmm_s`).
+    pub fmm_build_s: f64,
+    /// Seconds of the FMM evaluations' communication (part of `fmm_s`).
+    pub fmm_comm_s: f64,
+    /// The FMM evaluations' phases (cumulative; part of `fmm_s`).
+    pub fmm_phases: crate::fmm::FmmTimings,
 }
 
 impl CouplingStats {
@@ -156,6 +162,9 @@ impl CouplingStats {
         self.fmm_bytes += t.eval_bytes;
         self.fmm_setup_bytes += t.setup_bytes;
         self.fmm_points_moved += t.points_moved;
+        self.fmm_build_s += t.build_s;
+        self.fmm_comm_s += t.comm_s;
+        self.fmm_phases.accumulate(&t.phases);
     }
 }
 
@@ -165,6 +174,9 @@ struct FmmTraffic {
     eval_bytes: u64,
     setup_bytes: u64,
     points_moved: u64,
+    build_s: f64,
+    comm_s: f64,
+    phases: crate::fmm::FmmTimings,
 }
 
 /// A near-singular correction: target cell, its grid point, the velocity change, the distance
@@ -942,6 +954,9 @@ fn fmm_sum(
             eval_bytes: fmm.comm.bytes_sent,
             setup_bytes,
             points_moved,
+            build_s: fmm.setup_s,
+            comm_s: fmm.comm.seconds,
+            phases: fmm.timings,
         },
     ))
 }
