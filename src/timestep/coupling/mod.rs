@@ -63,6 +63,12 @@ use crate::vesicle::membrane::Membrane;
 use crate::vesicle::near::{NearParams, OffSurface};
 use crate::vesicle::VesicleError;
 
+mod fmm_sum;
+mod ghosts;
+mod near;
+
+use fmm_sum::{fmm_sum, FmmTraffic};
+
 /// Check points of the near-singular double layer: 16 spaced `0.07 δ` (the single layer keeps
 /// [`NearParams::default`], 12 spaced `δ/10`). The double layer varies faster with the distance
 /// to the surface; measured at `p = 8` on ellipsoids 0.1 apart (tests/timestep_contrast.rs),
@@ -168,17 +174,6 @@ impl CouplingStats {
     }
 }
 
-/// What one FMM sum of the coupling sent.
-#[derive(Clone, Copy, Debug, Default)]
-struct FmmTraffic {
-    eval_bytes: u64,
-    setup_bytes: u64,
-    points_moved: u64,
-    build_s: f64,
-    comm_s: f64,
-    phases: crate::fmm::FmmTimings,
-}
-
 /// A near-singular correction: target cell, its grid point, the velocity change, the distance
 /// of the point to the source cell's surface.
 type NearCorrection = (usize, usize, [f64; 3], f64);
@@ -202,15 +197,6 @@ struct Engine {
     block: SourceBlock,
     /// Sources with orientations (the stresslet of the double layer).
     dl_block: SourceBlock,
-}
-
-/// A cell of another rank, copied here for the near-singular corrections at this rank's points.
-struct Ghost {
-    id: usize,
-    coefs: Vec<f64>,
-    traction: Vec<f64>,
-    dl: Option<Vec<f64>>,
-    quad: CellQuadrature,
 }
 
 /// A source cell of the near corrections (own or ghost).
@@ -642,256 +628,6 @@ impl Coupling {
         }
         u
     }
-
-    /// Send each own cell to the other ranks whose cells' bounding box its near zone reaches;
-    /// receive theirs (collective). Each ghost's quadrature is recomputed here from its
-    /// coefficients and densities, as its owner computed it.
-    fn exchange_ghosts(
-        &mut self,
-        comm: &dyn Communicator,
-        ids: &[usize],
-        coefs: &[&[f64]],
-        tractions: &[&[f64]],
-        double_layer: &[Option<&[f64]>],
-    ) -> Result<Vec<Ghost>, TimestepError> {
-        let k = comm.size();
-        if k == 1 {
-            return Ok(Vec::new());
-        }
-        let me = comm.rank();
-        // This rank's targets' box (empty: +∞ … −∞).
-        let mut bbox = [f64::INFINITY, f64::INFINITY, f64::INFINITY, 0.0, 0.0, 0.0];
-        bbox[3..].fill(f64::NEG_INFINITY);
-        for c in &self.cells {
-            for d in 0..3 {
-                bbox[d] = bbox[d].min(c.centroid[d] - c.radius);
-                bbox[3 + d] = bbox[3 + d].max(c.centroid[d] + c.radius);
-            }
-        }
-        let boxes = comm.all_gather_f64(&bbox).map_err(TimestepError::Comm)?;
-        let (ncoef, n3) = (3 * ((self.p + 1) * (self.p + 1) - 1), 3 * self.n_grid());
-        let record = 2 + ncoef + 2 * n3;
-        let mut send: Vec<Vec<f64>> = vec![Vec::new(); k];
-        for (j, c) in self.cells.iter().enumerate() {
-            let reach = c.radius + c.delta;
-            for (r, b) in boxes.iter().enumerate() {
-                if r == me || b.len() != 6 {
-                    continue;
-                }
-                // Distance from the centroid to the box.
-                let d2: f64 = (0..3)
-                    .map(|d| {
-                        (b[d] - c.centroid[d])
-                            .max(c.centroid[d] - b[3 + d])
-                            .max(0.0)
-                    })
-                    .map(|g| g * g)
-                    .sum();
-                if b[0] <= b[3] && d2 <= reach * reach {
-                    let buf = &mut send[r];
-                    buf.push(ids[j] as f64);
-                    let dl = double_layer.get(j).copied().flatten();
-                    buf.push(if dl.is_some() { 1.0 } else { 0.0 });
-                    buf.extend_from_slice(coefs[j]);
-                    buf.extend_from_slice(tractions[j]);
-                    match dl {
-                        Some(d) => buf.extend_from_slice(d),
-                        None => buf.extend(std::iter::repeat_n(0.0, n3)),
-                    }
-                }
-            }
-        }
-        self.stats.ghost_bytes += send.iter().map(|b| 8 * b.len() as u64).sum::<u64>();
-        let received = comm.all_to_all_f64(&send).map_err(TimestepError::Comm)?;
-        let mut raw = Vec::new();
-        for (r, buf) in received.iter().enumerate() {
-            if buf.len() % record != 0 {
-                return Err(TimestepError::Comm(CommError::Ranks {
-                    what: "ghost cell records received",
-                    got: buf.len(),
-                    ranks: r,
-                }));
-            }
-            for rec in buf.chunks_exact(record) {
-                let coefs = rec[2..2 + ncoef].to_vec();
-                let traction = rec[2 + ncoef..2 + ncoef + n3].to_vec();
-                let dl = (rec[1] != 0.0).then(|| rec[2 + ncoef + n3..].to_vec());
-                raw.push((rec[0] as usize, coefs, traction, dl));
-            }
-        }
-        self.stats.ghost_cells += raw.len();
-        let this = &*self;
-        raw.into_par_iter()
-            .map(|(id, coefs, traction, dl)| {
-                let quad = this.quadrature(&coefs, &traction, dl.as_deref())?;
-                Ok(Ghost {
-                    id,
-                    coefs,
-                    traction,
-                    dl,
-                    quad,
-                })
-            })
-            .collect()
-    }
-
-    /// For each source cell (in the given order), the corrections at this rank's points in its
-    /// near zone, and the contact pushes it exerts on them.
-    fn near_corrections(
-        &self,
-        ids: &[usize],
-        sources: &[SourceCell<'_>],
-    ) -> Result<NearResult, TimestepError> {
-        let (p, mu) = (self.p, self.params.viscosity);
-        // Cell list of this rank's cells by centroid, bins as wide as the largest reach.
-        let reach_max = sources
-            .iter()
-            .map(|s| s.quad.radius + s.quad.delta)
-            .fold(0.0, f64::max);
-        let radius_max = self.cells.iter().map(|c| c.radius).fold(0.0, f64::max);
-        let h = (reach_max + radius_max).max(f64::MIN_POSITIVE);
-        let bin = |x: [f64; 3]| x.map(|v| (v / h).floor() as i64);
-        let mut grid: HashMap<[i64; 3], Vec<usize>> = HashMap::new();
-        for (i, c) in self.cells.iter().enumerate() {
-            grid.entry(bin(c.centroid)).or_default().push(i);
-        }
-        let repulsion: Mutex<Vec<Push>> = Mutex::new(Vec::new());
-        let corrections = sources
-            .par_iter()
-            .map(|s| -> Result<_, TimestepError> {
-                let cj = s.quad;
-                let reach = cj.radius + cj.delta;
-                let b = bin(cj.centroid);
-                let mut near_cells: Vec<usize> = Vec::new();
-                for dx in -1..=1 {
-                    for dy in -1..=1 {
-                        for dz in -1..=1 {
-                            if let Some(list) = grid.get(&[b[0] + dx, b[1] + dy, b[2] + dz]) {
-                                near_cells.extend(list.iter().copied().filter(|&i| {
-                                    let ci = &self.cells[i];
-                                    ids[i] != s.id
-                                        && dist(ci.centroid, cj.centroid) <= ci.radius + reach
-                                }));
-                            }
-                        }
-                    }
-                }
-                near_cells.sort_unstable();
-                let mut cand: Vec<(usize, usize)> = Vec::new();
-                for &i in &near_cells {
-                    for (k, &x) in self.cells[i].targets.iter().enumerate() {
-                        if dist(x, cj.centroid) <= reach {
-                            cand.push((i, k));
-                        }
-                    }
-                }
-                if cand.is_empty() {
-                    return Ok(Vec::new());
-                }
-                let mut guard = self.engine();
-                let e = &mut *guard;
-                e.near.set_surface(s.coefs).map_err(vesicle)?;
-                let mut near: Vec<(usize, usize, f64)> = Vec::new();
-                let mut push: Vec<Push> = Vec::new();
-                let (range, strength) = (
-                    (self.params.repulsion_range * cj.r_eq).min(cj.delta),
-                    self.params.repulsion_strength,
-                );
-                for &(i, k) in &cand {
-                    let x = self.cells[i].targets[k];
-                    let info = e.near.classify(x).map_err(vesicle)?;
-                    let signed = if info.inside {
-                        -info.distance
-                    } else {
-                        info.distance
-                    };
-                    if info.distance < cj.delta || info.inside {
-                        near.push((i, k, signed));
-                    }
-                    if strength > 0.0 && signed < range {
-                        // Along the outward normal of cell j at its nearest quadrature point.
-                        let (kn, _) = cj.sources.iter().enumerate().fold(
-                            (0, f64::INFINITY),
-                            |(kb, db), (kk, y)| {
-                                let d = dist2(x, *y);
-                                if d < db {
-                                    (kk, d)
-                                } else {
-                                    (kb, db)
-                                }
-                            },
-                        );
-                        let mag = if signed >= 0.0 {
-                            strength * (1.0 - signed / range).powi(2)
-                        } else {
-                            strength * (1.0 - signed / range)
-                        };
-                        push.push((i, k, s.id, cj.normals[kn].map(|v| v * mag)));
-                    }
-                }
-                if !push.is_empty() {
-                    let mut rep = repulsion.lock().expect("repulsion lock");
-                    rep.extend(push);
-                }
-                if near.is_empty() {
-                    return Ok(Vec::new());
-                }
-                let pts: Vec<[f64; 3]> = near
-                    .iter()
-                    .map(|&(i, k, _)| self.cells[i].targets[k])
-                    .collect();
-                let mut u_near = vec![0.0; 3 * pts.len()];
-                e.near
-                    .evaluate(
-                        LayerKernel::SingleLayer { viscosity: mu },
-                        s.traction,
-                        &pts,
-                        &mut u_near,
-                    )
-                    .map_err(vesicle)?;
-                let mut smooth = vec![0.0; 3 * pts.len()];
-                e.block.set_points(&cj.sources, &cj.density, 3);
-                Stokeslet.eval_block(&pts, &e.block.all(), &mut smooth);
-                let m = pts.len();
-                if let Some(dl) = s.dl {
-                    // The double layer of cell j: near-singular value minus the smooth sum the
-                    // FMM counted, at the same points.
-                    let mut d_near = vec![0.0; 3 * m];
-                    let near_dl = match &mut e.near_dl {
-                        Some(o) => o,
-                        None => e
-                            .near_dl
-                            .insert(OffSurface::new(p, DOUBLE_LAYER_NEAR).map_err(vesicle)?),
-                    };
-                    near_dl.set_surface(s.coefs).map_err(vesicle)?;
-                    near_dl
-                        .evaluate(LayerKernel::DoubleLayer, dl, &pts, &mut d_near)
-                        .map_err(vesicle)?;
-                    let mut d_smooth = vec![0.0; 3 * m];
-                    set_oriented(&mut e.dl_block, &cj.sources, &cj.normals, &cj.dl_density);
-                    Stresslet.eval_block(&pts, &e.dl_block.all(), &mut d_smooth);
-                    for t in 0..m {
-                        for c in 0..3 {
-                            u_near[c * m + t] += d_near[c * m + t];
-                            smooth[3 * t + c] += d_smooth[3 * t + c];
-                        }
-                    }
-                }
-                Ok(near
-                    .iter()
-                    .enumerate()
-                    .map(|(t, &(i, k, d))| {
-                        let du = std::array::from_fn(|c| u_near[c * m + t] - smooth[3 * t + c]);
-                        (i, k, du, d)
-                    })
-                    .collect())
-            })
-            .collect::<Result<Vec<Vec<NearCorrection>>, _>>();
-        Ok(NearResult {
-            corrections: corrections?,
-            pushes: repulsion.into_inner().expect("repulsion lock"),
-        })
-    }
 }
 
 impl Coupling {
@@ -900,65 +636,6 @@ impl Coupling {
     pub fn repulsion(&self) -> Option<&[Vec<f64>]> {
         (!self.repulsion.is_empty()).then_some(self.repulsion.as_slice())
     }
-}
-
-/// How much larger the coupling's FMM leaves are than the kernel's default
-/// ([`FmmKernel::default_leaf_size`], tuned on clouds whose targets are their sources). Here
-/// the targets are a fifth of the points (the order-`p` grids against the upsampled
-/// quadrature) and cluster on the cells' surfaces, so a leaf's direct sums cost less per point
-/// and the translations of a deep tree do not pay. Measured with the step benchmark (RBCs,
-/// 5 % volume fraction, one thread, seconds of one FMM; 2026-11-27, AMD EPYC, another job on
-/// the second core): p = 6, 300 cells: 2.0 at ×1, 1.5–1.65 at ×2.5, 1.1–1.2 at ×4, 1.1 at
-/// ×6, 1.0–1.15 at ×10; p = 6, 1000 cells: 5.9–6.4 at ×1, 4.1 at ×3, 3.9 at ×4, 4.6–5.0 at ×5,
-/// 8.8 at ×8 (a level lost: the direct sums take over); p = 12, 100 cells: 2.4 at ×1, 1.8 at
-/// ×4. The accuracy is the FMM's order's, not the leaves' (benches/RESULTS.md).
-const COUPLING_LEAF_FACTOR: usize = 4;
-
-/// Sources, their normals (double layers) and targets of one FMM sum.
-type SumPoints<'a> = (&'a [[f64; 3]], Option<&'a [[f64; 3]]>, &'a [[f64; 3]]);
-
-/// One FMM evaluation of `kind` (3-vector densities, interleaved) at the targets, over the
-/// ranks of `comm` (each passes its own points), its near field where `gpu` (with the digits
-/// asked for) puts it, recorded in `decision`; also what this rank sent.
-fn fmm_sum(
-    comm: &dyn Communicator,
-    kind: FmmKernel,
-    (sources, normals, targets): SumPoints,
-    density: &[f64],
-    order: usize,
-    (gpu, digits): (GpuChoice, u32),
-    decision: &mut Option<NearDecision>,
-) -> Result<(Vec<f64>, FmmTraffic), TimestepError> {
-    let fail = |e: FmmError| match e {
-        FmmError::Comm(c) => TimestepError::Comm(c),
-        e => TimestepError::Vesicle(format!("FMM ({kind:?}): {e}")),
-    };
-    let leaf = kind.default_leaf_size(order)
-        * if gpu_expected(gpu) {
-            GPU_LEAF_FACTOR.max(COUPLING_LEAF_FACTOR)
-        } else {
-            COUPLING_LEAF_FACTOR
-        };
-    let bytes0 = comm.bytes_sent();
-    let mut fmm = Fmm::new_on(comm, kind, sources, normals, targets, order, leaf).map_err(fail)?;
-    let setup_bytes = comm.bytes_sent() - bytes0;
-    *decision = Some(choose(&mut fmm, gpu, None, Some(digits)).map_err(fail)?);
-    let mut u = vec![0.0; 3 * targets.len()];
-    fmm.evaluate_on(comm, density, &mut u).map_err(fail)?;
-    let me = comm.rank();
-    let points_moved =
-        fmm.tree.source_route.n_moved(me) as u64 + fmm.tree.target_route.n_moved(me) as u64;
-    Ok((
-        u,
-        FmmTraffic {
-            eval_bytes: fmm.comm.bytes_sent,
-            setup_bytes,
-            points_moved,
-            build_s: fmm.setup_s,
-            comm_s: fmm.comm.seconds,
-            phases: fmm.timings,
-        },
-    ))
 }
 
 /// Checks of [`Coupling::velocities_on`]'s arguments (one rank's).
