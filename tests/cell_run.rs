@@ -314,6 +314,28 @@ fn a_stopped_or_interrupted_run_resumes_to_bit_identical_results() {
         "interrupt + resume = one run, bit for bit"
     );
 
+    // A stored scene whose fixed dt was edited is refused, naming the file and both dts.
+    let edited = dir.join("edited");
+    std::fs::create_dir_all(&edited).unwrap();
+    for f in ["checkpoint.bin", "scene.toml"] {
+        std::fs::copy(part.join(f), edited.join(f)).unwrap();
+    }
+    let text = std::fs::read_to_string(edited.join("scene.toml")).unwrap();
+    assert!(text.contains("dt = 0.05"), "{text}");
+    std::fs::write(
+        edited.join("scene.toml"),
+        text.replace("dt = 0.05", "dt = 0.025"),
+    )
+    .unwrap();
+    let o = mobo(&["run", "--resume", edited.to_str().unwrap(), "--quiet"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success(), "{err}");
+    assert!(
+        err.contains("scene.toml") && err.contains("0.025") && err.contains("0.05"),
+        "{err}"
+    );
+    assert!(!err.contains("panicked"), "{err}");
+
     // A damaged checkpoint is refused with a message naming it.
     let bytes = std::fs::read(part.join("checkpoint.bin")).unwrap();
     std::fs::write(part.join("checkpoint.bin"), &bytes[..bytes.len() / 2]).unwrap();

@@ -282,7 +282,20 @@ impl<'a> CellRun<'a> {
         // Where the run starts: the scene, or the checkpoint (read by every rank).
         let resumed = if options.resume {
             let loaded = checkpoint::load(out, nc, ncoef, n, double_layer);
-            Some(agreed(comm, loaded)?)
+            let loaded = agreed(comm, loaded)?;
+            // A fixed-dt run's time is step × dt and BDF2's history assumes one dt: the
+            // stored scene must keep the checkpoint's (every rank reads the same files).
+            let dt = scene.numerics.dt;
+            if !scene.numerics.adaptive_dt && loaded.0.dt != dt {
+                return Err(CellRunError::Resume(format!(
+                    "{}: [numerics] dt = {dt}, but the checkpoint was written with dt = {}: a \
+                     run with a fixed dt resumes with the same dt (its time is step × dt); \
+                     start a new run from a frame to change it",
+                    out.join("scene.toml").display(),
+                    loaded.0.dt
+                )));
+            }
+            Some(loaded)
         } else {
             None
         };
