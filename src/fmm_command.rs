@@ -306,7 +306,6 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
     let od = kernel.output_dim();
     let mut u = vec![0.0; inputs.targets.len() * od];
     let t0 = Instant::now();
-    let setup_bytes0 = comm.bytes_sent();
     let mut fmm = Fmm::new_on(
         comm,
         kind,
@@ -316,7 +315,6 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         order,
         leaf,
     )?;
-    let setup_bytes = comm.bytes_sent() - setup_bytes0;
     fmm.set_m2l_buffer_bytes(
         usize::try_from(a.m2l_buffer_mib.saturating_mul(1 << 20)).unwrap_or(usize::MAX),
     );
@@ -360,7 +358,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
             let (repeated, all) = fmm.tree.repeated_far_work();
             repeated as f64 / all.max(1) as f64
         },
-        setup_bytes as f64,
+        fmm.setup_bytes_sent as f64,
     ]);
     let all = comm.gather_f64(&stats, 0)?;
     if comm.rank() != 0 {

@@ -337,8 +337,8 @@ fn partition_checks(comm: &dyn Communicator) -> Vec<String> {
         }
         let e = rel(&got, &want);
         let load = (fmm.tree.n_owned_sources + fmm.tree.targets.len()) as f64;
-        let moved = fmm.tree.source_route.n_moved(me) + fmm.tree.target_route.n_moved(me);
-        let loads = comm.all_gather_f64(&[load, moved as f64]).unwrap();
+        let moved = fmm.tree.points_moved() as f64;
+        let loads = comm.all_gather_f64(&[load, moved]).unwrap();
         // Sources and targets are the same points: both count.
         let mean = 2.0 * N as f64 / k as f64;
         let worst = loads

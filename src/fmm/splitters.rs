@@ -17,6 +17,17 @@ pub const PROBES: u128 = 15;
 /// before the splitters are moved to leaf boundaries.
 pub const SPLIT_TOLERANCE: u64 = 200;
 
+/// The search of one splitter of [`histogram_splitters`]: keys `lo < hi` whose global ranks
+/// (keys below them, over all ranks) enclose the splitter's goal rank.
+#[derive(Clone, Copy)]
+struct Bracket {
+    lo: u64,
+    lo_rank: u64,
+    hi: u64,
+    hi_rank: u64,
+    goal: u64,
+}
+
 /// Splitters of the key line that cut the global sorted keys into `K` pieces of equal count
 /// to within `tol` keys: a parallel selection by histograms (histogram sort, Kalé & Krishnan
 /// 1993; Solomonik & Kalé, IPDPS 2010). Each splitter keeps a bracket of the key line whose
@@ -24,8 +35,9 @@ pub const SPLIT_TOLERANCE: u64 = 200;
 /// spaced inside each open bracket, counts this rank's keys below each probe, sums the counts
 /// over ranks (one reduction of at most `(K − 1) · 15` integers) and narrows each bracket to
 /// the probes around its goal. A bracket closes when one end's rank is within `tol` of the
-/// goal, `tol = N / (K · rel)` (or it holds one key value); that end is the splitter. Each round shrinks a bracket
-/// 16-fold in key width and, on locally even keys, in count, so `log₁₆(N / tol)` rounds
+/// goal, `tol = N / (K · rel)` (or it holds one key value); that end is the splitter. Each
+/// round shrinks a bracket 16-fold in key width and, on locally even keys, in count, so
+/// `log₁₆(N / tol)` rounds
 /// suffice (3 at `N = 10⁶`, `K = 16`), at most 16 in any case. Every rank gets `O(K)`
 /// integers a round, where regular sampling gathered `O(K²)` keys to every rank.
 pub fn histogram_splitters(
@@ -43,11 +55,18 @@ pub fn histogram_splitters(
         return Ok(out);
     }
     let tol = (n / (k as u64 * rel.max(1))).max(1);
-    // (low key, its global rank, high key, its global rank, goal) per inner splitter.
-    let mut brackets: Vec<[u64; 5]> = (1..k)
-        .map(|b| [0, 0, KEY_END, n, (n as u128 * b as u128 / k as u128) as u64])
+    let mut brackets: Vec<Bracket> = (1..k)
+        .map(|b| Bracket {
+            lo: 0,
+            lo_rank: 0,
+            hi: KEY_END,
+            hi_rank: n,
+            goal: (n as u128 * b as u128 / k as u128) as u64,
+        })
         .collect();
-    let closed = |br: &[u64; 5]| br[4] - br[1] <= tol || br[3] - br[4] <= tol || br[2] - br[0] <= 1;
+    let closed = |br: &Bracket| {
+        br.goal - br.lo_rank <= tol || br.hi_rank - br.goal <= tol || br.hi - br.lo <= 1
+    };
     loop {
         let open: Vec<usize> = (0..brackets.len())
             .filter(|&b| !closed(&brackets[b]))
@@ -58,7 +77,7 @@ pub fn histogram_splitters(
         let probes: Vec<u64> = open
             .iter()
             .flat_map(|&b| {
-                let [lo, _, hi, _, _] = brackets[b];
+                let Bracket { lo, hi, .. } = brackets[b];
                 let w = (hi - lo) as u128;
                 (1..=PROBES).map(move |j| lo + (w * j / (PROBES + 1)) as u64)
             })
@@ -75,13 +94,13 @@ pub fn histogram_splitters(
                 .iter()
                 .zip(&counts[at..at + PROBES as usize])
             {
-                if c <= br[4] && p > br[0] {
-                    br[0] = p;
-                    br[1] = c;
+                if c <= br.goal && p > br.lo {
+                    br.lo = p;
+                    br.lo_rank = c;
                 }
-                if c >= br[4] && p < br[2] {
-                    br[2] = p;
-                    br[3] = c;
+                if c >= br.goal && p < br.hi {
+                    br.hi = p;
+                    br.hi_rank = c;
                     break;
                 }
             }
@@ -89,10 +108,10 @@ pub fn histogram_splitters(
     }
     let mut out = vec![0u64];
     out.extend(brackets.iter().map(|br| {
-        if br[4] - br[1] <= br[3] - br[4] {
-            br[0]
+        if br.goal - br.lo_rank <= br.hi_rank - br.goal {
+            br.lo
         } else {
-            br[2]
+            br.hi
         }
     }));
     out.push(KEY_END);

@@ -279,7 +279,7 @@ pub(super) fn split_summary(
     let st = susp.coupling_stats().unwrap_or_default();
     let coupling = st.setup_s + st.fmm_s + st.self_s + st.exchange_s + st.near_s;
     let per_step = |v: f64| v / steps.max(1) as f64;
-    let mine = [
+    let mut mine = vec![
         susp.len() as f64,
         susp.solve_seconds(),
         coupling,
@@ -297,8 +297,8 @@ pub(super) fn split_summary(
         st.fmm_build_s,
         st.fmm_comm_s,
     ];
+    // Columns 16..25: the FMM's phases.
     let phases = st.fmm_phases.phases();
-    let mut mine = mine.to_vec();
     mine.extend(phases.iter().map(|p| p.1));
     let s = spread(comm, &mine).map_err(CellRunError::Comm)?;
     let max_mean = |j: usize| [s[j].max, s[j].mean];

@@ -578,6 +578,12 @@ impl DistTree {
         }
     }
 
+    /// This rank's caller points (sources and targets) that another rank owns: the points
+    /// whose positions, densities and results cross between ranks.
+    pub fn points_moved(&self) -> usize {
+        self.source_route.n_moved(self.rank) + self.target_route.n_moved(self.rank)
+    }
+
     /// Number of levels.
     pub fn depth(&self) -> u32 {
         (self.level_start.len() - 1) as u32

@@ -173,6 +173,9 @@ pub struct Fmm {
     pub order: usize,
     /// Seconds spent in [`Fmm::new`].
     pub setup_s: f64,
+    /// Bytes this rank sent in [`Fmm::new_on`] (the cuts, the points to their owners, the
+    /// LET's structure; 0 on one rank).
+    pub setup_bytes_sent: u64,
     /// Phase times of the last [`Fmm::evaluate`].
     pub timings: FmmTimings,
     /// Communication of the last evaluation.
@@ -252,6 +255,7 @@ impl Fmm {
         leaf_size: usize,
     ) -> Result<Self, FmmError> {
         let start = Instant::now();
+        let bytes0 = comm.bytes_sent();
         let near = kind.near();
         let local = if !(2..=20).contains(&order) {
             Err(format!("FMM order must be between 2 and 20, got {order}"))
@@ -308,6 +312,7 @@ impl Fmm {
             identity,
             order,
             setup_s: start.elapsed().as_secs_f64(),
+            setup_bytes_sent: comm.bytes_sent() - bytes0,
             timings: FmmTimings::default(),
             comm: FmmComm::default(),
             near_list,

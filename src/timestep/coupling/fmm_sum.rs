@@ -50,21 +50,16 @@ pub(super) fn fmm_sum(
         } else {
             COUPLING_LEAF_FACTOR
         };
-    let bytes0 = comm.bytes_sent();
     let mut fmm = Fmm::new_on(comm, kind, sources, normals, targets, order, leaf).map_err(fail)?;
-    let setup_bytes = comm.bytes_sent() - bytes0;
     *decision = Some(choose(&mut fmm, gpu, None, Some(digits)).map_err(fail)?);
     let mut u = vec![0.0; 3 * targets.len()];
     fmm.evaluate_on(comm, density, &mut u).map_err(fail)?;
-    let me = comm.rank();
-    let points_moved =
-        fmm.tree.source_route.n_moved(me) as u64 + fmm.tree.target_route.n_moved(me) as u64;
     Ok((
         u,
         FmmTraffic {
             eval_bytes: fmm.comm.bytes_sent,
-            setup_bytes,
-            points_moved,
+            setup_bytes: fmm.setup_bytes_sent,
+            points_moved: fmm.tree.points_moved() as u64,
             build_s: fmm.setup_s,
             comm_s: fmm.comm.seconds,
             phases: fmm.timings,
