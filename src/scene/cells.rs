@@ -69,7 +69,8 @@
 //! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see run::partition)
 //! coupling = "explicit"          # cells' coupling: "explicit" (last step's densities) |
 //! #                               # "near_implicit" (cells in each other's near zone solved as
-//! #                               # one system; one rank; see timestep::near_implicit)
+//! #                               # one system, over MPI ranks too; see
+//! #                               # timestep::near_implicit)
 //! # contact_distance = 0.02       # keep every surface gap >= 0.02 at the end of each step
 //! #                               # (a length; off by default; see timestep::contact)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)

@@ -146,7 +146,7 @@ impl GmresWorkspace {
 }
 
 /// `Σ a_i b_i` with eight independent partial sums (vectorises; fixed order, so deterministic).
-fn dot(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
     let mut acc = [0.0f64; 8];
     let ca = a.chunks_exact(8);
     let cb = b.chunks_exact(8);
@@ -161,10 +161,6 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         tail += x * y;
     }
     ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7])) + tail
-}
-
-fn norm(a: &[f64]) -> f64 {
-    dot(a, a).sqrt()
 }
 
 /// `y ← y + α x`.
@@ -231,6 +227,70 @@ where
     A: LinearOperator + ?Sized,
     P: Preconditioner + ?Sized,
 {
+    gmres_with(a, precond, b, x0, x, params, ws, &Local)
+}
+
+/// The inner products GMRES takes, and its agreement on a failed check: of the whole vectors
+/// here ([`gmres`]), or summed over processes that each hold some rows of every vector (the
+/// near-implicit step over MPI ranks), so that every process runs the same recurrence.
+pub(crate) trait InnerProducts {
+    /// `Σ a_i b_i` over the whole vectors.
+    fn dot(&self, a: &[f64], b: &[f64]) -> f64;
+    /// Whether `local` holds on any process.
+    fn any(&self, local: bool) -> bool;
+}
+
+/// The inner products of vectors held whole.
+struct Local;
+
+impl InnerProducts for Local {
+    fn dot(&self, a: &[f64], b: &[f64]) -> f64 {
+        dot(a, b)
+    }
+    fn any(&self, local: bool) -> bool {
+        local
+    }
+}
+
+/// What [`gmres_with`] applies: a [`LinearOperator`] or, without its `Sync` bound, an operator
+/// whose products are collective over ranks (applied from one thread).
+pub(crate) trait GmresOperator {
+    fn nrows(&self) -> usize;
+    fn ncols(&self) -> usize;
+    fn apply(&self, x: &[f64], y: &mut [f64]);
+}
+
+impl<T: LinearOperator + ?Sized> GmresOperator for T {
+    fn nrows(&self) -> usize {
+        LinearOperator::nrows(self)
+    }
+    fn ncols(&self) -> usize {
+        LinearOperator::ncols(self)
+    }
+    fn apply(&self, x: &[f64], y: &mut [f64]) {
+        LinearOperator::apply(self, x, y)
+    }
+}
+
+/// [`gmres`] with the inner products of `ip` (each process passes its rows of `b`, `x0`, `x`;
+/// `a` and `precond` act on those rows, exchanging what they need).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn gmres_with<A, P, I>(
+    a: &A,
+    precond: &P,
+    b: &[f64],
+    x0: Option<&[f64]>,
+    x: &mut [f64],
+    params: &GmresParams,
+    ws: &mut GmresWorkspace,
+    ip: &I,
+) -> Result<GmresReport, TimestepError>
+where
+    A: GmresOperator + ?Sized,
+    P: Preconditioner + ?Sized,
+    I: InnerProducts + ?Sized,
+{
+    let norm = |v: &[f64]| ip.dot(v, v).sqrt();
     params.validate()?;
     let n = a.nrows();
     if a.ncols() != n {
@@ -256,13 +316,13 @@ where
     check("preconditioner M", precond.nrows())?;
     if let Some(x0) = x0 {
         check("initial guess x0", x0.len())?;
-        if x0.iter().any(|v| !v.is_finite()) {
+        if ip.any(x0.iter().any(|v| !v.is_finite())) {
             return Err(TimestepError::NonFinite {
                 what: "initial guess x0",
             });
         }
     }
-    if b.iter().any(|v| !v.is_finite()) {
+    if ip.any(b.iter().any(|v| !v.is_finite())) {
         return Err(TimestepError::NonFinite {
             what: "right-hand side b",
         });
@@ -373,14 +433,14 @@ where
             let hj = &mut h[j * ld..(j + 1) * ld];
             for (i, hij) in hj.iter_mut().enumerate().take(j + 1) {
                 let vi = &v[i * n..(i + 1) * n];
-                *hij = dot(vi, w);
+                *hij = ip.dot(vi, w);
                 axpy(-*hij, vi, w);
             }
             let mut norm1 = norm(w);
             if norm1 < std::f64::consts::FRAC_1_SQRT_2 * norm0 {
                 for (i, hij) in hj.iter_mut().enumerate().take(j + 1) {
                     let vi = &v[i * n..(i + 1) * n];
-                    let c = dot(vi, w);
+                    let c = ip.dot(vi, w);
                     *hij += c;
                     axpy(-c, vi, w);
                 }

@@ -48,6 +48,10 @@
 
 use std::sync::Mutex;
 
+mod over_ranks;
+
+pub(super) use over_ranks::{step_all_on, RanksStep};
+
 use rayon::prelude::*;
 
 use super::cell_preconditioner::CellPreconditionerOp;
@@ -298,6 +302,20 @@ struct ClusterPreconditioner<'a> {
     blocks: Vec<Block<'a>>,
 }
 
+impl<'a> ClusterPreconditioner<'a> {
+    /// The blocks of the cells' joint steps ([`CellStepper::joint_block`]).
+    fn of(cells: &'a [&mut JointCell<'_>], steps: &'a [JointStep], n: usize) -> Self {
+        ClusterPreconditioner {
+            n,
+            blocks: cells
+                .iter()
+                .zip(steps)
+                .map(|(c, s)| c.stepper.joint_block(s))
+                .collect(),
+        }
+    }
+}
+
 impl Preconditioner for ClusterPreconditioner<'_> {
     fn nrows(&self) -> usize {
         4 * self.n * self.blocks.len()
@@ -334,17 +352,8 @@ impl LinearOperator for ClusterOperator<'_> {
 
     fn apply(&self, x: &[f64], y: &mut [f64]) {
         let (n3, n4) = (3 * self.n, 4 * self.n);
+        let (f, g) = own_products(&self.ops, &self.dl, self.n, x, y);
         let m = self.ops.len();
-        let mut f = vec![vec![0.0; n3]; m];
-        self.ops
-            .par_iter()
-            .zip(x.par_chunks(n4))
-            .zip(y.par_chunks_mut(n4))
-            .zip(f.par_iter_mut())
-            .for_each(|(((op, xk), yk), fk)| op.apply_with_traction(xk, yk, fk));
-        let g: Vec<Option<Vec<f64>>> = (0..m)
-            .map(|k| self.dl[k].map(|c| x[k * n4..k * n4 + n3].iter().map(|v| c * v).collect()))
-            .collect();
         let fref: Vec<&[f64]> = f.iter().map(|v| v.as_slice()).collect();
         let gref: Vec<Option<&[f64]>> = g.iter().map(|v| v.as_deref()).collect();
         let mut w = vec![vec![0.0; n3]; m];
@@ -363,6 +372,29 @@ impl LinearOperator for ClusterOperator<'_> {
             }
         }
     }
+}
+
+/// `y = A x` block by block (each cell's own step operator) and the densities of the iterate
+/// `ρ(z) = (B X + T σ, (1 − λ) X / τ)` that the near-zone operator takes (`dl[k]`: the factor
+/// `(1 − λ)/τ` where the cell's double layer is coupled).
+fn own_products(
+    ops: &[InextensibleOperator<'_>],
+    dl: &[Option<f64>],
+    n: usize,
+    x: &[f64],
+    y: &mut [f64],
+) -> (Vec<Vec<f64>>, Vec<Option<Vec<f64>>>) {
+    let (n3, n4) = (3 * n, 4 * n);
+    let mut f = vec![vec![0.0; n3]; ops.len()];
+    ops.par_iter()
+        .zip(x.par_chunks(n4))
+        .zip(y.par_chunks_mut(n4))
+        .zip(f.par_iter_mut())
+        .for_each(|(((op, xk), yk), fk)| op.apply_with_traction(xk, yk, fk));
+    let g = (0..ops.len())
+        .map(|k| dl[k].map(|c| x[k * n4..k * n4 + n3].iter().map(|v| c * v).collect()))
+        .collect();
+    (f, g)
 }
 
 /// One cell of a cluster's step.
@@ -396,6 +428,33 @@ pub(super) fn step_cluster(
         .iter()
         .map(|c| c.stepper.extrapolation_ratio(c.state))
         .collect();
+    let (steps, failed) = begin_all(cells, u_inf);
+    if let Some(e) = failed {
+        abort_all(cells, steps);
+        return Err(e);
+    }
+    let steps: Vec<JointStep> = steps.into_iter().flatten().collect();
+    let solved = solve_joint(cells, &steps, &omegas, near, zones, with_dl);
+    let (z, report) = match solved {
+        Ok(r) => r,
+        Err(e) => {
+            abort_all(cells, steps.into_iter().map(Some).collect());
+            return Err((None, e));
+        }
+    };
+    end_all(cells, steps, &z, &report)
+}
+
+/// Phases 1–4 of every cell's joint step ([`CellStepper::begin_joint`]), and the first
+/// failure (its index in `cells`).
+#[allow(clippy::type_complexity)] // the steps begun and the first failure, handed on together
+fn begin_all(
+    cells: &mut [&mut JointCell<'_>],
+    u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+) -> (
+    Vec<Option<JointStep>>,
+    Option<(Option<usize>, TimestepError)>,
+) {
     let begun: Vec<Result<JointStep, TimestepError>> = cells
         .par_iter_mut()
         .map(|c| c.stepper.begin_joint(c.state, u_inf, c.extra))
@@ -411,31 +470,32 @@ pub(super) fn step_cluster(
             }
         }
     }
-    if let Some(e) = first_error {
-        for (c, s) in cells.iter_mut().zip(steps) {
-            if let Some(s) = s {
-                c.stepper.abort_joint(s, c.state);
-            }
+    (steps, first_error)
+}
+
+/// The joint steps begun given up (their engines go back).
+fn abort_all(cells: &mut [&mut JointCell<'_>], steps: Vec<Option<JointStep>>) {
+    for (c, s) in cells.iter_mut().zip(steps) {
+        if let Some(s) = s {
+            c.stepper.abort_joint(s, c.state);
         }
-        return Err(e);
     }
-    let steps: Vec<JointStep> = steps.into_iter().flatten().collect();
-    let solved = solve_joint(cells, &steps, &omegas, near, zones, with_dl);
-    let (z, report) = match solved {
-        Ok(r) => r,
-        Err(e) => {
-            for (c, s) in cells.iter_mut().zip(steps) {
-                c.stepper.abort_joint(s, c.state);
-            }
-            return Err((None, e));
-        }
-    };
-    let n4 = z.len() / cells.len();
+}
+
+/// Phases 6–7 of every cell's joint step from the joint solution `z` (`4n` per cell); a
+/// failure names the cell (its index in `cells`).
+fn end_all(
+    cells: &mut [&mut JointCell<'_>],
+    steps: Vec<JointStep>,
+    z: &[f64],
+    report: &GmresReport,
+) -> Result<Vec<StepReport>, (Option<usize>, TimestepError)> {
+    let n4 = z.len() / cells.len().max(1);
     let ended: Vec<Result<StepReport, TimestepError>> = cells
         .par_iter_mut()
         .zip(steps.into_par_iter())
-        .zip(z.par_chunks(n4))
-        .map(|((c, s), zk)| c.stepper.end_joint(s, c.state, zk, &report))
+        .zip(z.par_chunks(n4.max(1)))
+        .map(|((c, s), zk)| c.stepper.end_joint(s, c.state, zk, report))
         .collect();
     ended
         .into_iter()
@@ -456,16 +516,114 @@ fn solve_joint(
     let m = cells.len();
     let n = cells[0].stepper.n_points();
     let (n3, n4) = (3 * n, 4 * n);
-    let tau: Vec<f64> = steps.iter().map(|s| s.plan.tau).collect();
-    let dl: Vec<Option<f64>> = steps
+    let (tau, dl) = joint_factors(steps, with_dl);
+    let surfaces: Vec<&[f64]> = steps.iter().map(|s| s.plan.xstar.as_slice()).collect();
+    let (fc, gc) = constant_densities(cells, steps, omegas, &dl, n3);
+    let mut w = vec![vec![0.0; n3]; m];
+    {
+        let fref: Vec<&[f64]> = fc.iter().map(|v| v.as_slice()).collect();
+        let gref: Vec<Option<&[f64]>> = gc.iter().map(|v| v.as_deref()).collect();
+        near.apply(zones, &surfaces, &fref, &gref, &mut w)?;
+    }
+    let (b, z0) = rhs_and_guess(cells, steps, &tau, |k| &w[k]);
+    let op = ClusterOperator {
+        n,
+        ops: joint_operators(cells, steps),
+        near,
+        zones,
+        surfaces,
+        tau,
+        dl,
+        failure: Mutex::new(None),
+    };
+    let pc = ClusterPreconditioner::of(cells, steps, n);
+    let params = cells[0].stepper.params().gmres;
+    let mut ws = GmresWorkspace::new(n4 * m, params.restart);
+    let mut z = vec![0.0; n4 * m];
+    let report = gmres(&op, &pc, &b, Some(&z0), &mut z, &params, &mut ws);
+    operator_failure(op.failure, &op.ops)?;
+    Ok((z, report?))
+}
+
+/// Every cell's own step operator of a joint step (no elastic Jacobian).
+fn joint_operators<'a>(
+    cells: &'a [&mut JointCell<'_>],
+    steps: &'a [JointStep],
+) -> Vec<InextensibleOperator<'a>> {
+    cells
+        .iter()
+        .zip(steps)
+        .map(|(c, s)| c.stepper.joint_operator(&s.lease, &s.plan, s.terms.size))
+        .collect()
+}
+
+/// The failure the joint operator (`failure`) or one of the cells' operators recorded during
+/// a solve.
+fn operator_failure(
+    failure: Mutex<Option<TimestepError>>,
+    ops: &[InextensibleOperator<'_>],
+) -> Result<(), TimestepError> {
+    if let Some(e) = failure.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        return Err(e);
+    }
+    for o in ops {
+        if let Some(e) = o.take_failure() {
+            return Err(e.into());
+        }
+    }
+    Ok(())
+}
+
+/// The cells `k` with `alone(k)` stepped alone, with the explicit coupling (in parallel), their
+/// reports into `reports[k]`; the first failure names its cell.
+fn step_alone(
+    cells: &mut [JointCell<'_>],
+    alone: impl Fn(usize) -> bool + Sync,
+    u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+    reports: &mut [Option<StepReport>],
+) -> Result<(), (Option<usize>, TimestepError)> {
+    type Alone = Result<(usize, StepReport), (Option<usize>, TimestepError)>;
+    let stepped: Vec<Alone> = cells
+        .par_iter_mut()
+        .enumerate()
+        .filter(|(k, _)| alone(*k))
+        .map(|(k, c)| {
+            c.stepper
+                .step_with(c.state, u_inf, c.extra)
+                .map(|r| (k, r))
+                .map_err(|e| (Some(k), e))
+        })
+        .collect();
+    for r in stepped {
+        let (k, report) = r?;
+        reports[k] = Some(report);
+    }
+    Ok(())
+}
+
+/// `τⱼ` and the double-layer factors `(1 − λⱼ)/τⱼ` (where coupled) of a joint step's cells.
+fn joint_factors(steps: &[JointStep], with_dl: bool) -> (Vec<f64>, Vec<Option<f64>>) {
+    let tau = steps.iter().map(|s| s.plan.tau).collect();
+    let dl = steps
         .iter()
         .map(|s| {
             let c_d = s.plan.coef.double_layer;
             (with_dl && c_d != 0.0).then_some(c_d / s.plan.tau)
         })
         .collect();
-    let surfaces: Vec<&[f64]> = steps.iter().map(|s| s.plan.xstar.as_slice()).collect();
-    // The constant densities cⱼ − ρⱼ* (module docs).
+    (tau, dl)
+}
+
+/// The constant densities `cⱼ − ρⱼ*` of the cells of a joint step (module docs): traction and,
+/// where the double layer is coupled, double-layer density, `3n` each.
+fn constant_densities(
+    cells: &[&mut JointCell<'_>],
+    steps: &[JointStep],
+    omegas: &[Option<f64>],
+    dl: &[Option<f64>],
+    n3: usize,
+) -> (Vec<Vec<f64>>, Vec<Option<Vec<f64>>>) {
+    let m = cells.len();
     let mut fc = Vec::with_capacity(m);
     let mut gc = Vec::with_capacity(m);
     for k in 0..m {
@@ -495,58 +653,32 @@ fn solve_joint(
                 .collect::<Vec<f64>>()
         }));
     }
-    let mut w = vec![vec![0.0; n3]; m];
-    {
-        let fref: Vec<&[f64]> = fc.iter().map(|v| v.as_slice()).collect();
-        let gref: Vec<Option<&[f64]>> = gc.iter().map(|v| v.as_deref()).collect();
-        near.apply(zones, &surfaces, &fref, &gref, &mut w)?;
-    }
+    (fc, gc)
+}
+
+/// The joint system's right-hand side (each cell's own plus `τ` times the near field `w(k)`
+/// of the constant densities) and initial guess (`X*` on the grid and the last tension `σⁿ`).
+fn rhs_and_guess<'w>(
+    cells: &[&mut JointCell<'_>],
+    steps: &[JointStep],
+    tau: &[f64],
+    w: impl Fn(usize) -> &'w [f64],
+) -> (Vec<f64>, Vec<f64>) {
+    let m = cells.len();
+    let n4 = steps.first().map_or(0, |s| s.b.len());
+    let n3 = 3 * n4 / 4;
     let mut b = vec![0.0; n4 * m];
     let mut z0 = vec![0.0; n4 * m];
     for k in 0..m {
         let bk = &mut b[k * n4..(k + 1) * n4];
         bk.copy_from_slice(&steps[k].b);
-        for (bi, wi) in bk[..n3].iter_mut().zip(&w[k]) {
+        for (bi, wi) in bk[..n3].iter_mut().zip(w(k)) {
             *bi += tau[k] * wi;
         }
         z0[k * n4..k * n4 + n3].copy_from_slice(&steps[k].terms.xs_grid);
         z0[k * n4 + n3..(k + 1) * n4].copy_from_slice(&cells[k].state.sigma);
     }
-    let op = ClusterOperator {
-        n,
-        ops: cells
-            .iter()
-            .zip(steps)
-            .map(|(c, s)| c.stepper.joint_operator(&s.lease, &s.plan, s.terms.size))
-            .collect(),
-        near,
-        zones,
-        surfaces,
-        tau,
-        dl,
-        failure: Mutex::new(None),
-    };
-    let pc = ClusterPreconditioner {
-        n,
-        blocks: cells
-            .iter()
-            .zip(steps)
-            .map(|(c, s)| c.stepper.joint_block(s))
-            .collect(),
-    };
-    let params = cells[0].stepper.params().gmres;
-    let mut ws = GmresWorkspace::new(n4 * m, params.restart);
-    let mut z = vec![0.0; n4 * m];
-    let report = gmres(&op, &pc, &b, Some(&z0), &mut z, &params, &mut ws);
-    if let Some(e) = op.failure.into_inner().unwrap_or_else(|e| e.into_inner()) {
-        return Err(e);
-    }
-    for o in &op.ops {
-        if let Some(e) = o.take_failure() {
-            return Err(e.into());
-        }
-    }
-    Ok((z, report?))
+    (b, z0)
 }
 
 /// What the near-implicit coupling did in a step.
@@ -616,22 +748,7 @@ pub(super) fn step_all(
         }
     }
     let mut reports: Vec<Option<StepReport>> = vec![None; cells.len()];
-    type Alone = Result<(usize, StepReport), (Option<usize>, TimestepError)>;
-    let alone: Vec<Alone> = cells
-        .par_iter_mut()
-        .enumerate()
-        .filter(|(k, _)| cluster_of[*k].is_none())
-        .map(|(k, c)| {
-            c.stepper
-                .step_with(c.state, u_inf, c.extra)
-                .map(|r| (k, r))
-                .map_err(|e| (Some(k), e))
-        })
-        .collect();
-    for r in alone {
-        let (k, report) = r?;
-        reports[k] = Some(report);
-    }
+    step_alone(cells, |k| cluster_of[k].is_none(), u_inf, &mut reports)?;
     let mut stats = JointStats::default();
     for (ci, cl) in clusters.iter().enumerate() {
         let local = zones.restricted(cl);

@@ -171,6 +171,11 @@ impl NearPairs {
         }
     }
 
+    /// The cells' order `p`.
+    pub fn order(&self) -> usize {
+        self.p
+    }
+
     fn take(&self) -> Result<OffSurface, TimestepError> {
         let free = self.pool.lock().unwrap_or_else(|e| e.into_inner()).pop();
         match free {

@@ -42,7 +42,9 @@ use super::cell_state::CellState;
 use super::cell_stepper::CellStepper;
 use super::contact::{ContactSolver, ContactStats};
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
-use super::near_implicit::{step_all, CouplingMode, JointCell, JointStats, IMPLICIT_ZONE};
+use super::near_implicit::{
+    step_all_on, CouplingMode, JointCell, JointStats, RanksStep, IMPLICIT_ZONE,
+};
 use super::near_pairs::NearPairs;
 use super::semi_implicit::{
     extrapolate, ExplicitTerms, OperatorStorage, Preconditioning, StepReport, VesicleParams,

@@ -188,17 +188,6 @@ impl Suspension {
         let reports: Result<Vec<StepReport>, CellStepError> = match (self.coupling_mode, &densities)
         {
             (CouplingMode::NearImplicit, Some((tractions, scaled))) => {
-                if comm.size() > 1 {
-                    return Err(CellStepError {
-                        cell: None,
-                        source: TimestepError::InvalidParameter {
-                            name: "coupling",
-                            value: "near_implicit".into(),
-                            reason: "the near-implicit coupling runs on one rank for now; \
-                                     over several ranks use coupling = \"explicit\"",
-                        },
-                    });
-                }
                 let with_dl = self.inter_cell_double_layer;
                 let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
                 // ρⁿ goes into the state before the step, so that the step's reparametrisation
@@ -234,20 +223,23 @@ impl Suspension {
                         previous: previous[i].as_deref(),
                     })
                     .collect();
-                let stepped = step_all(&mut joint, &self.near_pairs, u_inf, with_dl);
+                // Over several ranks the statistics are those of all ranks.
+                let stepped = step_all_on(comm, &ids, &mut joint, &self.near_pairs, u_inf, with_dl);
                 drop(joint);
                 match stepped {
-                    Ok((reports, stats)) => {
+                    RanksStep::Done(reports, stats) => {
                         self.joint.clusters += stats.clusters;
                         self.joint.cells += stats.cells;
                         self.joint.largest = self.joint.largest.max(stats.largest);
                         self.joint.iterations += stats.iterations;
                         Ok(reports)
                     }
-                    Err((k, source)) => Err(CellStepError {
+                    RanksStep::Failed(k, source) => Err(CellStepError {
                         cell: k.map(|k| ids[k]),
                         source,
                     }),
+                    // Another rank's cell failed: `agree_cells` below returns its error here.
+                    RanksStep::Elsewhere => Ok(Vec::new()),
                 }
             }
             _ => self
