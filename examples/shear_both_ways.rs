@@ -99,8 +99,8 @@ fn bie(file: &Path, every: usize) -> Result<(Vec<Sample>, String), Box<dyn std::
             let (l, b, ax) = mobo::linalg3::shear_plane_semi_axes(semi, axes, [0.0, 0.0, 1.0]);
             let tt = c
                 .membrane_velocity
-                .as_deref()
-                .map(|u| g.tank_treading_rate(u, [0.0, 0.0, -rate.signum()]))
+                .as_ref()
+                .map(|u| g.tank_treading_rate(u.as_component_major(), [0.0, 0.0, -rate.signum()]))
                 .transpose()?
                 .unwrap_or(f64::NAN);
             let s = [

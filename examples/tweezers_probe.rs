@@ -90,7 +90,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // The largest membrane speed of the last step (units of G_s/μ).
         let speed = sim.cell(0)?.membrane_velocity.map_or(f64::NAN, |u| {
             (0..n)
-                .map(|j| (u[j] * u[j] + u[n + j] * u[n + j] + u[2 * n + j] * u[2 * n + j]).sqrt())
+                .map(|j| u.point(j).iter().map(|v| v * v).sum::<f64>().sqrt())
                 .fold(0.0, f64::max)
         });
         let st = &sim.suspension().cells()[0].state;

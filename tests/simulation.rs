@@ -8,7 +8,7 @@ use std::path::Path;
 
 use mobo::run::simulation::Simulation;
 use mobo::scene::cells::parse;
-use mobo::timestep::cell_force::{CellForce, CellView, ForceFn, PatchPair};
+use mobo::timestep::cell_force::{CellForce, CellView, ForceFn, PatchPair, VectorField};
 use mobo::vesicle::geometry::SurfaceCalculus;
 
 fn scene(text: &str) -> mobo::scene::cells::CellScene {
@@ -46,11 +46,11 @@ fn a_user_traction_is_the_body_force_for_the_cell_and_its_neighbour() {
     let mut b = Simulation::new(plain).unwrap();
     b.add_force(ForceFn::new(
         "sink cell 0",
-        |cell: &CellView, t: &mut [f64]| {
+        |cell: &CellView, t: &mut VectorField| {
             if cell.id == 0 {
-                let (n, area) = (cell.geometry.n_points(), cell.geometry.area());
-                for v in &mut t[2 * n..] {
-                    *v -= 2.0 / area;
+                let area = cell.geometry.area();
+                for k in 0..t.n_points() {
+                    t.add(k, [0.0, 0.0, -2.0 / area]);
                 }
             }
         },
@@ -117,7 +117,7 @@ t_end = 1.0
     let c0 = sim.cell(0).unwrap();
     let g = &c0.geometry;
     let n = g.n_points();
-    let mut t = vec![0.0; 3 * n];
+    let mut t = VectorField::zeros(n);
     pull.add_traction(
         &CellView {
             id: 0,
@@ -131,11 +131,11 @@ t_end = 1.0
     for (sign, want) in [(1i8, 0.3), (-1, -0.3)] {
         let fx: f64 = (0..n)
             .filter(|&j| side[j] == sign)
-            .map(|j| t[j] * g.da[j])
+            .map(|j| t.point(j)[0] * g.da[j])
             .sum();
         let fy: f64 = (0..n)
             .filter(|&j| side[j] == sign)
-            .map(|j| t[n + j] * g.da[j])
+            .map(|j| t.point(j)[1] * g.da[j])
             .sum();
         assert!(
             (fx - want).abs() < 1e-12 && fy.abs() < 1e-14,
@@ -147,7 +147,7 @@ t_end = 1.0
         );
     }
     // Another cell's index: no traction.
-    let mut none = vec![0.0; 3 * n];
+    let mut none = VectorField::zeros(n);
     let other = PatchPair {
         cell: 1,
         ..pull.clone()
@@ -161,7 +161,7 @@ t_end = 1.0
         },
         &mut none,
     );
-    assert!(none.iter().all(|&v| v == 0.0));
+    assert!(none.as_component_major().iter().all(|&v| v == 0.0));
 
     let extent = |g: &mobo::vesicle::geometry::Geometry, d: usize| {
         let (lo, hi) =
@@ -225,9 +225,10 @@ fn advance_to_lands_on_the_time_asked() {
 fn a_force_returning_nan_stops_the_step_with_the_cell_named() {
     let text = "[[cells]]\nshape = \"sphere\"\n[numerics]\norder = 4\ndt = 0.05\nt_end = 1.0\n";
     let mut sim = Simulation::new(scene(text)).unwrap();
-    sim.add_force(ForceFn::new("broken", |_: &CellView, t: &mut [f64]| {
-        t[0] = f64::NAN
-    }));
+    sim.add_force(ForceFn::new(
+        "broken",
+        |_: &CellView, t: &mut VectorField| t.set(0, [f64::NAN, 0.0, 0.0]),
+    ));
     let e = sim.step().expect_err("NaN traction").to_string();
     assert!(
         e.contains("step 1") && e.contains("cell 0") && e.contains("user force"),
@@ -236,9 +237,10 @@ fn a_force_returning_nan_stops_the_step_with_the_cell_named() {
     // A force that panics: the step fails with its name and message, the worker survives and
     // the next simulation steps.
     let mut sim = Simulation::new(scene(text)).unwrap();
-    sim.add_force(ForceFn::new("panics", |_: &CellView, _: &mut [f64]| {
-        panic!("index out of the caller's range")
-    }));
+    sim.add_force(ForceFn::new(
+        "panics",
+        |_: &CellView, _: &mut VectorField| panic!("index out of the caller's range"),
+    ));
     let e = sim.step().expect_err("a panicking force").to_string();
     assert!(
         e.contains("step 1")
@@ -290,7 +292,7 @@ fn smooth_tweezers_carry_plus_and_minus_f_and_move_continuously_with_the_surface
     let load = |coefs: &[f64], calc: &mut SurfaceCalculus| {
         let g = calc.geometry(coefs).unwrap();
         let n = g.n_points();
-        let mut t = vec![0.0; 3 * n];
+        let mut t = VectorField::zeros(n);
         smooth.add_traction(
             &CellView {
                 id: 0,
@@ -300,7 +302,7 @@ fn smooth_tweezers_carry_plus_and_minus_f_and_move_continuously_with_the_surface
             },
             &mut t,
         );
-        (g, t)
+        (g, t.into_component_major())
     };
     let rbc = shapes::rbc(p).unwrap();
     let (g, t) = load(rbc.coefs(), &mut calc);

@@ -23,9 +23,9 @@
 //! let mut sim = Simulation::new(scene)?;
 //! // A uniform traction F/A along z: a total force F = 1 on the unit sphere.
 //! sim.add_force(ForceFn::new("pull up", |cell, t| {
-//!     let (n, area) = (cell.geometry.n_points(), cell.geometry.area());
-//!     for v in &mut t[2 * n..] {
-//!         *v += 1.0 / area;
+//!     let area = cell.geometry.area();
+//!     for k in 0..t.n_points() {
+//!         t.add(k, [0.0, 0.0, 1.0 / area]);
 //!     }
 //! }));
 //! let z0 = sim.cell(0)?.geometry.centroid()[2];
@@ -42,7 +42,7 @@ use super::{assembly::build, CellRunError};
 use crate::comm::SerialComm;
 use crate::scene::cells::{CellScene, Effect};
 use crate::timestep::adaptive::AdaptiveDt;
-use crate::timestep::cell_force::CellForce;
+use crate::timestep::cell_force::{CellForce, VectorField};
 use crate::timestep::suspension::{Suspension, SuspensionReport};
 use crate::vesicle::geometry::{Geometry, SurfaceCalculus};
 
@@ -57,11 +57,11 @@ pub struct CellObservation {
     pub geometry: Geometry,
     /// Membrane tension of the last step on the grid (zeros before the first).
     pub tension: Vec<f64>,
-    /// Membrane velocity of the last solve on the grid (`3n`; `None` before the first).
-    pub membrane_velocity: Option<Vec<f64>>,
-    /// Velocity the other cells induced in the last step (`3n`; `None` for one cell or
-    /// before the first step).
-    pub inter_cell_velocity: Option<Vec<f64>>,
+    /// Membrane velocity of the last solve at the grid points (`None` before the first).
+    pub membrane_velocity: Option<VectorField>,
+    /// Velocity the other cells induced in the last step at the grid points (`None` for one
+    /// cell or before the first step).
+    pub inter_cell_velocity: Option<VectorField>,
 }
 
 /// A cell scene stepped by the caller.
@@ -261,8 +261,10 @@ impl Simulation {
             coefs: state.coefs,
             geometry,
             tension: state.sigma,
-            membrane_velocity: state.membrane_velocity,
-            inter_cell_velocity: state.velocity,
+            membrane_velocity: state
+                .membrane_velocity
+                .and_then(VectorField::from_component_major),
+            inter_cell_velocity: state.velocity.and_then(VectorField::from_component_major),
         })
     }
 }

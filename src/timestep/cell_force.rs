@@ -5,7 +5,8 @@
 //! the time, its coefficients and its [`Geometry`] on the order-`p` grid: points, normals,
 //! curvatures, quadrature weights `dA`), and adds a traction `t` (force per unit area of
 //! membrane, the force the membrane exerts on the fluid, the sign convention of the body force)
-//! at the grid points. The step applies it explicitly, like the contact repulsion: through the
+//! at the grid points, one 3-vector per point ([`VectorField`], the layout of `geometry.x` and
+//! `geometry.normal`). The step applies it explicitly, like the contact repulsion: through the
 //! cell's own single layer `S[t]` in its step and through the coupling, so that the other cells
 //! feel the flow it drives. Like the contact repulsion, the traction is taken at `Xⁿ` and not
 //! extrapolated: with BDF2 a user force is first order in time. A point force `F` on a patch `P` is the traction `F / |P|` on the
@@ -19,6 +20,7 @@
 
 use crate::vesicle::dot;
 use crate::vesicle::geometry::Geometry;
+pub use crate::vesicle::vector_field::VectorField;
 
 /// One cell as a [`CellForce`] sees it, at the start of a step.
 #[derive(Clone, Copy, Debug)]
@@ -38,9 +40,10 @@ pub trait CellForce: Send + Sync {
     /// A name for logs and the effects list.
     fn name(&self) -> &str;
 
-    /// Add the traction (force per unit area) at the cell's grid points to `out` (`3n`,
-    /// component-major: all x, then all y, then all z; `n = geometry.n_points()`).
-    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]);
+    /// Add the traction (force per unit area) at the cell's grid points to `out`: at point `k`
+    /// (`geometry.x[k]`), `out.add(k, t_k)` (`n = geometry.n_points()` points, all zero when
+    /// the first force is asked).
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut VectorField);
 }
 
 /// A [`CellForce`] from a closure `f(cell, out)` with a name.
@@ -51,7 +54,7 @@ pub struct ForceFn<F> {
 
 impl<F> ForceFn<F>
 where
-    F: Fn(&CellView<'_>, &mut [f64]) + Send + Sync,
+    F: Fn(&CellView<'_>, &mut VectorField) + Send + Sync,
 {
     /// The closure `f` under `name`.
     pub fn new(name: &str, f: F) -> Self {
@@ -64,13 +67,13 @@ where
 
 impl<F> CellForce for ForceFn<F>
 where
-    F: Fn(&CellView<'_>, &mut [f64]) + Send + Sync,
+    F: Fn(&CellView<'_>, &mut VectorField) + Send + Sync,
 {
     fn name(&self) -> &str {
         &self.name
     }
 
-    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]) {
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut VectorField) {
         (self.f)(cell, out)
     }
 }
@@ -146,12 +149,12 @@ impl CellForce for PatchPair {
         "patch pair (optical tweezers)"
     }
 
-    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]) {
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut VectorField) {
         if cell.id != self.cell {
             return;
         }
         if !self.is_valid() {
-            out.fill(f64::NAN);
+            out.fill([f64::NAN; 3]);
             return;
         }
         let g = cell.geometry;
@@ -227,12 +230,12 @@ impl CellForce for SmoothPatchPair {
         "smooth patch pair (optical tweezers)"
     }
 
-    fn add_traction(&self, cell: &CellView<'_>, out: &mut [f64]) {
+    fn add_traction(&self, cell: &CellView<'_>, out: &mut VectorField) {
         if cell.id != self.pair.cell {
             return;
         }
         if !(self.pair.is_valid() && self.width.is_finite() && self.width > 0.0) {
-            out.fill(f64::NAN);
+            out.fill([f64::NAN; 3]);
             return;
         }
         let g = cell.geometry;
@@ -245,7 +248,7 @@ impl CellForce for SmoothPatchPair {
 
 /// `out += (F / Σ w dA) w a`: the force `F a` spread over the points of weight `w` (nothing
 /// where the weights carry no area).
-fn spread(out: &mut [f64], g: &Geometry, a: [f64; 3], force: f64, w: impl Fn(usize) -> f64) {
+fn spread(out: &mut VectorField, g: &Geometry, a: [f64; 3], force: f64, w: impl Fn(usize) -> f64) {
     let n = g.n_points();
     let area: f64 = (0..n).map(|j| w(j) * g.da[j]).sum();
     if area <= 0.0 {
@@ -255,9 +258,7 @@ fn spread(out: &mut [f64], g: &Geometry, a: [f64; 3], force: f64, w: impl Fn(usi
     for j in 0..n {
         let wj = w(j);
         if wj != 0.0 {
-            for c in 0..3 {
-                out[c * n + j] += t * wj * a[c];
-            }
+            out.add(j, a.map(|ac| t * wj * ac));
         }
     }
 }

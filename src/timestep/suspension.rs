@@ -37,7 +37,7 @@ mod contacts;
 mod stepping;
 mod walls;
 
-use super::cell_force::{CellForce, CellView};
+use super::cell_force::{CellForce, CellView, VectorField};
 use super::cell_state::CellState;
 use super::cell_stepper::CellStepper;
 use super::contact::{ContactSolver, ContactStats};

@@ -91,6 +91,7 @@ pub mod smooth_layer;
 pub mod surface_distance;
 pub mod tank_treading;
 pub mod tension;
+pub mod vector_field;
 
 pub use coefficient_operator::CoefficientOperator;
 pub use geometry::{Geometry, SurfaceCalculus};

@@ -17,7 +17,7 @@ impl Suspension {
             .map(|cell| {
                 let id = cell.id;
                 let (st, c) = (&cell.stepper, &cell.state.coefs);
-                let mut t = vec![0.0; 3 * st.n_points()];
+                let mut t = VectorField::zeros(st.n_points());
                 st.with_geometry(c, |g| {
                     let view = CellView {
                         id,
@@ -44,6 +44,7 @@ impl Suspension {
                     cell: Some(id),
                     source,
                 })?;
+                let t = t.into_component_major();
                 if t.iter().any(|v| !v.is_finite()) {
                     return Err(CellStepError {
                         cell: Some(id),
