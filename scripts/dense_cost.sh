@@ -12,27 +12,42 @@
 #   scripts/dense_cost.sh            # release build, STEPS=60
 #   STEPS=200 scripts/dense_cost.sh
 #   PHIS="0.3 0.45" scripts/dense_cost.sh
+#
+# The largest stable dt: DTS="0.01 0.02 0.04 0.08" runs every case at each dt over the same
+# time, STEPS × 0.01 (so STEPS steps at dt = 0.01, STEPS/8 at 0.08); COUNT and ORDER change the
+# number of cells (16) and the order (8); COUPLINGS the modes (both). MOBO_BIN: a binary built
+# already (no cargo build).
+#
+#   COUNT=8 ORDER=6 PHIS="0.2 0.3" DTS="0.01 0.02 0.04 0.08" STEPS=100 scripts/dense_cost.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 STEPS=${STEPS:-60}
-cargo build --release --quiet
-bin=target/release/mobo
+COUNT=${COUNT:-16}
+ORDER=${ORDER:-8}
+if [ -n "${MOBO_BIN:-}" ]; then
+  bin=$MOBO_BIN
+else
+  cargo build --release --quiet
+  bin=target/release/mobo
+fi
 dir=$(mktemp -d)
 trap 'rm -rf "$dir"' EXIT
-echo "| volume fraction | coupling | steps run | s per step | GMRES iterations a step (mean, max) | contact moves (steps with moves) | contacts' share of the time | smallest end-of-step gap |"
-echo "|---|---|---|---|---|---|---|---|"
+echo "| volume fraction | coupling | dt | steps run | s per step | GMRES iterations a step (mean, max) | contact moves (steps with moves) | contacts' share of the time | smallest end-of-step gap | area drift |"
+echo "|---|---|---|---|---|---|---|---|---|---|"
 for phi in ${PHIS:-0.1 0.2 0.3 0.45}; do
   gap=0.05
   [ "$phi" = 0.45 ] && gap=0.02
-  for coupling in explicit near_implicit; do
-    scene="$dir/dense_${phi}_${coupling}.toml"
+  for coupling in ${COUPLINGS:-explicit near_implicit}; do
+  for dt in ${DTS:-0.01}; do
+    steps=$(python3 -c "print(max(1, round($STEPS * 0.01 / $dt)))")
+    scene="$dir/dense_${phi}_${coupling}_${dt}.toml"
     cat > "$scene" <<EOF
 [flow]
 kind = "shear"
 rate = 1.0
 [[cells]]
 shape = "rbc"
-count = 16
+count = $COUNT
 placement = "packed"
 volume_fraction = $phi
 min_gap = $gap
@@ -41,31 +56,31 @@ bending_modulus = 0.1
 shear_modulus = 1.0
 viscosity_ratio = 5.0
 [numerics]
-order = 8
-dt = 0.01
+order = $ORDER
+dt = $dt
 t_end = 100.0
 scheme = "bdf2"
 coupling = "$coupling"
 contact_distance = $gap
 [output]
-every = $STEPS
+every = $steps
 vtk = false
 npy = false
 EOF
-    out="$dir/out_${phi}_${coupling}"
-    if ! "$bin" run "$scene" --out "$out" --quiet --max-steps "$STEPS" >/dev/null 2>"$out.err" \
+    out="$dir/out_${phi}_${coupling}_${dt}"
+    if ! "$bin" run "$scene" --out "$out" --quiet --max-steps "$steps" >/dev/null 2>"$out.err" \
         && [ ! -f "$out/summary.json" ]; then
-      echo "| $phi | $coupling | not run: $(head -c 160 "$out.err") | – | – | – | – | – |"
+      echo "| $phi | $coupling | $dt | not run: $(head -c 160 "$out.err") | – | – | – | – | – | – |"
       continue
     fi
-    python3 - "$out" "$phi" "$coupling" "$out.err" <<'PY'
+    python3 - "$out" "$phi" "$coupling" "$out.err" "$dt" <<'PY'
 import json, sys
-out, phi, coupling, err = sys.argv[1:5]
+out, phi, coupling, err, dt = sys.argv[1:6]
 s = json.load(open(out + "/summary.json"))
 if "error" in s:
     steps = s["last_good_step"]
     msg = s["error"].split(": ", 1)[-1][:90]
-    print(f"| {float(phi)*100:.0f} % | {coupling} | {steps}, then fails: {msg} | – | – | – | – | – |")
+    print(f"| {float(phi)*100:.0f} % | {coupling} | {dt} | {steps}, then fails: {msg} | – | – | – | – | – | – |")
     sys.exit(0)
 steps = s["steps"]
 c = s["counters"]["contacts"]
@@ -73,9 +88,10 @@ wall = s["wall_s"]
 share = 100.0 * c["seconds"] / wall if wall > 0 else 0.0
 gap = c["smallest_gap"]
 gap = f"{gap:.4f}" if gap is not None else "–"
-print(f"| {float(phi)*100:.0f} % | {coupling} | {steps} | {wall/steps:.2f} | "
+print(f"| {float(phi)*100:.0f} % | {coupling} | {dt} | {steps} | {wall/steps:.2f} | "
       f"{s['gmres_iterations_mean']:.1f}, {s['gmres_iterations_max']} | "
-      f"{c['moves']} ({c['steps_with_moves']}) | {share:.1f} % | {gap} |")
+      f"{c['moves']} ({c['steps_with_moves']}) | {share:.1f} % | {gap} | {s['area_drift']:.1e} |")
 PY
+  done
   done
 done
