@@ -273,7 +273,9 @@ impl<T: LinearOperator + ?Sized> GmresOperator for T {
 }
 
 /// [`gmres`] with the inner products of `ip` (each process passes its rows of `b`, `x0`, `x`;
-/// `a` and `precond` act on those rows, exchanging what they need).
+/// `a` and `precond` act on those rows, exchanging what they need). Over processes, the
+/// parameter and size checks at the start return before any exchange: the callers pass the
+/// same `params` everywhere and consistent sizes; every later branch follows shared sums.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn gmres_with<A, P, I>(
     a: &A,

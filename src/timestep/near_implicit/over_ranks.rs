@@ -10,7 +10,7 @@
 //! * **A cluster across ranks** is one GMRES over all ranks: each rank applies the step operator
 //!   and the preconditioner block of its own cells, and the near-zone operator at its own
 //!   targets. A product all-gathers the members' densities `ρⱼ(zⱼ)` (traction and double-layer
-//!   density, `6n` words a member) so that each rank has its ghost sources'. The inner products
+//!   density, `6n + 2` words a member) so that each rank has its ghost sources'. The inner products
 //!   are summed over ranks in rank order ([`RankSums`]): every rank gets the same numbers and runs
 //!   the same Arnoldi recurrence, ranks without a member of the cluster with empty rows.
 //!
@@ -72,8 +72,9 @@ struct Gathered {
     points: Vec<[f64; 3]>,
 }
 
-/// Inner products summed over the ranks in rank order (the same value on every rank); a
-/// failed exchange gives NaN, which ends the solve on every rank, and is kept.
+/// Inner products summed over the ranks in rank order (the same value on every rank). A
+/// failed exchange gives NaN here, which ends this rank's solve, and is kept (an MPI failure
+/// is in practice the whole job's).
 struct RankSums<'a> {
     comm: &'a dyn Communicator,
     failure: Mutex<Option<CommError>>,
@@ -133,6 +134,9 @@ fn step_over_ranks(
     with_dl: bool,
 ) -> Result<(Vec<StepReport>, JointStats), RanksStep> {
     let me = comm.rank();
+    // The members of a cluster below are taken in local order and placed in cluster order:
+    // the same order because both ascend with the global index.
+    debug_assert!(ids.windows(2).all(|w| w[0] < w[1]), "ids ascend");
     let global = settle(comm, gather_cells(comm, ids, cells, near))?;
     let zone_cells: Vec<ZoneCell<'_>> = global
         .iter()
@@ -269,43 +273,13 @@ fn gather_cells(
     let p = near.order();
     let (ncoef, n) = (3 * ((p + 1) * (p + 1) - 1), 2 * p * (p + 1));
     let record = HEAD + ncoef + 3 * n;
-    let mut mine = Vec::with_capacity(record * cells.len());
-    for (k, (c, &id)) in cells.iter().zip(ids).enumerate() {
-        let xs = c.stepper.operator_surface(c.state);
-        let (points, centroid) = c
-            .stepper
-            .with_geometry(&xs, |g| (g.x.clone(), g.centroid()))
-            .map_err(|e| (Some(k), e))?;
-        if xs.len() != ncoef || points.len() != n {
-            return Err((
-                Some(k),
-                TimestepError::InvalidParameter {
-                    name: "order",
-                    value: format!("{}", c.stepper.n_points()),
-                    reason: "the near-implicit coupling over ranks needs one order for all cells",
-                },
-            ));
-        }
-        let radius = points
-            .iter()
-            .map(|x| dist3(*x, centroid))
-            .fold(0.0, f64::max);
-        let g = c.stepper.params().gmres;
-        mine.extend([id as f64, f64::from(u8::from(c.stepper.joins_near_solve()))]);
-        mine.extend(centroid);
-        mine.extend([
-            radius,
-            g.tol,
-            g.restart as f64,
-            g.max_iters as f64,
-            g.min_cycle_reduction,
-        ]);
-        mine.extend_from_slice(&xs);
-        mine.extend(points.iter().flatten());
-    }
+    // A failure here still takes part in the gather (with no records), so that every rank
+    // makes the same collectives; the caller's `settle` then stops all.
+    let local = records(ids, cells, ncoef, n);
     let all = comm
-        .all_gather_f64(&mine)
+        .all_gather_f64(local.as_deref().unwrap_or(&[]))
         .map_err(|c| (None, TimestepError::Comm(c)))?;
+    local?;
     let mut global = Vec::new();
     for (owner, buf) in all.iter().enumerate() {
         if buf.len() % record != 0 {
@@ -341,6 +315,45 @@ fn gather_cells(
     }
     global.sort_by_key(|c| c.id);
     Ok(global)
+}
+
+/// This rank's cell records for [`gather_cells`] (`HEAD + ncoef + 3n` words a cell).
+fn records(ids: &[usize], cells: &[JointCell<'_>], ncoef: usize, n: usize) -> Local<Vec<f64>> {
+    let mut mine = Vec::with_capacity((HEAD + ncoef + 3 * n) * cells.len());
+    for (k, (c, &id)) in cells.iter().zip(ids).enumerate() {
+        let xs = c.stepper.operator_surface(c.state);
+        let (points, centroid) = c
+            .stepper
+            .with_geometry(&xs, |g| (g.x.clone(), g.centroid()))
+            .map_err(|e| (Some(k), e))?;
+        if xs.len() != ncoef || points.len() != n {
+            return Err((
+                Some(k),
+                TimestepError::InvalidParameter {
+                    name: "order",
+                    value: format!("{} grid points", c.stepper.n_points()),
+                    reason: "the near-implicit coupling over ranks needs one order for all cells",
+                },
+            ));
+        }
+        let radius = points
+            .iter()
+            .map(|x| dist3(*x, centroid))
+            .fold(0.0, f64::max);
+        let g = c.stepper.params().gmres;
+        mine.extend([id as f64, f64::from(u8::from(c.stepper.joins_near_solve()))]);
+        mine.extend(centroid);
+        mine.extend([
+            radius,
+            g.tol,
+            g.restart as f64,
+            g.max_iters as f64,
+            g.min_cycle_reduction,
+        ]);
+        mine.extend_from_slice(&xs);
+        mine.extend(points.iter().flatten());
+    }
+    Ok(mine)
 }
 
 fn dist3(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -513,7 +526,12 @@ impl ClusterOverRanks<'_> {
         let (n3, n4) = (3 * n, 4 * n);
         let (tau, dl) = joint_factors(steps, with_dl);
         let (fc, gc) = constant_densities(cells, steps, omegas, &dl, n3);
-        let w = self.near_field(&fc, &gc, n3)?;
+        // A failure of the near field here still enters GMRES, with a NaN right-hand side:
+        // every rank leaves it at the same collective (the finiteness check of `b`).
+        let (w, near_failure) = match self.near_field(&fc, &gc, n3) {
+            Ok(w) => (w, None),
+            Err(e) => (vec![vec![f64::NAN; n3]; self.surfaces.len()], Some(e)),
+        };
         let (b, z0) = rhs_and_guess(cells, steps, &tau, |k| &w[self.positions[k]]);
         let op = RanksOperator {
             cluster: self,
@@ -540,6 +558,9 @@ impl ClusterOverRanks<'_> {
             &mut ws,
             &sums,
         );
+        if let Some(e) = near_failure {
+            return Err(e);
+        }
         if let Some(e) = sums.failure.into_inner().unwrap_or_else(|e| e.into_inner()) {
             return Err(TimestepError::Comm(e));
         }
