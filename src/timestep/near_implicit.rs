@@ -694,6 +694,26 @@ pub struct JointStats {
     pub iterations: usize,
 }
 
+impl JointStats {
+    /// One more cluster of `cells` cells, solved in `iterations` GMRES iterations.
+    pub fn add_cluster(&mut self, cells: usize, iterations: usize) {
+        self.merge(&JointStats {
+            clusters: 1,
+            cells,
+            largest: cells,
+            iterations,
+        });
+    }
+
+    /// `other`'s clusters added to these.
+    pub fn merge(&mut self, other: &JointStats) {
+        self.clusters += other.clusters;
+        self.cells += other.cells;
+        self.largest = self.largest.max(other.largest);
+        self.iterations += other.iterations;
+    }
+}
+
 /// One step of all `cells` with the near-implicit coupling: the near zones found at the
 /// operators' geometry `X*`, each cluster's cells stepped as one system
 /// ([`step_cluster`]), every other cell alone with its explicit terms. An error names the
@@ -704,37 +724,20 @@ pub(super) fn step_all(
     u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
     with_dl: bool,
 ) -> Result<(Vec<StepReport>, JointStats), (Option<usize>, TimestepError)> {
-    type Placed = (Vec<f64>, Vec<[f64; 3]>, [f64; 3], f64);
     let placed: Result<Vec<Placed>, (Option<usize>, TimestepError)> = cells
         .par_iter()
         .enumerate()
-        .map(|(k, c)| {
-            let xs = c.stepper.operator_surface(c.state);
-            let (points, centroid) = c
-                .stepper
-                .with_geometry(&xs, |g| (g.x.clone(), g.centroid()))
-                .map_err(|e| (Some(k), e))?;
-            let radius = points
-                .iter()
-                .map(|x| {
-                    ((x[0] - centroid[0]).powi(2)
-                        + (x[1] - centroid[1]).powi(2)
-                        + (x[2] - centroid[2]).powi(2))
-                    .sqrt()
-                })
-                .fold(0.0, f64::max);
-            Ok((xs, points, centroid, radius))
-        })
+        .map(|(k, c)| place(c).map_err(|e| (Some(k), e)))
         .collect();
     let placed = placed?;
     let zone_cells: Vec<ZoneCell<'_>> = placed
         .iter()
         .zip(cells.iter())
-        .map(|((xs, points, centroid, radius), c)| ZoneCell {
-            surface: xs,
-            points,
-            centroid: *centroid,
-            radius: *radius,
+        .map(|(p, c)| ZoneCell {
+            surface: &p.surface,
+            points: &p.points,
+            centroid: p.centroid,
+            radius: p.radius,
             joins: c.stepper.joins_near_solve(),
         })
         .collect();
@@ -750,23 +753,85 @@ pub(super) fn step_all(
     let mut reports: Vec<Option<StepReport>> = vec![None; cells.len()];
     step_alone(cells, |k| cluster_of[k].is_none(), u_inf, &mut reports)?;
     let mut stats = JointStats::default();
-    for (ci, cl) in clusters.iter().enumerate() {
-        let local = zones.restricted(cl);
+    for cl in &clusters {
+        let held = HeldCluster {
+            members: cl,
+            zones: &zones.restricted(cl),
+        };
+        held.step(cells, near, u_inf, with_dl, &mut stats, &mut reports)?;
+    }
+    Ok((reports.into_iter().flatten().collect(), stats))
+}
+
+/// A cell at the operators' geometry `X*`, as the near zones take it.
+pub(super) struct Placed {
+    /// `X*` (order-`p` coefficients).
+    pub surface: Vec<f64>,
+    /// Its grid points.
+    pub points: Vec<[f64; 3]>,
+    pub centroid: [f64; 3],
+    /// The largest distance of a grid point from the centroid.
+    pub radius: f64,
+}
+
+/// `c` at its operators' geometry (on every rank the same numbers: the zones over ranks
+/// must be one rank's).
+pub(super) fn place(c: &JointCell<'_>) -> Result<Placed, TimestepError> {
+    let surface = c.stepper.operator_surface(c.state);
+    let (points, centroid) = c
+        .stepper
+        .with_geometry(&surface, |g| (g.x.clone(), g.centroid()))?;
+    let radius = points
+        .iter()
+        .map(|x| {
+            ((x[0] - centroid[0]).powi(2)
+                + (x[1] - centroid[1]).powi(2)
+                + (x[2] - centroid[2]).powi(2))
+            .sqrt()
+        })
+        .fold(0.0, f64::max);
+    Ok(Placed {
+        surface,
+        points,
+        centroid,
+        radius,
+    })
+}
+
+/// A cluster whose cells are all held here: `members` their indices among the cells given
+/// (ascending), `zones` the near zones restricted (renumbered) to them.
+pub(super) struct HeldCluster<'a> {
+    pub members: &'a [usize],
+    pub zones: &'a NearZones,
+}
+
+impl HeldCluster<'_> {
+    /// [`step_cluster`] of the members; their reports into `reports`, the cluster into `stats`.
+    /// A failure names the member's index among `cells`.
+    pub(super) fn step(
+        &self,
+        cells: &mut [JointCell<'_>],
+        near: &NearPairs,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        with_dl: bool,
+        stats: &mut JointStats,
+        reports: &mut [Option<StepReport>],
+    ) -> Result<(), (Option<usize>, TimestepError)> {
         let mut members: Vec<&mut JointCell<'_>> = cells
             .iter_mut()
             .enumerate()
-            .filter(|(k, _)| cluster_of[*k] == Some(ci))
+            .filter(|(k, _)| self.members.binary_search(k).is_ok())
             .map(|(_, c)| c)
             .collect();
-        let done = step_cluster(&mut members, near, &local, u_inf, with_dl)
-            .map_err(|(k, e)| (k.map(|k| cl[k]), e))?;
-        stats.clusters += 1;
-        stats.cells += cl.len();
-        stats.largest = stats.largest.max(cl.len());
-        stats.iterations += done.first().map_or(0, |r| r.gmres.iterations);
-        for (&k, r) in cl.iter().zip(done) {
+        let done = step_cluster(&mut members, near, self.zones, u_inf, with_dl)
+            .map_err(|(k, e)| (k.map(|k| self.members[k]), e))?;
+        stats.add_cluster(
+            self.members.len(),
+            done.first().map_or(0, |r| r.gmres.iterations),
+        );
+        for (&k, r) in self.members.iter().zip(done) {
             reports[k] = Some(r);
         }
+        Ok(())
     }
-    Ok((reports.into_iter().flatten().collect(), stats))
 }

@@ -190,21 +190,11 @@ fn step_over_ranks(
                 .iter()
                 .map(|&g| local_of[g].expect("held here"))
                 .collect();
-            let mut members: Vec<&mut JointCell<'_>> = cells
-                .iter_mut()
-                .enumerate()
-                .filter(|(k, _)| members_local.contains(k))
-                .map(|(_, c)| c)
-                .collect();
-            let done = step_cluster(&mut members, near, &zones.restricted(cl), u_inf, with_dl)
-                .map_err(|(k, e)| (k.map(|k| members_local[k]), e))?;
-            here.clusters += 1;
-            here.cells += cl.len();
-            here.largest = here.largest.max(cl.len());
-            here.iterations += done.first().map_or(0, |r| r.gmres.iterations);
-            for (&k, r) in members_local.iter().zip(done) {
-                reports[k] = Some(r);
-            }
+            let held = HeldCluster {
+                members: &members_local,
+                zones: &zones.restricted(cl),
+            };
+            held.step(cells, near, u_inf, with_dl, &mut here, &mut reports)?;
         }
         Ok(())
     })();
@@ -241,10 +231,7 @@ fn step_over_ranks(
                 RanksStep::Failed(Some(m), e) => RanksStep::Failed(Some(positions[m].1), e),
                 other => other,
             })?;
-        stats.clusters += 1;
-        stats.cells += cl.len();
-        stats.largest = stats.largest.max(cl.len());
-        stats.iterations += iterations;
+        stats.add_cluster(cl.len(), iterations);
         for (&(_, k), r) in positions.iter().zip(done) {
             reports[k] = Some(r);
         }
@@ -321,11 +308,12 @@ fn gather_cells(
 fn records(ids: &[usize], cells: &[JointCell<'_>], ncoef: usize, n: usize) -> Local<Vec<f64>> {
     let mut mine = Vec::with_capacity((HEAD + ncoef + 3 * n) * cells.len());
     for (k, (c, &id)) in cells.iter().zip(ids).enumerate() {
-        let xs = c.stepper.operator_surface(c.state);
-        let (points, centroid) = c
-            .stepper
-            .with_geometry(&xs, |g| (g.x.clone(), g.centroid()))
-            .map_err(|e| (Some(k), e))?;
+        let Placed {
+            surface: xs,
+            points,
+            centroid,
+            radius,
+        } = place(c).map_err(|e| (Some(k), e))?;
         if xs.len() != ncoef || points.len() != n {
             return Err((
                 Some(k),
@@ -336,10 +324,6 @@ fn records(ids: &[usize], cells: &[JointCell<'_>], ncoef: usize, n: usize) -> Lo
                 },
             ));
         }
-        let radius = points
-            .iter()
-            .map(|x| dist3(*x, centroid))
-            .fold(0.0, f64::max);
         let g = c.stepper.params().gmres;
         mine.extend([id as f64, f64::from(u8::from(c.stepper.joins_near_solve()))]);
         mine.extend(centroid);
@@ -356,10 +340,6 @@ fn records(ids: &[usize], cells: &[JointCell<'_>], ncoef: usize, n: usize) -> Lo
     Ok(mine)
 }
 
-fn dist3(a: [f64; 3], b: [f64; 3]) -> f64 {
-    ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
-}
-
 /// The statistics of the clusters each rank solved alone, summed over ranks (collective).
 fn sum_stats(comm: &dyn Communicator, here: JointStats) -> Result<JointStats, RanksStep> {
     let mine = [
@@ -373,10 +353,12 @@ fn sum_stats(comm: &dyn Communicator, here: JointStats) -> Result<JointStats, Ra
         .map_err(|c| RanksStep::Failed(None, TimestepError::Comm(c)))?;
     let mut s = JointStats::default();
     for r in all.iter().filter(|r| r.len() == 4) {
-        s.clusters += r[0] as usize;
-        s.cells += r[1] as usize;
-        s.largest = s.largest.max(r[2] as usize);
-        s.iterations += r[3] as usize;
+        s.merge(&JointStats {
+            clusters: r[0] as usize,
+            cells: r[1] as usize,
+            largest: r[2] as usize,
+            iterations: r[3] as usize,
+        });
     }
     Ok(s)
 }

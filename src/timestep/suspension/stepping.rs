@@ -229,10 +229,7 @@ impl Suspension {
                 drop(joint);
                 match stepped {
                     RanksStep::Done(reports, stats) => {
-                        self.joint.clusters += stats.clusters;
-                        self.joint.cells += stats.cells;
-                        self.joint.largest = self.joint.largest.max(stats.largest);
-                        self.joint.iterations += stats.iterations;
+                        self.joint.merge(&stats);
                         Ok(reports)
                     }
                     RanksStep::Failed(k, source) => Err(CellStepError {
