@@ -145,6 +145,58 @@ fn one_plain_cell_builds_only_what_it_needs() {
     assert!(fmm.reason.contains("one cell"), "{}", fmm.reason);
 }
 
+/// `[numerics] grid`: by default the grid of a cell with shear elasticity follows its material
+/// points and a vesicle's is relaxed after every step; "relaxed" and "material" reach every
+/// cell's stepper, and the summary's effects say which cells follow the material.
+#[test]
+fn grid_motion_reaches_every_cell() {
+    let two = |grid: &str| {
+        format!(
+            "[[cells]]\nshape = \"rbc\"\nshear_modulus = 1.0\n\n[[cells]]\nshape = \
+             \"sphere\"\ncenter = [4.0, 0, 0]\n\n[[cells]]\nshape = \"sphere\"\nmembrane = \
+             \"capsule\"\nshear_modulus = 1.0\ncenter = [8.0, 0, 0]\n[numerics]\norder = 8\n{grid}"
+        )
+    };
+    for (grid, relaxed, followed) in [
+        ("", [false, true, false], "0, 2"),
+        ("grid = \"auto\"\n", [false, true, false], "0, 2"),
+        ("grid = \"relaxed\"\n", [true, true, false], "2"),
+        ("grid = \"material\"\n", [false, false, false], "0, 1, 2"),
+    ] {
+        let s = parse(file(), &two(grid)).unwrap();
+        let susp = mobo::run::assembly::build(&s).unwrap();
+        let got: Vec<bool> = susp
+            .steppers()
+            .iter()
+            .map(|c| c.params().reparametrize.is_some())
+            .collect();
+        assert_eq!(got, relaxed, "{grid}");
+        let e = s
+            .effects
+            .iter()
+            .find(|e| e.name == "material_grid")
+            .unwrap();
+        assert!(e.enabled, "{grid}");
+        assert!(
+            e.reason.contains(&format!("on cells {followed} (")),
+            "{grid}: {}",
+            e.reason
+        );
+    }
+    // One vesicle: nothing follows the material.
+    let s = parse(file(), "[[cells]]\nshape = \"sphere\"\n").unwrap();
+    let e = s
+        .effects
+        .iter()
+        .find(|e| e.name == "material_grid")
+        .unwrap();
+    assert!(
+        !e.enabled && e.reason.contains("relaxed after every step"),
+        "{}",
+        e.reason
+    );
+}
+
 #[test]
 fn surfaces_are_scaled_rotated_and_placed() {
     let s = parse(file(), FULL).unwrap();
@@ -252,6 +304,10 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
         (
             "[[cells]]\nshape = \"sphere\"\n[numerics]\ngpu = \"sometimes\"\n",
             "scene.toml:4:7: [numerics] gpu must be \"auto\", true or false, got \"sometimes\"",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\n[numerics]\ngrid = \"sideways\"\n",
+            "scene.toml:4:8: [numerics] grid: unknown choice \"sideways\" (auto, relaxed, material)",
         ),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"shear\"\n", "needs rate"),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"vortex\"\nrate = 1.0\n", "unknown flow"),
@@ -363,6 +419,12 @@ fn specs_and_files_describe_the_same_scenes() {
         }
     }
     assert!(texts.len() >= 4, "{}", texts.len());
+    for grid in ["auto", "relaxed", "material"] {
+        texts.push((
+            format!("grid = {grid}"),
+            format!("[[cells]]\nshape = \"sphere\"\n[numerics]\ngrid = \"{grid}\"\n"),
+        ));
+    }
     for gpu in ["\"auto\"", "true", "false"] {
         texts.push((
             format!("gpu = {gpu}"),

@@ -1164,3 +1164,85 @@ fn dense_packed_blood_at_30_and_45_percent_long() {
         1e-5,
     );
 }
+
+/// A red blood cell pressed out of shape by its neighbours in a dense suspension, alone in
+/// shear (`tests/data/rbc_pressed_p8.ckpt`: cell 11 of the 27-cell lattice at 17 %, `λ = 5`,
+/// p = 8, at step 690; docs/hard_cases.md). With its grid relaxed after every step, the
+/// relabelling of its Skalak reference by a re-fit at order 8 feeds the explicit elastic force,
+/// and the cell blows up within 15 steps (it did so inside the 27-cell run at step 706). With
+/// its grid on its material points (`[numerics] grid = "auto"`, the default for a cell with
+/// shear elasticity) it runs on, its area/volume error before correction at the level of the
+/// steps before.
+#[test]
+fn pressed_rbc_runs_with_its_grid_on_its_material_points() {
+    let dir = std::env::temp_dir().join(format!("mobo-hard-pressed-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let scene = |grid: &str| {
+        format!(
+            "[flow]\nkind = \"shear\"\nrate = 1.0\n[[cells]]\nshape = \"rbc\"\n\
+             bending_modulus = 0.1\nshear_modulus = 1.0\nviscosity_ratio = 5.0\n[numerics]\n\
+             order = 8\ndt = 0.01\nt_end = 7.3\nscheme = \"bdf2\"\ngrid = \"{grid}\"\n\
+             [output]\nevery = 1000\nnpy = false\nvtk = false\n"
+        )
+    };
+    let run = |grid: &str| {
+        let out = dir.join(grid);
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::copy(
+            concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/tests/data/rbc_pressed_p8.ckpt"
+            ),
+            out.join("checkpoint.bin"),
+        )
+        .unwrap();
+        std::fs::write(out.join("scene.toml"), scene(grid)).unwrap();
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_mobo"))
+            .args(["run", "--quiet", "--resume"])
+            .arg(&out)
+            .output()
+            .unwrap();
+        let table = std::fs::read_to_string(out.join("observables.csv")).unwrap_or_default();
+        // Step and area/volume error before correction of every step taken here.
+        let rows: Vec<(usize, f64)> = table
+            .lines()
+            .skip(1)
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                (f[0].parse().unwrap(), f[6].parse().unwrap())
+            })
+            .collect();
+        (o, rows)
+    };
+    let (relaxed, _) = run("relaxed");
+    let stderr = String::from_utf8_lossy(&relaxed.stderr);
+    assert!(!relaxed.status.success(), "the relaxed grid ran through");
+    assert!(
+        stderr.contains("enclosed volume") && !stderr.contains("panicked"),
+        "{stderr}"
+    );
+    let failed_at: usize = stderr
+        .split("step ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("no step in: {stderr}"));
+    assert!((691..=705).contains(&failed_at), "{stderr}");
+    let (auto, rows) = run("auto");
+    assert!(
+        auto.status.success(),
+        "{}",
+        String::from_utf8_lossy(&auto.stderr)
+    );
+    assert_eq!(rows.len(), 40, "steps 691-730");
+    let worst = rows.iter().map(|r| r.1).fold(0.0, f64::max);
+    assert!(
+        worst < 1e-3,
+        "area/volume error before correction {worst:.2e}"
+    );
+    println!(
+        "| pressed RBC, p = 8, λ = 5 | relaxed grid fails at step {failed_at} | material grid: \
+         40 steps, largest area/volume error before correction {worst:.2e} |"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

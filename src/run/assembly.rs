@@ -20,7 +20,7 @@ use crate::vesicle::skalak::SkalakParams;
 use crate::wall::{Wall, WallKind, WallParams};
 
 /// The setup of every cell of `scene`, in scene order (the settings `mobo run` uses: drift
-/// correction and reparametrisation every step, GMRES restart 200).
+/// correction every step, the grids relaxed as `[numerics] grid` says, GMRES restart 200).
 pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
     let p = scene.numerics.order;
     let q = scene.numerics.upsample * p;
@@ -40,8 +40,9 @@ pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
                 ..Default::default()
             },
             correct_drift: true,
-            // A capsule's elasticity is measured from material points: its grid follows them.
-            reparametrize: cell.inextensible.then(|| ReparamParams {
+            // A membrane with shear elasticity is measured from material points: by default
+            // its grid follows them (`scene::cells::GridMotion`).
+            reparametrize: scene.numerics.grid.relaxes(cell).then(|| ReparamParams {
                 max_iterations: 10,
                 ..Default::default()
             }),

@@ -199,6 +199,42 @@ impl CellSpec {
     }
 }
 
+/// How the grid points of a cell move (`[numerics] grid`).
+///
+/// A locally inextensible membrane without shear elasticity (a vesicle) has no material
+/// memory: tank-treading carries its grid points along the membrane and bunches them, so its
+/// grid is relaxed after every step ([`crate::vesicle::reparam`]). A membrane with shear
+/// elasticity (an RBC, a capsule) remembers its reference: its grid points follow the material,
+/// and the elastic strain itself bounds how far they bunch. Relaxing such a grid relabels the
+/// elastic reference by a re-fit at order `p` every step, and at low order that re-fit's strain
+/// feeds back into the explicit elastic force: a lone RBC (Skalak, `G_s = 1`, `λ = 5`, p = 8)
+/// taken from a dense suspension blows up within 15 steps with its grid relaxed and runs on
+/// with it following the material (docs/hard_cases.md).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum GridMotion {
+    /// The grid of a cell with shear elasticity follows its material points; that of a
+    /// locally inextensible cell without shear elasticity is relaxed after every step (the
+    /// default).
+    #[default]
+    Auto,
+    /// The grid of every locally inextensible cell is relaxed after every step, shear
+    /// elasticity or not (a capsule's always follows its material points).
+    Relaxed,
+    /// Every grid point follows the material.
+    Material,
+}
+
+impl GridMotion {
+    /// Whether the grid of `cell` is relaxed after every step.
+    pub fn relaxes(self, cell: &CellSpec) -> bool {
+        match self {
+            GridMotion::Auto => cell.inextensible && cell.shear_modulus <= 0.0,
+            GridMotion::Relaxed => cell.inextensible,
+            GridMotion::Material => false,
+        }
+    }
+}
+
 /// Time-integration scheme.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Scheme {
@@ -228,6 +264,8 @@ pub struct Numerics {
     /// How the elastic force enters the step (`None`, `"auto"`: linearly implicit for
     /// capsules, explicit for inextensible cells).
     pub elasticity: Option<ElasticStepping>,
+    /// How the cells' grid points move (`[numerics] grid`; default [`GridMotion::Auto`]).
+    pub grid: GridMotion,
     /// Choose `dt` from the area/volume error estimate ([`crate::timestep::adaptive`];
     /// default off).
     pub adaptive_dt: bool,
@@ -274,7 +312,8 @@ pub struct Numerics {
 #[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Effect {
     /// What is built: `"fmm"`, `"double_layer"`, `"inter_cell_double_layer"`, `"skalak"`,
-    /// `"background_flow"`, `"body_force"`, `"adaptive_dt"`, `"walls"`, `"units"` (a scene in
+    /// `"background_flow"`, `"body_force"`, `"material_grid"` (grid points that follow the
+    /// material instead of being relaxed), `"adaptive_dt"`, `"walls"`, `"units"` (a scene in
     /// SI units, with its scales), or (in a run's summary, where memory left them out)
     /// `"cell_preconditioner"`.
     pub name: &'static str,

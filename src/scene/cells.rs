@@ -54,6 +54,9 @@
 //! scheme = "euler"                # "euler" | "bdf2"
 //! elasticity = "auto"             # elastic force: "explicit" | "implicit" (linearised, a
 //! #                               # Jacobian per GMRES iteration) | "auto" (implicit for capsules)
+//! grid = "auto"                   # grid points: "auto" (follow the material on cells with shear
+//! #                               # elasticity, relaxed after every step on vesicles without) |
+//! #                               # "relaxed" (every inextensible cell's) | "material" (none)
 //! adaptive_dt = false             # true: dt from the area/volume error (dt is the first step)
 //! far_side_split = true           # split off the own far side in the singular quadrature
 //! operator_storage = "auto"       # self-interaction: "auto" | "grid" | "coefficients" | "matrix_free"
@@ -97,8 +100,8 @@ use toml::Spanned;
 use super::cell_groups::{cell_specs, check_overlaps};
 pub(crate) use super::cell_scene::rotation;
 pub use super::cell_scene::{
-    CellScene, CellSpec, Effect, Flow, Numerics, OutputSettings, Scheme, Shape, MAX_IMBALANCE,
-    RBC_MIN_ORDER, REBALANCE_EVERY,
+    CellScene, CellSpec, Effect, Flow, GridMotion, Numerics, OutputSettings, Scheme, Shape,
+    MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY,
 };
 pub(crate) use super::cells_schema::Origin;
 use super::cells_schema::{File, NumericsSection};
@@ -294,6 +297,22 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
                         format!(
                             "[numerics] elasticity: unknown choice \"{other}\" (auto, explicit, \
                              implicit)"
+                        ),
+                    ))
+                }
+            },
+        },
+        grid: match n.and_then(|n| n.grid.as_ref()) {
+            None => GridMotion::Auto,
+            Some(s) => match s.get_ref().as_str() {
+                "auto" => GridMotion::Auto,
+                "relaxed" => GridMotion::Relaxed,
+                "material" => GridMotion::Material,
+                other => {
+                    return Err(at(
+                        s.span(),
+                        format!(
+                            "[numerics] grid: unknown choice \"{other}\" (auto, relaxed, material)"
                         ),
                     ))
                 }
@@ -546,6 +565,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         ));
     }
     let mut effects = effects(&cells, &flow);
+    effects.push(grid_effect(&cells, numerics.grid));
     if let Some(u) = &units {
         effects.push(Effect {
             name: "units",
@@ -646,6 +666,40 @@ fn preconditioning(
             k.span(),
             format!("[numerics] preconditioner: unknown preconditioner \"{other}\" (sphere, cell)"),
         )),
+    }
+}
+
+/// Which cells' grid points follow the material (`[numerics] grid`; the others' grids are
+/// relaxed after every step), and why.
+fn grid_effect(cells: &[CellSpec], grid: GridMotion) -> Effect {
+    let followed: Vec<usize> = (0..cells.len())
+        .filter(|&i| !grid.relaxes(&cells[i]))
+        .collect();
+    let s: Vec<String> = followed.iter().take(5).map(|i| i.to_string()).collect();
+    let list = format!(
+        "{}{}",
+        s.join(", "),
+        if followed.len() > 5 { ", …" } else { "" }
+    );
+    let why = match grid {
+        GridMotion::Auto => {
+            "[numerics] grid = \"auto\": cells with shear elasticity (and capsules) follow their \
+             material points, vesicles without are relaxed"
+        }
+        GridMotion::Relaxed => {
+            "[numerics] grid = \"relaxed\": every inextensible cell is relaxed, capsules follow \
+             their material points"
+        }
+        GridMotion::Material => "[numerics] grid = \"material\"",
+    };
+    Effect {
+        name: "material_grid",
+        enabled: !followed.is_empty(),
+        reason: if followed.is_empty() {
+            format!("every cell's grid is relaxed after every step ({why})")
+        } else {
+            format!("grid points follow the material on cells {list} ({why})")
+        },
     }
 }
 

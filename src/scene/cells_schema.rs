@@ -87,6 +87,7 @@ pub(super) struct NumericsSection {
     pub(super) t_end: Option<Spanned<f64>>,
     pub(super) scheme: Option<Spanned<String>>,
     pub(super) elasticity: Option<Spanned<String>>,
+    pub(super) grid: Option<Spanned<String>>,
     pub(super) adaptive_dt: Option<bool>,
     pub(super) far_side_split: Option<bool>,
     pub(super) operator_storage: Option<Spanned<String>>,

@@ -352,6 +352,18 @@ pub enum ElasticityKind {
     Implicit,
 }
 
+/// `[numerics] grid`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum GridKind {
+    /// Material points on cells with shear elasticity, relaxed on vesicles without.
+    Auto,
+    /// Every inextensible cell's grid relaxed after every step.
+    Relaxed,
+    /// Every grid point follows the material.
+    Material,
+}
+
 /// `[numerics] scheme`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -424,6 +436,9 @@ pub struct NumericsSpec {
     /// `elasticity`: how the elastic force enters the step.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub elasticity: Option<ElasticityKind>,
+    /// `grid`: how the cells' grid points move.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub grid: Option<GridKind>,
     /// `adaptive_dt`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub adaptive_dt: Option<bool>,

@@ -236,16 +236,15 @@ fn step_over_ranks(
             reports[k] = Some(r);
         }
     }
-    let reports: Option<Vec<StepReport>> = reports.into_iter().collect();
-    match reports {
-        Some(r) => Ok((r, stats)),
-        None => Err(RanksStep::Failed(
-            None,
-            TimestepError::Comm(CommError::Ranks {
-                what: "near-implicit step: a cell without a report",
-                got: 0,
-                ranks: comm.size(),
-            }),
+    // Every local cell is in exactly one cluster of the agreed list; a cell left without a
+    // report means the ranks' cluster lists differ (a bug, reported rather than hung on).
+    match reports.iter().position(Option::is_none) {
+        None => Ok((reports.into_iter().flatten().collect(), stats)),
+        Some(k) => Err(RanksStep::Failed(
+            Some(k),
+            TimestepError::Comm(CommError::Disagree(format!(
+                "near-implicit step: local cell {k} is in no cluster this rank stepped"
+            ))),
         )),
     }
 }
