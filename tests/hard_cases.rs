@@ -961,6 +961,10 @@ fn near_implicit_bdf2_order_in_a_pair_with_lambda_5() {
             sc.numerics.scheme = mobo::scene::cells::Scheme::Bdf2;
             sc.numerics.gmres_tol = 1e-9;
             sc.numerics.coupling = coupling;
+            // The RBCs have shear elasticity: relaxed only when asked (`[numerics] grid`).
+            if regrid {
+                sc.numerics.grid = mobo::scene::cells::GridMotion::Relaxed;
+            }
             for c in &mut sc.cells {
                 c.viscosity_ratio = 5.0;
             }

@@ -30,8 +30,10 @@
 //! RBCs with `λ = 5` sliding past each other in shear, p = 6, docs/hard_cases.md): with the
 //! grid left where the flow takes it, 2.04, 2.08, 2.32 with the surfaces 0.8 apart and 1.98,
 //! 1.99, 2.22 with them 0.1 apart, where the explicit coupling gives 1.04, 1.19, 1.57 at 0.8
-//! (its stiff near part taken explicitly) and fails at 0.1. The reparametrisation of every
-//! step re-fits the moved grid at order `p`, which changes the shape a little at every call:
+//! (its stiff near part taken explicitly) and fails at 0.1. With the grid relaxed
+//! (`[numerics] grid = "relaxed"`; an RBC's grid follows its material points by default), the
+//! reparametrisation of every step re-fits the moved grid at order `p`, which changes the shape
+//! a little at every call:
 //! at p = 6 that error, summed over `T/Δt` calls, is first order (1.22, 1.08, 1.13 at 0.1
 //! apart); at p = 12 it caps the order only at the smallest steps, as for one cell (1.95,
 //! 1.78, 1.39).
