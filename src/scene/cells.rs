@@ -669,18 +669,18 @@ fn preconditioning(
     }
 }
 
+/// Cell indices for an effect's reason: the first five, then "…".
+fn cell_list(v: &[usize]) -> String {
+    let s: Vec<String> = v.iter().take(5).map(|i| i.to_string()).collect();
+    format!("{}{}", s.join(", "), if v.len() > 5 { ", …" } else { "" })
+}
+
 /// Which cells' grid points follow the material (`[numerics] grid`; the others' grids are
 /// relaxed after every step), and why.
 fn grid_effect(cells: &[CellSpec], grid: GridMotion) -> Effect {
     let followed: Vec<usize> = (0..cells.len())
         .filter(|&i| !grid.relaxes(&cells[i]))
         .collect();
-    let s: Vec<String> = followed.iter().take(5).map(|i| i.to_string()).collect();
-    let list = format!(
-        "{}{}",
-        s.join(", "),
-        if followed.len() > 5 { ", …" } else { "" }
-    );
     let why = match grid {
         GridMotion::Auto => {
             "[numerics] grid = \"auto\": cells with shear elasticity (and capsules) follow their \
@@ -698,7 +698,10 @@ fn grid_effect(cells: &[CellSpec], grid: GridMotion) -> Effect {
         reason: if followed.is_empty() {
             format!("every cell's grid is relaxed after every step ({why})")
         } else {
-            format!("grid points follow the material on cells {list} ({why})")
+            format!(
+                "grid points follow the material on cells {} ({why})",
+                cell_list(&followed)
+            )
         },
     }
 }
@@ -717,10 +720,6 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
         .filter(|&i| cells[i].elastic_law == ElasticLaw::NeoHookean)
         .collect();
     let forced: Vec<usize> = (0..n).filter(|&i| cells[i].force != [0.0; 3]).collect();
-    let list = |v: &[usize]| {
-        let s: Vec<String> = v.iter().take(5).map(|i| i.to_string()).collect();
-        format!("{}{}", s.join(", "), if v.len() > 5 { ", …" } else { "" })
-    };
     vec![
         Effect {
             name: "fmm",
@@ -737,7 +736,7 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             reason: if contrast.is_empty() {
                 "every viscosity_ratio is 1".into()
             } else {
-                format!("viscosity_ratio ≠ 1 for cells {}", list(&contrast))
+                format!("viscosity_ratio ≠ 1 for cells {}", cell_list(&contrast))
             },
         },
         Effect {
@@ -752,7 +751,7 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
                     "viscosity_ratio ≠ 1 for cells {} and {n} cells interact: their double \
                      layer reaches the others (a stresslet FMM per step, membrane velocity of \
                      the previous step)",
-                    list(&contrast)
+                    cell_list(&contrast)
                 )
             },
         },
@@ -762,12 +761,15 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             reason: if shear.is_empty() {
                 "every shear_modulus is 0".into()
             } else if neo_hookean.is_empty() {
-                format!("shear_modulus > 0 for cells {} (Skalak law)", list(&shear))
+                format!(
+                    "shear_modulus > 0 for cells {} (Skalak law)",
+                    cell_list(&shear)
+                )
             } else {
                 format!(
                     "shear_modulus > 0 for cells {} (neo-Hookean law for cells {})",
-                    list(&shear),
-                    list(&neo_hookean)
+                    cell_list(&shear),
+                    cell_list(&neo_hookean)
                 )
             },
         },
@@ -782,7 +784,7 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
                      elastic force linearly implicit (unless [numerics] elasticity = \
                      \"explicit\"), material points followed (no reparametrisation), only the \
                      volume restored",
-                    list(&capsules)
+                    cell_list(&capsules)
                 )
             },
         },
@@ -805,7 +807,7 @@ pub fn effects(cells: &[CellSpec], flow: &Flow) -> Vec<Effect> {
             reason: if forced.is_empty() {
                 "no cell has a force".into()
             } else {
-                format!("force set for cells {}", list(&forced))
+                format!("force set for cells {}", cell_list(&forced))
             },
         },
     ]
