@@ -55,16 +55,24 @@ pub fn setups(scene: &CellScene) -> Result<Vec<CellSetup>, CellRunError> {
             inextensible: cell.inextensible,
             elastic_stepping: scene.numerics.elasticity,
         };
-        let skalak = (cell.shear_modulus > 0.0).then(|| {
-            (
+        let skalak = if cell.shear_modulus > 0.0 {
+            // The stress-free reference: the initial shape, or a smaller one (`prestress`).
+            let reference = if cell.prestress == 0.0 {
+                coefs.clone()
+            } else {
+                cell.reference_surface(p)?.coefs().to_vec()
+            };
+            Some((
                 SkalakParams {
                     shear_modulus: cell.shear_modulus,
                     dilation_ratio: cell.skalak_c,
                     law: cell.elastic_law,
                 },
-                coefs.clone(),
-            )
-        });
+                reference,
+            ))
+        } else {
+            None
+        };
         setups.push(CellSetup {
             coefs,
             params,

@@ -206,6 +206,34 @@ pub(super) fn cell_specs(
             ),
         ));
     }
+    let prestress = match &c.prestress {
+        None => 0.0,
+        Some(a) => {
+            let v = finite(a, &key("prestress"))?;
+            if !(0.0..1.0).contains(&v) {
+                return Err(at(
+                    a.span(),
+                    format!(
+                        "{} must be in [0, 1) (the inflation ratio: the stress-free reference is \
+                         the shape scaled by 1/(1 + prestress)), got {v}",
+                        key("prestress")
+                    ),
+                ));
+            }
+            if shear == 0.0 {
+                return Err(at(
+                    a.span(),
+                    format!(
+                        "{} needs {} > 0 (without shear elasticity the membrane has no \
+                         reference to be stretched from)",
+                        key("prestress"),
+                        key("shear_modulus")
+                    ),
+                ));
+            }
+            v
+        }
+    };
     let lambda = get(&c.viscosity_ratio, "viscosity_ratio", 1.0, true)?;
     let vec3 = |v: &Option<Spanned<[f64; 3]>>, name: &str| -> Result<[f64; 3], SceneError> {
         match v {
@@ -246,6 +274,7 @@ pub(super) fn cell_specs(
         bending_modulus: bending,
         shear_modulus: shear,
         skalak_c,
+        prestress,
         elastic_law,
         inextensible,
         viscosity_ratio: lambda,

@@ -168,10 +168,16 @@ pub struct CellSpec {
     /// Bending modulus `κ_b` (default 0.05).
     pub bending_modulus: f64,
     /// Shear modulus `G_s` of the elastic law (default 0: no shear elasticity); the membrane
-    /// is stress-free at its initial shape.
+    /// is stress-free at its initial shape unless [`Self::prestress`] says otherwise.
     pub shear_modulus: f64,
     /// Skalak area-dilation parameter `C` (large `C`: nearly area-preserving; default 10).
     pub skalak_c: f64,
+    /// Prestress (inflation ratio) `α ≥ 0` of a membrane with shear elasticity: its
+    /// stress-free reference is the initial shape scaled by `1/(1 + α)` about the centroid, so
+    /// the cell starts inflated, every line element stretched by `1 + α` (Lac, Morel &
+    /// Barthès-Biesel, J. Fluid Mech. 573, 2007, take `α = 0.05` so that a capsule's membrane
+    /// is never compressed). Default 0: stress-free at the initial shape.
+    pub prestress: f64,
     /// The strain-energy function of the shear elasticity (default Skalak).
     pub elastic_law: ElasticLaw,
     /// `false` for a capsule (`membrane = "capsule"`): no inextensibility constraint.
@@ -195,6 +201,17 @@ impl CellSpec {
         s.place_centroid([0.0; 3])?;
         s.rotate(self.rotation)?;
         s.translate(self.center);
+        Ok(s)
+    }
+
+    /// The stress-free reference of the cell's shear elasticity at order `p`: its initial
+    /// [`Self::surface`] scaled about the centroid by `1/(1 + α)`, `α` the
+    /// [`Self::prestress`] (the surface itself when `α = 0`).
+    pub fn reference_surface(&self, p: usize) -> Result<Surface, crate::vesicle::VesicleError> {
+        let mut s = self.surface(p)?;
+        if self.prestress != 0.0 {
+            s.scale_to_equivalent_radius(self.radius / (1.0 + self.prestress))?;
+        }
         Ok(s)
     }
 }

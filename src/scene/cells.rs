@@ -37,6 +37,8 @@
 //! shear_modulus = 0.0             # G_s of the elastic law (0: none)
 //! elastic_law = "skalak"          # "skalak" | "neo_hookean"
 //! skalak_c = 10.0                 # Skalak area-dilation parameter C
+//! prestress = 0.0                 # inflation ratio α: the elastic reference is the shape
+//! #                               # scaled by 1/(1 + α) (needs shear_modulus > 0)
 //! viscosity_ratio = 1.0           # λ = μ_in / μ_out
 //! force = [0.0, 0.0, 0.0]         # body force per cell
 //! # count = 27, placement = "lattice" | "random", spacing = 3.0, region = [[..], [..]], seed = 1

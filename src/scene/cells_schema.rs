@@ -63,6 +63,7 @@ pub(super) struct CellSection {
     pub(super) bending_modulus: Option<Spanned<f64>>,
     pub(super) shear_modulus: Option<Spanned<f64>>,
     pub(super) skalak_c: Option<Spanned<f64>>,
+    pub(super) prestress: Option<Spanned<f64>>,
     pub(super) membrane: Option<Spanned<String>>,
     pub(super) elastic_law: Option<Spanned<String>>,
     pub(super) viscosity_ratio: Option<Spanned<f64>>,

@@ -257,6 +257,10 @@ pub struct CellGroupSpec {
     /// `skalak_c`: Skalak area-dilation parameter (default 10).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub skalak_c: Option<f64>,
+    /// `prestress`: inflation ratio `α` in [0, 1) of a membrane with shear elasticity, whose
+    /// stress-free reference is the shape scaled by `1/(1 + α)` (default 0).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prestress: Option<f64>,
     /// `membrane`: an inextensible vesicle/RBC (default) or an elastic capsule.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub membrane: Option<MembraneKind>,
@@ -305,6 +309,7 @@ impl CellGroupSpec {
             bending_modulus: None,
             shear_modulus: None,
             skalak_c: None,
+            prestress: None,
             membrane: None,
             elastic_law: None,
             viscosity_ratio: None,

@@ -35,8 +35,9 @@
 //! | `[[cells]]` `force` | N | `G L` |
 //! | `[numerics]` `repulsion_strength` | Pa | `G/L` |
 //!
-//! The rest are ratios (`axes` of a cell, `repulsion_range` (a fraction of the radius), `reduced_volume`, `skalak_c`, `viscosity_ratio`,
-//! `volume_fraction`, `gmres_tol`, `dt_tolerance`) or counts, and stay as written. The first
+//! The rest are ratios (`axes` of a cell, `repulsion_range` (a fraction of the radius),
+//! `reduced_volume`, `skalak_c`, `prestress`, `viscosity_ratio`, `volume_fraction`,
+//! `gmres_tol`, `dt_tolerance`) or counts, and stay as written. The first
 //! cells then have radius 1, shear modulus 1 (or bending modulus 1) in a fluid of viscosity 1.
 //! Frames, observables and the summary are in these units; `summary.json`'s `units` gives the
 //! scales to turn them back, and its `dimensionless` the groups of the first cells.

@@ -79,6 +79,16 @@ pub(super) fn mapped_cells(
                     .into(),
             ));
         }
+        if spec.prestress != 0.0 {
+            return Err(located(
+                "prestress",
+                format!(
+                    "{}: the DPD spring network is built stress-free at the cell's shape and \
+                     cannot start prestressed; leave prestress out of a cell mapped to DPD",
+                    spec.prestress
+                ),
+            ));
+        }
         if spec.viscosity_ratio != 1.0 && !inner_gamma {
             return Err(located(
                 "viscosity_ratio",
