@@ -425,6 +425,12 @@ fn specs_and_files_describe_the_same_scenes() {
             format!("[[cells]]\nshape = \"sphere\"\n[numerics]\ngrid = \"{grid}\"\n"),
         ));
     }
+    texts.push((
+        "velocity_plane".to_string(),
+        "[[cells]]\nshape = \"sphere\"\n[output]\nvelocity_plane = { origin = [-2.0, -2.0, 0.0], \
+         u = [4.0, 0.0, 0.0], v = [0.0, 4.0, 0.5], points = [5, 7] }\n"
+            .to_string(),
+    ));
     for gpu in ["\"auto\"", "true", "false"] {
         texts.push((
             format!("gpu = {gpu}"),
@@ -514,6 +520,8 @@ order = 6
 dt = {}
 t_end = {}
 contact_distance = {}
+[output]
+velocity_plane = {{ origin = [{}, 0.0, 0.0], u = [{}, 0.0, 0.0], v = [0.0, {}, 0.0], points = [3, 3] }}
 "#,
         0.5 * a,
         4.0 * a,
@@ -523,6 +531,9 @@ contact_distance = {}
         0.01 * t,
         0.5 * t,
         0.05 * a,
+        -3.0 * a,
+        6.0 * a,
+        2.0 * a,
     );
     let by_hand = format!(
         r#"
@@ -553,6 +564,8 @@ order = 6
 dt = 0.01
 t_end = 0.5
 contact_distance = 0.05
+[output]
+velocity_plane = {{ origin = [-3.0, 0.0, 0.0], u = [6.0, 0.0, 0.0], v = [0.0, 2.0, 0.0], points = [3, 3] }}
 "#,
         rate * t,
         kappa / (g * a * a),
@@ -594,6 +607,18 @@ contact_distance = 0.05
             mobo::scene::walls::WallShape::Sphere { radius: y },
         ) => close(x, y, "wall radius"),
         other => panic!("{other:?}"),
+    }
+    let (gp, wp) = (
+        got.output.velocity_plane.unwrap(),
+        want.output.velocity_plane.unwrap(),
+    );
+    for (x, y) in gp.sample_points().iter().zip(wp.sample_points()) {
+        for k in 0..3 {
+            assert!(
+                (x[k] - y[k]).abs() < 1e-12,
+                "velocity plane {x:?} against {y:?}"
+            );
+        }
     }
     // The scales, and the groups of the first cells.
     let u = got.units.expect("SI scales");

@@ -417,7 +417,20 @@ max_imbalance = 0.0
 [output]
 every = 6
 vtk = false
+velocity_plane = { origin = [-5.8, -5.8, -2.9], u = [11.6, 0.0, 0.0], v = [0.0, 11.6, 0.0], points = [15, 15] }
 "#;
+
+/// The last frame's velocity plane of a run in `out`.
+fn last_plane(out: &Path) -> Vec<f64> {
+    let times = mobo::io::npy::read_f64(&out.join("frames/times.npy"))
+        .unwrap()
+        .1;
+    let f = out.join(format!(
+        "frames/frame_{:05}_plane_velocity.npy",
+        times.len() - 1
+    ));
+    mobo::io::npy::read_f64(&f).unwrap().1
+}
 
 #[test]
 fn cells_between_walls_give_the_one_rank_result_on_2_and_3_ranks() {
@@ -437,6 +450,27 @@ fn cells_between_walls_give_the_one_rank_result_on_2_and_3_ranks() {
         assert!(e <= 1e-10, "{k} ranks differ from one by {e:.2e}");
         let s = summary(&out);
         assert_eq!(s["counters"]["walls"]["solves"].as_u64(), Some(6));
+        // The velocity plane (through the body: NaN inside it and beyond the container),
+        // summed over the ranks.
+        let (a, b) = (last_plane(&out), last_plane(&one));
+        let scale = b
+            .iter()
+            .filter(|v| v.is_finite())
+            .fold(0.0_f64, |m, v| m.max(v.abs()));
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!(
+                x.is_nan(),
+                y.is_nan(),
+                "{k} ranks: the plane's fluid differs"
+            );
+            if y.is_finite() {
+                assert!(
+                    (x - y).abs() <= 1e-10 * scale,
+                    "{k} ranks: plane {x} against {y}"
+                );
+            }
+        }
+        assert!(b.iter().any(|v| v.is_nan()) && b.iter().any(|v| v.is_finite()));
     }
 }
 

@@ -181,7 +181,8 @@ fn the_spec_describes_walls_like_the_file() {
 #[test]
 fn mobo_run_reports_the_walls() {
     let dir = tmpdir("walls-run");
-    let scene = write(&dir, "settling.toml", &settling_scene(2.0, 6, 5));
+    let text = settling_scene(2.0, 6, 5).replace("vtk = false", "vtk = true");
+    let scene = write(&dir, "settling.toml", &text);
     let out = dir.join("out");
     let o = mobo(&["run", &scene, "--out", out.to_str().unwrap(), "--quiet"]);
     ok(&o, "mobo run with a wall");
@@ -196,6 +197,26 @@ fn mobo_run_reports_the_walls() {
             .any(|e| e["name"] == "walls" && e["enabled"] == true),
         "{effects:?}"
     );
+    // The wall in ParaView: the order-16 sphere on 32 latitudes of 64 points and the poles,
+    // every vertex at its radius.
+    let vtp = std::fs::read_to_string(out.join("vtk/walls.vtp")).unwrap();
+    assert!(
+        vtp.contains("NumberOfPoints=\"2050\"") && vtp.contains("NumberOfPolys=\"4096\""),
+        "{}",
+        &vtp[..400.min(vtp.len())]
+    );
+    let points = &vtp[vtp.find("<Points>").unwrap()..vtp.find("</Points>").unwrap()];
+    let values =
+        &points[points.find("ascii\">").unwrap() + 7..points.find("</DataArray>").unwrap()];
+    let xs: Vec<f64> = values
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert_eq!(xs.len(), 3 * 2050);
+    for x in xs.chunks_exact(3) {
+        let r = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
+        assert!((r - 2.0).abs() < 1e-9, "{r}");
+    }
 }
 
 /// A vesicle pushed hard against a fixed body by a force: the contact projection keeps it
@@ -320,6 +341,24 @@ fn a_sphere_on_the_axis_of_a_tube_flow_moves_at_haberman_and_sayres_speed() {
         off_axis < 1e-8,
         "the sphere left the axis by {off_axis:.1e}"
     );
+    // The velocity field (a velocity plane's): at the sphere's centre, the speed of its
+    // centroid over the last step (measured: equal to 2e-8), which the tube's wall carries
+    // (the background flow is zero here); beyond the wall, NaN. (Off the centre the inside is
+    // not rigid: the inextensible sphere deforms slightly in the curved profile.)
+    let c = *x.last().unwrap();
+    let targets = [c, [c[0], 5.0, 0.0], [0.0, 0.0, 12.0]];
+    let u = susp
+        .velocity_at(&mobo::comm::SerialComm, &|_| [0.0; 3], &targets)
+        .unwrap();
+    let last = *speeds.last().unwrap();
+    println!("velocity at the centre {:?}; centroid speed {last}", u[0]);
+    assert!(
+        (u[0][0] - last).abs() < 1e-5 * last,
+        "{:?} against {last}",
+        u[0]
+    );
+    assert!(u[0][1].abs() + u[0][2].abs() < 1e-9, "{:?}", u[0]);
+    assert!(u[1..].iter().flatten().all(|v| v.is_nan()), "{u:?}");
 }
 
 /// The drives of a tube flow give the same centreline speed, and bad tube flows and tube walls

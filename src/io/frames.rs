@@ -31,7 +31,8 @@
 //! [`FrameWriter::new`] fails with [`IoError::Hdf5Unavailable`]).
 //!
 //! [`FrameWriter::new`] deletes the frame output of an earlier run in `DIR` (the files named
-//! above, `frames.h5` and `frames.h5.partial`);
+//! above, `frames.h5` and `frames.h5.partial`, and the plane frames of
+//! [`super::plane_frames`]);
 //! [`FrameWriter::resume`] keeps the frames before a checkpoint and continues after them.
 //!
 //! Every file is written atomically. Within a frame the data files come first and the indexes
@@ -41,7 +42,7 @@ use std::path::{Path, PathBuf};
 
 pub use super::frame_arrays::{CellFrame, FrameArrays};
 use super::hdf5::H5FrameWriter;
-use super::vtk::{self, DataArray, PolyMesh, PvdEntry};
+use super::vtk::{self, DataArray, PolyMesh};
 use super::{npy, IoError};
 use crate::sph_harmonics::basis::{angles_of, eval_basis, BasisScratch};
 use crate::sph_harmonics::{CoefLayout, ShTransform, ShWorkspace};
@@ -156,12 +157,20 @@ impl VtpState {
     }
 }
 
-/// The frame index of a file named `frame_NNNNN_<what>.npy` or `frame_NNNNN.vtp`.
+/// The frame index of a file named `frame_NNNNN_<what>.npy` or `frame_NNNNN.vtp` (or a plane
+/// frame's, [`super::plane_frames`]).
 fn frame_index(name: &str) -> Option<usize> {
     let rest = name.strip_prefix("frame_")?;
     let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
     let tail = &rest[digits..];
-    let known = ["_coefs.npy", "_positions.npy", "_tension.npy", ".vtp"];
+    let known = [
+        "_coefs.npy",
+        "_positions.npy",
+        "_tension.npy",
+        ".vtp",
+        "_plane_velocity.npy",
+        "_plane.vtp",
+    ];
     (digits >= 5 && known.contains(&tail))
         .then(|| rest[..digits].parse().ok())
         .flatten()
@@ -285,6 +294,9 @@ impl FrameWriter {
             for f in [
                 "frames/times.npy",
                 "vtk/frames.pvd",
+                "vtk/plane.pvd",
+                "vtk/walls.vtp",
+                "frames/plane_points.npy",
                 super::hdf5::FILE_NAME,
                 super::hdf5::PARTIAL_NAME,
             ] {
@@ -407,16 +419,9 @@ impl FrameWriter {
             )?;
         }
         if self.formats.vtp.is_some() {
-            let entries: Vec<PvdEntry> = self
-                .times
-                .iter()
-                .enumerate()
-                .map(|(i, &time)| PvdEntry {
-                    time,
-                    file: format!("frame_{i:05}.vtp"),
-                })
-                .collect();
-            vtk::write_pvd(&self.dir.join("vtk").join("frames.pvd"), &entries)?;
+            vtk::write_pvd_series(&self.dir.join("vtk").join("frames.pvd"), &self.times, |i| {
+                format!("frame_{i:05}.vtp")
+            })?;
         }
         Ok(())
     }

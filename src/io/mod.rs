@@ -5,7 +5,8 @@
 //! HDF5 frame file, which grows frame by frame under a `.partial` name (see [`hdf5`]).
 //!
 //! * [`npy`]: `.npy` arrays.
-//! * [`frames`]: the per-frame output of a run ([`frames::FrameWriter`]).
+//! * [`frames`]: the per-frame output of a run ([`frames::FrameWriter`]); [`plane_frames`]: the
+//!   velocity on a plane at every frame ([`plane_frames::PlaneWriter`]).
 //! * [`vtk`]: VTK XML PolyData (`.vtp`) meshes and ParaView collections (`.pvd`).
 //! * [`checkpoint`]: the binary checkpoint container that restarts runs bit-for-bit.
 //! * [`hdf5`]: `frames.h5` (cargo feature `hdf5`).
@@ -15,6 +16,8 @@ pub mod frame_arrays;
 pub mod frames;
 pub mod hdf5;
 pub mod npy;
+pub mod plane_frames;
+pub mod surface_mesh;
 pub mod vtk;
 
 pub use checkpoint::CheckpointFault;

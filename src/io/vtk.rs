@@ -263,3 +263,21 @@ pub fn encode_pvd(entries: &[PvdEntry]) -> String {
 pub fn write_pvd(path: &Path, entries: &[PvdEntry]) -> Result<(), IoError> {
     write_atomic(path, encode_pvd(entries).as_bytes())
 }
+
+/// Write the `.pvd` collection of a time series to `path` atomically: frame `i` at `times[i]`
+/// in the file `file(i)`.
+pub fn write_pvd_series(
+    path: &Path,
+    times: &[f64],
+    file: impl Fn(usize) -> String,
+) -> Result<(), IoError> {
+    let entries: Vec<PvdEntry> = times
+        .iter()
+        .enumerate()
+        .map(|(i, &time)| PvdEntry {
+            time,
+            file: file(i),
+        })
+        .collect();
+    write_pvd(path, &entries)
+}

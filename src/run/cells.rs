@@ -40,8 +40,9 @@ use super::cell_step::{accepted_step, adaptive_control, flow_origin, step_error}
 use super::checkpoint::{self, Progress, Split};
 use super::error::{agreed, CellRunError};
 use super::observables::{FailedRunSummary, Observables, StepRow};
-use super::output::{gather_rows, gather_states, gathered_frame};
+use super::output::{gather_rows, gather_states, gathered_frame, write_walls_vtp};
 use super::partition::{self, Reason};
+use super::plane::PlaneOutput;
 use super::summary::{
     split_summary, AdaptiveSummary, CellRunSummary, CellSummary, Counters, RankClock, Rebalance,
 };
@@ -216,6 +217,8 @@ struct CellRun<'a> {
     susp: Suspension,
     prog: Progress,
     frames: Option<FrameWriter>,
+    /// The velocity plane's output (`[output] velocity_plane`).
+    plane: Option<PlaneOutput>,
     adaptive: Option<AdaptiveDt>,
     /// Centres of this rank's cells before the last step (global index, centre).
     before_last: Vec<(usize, [f64; 3])>,
@@ -323,7 +326,7 @@ impl<'a> CellRun<'a> {
             hdf5: scene.output.hdf5,
             vtp: scene.output.vtk,
         };
-        let (prog, frames) = match resumed {
+        let (prog, frames, plane) = match resumed {
             Some((prog, states, _)) => {
                 let restored = (0..susp.len()).try_for_each(|i| {
                     let id = susp.cells()[i].id;
@@ -341,7 +344,9 @@ impl<'a> CellRun<'a> {
                     .then(|| FrameWriter::resume(out, formats, &prog.frame_times))
                     .transpose()
                     .map_err(CellRunError::from);
-                (prog, agreed(comm, frames)?)
+                let frames = agreed(comm, frames)?;
+                let plane = PlaneOutput::open(comm, scene, out, &prog.frame_times)?;
+                (prog, frames, plane)
             }
             None => {
                 let mut prog = Progress::start(dt);
@@ -359,14 +364,25 @@ impl<'a> CellRun<'a> {
                     Ok(None)
                 };
                 let mut frames = agreed(comm, opened)?;
+                let mut plane = PlaneOutput::open(comm, scene, out, &[])?;
+                if let Some(pl) = &mut plane {
+                    pl.write(comm, scene, &mut susp, (0, 0, 0.0))?;
+                }
                 gathered_frame(comm, &susp, frames.as_mut(), &sht, &mut ws, 0.0)?;
                 prog.output_s += t0.elapsed().as_secs_f64();
                 if let Some(f) = &frames {
                     prog.frame_times = f.times().to_vec();
                 }
-                (prog, frames)
+                (prog, frames, plane)
             }
         };
+        // The walls in ParaView (after the frame writer, which clears an earlier run's).
+        let walls_vtp = if root {
+            write_walls_vtp(scene, out)
+        } else {
+            Ok(())
+        };
+        agreed(comm, walls_vtp)?;
         let adaptive = adaptive_control(scene)?;
         if adaptive.is_some() {
             // A resumed adaptive run continues with the step it had chosen.
@@ -395,6 +411,7 @@ impl<'a> CellRun<'a> {
             susp,
             prog,
             frames,
+            plane,
             adaptive,
             before_last: Vec::new(),
             first,
@@ -577,6 +594,7 @@ impl<'a> CellRun<'a> {
         let CellRun {
             susp,
             frames,
+            plane,
             sht,
             ws,
             prog,
@@ -588,6 +606,9 @@ impl<'a> CellRun<'a> {
         } = self;
         let t0 = Instant::now();
         if last || (k as u64).is_multiple_of(scene.output_every) {
+            if let Some(pl) = plane {
+                pl.write(comm, scene, susp, (prog.frame_times.len(), k, prog.time))?;
+            }
             gathered_frame(comm, susp, frames.as_mut(), sht, ws, prog.time)?;
             if let Some(f) = &frames {
                 prog.frame_times = f.times().to_vec();

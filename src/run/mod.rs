@@ -21,6 +21,7 @@ pub mod error;
 pub mod observables;
 mod output;
 pub mod partition;
+mod plane;
 pub mod simulation;
 pub mod summary;
 

@@ -3,6 +3,10 @@
 use super::error::{agreed, CellRunError};
 use crate::comm::Communicator;
 use crate::io::frames::{CellFrame, FrameWriter};
+use crate::io::surface_mesh::surface_mesh;
+use crate::io::vtk::{write_polydata, DataArray, PolyMesh};
+use crate::io::IoError;
+use crate::scene::cells::CellScene;
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::cell_state::CellState;
 use crate::timestep::suspension::Suspension;
@@ -127,4 +131,52 @@ pub(super) fn gathered_frame(
         _ => Ok(()),
     };
     agreed(comm, written)
+}
+
+/// `DIR/vtk/walls.vtp`: every wall of `scene` as a triangle mesh in its own angles
+/// ([`surface_mesh`], `2p` latitudes of `4p` points for a wall of order `p`), with the point
+/// and cell data `wall` (its index in the scene) and `kind` (0 a container, 1 a body). Nothing
+/// without walls or without VTK output.
+pub(super) fn write_walls_vtp(
+    scene: &CellScene,
+    out: &std::path::Path,
+) -> Result<(), CellRunError> {
+    if scene.walls.is_empty() || scene.output.vtk.is_none() {
+        return Ok(());
+    }
+    let path = out.join("vtk").join("walls.vtp");
+    let mut all = PolyMesh::default();
+    let (mut wall, mut kind, mut wall_t, mut kind_t) = (vec![], vec![], vec![], vec![]);
+    for (k, w) in scene.walls.iter().enumerate() {
+        let surface = w.surface().map_err(|e| IoError::Frame {
+            dir: path.clone(),
+            message: format!("wall {k}: {e}"),
+        })?;
+        let p = surface.order();
+        let m =
+            surface_mesh(p, surface.coefs(), 2 * p, 4 * p).map_err(|message| IoError::Frame {
+                dir: path.clone(),
+                message,
+            })?;
+        let off = all.points.len();
+        let code = i32::from(w.kind == crate::wall::WallKind::Body);
+        wall.extend(std::iter::repeat_n(k as i32, m.points.len()));
+        kind.extend(std::iter::repeat_n(code, m.points.len()));
+        wall_t.extend(std::iter::repeat_n(k as i32, m.triangles.len()));
+        kind_t.extend(std::iter::repeat_n(code, m.triangles.len()));
+        all.points.extend(m.points);
+        all.triangles
+            .extend(m.triangles.iter().map(|t| t.map(|v| v + off)));
+    }
+    all.point_data = vec![DataArray::ints("wall", wall), DataArray::ints("kind", kind)];
+    all.cell_data = vec![
+        DataArray::ints("wall", wall_t),
+        DataArray::ints("kind", kind_t),
+    ];
+    std::fs::create_dir_all(out.join("vtk")).map_err(|source| IoError::File {
+        path: out.join("vtk"),
+        source,
+    })?;
+    write_polydata(&path, &all)?;
+    Ok(())
 }

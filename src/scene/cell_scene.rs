@@ -34,6 +34,9 @@ pub struct OutputSettings {
     pub hdf5: bool,
     /// Steps between checkpoints (default: `every`).
     pub checkpoint_every: u64,
+    /// The flow's velocity sampled on a plane at every frame (`[output] velocity_plane`;
+    /// default none).
+    pub velocity_plane: Option<super::velocity_plane::VelocityPlane>,
 }
 
 /// Background flow.

@@ -93,6 +93,10 @@
 //! mesh_subdivisions = 3           # icosphere subdivisions of the VTK meshes
 //! hdf5 = false                    # DIR/frames.h5 (needs the hdf5 feature)
 //! checkpoint_every = 10           # steps between checkpoints (default: every)
+//! # velocity_plane = { origin = [-4, -2, 0], u = [8, 0, 0], v = [0, 4, 0], points = [81, 41] }
+//! #                               # the velocity on a plane grid at every frame
+//! #                               # (frames/frame_NNNNN_plane_velocity.npy, vtk/plane.pvd;
+//! #                               # see scene::velocity_plane and io::plane_frames)
 //! ```
 
 use std::path::Path;
@@ -495,6 +499,10 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             .then_some(mesh_subdivisions),
         hdf5: o.and_then(|o| o.hdf5).unwrap_or(false),
         checkpoint_every,
+        velocity_plane: o
+            .and_then(|o| o.velocity_plane.as_ref())
+            .map(|p| super::velocity_plane::validate(p, &at))
+            .transpose()?,
     };
     let sections = f.cells.unwrap_or_default();
     if sections.is_empty() {

@@ -115,6 +115,7 @@ pub(super) struct OutputSection {
     pub(super) hdf5: Option<bool>,
     pub(super) mesh_subdivisions: Option<Spanned<u32>>,
     pub(super) checkpoint_every: Option<Spanned<u64>>,
+    pub(super) velocity_plane: Option<super::velocity_plane::PlaneSection>,
 }
 
 /// Where a scene's text comes from: what its messages cite.

@@ -13,6 +13,7 @@ pub mod packing;
 pub mod spec;
 pub mod tube_flow;
 pub mod units;
+pub mod velocity_plane;
 pub mod walls;
 
 use std::path::{Path, PathBuf};

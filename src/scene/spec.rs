@@ -557,6 +557,23 @@ pub struct OutputSpec {
     /// `checkpoint_every` steps.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub checkpoint_every: Option<u64>,
+    /// `velocity_plane`: the velocity sampled on a plane grid at every frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub velocity_plane: Option<PlaneSpec>,
+}
+
+/// `[output] velocity_plane` ([`crate::scene::velocity_plane`]).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlaneSpec {
+    /// The corner of the parallelogram.
+    pub origin: [f64; 3],
+    /// The edge along which the first index runs.
+    pub u: [f64; 3],
+    /// The edge along which the second index runs.
+    pub v: [f64; 3],
+    /// `[n_u, n_v]` points along the edges.
+    pub points: [usize; 2],
 }
 
 impl SceneSpec {

@@ -22,6 +22,7 @@
 //! |---|---|---|
 //! | `[[cells]]` `radius`, `center`, `spacing`, `region`, `min_gap` | m | `L` |
 //! | `[[walls]]` `radius`, `length`, `axes`, `center` | m | `L` |
+//! | `[output]` `velocity_plane` `origin`, `u`, `v` | m | `L` |
 //! | `[numerics]` `contact_distance` | m | `L` |
 //! | `[numerics]` `dt`, `t_end`, `dt_min`, `dt_max` | s | `T` |
 //! | `[fluid]` `viscosity` | Pa·s | `μ` |
@@ -202,6 +203,11 @@ pub(super) fn to_dimensionless(f: &mut File, at: At) -> Result<Option<UnitScales
         scale(&mut w.length, l);
         scale3(&mut w.axes, l);
         scale3(&mut w.center, l);
+    }
+    if let Some(p) = f.output.as_mut().and_then(|o| o.velocity_plane.as_mut()) {
+        for v in [&mut p.origin, &mut p.u, &mut p.v] {
+            v.get_mut().iter_mut().for_each(|x| *x /= l);
+        }
     }
     if let Some(n) = &mut f.numerics {
         scale(&mut n.contact_distance, l);

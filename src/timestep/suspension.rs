@@ -34,6 +34,7 @@
 use rayon::prelude::*;
 
 mod contacts;
+mod field;
 mod stepping;
 mod walls;
 
@@ -154,6 +155,8 @@ pub struct Suspension {
     /// The velocity each cell felt from the others (and the walls) at the start of the last
     /// step, on the grid that step began on (`None`: not recorded; [`Suspension::record_coupling`]).
     coupling_record: Option<Vec<Vec<f64>>>,
+    /// The evaluators of [`Suspension::velocity_at`], kept between calls.
+    field: Option<field::FieldEvaluators>,
 }
 
 impl Suspension {
@@ -207,6 +210,7 @@ impl Suspension {
             contacts: None,
             contact_stats: ContactStats::default(),
             walls: None,
+            field: None,
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
         for (id, c) in cells {

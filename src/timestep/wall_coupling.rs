@@ -339,6 +339,50 @@ impl WallCoupling {
     }
 }
 
+impl WallCoupling {
+    /// The walls' velocity at `targets` (component-major, `3 · targets.len()`, zero outside the
+    /// fluid) and whether each target is in the fluid, for output (a velocity plane): the walls'
+    /// solution of the last step (for the cells' layers at its start and the background flow
+    /// `u_inf`), or before the first step the solution for `u_inf` alone. The statistics are
+    /// not touched.
+    pub fn field_at(
+        &mut self,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        targets: &[[f64; 3]],
+    ) -> Result<(Vec<f64>, Vec<bool>), TimestepError> {
+        let fluid = self.field.in_fluid(targets).map_err(wall_error)?;
+        let index: Vec<usize> = (0..targets.len()).filter(|&i| fluid[i]).collect();
+        let inner: Vec<[f64; 3]> = index.iter().map(|&i| targets[i]).collect();
+        let background;
+        let solution = match &self.last {
+            Some(s) => s,
+            None => {
+                let mut data = self.velocity.clone();
+                let mut offset = 0;
+                for w in self.system.walls() {
+                    let n = w.n_points();
+                    for (j, &x) in w.geometry().x.iter().enumerate() {
+                        let u = u_inf(x);
+                        for a in 0..3 {
+                            data[offset + a * n + j] -= u[a];
+                        }
+                    }
+                    offset += 3 * n;
+                }
+                background = self.system.solve(&data).map_err(wall_error)?;
+                &background
+            }
+        };
+        let mut v = vec![0.0; 3 * inner.len()];
+        self.field
+            .velocity(solution, &inner, &mut v)
+            .map_err(wall_error)?;
+        let mut out = vec![0.0; 3 * targets.len()];
+        scatter_add(&v, &index, &mut out, targets.len());
+        Ok((out, fluid))
+    }
+}
+
 /// `g − n (∫ g·n dA)/A` and `|∫ g·n dA| / ∫ |g| dA`: a cell's double-layer density without its
 /// net normal flux. The density is `(1 − λ) u` with `u` the membrane velocity of the cell's last
 /// step, whose normal flux carries the step's volume correction (measured: `∫u·n` up to 0.2 on

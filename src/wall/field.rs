@@ -148,6 +148,30 @@ impl WallField {
     }
 }
 
+impl WallField {
+    /// Whether each target is in the fluid (inside the container, outside every body): the
+    /// bounding spheres decide where they can, the closest surface point's normal (or the
+    /// solid angle, see [`OffSurface::classify`]) elsewhere.
+    pub fn in_fluid(&mut self, targets: &[[f64; 3]]) -> Result<Vec<bool>, WallError> {
+        let mut fluid = vec![true; targets.len()];
+        for k in 0..self.surfaces.len() {
+            let container = self.kinds[k] == WallKind::Container;
+            for (i, &x) in targets.iter().enumerate() {
+                if !fluid[i] {
+                    continue;
+                }
+                let inside = match self.coarse[k].side(x) {
+                    Side::FarInside => true,
+                    Side::FarOutside => false,
+                    Side::Unresolved => self.surfaces[k].classify(x)?.inside,
+                };
+                fluid[i] = inside == container;
+            }
+        }
+        Ok(fluid)
+    }
+}
+
 /// Add `v` (component-major over `index.len()` targets) to `out` (component-major over `nt`)
 /// at the targets `index`.
 pub fn scatter_add(v: &[f64], index: &[usize], out: &mut [f64], nt: usize) {
