@@ -452,3 +452,87 @@ fn tube_flows_are_read_and_checked() {
         assert!(e.contains(needle), "{needle}: {e}");
     }
 }
+
+/// A sphere turning at the centre of a spherical container (`[[walls]] angular_velocity`):
+/// before any step the flow is the walls' alone (the spherical vesicle in the gap exerts no
+/// force yet), the spherical Couette flow `u = (Ω × x) a³ (R³/r³ − 1)/(R³ − a³)` (Stokes). A
+/// turn that would change a wall's shape is refused with the place and the reason.
+#[test]
+fn a_sphere_turning_in_a_spherical_container_drives_the_exact_couette_flow() {
+    let (a, r_out, om): (f64, f64, f64) = (1.0, 2.5, 0.7);
+    let text = format!(
+        r#"
+[[cells]]
+shape = "sphere"
+radius = 0.3
+center = [1.75, 0.0, 0.0]
+
+[[walls]]
+kind = "container"
+shape = "sphere"
+radius = {r_out}
+
+[[walls]]
+kind = "body"
+shape = "sphere"
+radius = {a}
+order = 12
+angular_velocity = [0.0, 0.0, {om}]
+
+[numerics]
+order = 6
+dt = 0.01
+t_end = 0.01
+"#
+    );
+    let scene = parse(Path::new("couette.toml"), &text).unwrap();
+    assert_eq!(scene.walls[1].angular_velocity, [0.0, 0.0, om]);
+    let mut susp = build(&scene).unwrap();
+    let targets: Vec<[f64; 3]> = [(1.3, 0.4), (1.6, 1.9), (2.0, 3.0), (2.2, -2.2), (1.2, 2.6)]
+        .iter()
+        .map(|&(r, phi): &(f64, f64)| [r * phi.cos() * 0.8, r * phi.sin() * 0.8, r * 0.6])
+        .collect();
+    let u = susp
+        .velocity_at(&mobo::comm::SerialComm, &|_| [0.0; 3], &targets)
+        .unwrap();
+    let mut worst: f64 = 0.0;
+    for (x, v) in targets.iter().zip(&u) {
+        let r = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
+        let f = a.powi(3) * (r_out.powi(3) / r.powi(3) - 1.0) / (r_out.powi(3) - a.powi(3));
+        let want = [-om * x[1] * f, om * x[0] * f, 0.0];
+        for k in 0..3 {
+            worst = worst.max((v[k] - want[k]).abs() / (om * a));
+        }
+    }
+    println!("spherical Couette: largest error {worst:.1e} of Ω a");
+    assert!(worst < 1e-5, "{worst}");
+    // The vesicle in the gap is carried round the axis, slower than the fluid at its centre.
+    let y0 = centroid(&susp)[1];
+    for _ in 0..5 {
+        susp.step(&|_| [0.0; 3]).unwrap();
+    }
+    let speed = (centroid(&susp)[1] - y0) / 0.05;
+    let r: f64 = 1.75;
+    let fluid =
+        om * r * a.powi(3) * (r_out.powi(3) / r.powi(3) - 1.0) / (r_out.powi(3) - a.powi(3));
+    println!("vesicle carried at {speed:.4}, the fluid at its centre {fluid:.4}");
+    assert!(
+        speed > 0.9 * fluid && speed < fluid,
+        "{speed} against {fluid}"
+    );
+    // A spheroid turns only about its axis, a tube only about x.
+    let bad = text.replace(
+        "shape = \"sphere\"\nradius = 1\norder = 12\nangular_velocity = [0.0, 0.0, 0.7]",
+        "shape = \"ellipsoid\"\naxes = [1.2, 1.0, 1.0]\norder = 12\nangular_velocity = [0.0, 0.0, 0.7]",
+    );
+    assert_ne!(bad, text);
+    let e = parse(Path::new("couette.toml"), &bad)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("couette.toml:") && e.contains("angular_velocity") && e.contains("symmetry"),
+        "{e}"
+    );
+    let about_axis = bad.replace("[0.0, 0.0, 0.7]", "[0.7, 0.0, 0.0]");
+    assert!(parse(Path::new("couette.toml"), &about_axis).is_ok());
+}

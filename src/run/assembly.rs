@@ -167,7 +167,7 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
     };
     let mut walls = vec![];
     // A tube container carrying a tube flow moves with it (in at one end, out at the other);
-    // every other wall is at rest.
+    // a wall with an angular velocity turns in place; every other wall is at rest.
     let mut velocity = vec![];
     for (k, w) in scene.walls.iter().enumerate() {
         let surface = w.surface().map_err(|e| fail(format!("wall {k}: {e}")))?;
@@ -181,6 +181,21 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
                 let v = scene.flow.velocity(x);
                 for a in 0..3 {
                     u[a * n + j] = v[a];
+                }
+            }
+        }
+        // A turning wall: Ω × (x − c), tangential (checked when the scene was read).
+        let (om, c) = (w.angular_velocity, w.center);
+        if om != [0.0; 3] {
+            for (j, &x) in wall.geometry().x.iter().enumerate() {
+                let r = [x[0] - c[0], x[1] - c[1], x[2] - c[2]];
+                let v = [
+                    om[1] * r[2] - om[2] * r[1],
+                    om[2] * r[0] - om[0] * r[2],
+                    om[0] * r[1] - om[1] * r[0],
+                ];
+                for a in 0..3 {
+                    u[a * n + j] += v[a];
                 }
             }
         }

@@ -415,6 +415,10 @@ pub struct WallSpec {
     pub center: [f64; 3],
     /// Its spherical-harmonic order.
     pub order: usize,
+    /// Its angular velocity about its centre (zero: at rest). The wall keeps its shape and
+    /// place: the turn is about an axis of symmetry (any axis of a sphere, the axis of a
+    /// spheroid, the axis of a tube), and its surface velocity `Ω × (x − c)` is tangential.
+    pub angular_velocity: [f64; 3],
     /// The line of its entry (1-based; 0 for a spec).
     pub line: usize,
 }

@@ -85,6 +85,7 @@
 //! shape = "sphere"                # "sphere" (radius) | "ellipsoid" (axes)
 //! radius = 6.0
 //! # center = [0.0, 0.0, 0.0], order = 16
+//! # angular_velocity = [0, 0, 1]  # turns in place about an axis of symmetry (default at rest)
 //!
 //! [output]
 //! every = 10                      # steps between saved frames

@@ -139,4 +139,5 @@ pub(crate) struct WallSection {
     pub(super) length: Option<Spanned<f64>>,
     pub(super) center: Option<Spanned<[f64; 3]>>,
     pub(super) order: Option<Spanned<usize>>,
+    pub(super) angular_velocity: Option<Spanned<[f64; 3]>>,
 }

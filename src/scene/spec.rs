@@ -131,6 +131,9 @@ pub struct WallEntrySpec {
     /// `order` (default 16, a tube 32).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub order: Option<usize>,
+    /// `angular_velocity`: the wall turns about its centre (about an axis of symmetry).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub angular_velocity: Option<[f64; 3]>,
 }
 
 /// `[fluid]`.

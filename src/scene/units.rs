@@ -203,6 +203,7 @@ pub(super) fn to_dimensionless(f: &mut File, at: At) -> Result<Option<UnitScales
         scale(&mut w.length, l);
         scale3(&mut w.axes, l);
         scale3(&mut w.center, l);
+        scale3(&mut w.angular_velocity, 1.0 / t);
     }
     if let Some(p) = f.output.as_mut().and_then(|o| o.velocity_plane.as_mut()) {
         for v in [&mut p.origin, &mut p.u, &mut p.v] {

@@ -12,12 +12,17 @@
 //! center = [0.0, 0.0, 0.0]
 //! order = 16               # spherical-harmonic order of the wall (4 to 64; default 16, a
 //!                          # tube 32)
+//! # angular_velocity = [0.0, 0.0, 1.0]  # turn in place about the center (default at rest)
 //! ```
 //!
-//! Walls are at rest; `[flow]` is the flow the walls disturb (a container at rest in a shear
-//! flow holds its fluid still at the wall). A tube container with `[flow] kind = "tube"` is
-//! the exception: it carries Poiseuille's flow, in at one end and out at the other
-//! ([`super::tube_flow`]). See [`crate::wall`] for the method.
+//! Walls are at rest unless they turn; `[flow]` is the flow the walls disturb (a container at
+//! rest in a shear flow holds its fluid still at the wall). A tube container with
+//! `[flow] kind = "tube"` carries Poiseuille's flow, in at one end and out at the other
+//! ([`super::tube_flow`]). A wall with an `angular_velocity` `Ω` turns in place with the
+//! surface velocity `Ω × (x − c)`: only about an axis of symmetry through its centre (any
+//! axis of a sphere, the x axis of a tube, the axis of an ellipsoid with two equal semi-axes),
+//! so that its shape and the factored wall system stay as they are (a spherical Couette cell,
+//! a rotating rod). See [`crate::wall`] for the method.
 
 use std::path::Path;
 
@@ -168,11 +173,48 @@ pub(super) fn walls(
             None if matches!(shape, WallShape::Tube { .. }) => DEFAULT_TUBE_ORDER,
             None => DEFAULT_WALL_ORDER,
         };
+        let angular_velocity = match &w.angular_velocity {
+            None => [0.0; 3],
+            Some(o) => {
+                let om = *o.get_ref();
+                if !om.iter().all(|v| v.is_finite()) {
+                    return Err(at(
+                        o.span(),
+                        format!("{name}: angular_velocity must be finite"),
+                    ));
+                }
+                let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
+                // Rotation about coordinate axis k keeps the shape when the other two
+                // semi-axes are equal.
+                let keeps = match shape {
+                    WallShape::Sphere { .. } => true,
+                    WallShape::Ellipsoid { axes: [a, b, c] } => {
+                        (om[0] == 0.0 || same(b, c))
+                            && (om[1] == 0.0 || same(a, c))
+                            && (om[2] == 0.0 || same(a, b))
+                    }
+                    WallShape::Tube { .. } => om[1] == 0.0 && om[2] == 0.0,
+                };
+                if !keeps {
+                    return Err(at(
+                        o.span(),
+                        format!(
+                            "{name}: angular_velocity {om:?} would turn the wall out of its own \
+                             shape: a wall turns in place only about an axis of symmetry \
+                             through its center (any axis of a sphere, the x axis of a tube, \
+                             the axis of an ellipsoid with two equal semi-axes)"
+                        ),
+                    ));
+                }
+                om
+            }
+        };
         out.push(WallSpec {
             kind,
             shape,
             center,
             order,
+            angular_velocity,
             line,
         });
     }
