@@ -359,6 +359,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
             repeated as f64 / all.max(1) as f64
         },
         fmm.setup_bytes_sent as f64,
+        fmm.comm.messages_sent as f64,
     ]);
     let all = comm.gather_f64(&stats, 0)?;
     if comm.rank() != 0 {
@@ -412,6 +413,7 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         "rank_local_roots": as_int(col(17)),
         "rank_repeated_far_fraction": col(18),
         "rank_setup_bytes_sent": as_int(col(19)),
+        "rank_messages_sent": as_int(col(20)),
         "rank_comm_s": col(4),
         "phases_max_s": phases_max,
     });

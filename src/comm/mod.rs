@@ -99,6 +99,11 @@ pub trait Communicator {
     ) -> Result<Vec<Vec<f64>>, CommError>;
     /// Bytes this rank has sent to other ranks so far.
     fn bytes_sent(&self) -> u64;
+    /// Messages this rank has sent to other ranks so far (a collective counts one message to
+    /// each other rank it sends to, as a LogGP model charges it; 0 on one process).
+    fn messages_sent(&self) -> u64 {
+        0
+    }
 
     /// Agree on success: every rank passes its own outcome; if any rank failed, every rank
     /// returns the error of the lowest failing rank (so all exit with one message, none hangs).

@@ -17,6 +17,7 @@ use super::{CommError, Communicator};
 pub struct MpiComm {
     world: SimpleCommunicator,
     sent: Cell<u64>,
+    messages: Cell<u64>,
     _universe: mpi::environment::Universe,
 }
 
@@ -37,6 +38,7 @@ impl MpiComm {
         Some(MpiComm {
             world,
             sent: Cell::new(0),
+            messages: Cell::new(0),
             _universe: universe,
         })
     }
@@ -51,8 +53,10 @@ impl MpiComm {
         Count::try_from(n).map_err(|_| CommError::TooLong(n))
     }
 
-    fn counted(&self, values: usize, width: usize) {
+    /// Count `values` of `width` bytes sent in `messages` messages.
+    fn counted(&self, values: usize, width: usize, messages: usize) {
         self.sent.set(self.sent.get() + (values * width) as u64);
+        self.messages.set(self.messages.get() + messages as u64);
     }
 
     fn gather<T: Equivalence + Default + Clone>(
@@ -70,7 +74,8 @@ impl MpiComm {
             let mut part = PartitionMut::new(&mut buf[..], &counts[..], &displs[..]);
             self.world.all_gather_varcount_into(local, &mut part);
         }
-        self.counted(local.len() * (k - 1), std::mem::size_of::<T>());
+        // The counts and the values, each to every other rank.
+        self.counted(local.len() * (k - 1), std::mem::size_of::<T>(), 2 * (k - 1));
         Ok(split(&buf, &counts))
     }
 
@@ -109,7 +114,13 @@ impl MpiComm {
             .filter(|(r, _)| *r != me)
             .map(|(_, b)| b.len())
             .sum();
-        self.counted(off_rank + k, std::mem::size_of::<T>());
+        // The counts to every other rank, the values to those that get some.
+        let partners = send
+            .iter()
+            .enumerate()
+            .filter(|(r, b)| *r != me && !b.is_empty())
+            .count();
+        self.counted(off_rank + k, std::mem::size_of::<T>(), k - 1 + partners);
         Ok(split(&buf, &rcounts))
     }
 }
@@ -180,7 +191,7 @@ impl Communicator for MpiComm {
         if self.rank() != root {
             proc.gather_into(&n);
             proc.gather_varcount_into(local);
-            self.counted(local.len() + 1, 8);
+            self.counted(local.len() + 1, 8, 2);
             return Ok(Vec::new());
         }
         let mut counts = vec![0 as Count; k];
@@ -240,10 +251,14 @@ impl Communicator for MpiComm {
             .filter(|(r, _)| *r != me)
             .map(|(_, b)| b.len())
             .sum();
-        self.counted(bytes, 8);
+        let partners = sends.iter().filter(|(r, _)| *r != me).count();
+        self.counted(bytes, 8, partners);
         Ok(out)
     }
     fn bytes_sent(&self) -> u64 {
         self.sent.get()
+    }
+    fn messages_sent(&self) -> u64 {
+        self.messages.get()
     }
 }

@@ -476,6 +476,7 @@ impl Fmm {
         comm.agree(local)?;
         let t0 = Instant::now();
         let bytes0 = comm.bytes_sent();
+        let messages0 = comm.messages_sent();
         let ds = self.near.density_dim();
         let ne = self.ops.n_equiv();
         let mut comm_s = 0.0;
@@ -569,6 +570,7 @@ impl Fmm {
             bytes_sent,
             let_bytes_sent: bytes_sent.saturating_sub(top_sent),
             top_bytes_received: top_bytes([&tree.top_partials_in, &tree.top_in]),
+            messages_sent: comm.messages_sent() - messages0,
             seconds: comm_s,
         };
         Ok(())

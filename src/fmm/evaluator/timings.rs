@@ -82,6 +82,9 @@ pub struct FmmComm {
     /// top boxes it owns, and the whole expansions of the top boxes its lists use
     /// (`8 · ne` per box; see [`crate::fmm::dist_tree`] for how many).
     pub top_bytes_received: u64,
+    /// Messages this rank sent to other ranks during the evaluation
+    /// ([`crate::comm::Communicator::messages_sent`]).
+    pub messages_sent: u64,
     /// Seconds spent in communication (included in the phase total).
     pub seconds: f64,
 }
