@@ -102,6 +102,8 @@ fn a_pulled_spherical_vesicle_gives_stokes_field_outside_and_its_speed_inside() 
         vtp.contains("NumberOfPolys=\"3200\""),
         "two triangles per grid cell"
     );
+    // VTK's ASCII reader takes no NaN: a mask instead.
+    assert!(vtp.contains("Name=\"in_fluid\"") && !vtp.contains("NaN"));
 }
 
 #[test]
@@ -160,4 +162,6 @@ fn bad_planes_are_refused_with_the_place_and_the_reason() {
     assert!(e.contains("w"), "{e}");
     let e = err("{ origin = [0, 0, 0], u = [1.0, 0, 0], v = [0, 1.0, 0], points = [2000, 2000] }");
     assert!(e.contains("1000000"), "{e}");
+    let e = err("{ origin = [0, 0, 0], u = [1.0, 0, 0], v = [0, 1.0, 0], points = [4, 4] }\nnpy = false\nvtk = false");
+    assert!(e.contains("needs npy = true or vtk = true"), "{e}");
 }

@@ -7,7 +7,8 @@
 //! * `DIR/frames/frame_NNNNN_plane_velocity.npy`, shape `(n_v, n_u, 3)`: the velocity at those
 //!   points (`NaN` at points outside the fluid: inside a rigid body or outside a container);
 //! * `DIR/vtk/frame_NNNNN_plane.vtp`: the plane as triangles (two per grid cell) with point
-//!   data `speed` (the active scalar) and `velocity` (3 components);
+//!   data `speed` (the active scalar), `velocity` (3 components) and `in_fluid` (1, or 0 where
+//!   the `.npy` has NaN: VTK's ASCII reader takes no NaN, so there the velocity is 0);
 //! * `DIR/vtk/plane.pvd`: the ParaView collection of those `.vtp` files, rewritten after each.
 //!
 //! [`super::frames::FrameWriter`] deletes these files with the frames they belong to (a new
@@ -169,6 +170,15 @@ impl PlaneWriter {
                 triangles.push([a, d, c]);
             }
         }
+        // VTK's ASCII reader takes no NaN: points outside the fluid get zeros and `in_fluid` 0.
+        let in_fluid: Vec<i32> = velocity
+            .chunks_exact(3)
+            .map(|u| i32::from(u.iter().all(|v| v.is_finite())))
+            .collect();
+        let velocity: Vec<f64> = velocity
+            .iter()
+            .map(|&v| if v.is_finite() { v } else { 0.0 })
+            .collect();
         let speed = velocity
             .chunks_exact(3)
             .map(|u| (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt())
@@ -183,6 +193,7 @@ impl PlaneWriter {
                     components: 3,
                     values: DataValues::Float64(velocity),
                 },
+                DataArray::ints("in_fluid", in_fluid),
             ],
             cell_data: vec![],
         }

@@ -505,6 +505,18 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             .map(|p| super::velocity_plane::validate(p, &at))
             .transpose()?,
     };
+    if let (Some(p), None, false) = (
+        o.and_then(|o| o.velocity_plane.as_ref()),
+        output.vtk,
+        output.npy,
+    ) {
+        return Err(at(
+            p.origin.span(),
+            "[output] velocity_plane is written as .npy or .vtp: it needs npy = true or vtk = \
+             true"
+                .into(),
+        ));
+    }
     let sections = f.cells.unwrap_or_default();
     if sections.is_empty() {
         return Err(SceneError::new(file, "the scene has no [[cells]]"));

@@ -11,22 +11,26 @@
 //! χ = 1 in the suspending fluid,   χ = λ_k inside cell k,
 //! ```
 //!
-//! with the walls' part from the walls' solution of the last step
-//! ([`WallCoupling::field_at`]). Each cell's layers use the coarse smooth rule (order `3p`)
-//! where its bounding spheres resolve the target and the near-zone evaluator
-//! ([`OffSurface`]) elsewhere, which also says on which side of the membrane the target lies.
-//! Points outside the fluid (in a rigid body, beyond a container) get `NaN`.
+//! with the walls' part from the walls' solution of the last step ([`WallCoupling::field_at`]).
+//! Between walls each `g` first loses its net normal flux, as the walls were solved for it.
+//! Each cell's layers use the coarse smooth rule (order `3p`) where its bounding spheres
+//! resolve the target, and elsewhere the near-zone evaluator ([`OffSurface`]), which also says
+//! on which side of the membrane the target lies. Its zone is `0.05` of the smallest cell's
+//! equivalent radius over all ranks (the same on any number of ranks), with an order
+//! `min(32p, 256)` smooth rule beyond it. Points outside the fluid (in a rigid body, beyond a
+//! container) get `NaN`.
 //!
 //! [`CellStepper::traction`]: super::super::cell_stepper::CellStepper::traction
 //! [`WallCoupling::field_at`]: super::super::wall_coupling::WallCoupling::field_at
 
+use super::super::wall_coupling::without_net_flux;
 use super::super::TimestepError;
 use super::{agree_cells, CellStepError, Suspension};
 use crate::comm::Communicator;
 use crate::vesicle::smooth_layer::{Side, SmoothLayer};
 use crate::vesicle::{LayerKernel, NearParams, OffSurface};
 
-/// The near zone of the evaluation, a fraction of the first cell's equivalent radius.
+/// The near zone of the evaluation, a fraction of the smallest cell's equivalent radius.
 const THIN_ZONE: f64 = 0.05;
 
 /// The evaluators of [`Suspension::velocity_at`] for cells of order `p` (near zone `delta`).
@@ -47,10 +51,34 @@ impl Suspension {
         targets: &[[f64; 3]],
     ) -> Result<Vec<[f64; 3]>, CellStepError> {
         let nt = targets.len();
+        // The near zone: a fraction of the smallest cell's equivalent radius over all ranks
+        // (the same zone on any number of ranks).
+        let radii: Result<Vec<f64>, CellStepError> = self
+            .cells
+            .iter()
+            .map(|c| match c.state.drift_targets {
+                // The volume the drift correction restores: fixed from the first step on and
+                // kept in checkpoints, so that a resumed run sets the same zone.
+                Some((_, volume)) => Ok((3.0 * volume / (4.0 * std::f64::consts::PI)).cbrt()),
+                None => c
+                    .stepper
+                    .with_geometry(&c.state.coefs, |g| g.equivalent_radius())
+                    .map_err(|source| CellStepError {
+                        cell: Some(c.id),
+                        source,
+                    }),
+            })
+            .collect();
+        let radii = agree_cells(comm, radii)?;
+        let mut radius = [radii.into_iter().fold(f64::INFINITY, f64::min)];
+        comm.all_min(&mut radius).map_err(|e| CellStepError {
+            cell: None,
+            source: TimestepError::Comm(e),
+        })?;
         // This rank's cells: their layers (component-major) and, per target, the viscosity
         // ratio of the cell it lies in (0: in none of them).
         let mut local = vec![0.0; 4 * nt];
-        let mine = self.cells_at(targets, &mut local);
+        let mine = self.cells_at(targets, THIN_ZONE * radius[0], &mut local);
         agree_cells(comm, mine)?;
         let gathered = comm.all_gather_f64(&local).map_err(|e| CellStepError {
             cell: None,
@@ -90,8 +118,14 @@ impl Suspension {
     }
 
     /// Add this rank's cells' layers at `targets` to `out[..3 nt]` (component-major) and set
-    /// `out[3 nt + i]` to the viscosity ratio of the cell target `i` lies in.
-    fn cells_at(&mut self, targets: &[[f64; 3]], out: &mut [f64]) -> Result<(), CellStepError> {
+    /// `out[3 nt + i]` to the viscosity ratio of the cell target `i` lies in; `delta` is the
+    /// near zone.
+    fn cells_at(
+        &mut self,
+        targets: &[[f64; 3]],
+        delta: f64,
+        out: &mut [f64],
+    ) -> Result<(), CellStepError> {
         let nt = targets.len();
         let Some(first) = self.cells.first() else {
             return Ok(());
@@ -103,17 +137,6 @@ impl Suspension {
         let p = first.stepper.order();
         let viscosity = first.stepper.params().viscosity;
         let vesicle = |cell: usize| move |e| fail(cell, TimestepError::from(e));
-        // The first cell's equivalent radius: from the volume its drift correction restores
-        // (fixed from the first step on and kept in checkpoints, so that a resumed run sets the
-        // same zone), before the first step from its shape.
-        let radius = match first.state.drift_targets {
-            Some((_, volume)) => (3.0 * volume / (4.0 * std::f64::consts::PI)).cbrt(),
-            None => first
-                .stepper
-                .with_geometry(&first.state.coefs, |g| g.equivalent_radius())
-                .map_err(|e| fail(first.id, e))?,
-        };
-        let delta = THIN_ZONE * radius;
         if self
             .field
             .as_ref()
@@ -134,6 +157,7 @@ impl Suspension {
                 coarse: SmoothLayer::new(p, 3 * p, 3.0).map_err(vesicle(first.id))?,
             });
         }
+        let walls = self.walls.is_some();
         let Suspension { cells, field, .. } = self;
         let FieldEvaluators { near, coarse, .. } = field.as_mut().expect("built above");
         let sl = LayerKernel::SingleLayer { viscosity };
@@ -148,6 +172,16 @@ impl Suspension {
             let g: Option<Vec<f64>> = match &c.state.membrane_velocity {
                 Some(u) if lambda != 1.0 => Some(u.iter().map(|v| (1.0 - lambda) * v).collect()),
                 _ => None,
+            };
+            // Between walls, the density without its net normal flux, as the walls were
+            // solved for it (`wall_coupling::without_net_flux`).
+            let g = match g {
+                Some(g) if walls => Some(
+                    c.stepper
+                        .with_geometry(&c.state.coefs, |geom| without_net_flux(geom, &g).0)
+                        .map_err(|e| fail(id, e))?,
+                ),
+                g => g,
             };
             coarse.set_surface(&c.state.coefs).map_err(vesicle(id))?;
             let (mut far, mut close) = (vec![], vec![]);
