@@ -220,7 +220,7 @@ pub(super) fn cell_specs(
                     ),
                 ));
             }
-            if shear == 0.0 {
+            if shear == 0.0 && v != 0.0 {
                 return Err(at(
                     a.span(),
                     format!(
