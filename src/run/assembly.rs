@@ -3,6 +3,7 @@
 
 use super::cell_step::step_error;
 use super::error::CellRunError;
+use crate::linalg3::{cross3, sub3};
 use crate::scene::cells::{CellScene, Effect, Flow, Scheme};
 use crate::scene::walls::WallShape;
 use crate::timestep::cell_preconditioner;
@@ -188,12 +189,7 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
         let (om, c) = (w.angular_velocity, w.center);
         if om != [0.0; 3] {
             for (j, &x) in wall.geometry().x.iter().enumerate() {
-                let r = [x[0] - c[0], x[1] - c[1], x[2] - c[2]];
-                let v = [
-                    om[1] * r[2] - om[2] * r[1],
-                    om[2] * r[0] - om[0] * r[2],
-                    om[0] * r[1] - om[1] * r[0],
-                ];
+                let v = cross3(om, sub3(x, c));
                 for a in 0..3 {
                     u[a * n + j] += v[a];
                 }

@@ -12,6 +12,7 @@
 //! [`crate::io::plane_frames`].
 
 use super::SceneError;
+use crate::linalg3::{cross3, dot3};
 
 /// The largest number of points of a plane (`n_u · n_v`).
 pub const MAX_PLANE_POINTS: usize = 1_000_000;
@@ -70,18 +71,13 @@ pub(super) fn validate(
         }
     }
     let (u, v) = (*s.u.get_ref(), *s.v.get_ref());
-    let norm = |a: [f64; 3]| (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+    let norm = |a: [f64; 3]| dot3(a, a).sqrt();
     for (name, e) in [("u", &s.u), ("v", &s.v)] {
         if norm(*e.get_ref()) == 0.0 {
             return Err(at(e.span(), format!("{} must not be zero", key(name))));
         }
     }
-    let cross = [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ];
-    if norm(cross) <= 1e-9 * norm(u) * norm(v) {
+    if norm(cross3(u, v)) <= 1e-9 * norm(u) * norm(v) {
         return Err(at(
             s.v.span(),
             format!(

@@ -28,7 +28,7 @@ use std::time::Instant;
 use super::contact::FixedSurface;
 use super::TimestepError;
 use crate::vesicle::smooth_layer::{Side, SmoothLayer};
-use crate::vesicle::{Geometry, LayerKernel, NearParams, OffSurface};
+use crate::vesicle::{Geometry, LayerKernel, NearParams, OffSurface, TargetInfo};
 use crate::wall::{
     scatter_add, Wall, WallError, WallField, WallKind, WallParams, WallSolution, WallSystem,
 };
@@ -217,33 +217,43 @@ impl WallCoupling {
             }
             None => None,
         };
-        let double_layer = double_layer.as_deref();
         let (s, coarse) = &mut self.cells[slot];
-        if !far.is_empty() {
-            let xs: Vec<[f64; 3]> = far.iter().map(|&i| self.points[i]).collect();
-            let mut buf = vec![0.0; 3 * xs.len()];
-            coarse.set_density(traction)?;
-            coarse.add_to(sl, &xs, &mut buf)?;
-            if let Some(g) = double_layer {
-                coarse.set_density(g)?;
-                coarse.add_to(LayerKernel::DoubleLayer, &xs, &mut buf)?;
-            }
-            scatter_add(&buf, &far, &mut out, nw);
-        }
-        if !near.is_empty() {
-            let xs: Vec<[f64; 3]> = near.iter().map(|&i| self.points[i]).collect();
-            let mut v = vec![0.0; 3 * xs.len()];
-            s.set_surface(coefs)?;
-            s.evaluate(sl, traction, &xs, &mut v)?;
-            scatter_add(&v, &near, &mut out, nw);
-            if let Some(g) = double_layer {
-                s.evaluate(LayerKernel::DoubleLayer, g, &xs, &mut v)?;
-                scatter_add(&v, &near, &mut out, nw);
-            }
-        }
+        let layers = CellLayers {
+            coefs,
+            single_layer: sl,
+            traction,
+            double_layer: double_layer.as_deref(),
+        };
+        layers.add_at(coarse, s, &self.points, (&far, &near), &mut out)?;
         self.stats.cells_at_walls_seconds += t0.elapsed().as_secs_f64();
         self.stats.seconds += t0.elapsed().as_secs_f64();
         Ok(out)
+    }
+
+    /// The data of the wall system: `U_w − u_∞ − u_cells` on every wall's grid (the walls'
+    /// layout, component-major per wall), with `u_cells` the cells' velocity there in the same
+    /// layout (`None`: no cells).
+    fn boundary_data(
+        &self,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        cells: Option<&[f64]>,
+    ) -> Vec<f64> {
+        let mut data = self.velocity.clone();
+        let mut offset = 0;
+        for w in self.system.walls() {
+            let n = w.n_points();
+            for (j, &x) in w.geometry().x.iter().enumerate() {
+                for (a, u) in u_inf(x).into_iter().enumerate() {
+                    let i = offset + a * n + j;
+                    match cells {
+                        Some(c) => data[i] -= u + c[i],
+                        None => data[i] -= u,
+                    }
+                }
+            }
+            offset += 3 * n;
+        }
+        data
     }
 
     /// Solve the walls for the cells' layers at the wall points summed over every cell
@@ -277,17 +287,11 @@ impl WallCoupling {
             }
             offset += 3 * n;
         }
-        let mut data = self.velocity.clone();
+        let mut data = self.boundary_data(u_inf, Some(&cells));
         let mut offset = 0;
         for w in self.system.walls() {
             let n = w.n_points();
             let mine = &cells[offset..offset + 3 * n];
-            for (j, &x) in w.geometry().x.iter().enumerate() {
-                let u = u_inf(x);
-                for a in 0..3 {
-                    data[offset + a * n + j] -= u[a] + mine[a * n + j];
-                }
-            }
             if w.kind() == WallKind::Container {
                 // The cells' velocity carries no net flux through a closed wall around them;
                 // what the wall's quadrature measures is its under-resolution of cells close
@@ -357,18 +361,7 @@ impl WallCoupling {
         let solution = match &self.last {
             Some(s) => s,
             None => {
-                let mut data = self.velocity.clone();
-                let mut offset = 0;
-                for w in self.system.walls() {
-                    let n = w.n_points();
-                    for (j, &x) in w.geometry().x.iter().enumerate() {
-                        let u = u_inf(x);
-                        for a in 0..3 {
-                            data[offset + a * n + j] -= u[a];
-                        }
-                    }
-                    offset += 3 * n;
-                }
+                let data = self.boundary_data(u_inf, None);
                 background = self.system.solve(&data).map_err(wall_error)?;
                 &background
             }
@@ -380,6 +373,56 @@ impl WallCoupling {
         let mut out = vec![0.0; 3 * targets.len()];
         scatter_add(&v, &index, &mut out, targets.len());
         Ok((out, fluid))
+    }
+}
+
+/// One cell's layers `S[f] + D[g]` for evaluation off its surface: its coefficients, the
+/// single-layer kernel, the traction `f` and the double-layer density `g` (`None`: none).
+pub(crate) struct CellLayers<'a> {
+    pub(crate) coefs: &'a [f64],
+    pub(crate) single_layer: LayerKernel,
+    pub(crate) traction: &'a [f64],
+    pub(crate) double_layer: Option<&'a [f64]>,
+}
+
+impl CellLayers<'_> {
+    /// Add the layers at `targets[far]` by the smooth rule `coarse` (its surface already set to
+    /// this cell) and at `targets[close]` by the near-zone evaluator `near` (its surface set
+    /// here) to `out` (component-major over all targets); the near targets' classification,
+    /// in the order of `close`.
+    pub(crate) fn add_at(
+        &self,
+        coarse: &mut SmoothLayer,
+        near: &mut OffSurface,
+        targets: &[[f64; 3]],
+        (far, close): (&[usize], &[usize]),
+        out: &mut [f64],
+    ) -> Result<Vec<TargetInfo>, crate::vesicle::VesicleError> {
+        let nt = targets.len();
+        if !far.is_empty() {
+            let xs: Vec<[f64; 3]> = far.iter().map(|&i| targets[i]).collect();
+            let mut buf = vec![0.0; 3 * xs.len()];
+            coarse.set_density(self.traction)?;
+            coarse.add_to(self.single_layer, &xs, &mut buf)?;
+            if let Some(g) = self.double_layer {
+                coarse.set_density(g)?;
+                coarse.add_to(LayerKernel::DoubleLayer, &xs, &mut buf)?;
+            }
+            scatter_add(&buf, far, out, nt);
+        }
+        if close.is_empty() {
+            return Ok(vec![]);
+        }
+        let xs: Vec<[f64; 3]> = close.iter().map(|&i| targets[i]).collect();
+        let mut v = vec![0.0; 3 * xs.len()];
+        near.set_surface(self.coefs)?;
+        let infos = near.evaluate(self.single_layer, self.traction, &xs, &mut v)?;
+        scatter_add(&v, close, out, nt);
+        if let Some(g) = self.double_layer {
+            near.evaluate(LayerKernel::DoubleLayer, g, &xs, &mut v)?;
+            scatter_add(&v, close, out, nt);
+        }
+        Ok(infos)
     }
 }
 

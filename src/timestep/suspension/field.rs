@@ -23,7 +23,7 @@
 //! [`CellStepper::traction`]: super::super::cell_stepper::CellStepper::traction
 //! [`WallCoupling::field_at`]: super::super::wall_coupling::WallCoupling::field_at
 
-use super::super::wall_coupling::without_net_flux;
+use super::super::wall_coupling::{without_net_flux, CellLayers};
 use super::super::TimestepError;
 use super::{agree_cells, CellStepError, Suspension};
 use crate::comm::Communicator;
@@ -195,34 +195,18 @@ impl Suspension {
                     Side::Unresolved => close.push(i),
                 }
             }
-            if !far.is_empty() {
-                let xs: Vec<[f64; 3]> = far.iter().map(|&i| targets[i]).collect();
-                let mut buf = vec![0.0; 3 * xs.len()];
-                coarse.set_density(&f).map_err(vesicle(id))?;
-                coarse.add_to(sl, &xs, &mut buf).map_err(vesicle(id))?;
-                if let Some(g) = &g {
-                    coarse.set_density(g).map_err(vesicle(id))?;
-                    coarse
-                        .add_to(LayerKernel::DoubleLayer, &xs, &mut buf)
-                        .map_err(vesicle(id))?;
-                }
-                crate::wall::scatter_add(&buf, &far, layers, nt);
-            }
-            if !close.is_empty() {
-                let xs: Vec<[f64; 3]> = close.iter().map(|&i| targets[i]).collect();
-                let mut buf = vec![0.0; 3 * xs.len()];
-                near.set_surface(&c.state.coefs).map_err(vesicle(id))?;
-                let infos = near.evaluate(sl, &f, &xs, &mut buf).map_err(vesicle(id))?;
-                crate::wall::scatter_add(&buf, &close, layers, nt);
-                if let Some(g) = &g {
-                    near.evaluate(LayerKernel::DoubleLayer, g, &xs, &mut buf)
-                        .map_err(vesicle(id))?;
-                    crate::wall::scatter_add(&buf, &close, layers, nt);
-                }
-                for (&i, info) in close.iter().zip(&infos) {
-                    if info.inside {
-                        inside_of[i] = lambda;
-                    }
+            let cell = CellLayers {
+                coefs: &c.state.coefs,
+                single_layer: sl,
+                traction: &f,
+                double_layer: g.as_deref(),
+            };
+            let infos = cell
+                .add_at(coarse, near, targets, (&far, &close), layers)
+                .map_err(vesicle(id))?;
+            for (&i, info) in close.iter().zip(&infos) {
+                if info.inside {
+                    inside_of[i] = lambda;
                 }
             }
         }
