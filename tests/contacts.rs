@@ -281,7 +281,7 @@ fn bad_packing_and_contact_keys_are_refused_with_their_place() {
         ("min_gap = 0.05", "min_gap = -0.05", "min_gap"),
         (
             "t_end = 0.05",
-            "t_end = 0.05\ncontact_distance = 0.0",
+            "t_end = 0.05\ncontact_distance = -0.05",
             "contact_distance",
         ),
     ];

@@ -250,6 +250,8 @@ order = 8
 dt = 0.02
 t_end = 1.0
 gmres_tol = 1e-10
+# The near-contact cases start 0.03 apart: no contact projection (its default d_min is 0.05).
+contact_distance = 0
 "#;
 
 /// Two RBCs, discs in the x–z plane, stacked in the shear direction y with the top one shifted

@@ -157,6 +157,8 @@ center = [1.3, 0.2, 0.0]
 orientation = [0, 1, 0, 90]
 bending_modulus = 0.1
 viscosity_ratio = 5.0
+[numerics]
+coupling = "explicit"
 "#;
     let scene = parse(std::path::Path::new("two-rbcs"), text).unwrap();
     let opts = StudyOptions {

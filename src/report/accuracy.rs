@@ -12,7 +12,8 @@
 //! * `coupling` — with several cells, the other coupling mode than the scene's (`explicit`: last
 //!   step's densities; `near_implicit`: near cells in one solve), shown as 0 and 1;
 //! * `contact distance` — with several cells, the contact projection's `d_min` at 0.02, 0.05
-//!   and 0.1 (the reference keeps the scene's: off unless `[numerics] contact_distance`).
+//!   and 0.1 (the reference keeps the scene's: `[numerics] contact_distance`, or its default
+//!   `0.4 R_min/p`, [`crate::scene::dense_defaults`]).
 //!
 //! Each run is compared with the reference at `T`:
 //!

@@ -316,12 +316,13 @@ pub struct Numerics {
     /// Under MPI: the cost imbalance (largest rank over mean, minus 1) above which cells are
     /// moved at a check (default 0.1; see [`crate::run::partition`]).
     pub max_imbalance: f64,
-    /// How the cells' coupling enters a step (`[numerics] coupling`; default
-    /// [`CouplingMode::Explicit`]; see [`crate::timestep::near_implicit`]).
+    /// How the cells' coupling enters a step (`[numerics] coupling`; default `"auto"`,
+    /// resolved by [`crate::scene::dense_defaults::auto_coupling`]; see
+    /// [`crate::timestep::near_implicit`]).
     pub coupling: CouplingMode,
     /// The smallest surface gap `d_min` kept at the end of every step by the contact
-    /// projection (`[numerics] contact_distance`, a length; `None`: off, the default;
-    /// [`crate::timestep::contact`]).
+    /// projection (`[numerics] contact_distance`, a length; `None`: off; absent from the file,
+    /// [`crate::scene::dense_defaults::auto_contact_distance`]; [`crate::timestep::contact`]).
     pub contact_distance: Option<f64>,
     /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
     /// ([`crate::fmm::gpu_near::choose`]).

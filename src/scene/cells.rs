@@ -72,12 +72,15 @@
 //! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
 //! rebalance_every = 10            # under mpirun: steps between checks of the split of the cells
 //! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see run::partition)
-//! coupling = "explicit"          # cells' coupling: "explicit" (last step's densities) |
+//! coupling = "auto"              # cells' coupling: "auto" (near_implicit when a cell has
+//! #                               # viscosity_ratio ≠ 1 and a neighbour, else explicit; see
+//! #                               # scene::dense_defaults) | "explicit" (last step's densities) |
 //! #                               # "near_implicit" (cells in each other's near zone solved as
 //! #                               # one system, over MPI ranks too; see
 //! #                               # timestep::near_implicit)
 //! # contact_distance = 0.02       # keep every surface gap >= 0.02 at the end of each step
-//! #                               # (a length; off by default; see timestep::contact)
+//! #                               # (a length; default 0.4·R_min/p with two cells or a cell
+//! #                               # and a wall, 0: off; see scene::dense_defaults)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [[walls]]                       # rigid walls (optional; see scene::walls, docs/walls.md)
@@ -416,16 +419,18 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             Some(v) => *v.get_ref(),
             None => MAX_IMBALANCE,
         },
+        // "auto" (the default) and an absent contact distance are resolved once the cells and
+        // walls are read (scene::dense_defaults).
         coupling: match n.and_then(|n| n.coupling.as_ref()) {
             None => CouplingMode::Explicit,
             Some(c) => match c.get_ref().as_str() {
-                "explicit" => CouplingMode::Explicit,
+                "explicit" | "auto" => CouplingMode::Explicit,
                 "near_implicit" => CouplingMode::NearImplicit,
                 other => {
                     return Err(at(
                         c.span(),
                         format!(
-                            "[numerics] coupling: unknown coupling \"{other}\" (explicit, \
+                            "[numerics] coupling: unknown coupling \"{other}\" (auto, explicit, \
                              near_implicit)"
                         ),
                     ))
@@ -433,6 +438,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             },
         },
         contact_distance: match n.and_then(|n| n.contact_distance.as_ref()) {
+            Some(v) if *v.get_ref() == 0.0 => None,
             Some(v) => Some(positive(v, "[numerics] contact_distance")?),
             None => None,
         },
@@ -587,8 +593,26 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             ),
         ));
     }
+    let coupling_given = n
+        .and_then(|n| n.coupling.as_ref())
+        .is_some_and(|c| c.get_ref() != "auto");
+    if !coupling_given {
+        numerics.coupling = super::dense_defaults::auto_coupling(&cells);
+    }
+    let contact_given = n.and_then(|n| n.contact_distance.as_ref()).is_some();
+    if !contact_given {
+        numerics.contact_distance =
+            super::dense_defaults::auto_contact_distance(&cells, &walls, numerics.order);
+    }
     let mut effects = effects(&cells, &flow);
     effects.push(grid_effect(&cells, numerics.grid));
+    effects.extend(super::dense_defaults::effects(
+        numerics.coupling,
+        coupling_given,
+        numerics.contact_distance,
+        contact_given,
+        cells.len(),
+    ));
     if let Some(u) = &units {
         effects.push(Effect {
             name: "units",

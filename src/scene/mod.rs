@@ -8,6 +8,7 @@ mod cell_groups;
 mod cell_scene;
 pub mod cells;
 mod cells_schema;
+pub mod dense_defaults;
 pub mod dpd;
 pub mod packing;
 pub mod spec;

@@ -410,6 +410,9 @@ pub enum PreconditionerKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CouplingKind {
+    /// Near-implicit when a cell has `λ ≠ 1` and a neighbour, else explicit (the default;
+    /// [`crate::scene::dense_defaults`]).
+    Auto,
     /// Every other cell through last step's densities.
     Explicit,
     /// Cells in each other's near zone solved as one system.
@@ -487,7 +490,8 @@ pub struct NumericsSpec {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub coupling: Option<CouplingKind>,
     /// `contact_distance`: the smallest surface gap `d_min` the contact projection keeps at
-    /// the end of every step (absent: no projection).
+    /// the end of every step (absent: `0.4 · R_min / p` with two cells or a cell and a wall,
+    /// [`crate::scene::dense_defaults`]; 0: no projection).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_distance: Option<f64>,
     /// `gpu`: `"auto"`, `true` or `false`.
