@@ -6,7 +6,7 @@ suspension").
     scripts/dense_bdf2_order.py --binary target/release/mobo --out /tmp/order \
         [--count 8] [--phi 0.3] [--gap 0.1] [--order 8] [--viscosity-ratio 5] \
         [--coupling near_implicit] [--contact 0] [--t-end 0.4] \
-        [--dts 0.04,0.02,0.01,0.005] [--reference 0.0025]
+        [--dts 0.04,0.02,0.01,0.005] [--reference 0.0025] [--gmres-tol 1e-9] [--fmm-digits 6]
 
 The scene: `count` RBCs (Skalak, shear modulus 1, bending 0.1) packed at volume fraction `phi`
 with surfaces at least `gap` apart (`placement = "packed"`, seed 7), shear rate 1, BDF2. The
@@ -46,7 +46,8 @@ t_end = {a.t_end}
 scheme = "bdf2"
 coupling = "{a.coupling}"
 contact_distance = {a.contact}
-gmres_tol = 1e-9
+gmres_tol = {a.gmres_tol}
+fmm_digits = {a.fmm_digits}
 [output]
 every = {int(round(a.t_end / dt))}
 vtk = false
@@ -74,7 +75,8 @@ def run(a, dt):
     coefs = np.load(os.path.join(out, "frames", f"frame_{last:05d}_coefs.npy"))
     pos = np.load(os.path.join(out, "frames", f"frame_{last:05d}_positions.npy"))
     moves = s.get("counters", {}).get("contacts", {}).get("moves", 0)
-    return coefs, pos.mean(axis=2), moves, s.get("step_s"), s.get("min_gap")
+    step_s = s.get("step_s", float("nan")) / max(s.get("steps", 1), 1)
+    return coefs, pos.mean(axis=2), moves, step_s, s.get("min_gap")
 
 
 def main():
@@ -89,6 +91,8 @@ def main():
     p.add_argument("--coupling", default="near_implicit")
     p.add_argument("--contact", type=float, default=0.0)
     p.add_argument("--t-end", type=float, default=0.4)
+    p.add_argument("--gmres-tol", type=float, default=1e-9)
+    p.add_argument("--fmm-digits", type=int, default=6)
     p.add_argument("--dts", default="0.04,0.02,0.01,0.005")
     p.add_argument("--reference", type=float, default=0.0025)
     a = p.parse_args()
@@ -96,7 +100,8 @@ def main():
     ref_c, ref_x, ref_moves, ref_s, ref_gap = run(a, a.reference)
     scale = np.abs(ref_c).max()
     print(f"{a.count} RBCs at {a.phi:.0%} (gap {a.gap}), λ = {a.viscosity_ratio}, "
-          f"p = {a.order}, {a.coupling}, contact_distance = {a.contact}, t = {a.t_end}; "
+          f"p = {a.order}, {a.coupling}, contact_distance = {a.contact}, t = {a.t_end}, "
+          f"gmres_tol = {a.gmres_tol}, fmm_digits = {a.fmm_digits}; "
           f"reference Δt = {a.reference} (contact moves {ref_moves}, smallest gap "
           f"{ref_gap})\n")
     print("| Δt | shape error | order | centroid error | order | contact moves | s a step |")

@@ -72,9 +72,9 @@
 //! # repulsion_strength = 1.0      # its traction scale (default 10·max(κ/R³, μγ̇, |F|/4πR²))
 //! rebalance_every = 10            # under mpirun: steps between checks of the split of the cells
 //! max_imbalance = 0.1             # under mpirun: cost imbalance that moves cells (see run::partition)
-//! coupling = "auto"              # cells' coupling: "auto" (near_implicit when a cell has
-//! #                               # viscosity_ratio ≠ 1 and a neighbour, else explicit; see
-//! #                               # scene::dense_defaults) | "explicit" (last step's densities) |
+//! coupling = "auto"              # cells' coupling: "auto" (near_implicit with two or more
+//! #                               # cells; see scene::dense_defaults) | "explicit" (last
+//! #                               # step's densities) |
 //! #                               # "near_implicit" (cells in each other's near zone solved as
 //! #                               # one system, over MPI ranks too; see
 //! #                               # timestep::near_implicit)

@@ -1,14 +1,17 @@
 //! What a scene that does not say gets for `[numerics] coupling` and `contact_distance`: the
 //! settings that keep a suspension of red cells at blood's viscosity ratio running.
 //!
-//! * **Coupling** (`coupling = "auto"`, the default). With two or more cells of which one has a
-//!   viscosity ratio `λ ≠ 1`, the near cells are solved as one system
-//!   ([`CouplingMode::NearImplicit`]); otherwise every cell feels the others through last step's
-//!   densities ([`CouplingMode::Explicit`]). The explicit coupling of a neighbour's double layer
+//! * **Coupling** (`coupling = "auto"`, the default). With two or more cells the near cells are
+//!   solved as one system ([`CouplingMode::NearImplicit`]); a lone cell has nothing to couple
+//!   ([`CouplingMode::Explicit`]). The explicit coupling of a neighbour's double layer
 //!   `(1 − λ) D[u]` has the gain `|1 − λ|/(1 + λ)` per step on a close pair, tripled on an
 //!   alternating mode by BDF2's extrapolation: 27 RBCs at 17 % with `λ = 5` fail at step 35
-//!   with it and ran 2000 steps near-implicit (docs/hard_cases.md). With `λ = 1` everywhere the
-//!   explicit coupling held (400 steps of the same lattice) at a quarter of the cost.
+//!   with it and ran 2000 steps near-implicit (docs/hard_cases.md). Without a contrast it fails
+//!   too once the cells are packed: 8 RBCs at 30 % with `λ = 1` (p = 8, BDF2) turn a cell
+//!   inside out at step 109 with `Δt = 0.0025` (a smaller step failing, where the near-implicit
+//!   coupling runs at every `Δt` from 0.04 down). Where no two cells are within each other's
+//!   implicit zone the near-implicit step is the explicit one, so the default costs more only
+//!   where the cells are close.
 //! * **Contacts** (`contact_distance` absent). With two or more cells, or a cell and a rigid
 //!   wall, the contact projection ([`crate::timestep::contact`]) keeps every surface gap at
 //!   least
@@ -38,7 +41,7 @@ pub const CONTACT_DISTANCE_PER_ORDER: f64 = 0.4;
 
 /// The coupling a scene gets when it does not name one (module docs).
 pub fn auto_coupling(cells: &[CellSpec]) -> CouplingMode {
-    if cells.len() >= 2 && cells.iter().any(|c| c.viscosity_ratio != 1.0) {
+    if cells.len() >= 2 {
         CouplingMode::NearImplicit
     } else {
         CouplingMode::Explicit
@@ -70,13 +73,11 @@ pub fn effects(
     let coupling_reason = if coupling_given {
         format!("[numerics] coupling = \"{name}\"")
     } else if coupling == CouplingMode::NearImplicit {
-        "near_implicit ([numerics] coupling = \"auto\": cells with viscosity_ratio ≠ 1 and a \
-         neighbour; their near cells are solved as one system)"
+        "near_implicit ([numerics] coupling = \"auto\" with two or more cells: cells in each \
+         other's near zone are solved as one system)"
             .to_string()
-    } else if cells < 2 {
-        "one cell: nothing to couple".to_string()
     } else {
-        "explicit ([numerics] coupling = \"auto\": every viscosity_ratio is 1)".to_string()
+        format!("{cells} cell: nothing to couple")
     };
     let contact_reason = match (contact_distance, contact_given) {
         (Some(d), true) => format!("[numerics] contact_distance = {d}: every gap >= {d}"),
@@ -114,8 +115,8 @@ mod tests {
         parse(Path::new("t.toml"), &text).unwrap()
     }
 
-    /// The defaults follow the cells: near-implicit only with a contrast and a neighbour, contacts
-    /// at 0.4 R_min/p with two cells; a given value (0 included) wins.
+    /// The defaults follow the cells: near-implicit and contacts at 0.4 R_min/p with two cells,
+    /// neither for one; a given value (0 included) wins.
     #[test]
     fn defaults_follow_the_cells_and_given_values_win() {
         let one = scene("viscosity_ratio = 5.0", "");
@@ -126,7 +127,7 @@ mod tests {
         assert_eq!(contrast.numerics.coupling, CouplingMode::NearImplicit);
         assert_eq!(contrast.numerics.contact_distance, Some(0.05));
         let plain = scene(pair, "");
-        assert_eq!(plain.numerics.coupling, CouplingMode::Explicit);
+        assert_eq!(plain.numerics.coupling, CouplingMode::NearImplicit);
         assert_eq!(plain.numerics.contact_distance, Some(0.05));
         let given = scene(
             &format!("{pair}\nviscosity_ratio = 5.0"),
@@ -135,7 +136,7 @@ mod tests {
         assert_eq!(given.numerics.coupling, CouplingMode::Explicit);
         assert_eq!(given.numerics.contact_distance, None);
         let auto = scene(pair, "coupling = \"auto\"\ncontact_distance = 0.1");
-        assert_eq!(auto.numerics.coupling, CouplingMode::Explicit);
+        assert_eq!(auto.numerics.coupling, CouplingMode::NearImplicit);
         assert_eq!(auto.numerics.contact_distance, Some(0.1));
         let names: Vec<_> = contrast.effects.iter().map(|e| e.name).collect();
         assert!(names.contains(&"coupling") && names.contains(&"contacts"));

@@ -410,7 +410,7 @@ pub enum PreconditionerKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CouplingKind {
-    /// Near-implicit when a cell has `λ ≠ 1` and a neighbour, else explicit (the default;
+    /// Near-implicit with two or more cells, else explicit (the default;
     /// [`crate::scene::dense_defaults`]).
     Auto,
     /// Every other cell through last step's densities.
