@@ -26,17 +26,16 @@ import numpy as np
 
 
 def scene(a, dt):
+    # One cell (--count 1): the same RBC alone, tilted, the cell step's own order.
+    place = ('orientation = [0.3, 1.0, 0.5, 40.0]\n' if a.count == 1 else
+             f'count = {a.count}\nplacement = "packed"\nvolume_fraction = {a.phi}\n'
+             f'min_gap = {a.gap}\nseed = 7\n')
     return f"""[flow]
 kind = "shear"
 rate = 1.0
 [[cells]]
 shape = "rbc"
-count = {a.count}
-placement = "packed"
-volume_fraction = {a.phi}
-min_gap = {a.gap}
-seed = 7
-bending_modulus = 0.1
+{place}bending_modulus = 0.1
 shear_modulus = 1.0
 viscosity_ratio = {a.viscosity_ratio}
 [numerics]
