@@ -6,7 +6,7 @@ suspension").
     scripts/dense_bdf2_order.py --binary target/release/mobo --out /tmp/order \
         [--count 8] [--phi 0.3] [--gap 0.1] [--order 8] [--viscosity-ratio 5] \
         [--coupling near_implicit] [--contact 0] [--t-end 0.4] \
-        [--dts 0.04,0.02,0.01,0.005] [--reference 0.0025] [--gmres-tol 1e-9] [--fmm-digits 6]
+        [--dts 0.04,0.02,0.01,0.005] [--reference 0.0025] [--gmres-tol 1e-9] [--fmm-digits 6] [--upsample 2]
 
 The scene: `count` RBCs (Skalak, shear modulus 1, bending 0.1) packed at volume fraction `phi`
 with surfaces at least `gap` apart (`placement = "packed"`, seed 7), shear rate 1, BDF2. The
@@ -47,6 +47,7 @@ coupling = "{a.coupling}"
 contact_distance = {a.contact}
 gmres_tol = {a.gmres_tol}
 fmm_digits = {a.fmm_digits}
+upsample = {a.upsample}
 [output]
 every = {int(round(a.t_end / dt))}
 vtk = false
@@ -92,6 +93,7 @@ def main():
     p.add_argument("--t-end", type=float, default=0.4)
     p.add_argument("--gmres-tol", type=float, default=1e-9)
     p.add_argument("--fmm-digits", type=int, default=6)
+    p.add_argument("--upsample", type=int, default=2)
     p.add_argument("--dts", default="0.04,0.02,0.01,0.005")
     p.add_argument("--reference", type=float, default=0.0025)
     a = p.parse_args()
@@ -100,7 +102,7 @@ def main():
     scale = np.abs(ref_c).max()
     print(f"{a.count} RBCs at {a.phi:.0%} (gap {a.gap}), λ = {a.viscosity_ratio}, "
           f"p = {a.order}, {a.coupling}, contact_distance = {a.contact}, t = {a.t_end}, "
-          f"gmres_tol = {a.gmres_tol}, fmm_digits = {a.fmm_digits}; "
+          f"gmres_tol = {a.gmres_tol}, fmm_digits = {a.fmm_digits}, upsample = {a.upsample}; "
           f"reference Δt = {a.reference} (contact moves {ref_moves}, smallest gap "
           f"{ref_gap})\n")
     print("| Δt | shape error | order | centroid error | order | contact moves | s a step |")
