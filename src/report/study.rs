@@ -88,10 +88,7 @@ impl Settings {
             self.gmres_tol,
             self.dt,
             scheme_name(self.scheme),
-            match self.coupling {
-                CouplingMode::Explicit => "explicit",
-                CouplingMode::NearImplicit => "near_implicit",
-            },
+            self.coupling.name(),
             self.contact_distance
                 .map_or("off".to_string(), |d| format!("{d}"))
         )

@@ -52,7 +52,6 @@ use crate::io::write_atomic;
 use crate::scene::cells::{CellScene, Scheme};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::adaptive::AdaptiveDt;
-use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspension};
 use crate::timestep::TimestepError;
 use crate::vesicle::geometry::{Geometry, SurfaceCalculus};

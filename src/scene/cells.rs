@@ -227,6 +227,24 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
     };
     let n = f.numerics.as_ref();
     let order = n.and_then(|n| n.order.as_ref());
+    // `None`: "auto" or absent.
+    let coupling_given = match n.and_then(|n| n.coupling.as_ref()) {
+        None => None,
+        Some(c) => match c.get_ref().as_str() {
+            "auto" => None,
+            "explicit" => Some(CouplingMode::Explicit),
+            "near_implicit" => Some(CouplingMode::NearImplicit),
+            other => {
+                return Err(at(
+                    c.span(),
+                    format!(
+                        "[numerics] coupling: unknown coupling \"{other}\" (auto, explicit, \
+                         near_implicit)"
+                    ),
+                ))
+            }
+        },
+    };
     let numerics = Numerics {
         order: match order {
             Some(o) if !(2..=64).contains(o.get_ref()) => {
@@ -421,22 +439,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         },
         // "auto" (the default) and an absent contact distance are resolved once the cells and
         // walls are read (scene::dense_defaults).
-        coupling: match n.and_then(|n| n.coupling.as_ref()) {
-            None => CouplingMode::Explicit,
-            Some(c) => match c.get_ref().as_str() {
-                "explicit" | "auto" => CouplingMode::Explicit,
-                "near_implicit" => CouplingMode::NearImplicit,
-                other => {
-                    return Err(at(
-                        c.span(),
-                        format!(
-                            "[numerics] coupling: unknown coupling \"{other}\" (auto, explicit, \
-                             near_implicit)"
-                        ),
-                    ))
-                }
-            },
-        },
+        coupling: coupling_given.unwrap_or_default(),
         contact_distance: match n.and_then(|n| n.contact_distance.as_ref()) {
             Some(v) if *v.get_ref() == 0.0 => None,
             Some(v) => Some(positive(v, "[numerics] contact_distance")?),
@@ -593,12 +596,8 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             ),
         ));
     }
-    let coupling_given = n
-        .and_then(|n| n.coupling.as_ref())
-        .is_some_and(|c| c.get_ref() != "auto");
-    if !coupling_given {
-        numerics.coupling = super::dense_defaults::auto_coupling(&cells);
-    }
+    numerics.coupling =
+        coupling_given.unwrap_or_else(|| super::dense_defaults::auto_coupling(&cells));
     let contact_given = n.and_then(|n| n.contact_distance.as_ref()).is_some();
     if !contact_given {
         numerics.contact_distance =
@@ -608,7 +607,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
     effects.push(grid_effect(&cells, numerics.grid));
     effects.extend(super::dense_defaults::effects(
         numerics.coupling,
-        coupling_given,
+        coupling_given.is_some(),
         numerics.contact_distance,
         contact_given,
         cells.len(),

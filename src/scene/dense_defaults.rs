@@ -66,12 +66,8 @@ pub fn effects(
     contact_given: bool,
     cells: usize,
 ) -> [Effect; 2] {
-    let name = match coupling {
-        CouplingMode::Explicit => "explicit",
-        CouplingMode::NearImplicit => "near_implicit",
-    };
     let coupling_reason = if coupling_given {
-        format!("[numerics] coupling = \"{name}\"")
+        format!("[numerics] coupling = \"{}\"", coupling.name())
     } else if coupling == CouplingMode::NearImplicit {
         "near_implicit ([numerics] coupling = \"auto\" with two or more cells: cells in each \
          other's near zone are solved as one system)"

@@ -89,6 +89,16 @@ pub enum CouplingMode {
     NearImplicit,
 }
 
+impl CouplingMode {
+    /// The name a scene gives it (`[numerics] coupling`), as the summary and reports print it.
+    pub fn name(self) -> &'static str {
+        match self {
+            CouplingMode::Explicit => "explicit",
+            CouplingMode::NearImplicit => "near_implicit",
+        }
+    }
+}
+
 /// A cell's step between its phases 1–4 (plan, preconditioners, explicit terms, operators)
 /// and its phases 6–7 (advance, regrid), while the joint system is solved.
 pub(super) struct JointStep {

@@ -23,7 +23,7 @@ impl<'a> CellRun<'a> {
             order: scene.numerics.order,
             dt: scene.numerics.dt,
             scheme: scheme_name(scene.numerics.scheme),
-            coupling: coupling_name(scene.numerics.coupling),
+            coupling: scene.numerics.coupling.name(),
             last_observables: self.observed.last().copied(),
             wall_s: self.start.elapsed().as_secs_f64(),
         };
@@ -155,7 +155,7 @@ impl<'a> CellRun<'a> {
             }),
             area_volume_error_sum: prog.error_sum,
             scheme: scheme_name(scene.numerics.scheme),
-            coupling: coupling_name(scene.numerics.coupling),
+            coupling: scene.numerics.coupling.name(),
             contact_distance: scene.numerics.contact_distance,
             gmres_tol: scene.numerics.gmres_tol,
             fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
@@ -213,13 +213,5 @@ fn scheme_name(scheme: Scheme) -> &'static str {
     match scheme {
         Scheme::Euler => "euler",
         Scheme::Bdf2 => "bdf2",
-    }
-}
-
-/// A coupling mode as the scene key writes it.
-fn coupling_name(mode: CouplingMode) -> &'static str {
-    match mode {
-        CouplingMode::Explicit => "explicit",
-        CouplingMode::NearImplicit => "near_implicit",
     }
 }
