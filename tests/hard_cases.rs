@@ -21,6 +21,7 @@ use common::quadrature::{max_rel, reference};
 use mobo::sph_harmonics::Grid;
 use mobo::timestep::suspension::Suspension;
 use mobo::vesicle::{NearParams, OffSurface, SurfaceCalculus};
+use std::path::Path;
 
 fn scene(text: &str) -> CellScene {
     parse(std::path::Path::new("<hard case>"), text).expect("valid hard-case scene")
@@ -1171,6 +1172,28 @@ fn dense_packed_blood_at_30_and_45_percent_long() {
     );
 }
 
+/// `mobo run --resume` of `tests/data/<checkpoint>` with `scene` in the folder `out`: the
+/// process's output and its `observables.csv` (empty when none was written).
+fn resume_data_checkpoint(
+    out: &Path,
+    checkpoint: &str,
+    scene: &str,
+) -> (std::process::Output, String) {
+    std::fs::create_dir_all(out).unwrap();
+    let data = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/data")
+        .join(checkpoint);
+    std::fs::copy(data, out.join("checkpoint.bin")).unwrap();
+    std::fs::write(out.join("scene.toml"), scene).unwrap();
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_mobo"))
+        .args(["run", "--quiet", "--resume"])
+        .arg(out)
+        .output()
+        .unwrap();
+    let table = std::fs::read_to_string(out.join("observables.csv")).unwrap_or_default();
+    (o, table)
+}
+
 /// A red blood cell pressed out of shape by its neighbours in a dense suspension, alone in
 /// shear (`tests/data/rbc_pressed_p8.ckpt`: cell 11 of the 27-cell lattice at 17 %, `λ = 5`,
 /// p = 8, at step 690; docs/hard_cases.md). With its grid relaxed after every step, the
@@ -1192,23 +1215,8 @@ fn pressed_rbc_runs_with_its_grid_on_its_material_points() {
         )
     };
     let run = |grid: &str| {
-        let out = dir.join(grid);
-        std::fs::create_dir_all(&out).unwrap();
-        std::fs::copy(
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/tests/data/rbc_pressed_p8.ckpt"
-            ),
-            out.join("checkpoint.bin"),
-        )
-        .unwrap();
-        std::fs::write(out.join("scene.toml"), scene(grid)).unwrap();
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_mobo"))
-            .args(["run", "--quiet", "--resume"])
-            .arg(&out)
-            .output()
-            .unwrap();
-        let table = std::fs::read_to_string(out.join("observables.csv")).unwrap_or_default();
+        let (o, table) =
+            resume_data_checkpoint(&dir.join(grid), "rbc_pressed_p8.ckpt", &scene(grid));
         // Step and area/volume error before correction of every step taken here.
         let rows: Vec<(usize, f64)> = table
             .lines()
@@ -1275,23 +1283,8 @@ fn pressed_row_at_lambda_10_runs_with_the_default_contacts() {
         )
     };
     let run = |name: &str, extra: &str| {
-        let out = dir.join(name);
-        std::fs::create_dir_all(&out).unwrap();
-        std::fs::copy(
-            concat!(
-                env!("CARGO_MANIFEST_DIR"),
-                "/tests/data/rbc_row_lambda10_p8.ckpt"
-            ),
-            out.join("checkpoint.bin"),
-        )
-        .unwrap();
-        std::fs::write(out.join("scene.toml"), scene(extra)).unwrap();
-        let o = std::process::Command::new(env!("CARGO_BIN_EXE_mobo"))
-            .args(["run", "--quiet", "--resume"])
-            .arg(&out)
-            .output()
-            .unwrap();
-        let table = std::fs::read_to_string(out.join("observables.csv")).unwrap_or_default();
+        let (o, table) =
+            resume_data_checkpoint(&dir.join(name), "rbc_row_lambda10_p8.ckpt", &scene(extra));
         // Step and end-of-step gap (empty without contacts) of every step taken here.
         let rows: Vec<(usize, Option<f64>)> = table
             .lines()
