@@ -472,6 +472,14 @@ fn run(
         s.inclination_deg,
         out.display()
     );
+    if let Some(st) = s.counters.start_up {
+        println!(
+            "start-up: {} pass{} before the first step (the coupled cells' tension and membrane velocity at t = 0; last change {:.1e} of the tension)",
+            st.passes,
+            if st.passes == 1 { "" } else { "es" },
+            st.tension_change
+        );
+    }
     Ok(())
 }
 

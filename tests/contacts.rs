@@ -262,11 +262,24 @@ fn cells_driven_head_on_in_shear_never_end_a_step_closer_than_d_min() {
     assert!(c["moves"].as_u64().unwrap() > 0, "{c}");
     assert!(c["smallest_gap"].as_f64().unwrap() >= 0.3);
     assert_eq!(s["contact_distance"].as_f64(), Some(0.3));
+    // The start-up ran before the first step; its passes are not counted as steps (30 above).
+    let passes = s["counters"]["start_up"]["passes"].as_u64().unwrap();
+    assert!(
+        (1..=mobo::timestep::suspension::START_UP_PASSES as u64).contains(&passes),
+        "{}",
+        s["counters"]
+    );
+    assert!(
+        s["counters"]["start_up"]["tension_change"]
+            .as_f64()
+            .unwrap()
+            < 1.0
+    );
 }
 
 #[test]
 fn bad_packing_and_contact_keys_are_refused_with_their_place() {
-    let cases: [(&str, &str, &str); 5] = [
+    let cases: [(&str, &str, &str); 6] = [
         ("count = 16", "count = 16\nspacing = 2.5", "spacing"),
         (
             "volume_fraction = 0.4",
@@ -283,6 +296,11 @@ fn bad_packing_and_contact_keys_are_refused_with_their_place() {
             "t_end = 0.05",
             "t_end = 0.05\ncontact_distance = -0.05",
             "contact_distance",
+        ),
+        (
+            "t_end = 0.05",
+            "t_end = 0.05\nstart_up_passes = 101",
+            "start_up_passes",
         ),
     ];
     for (from, to, key) in cases {

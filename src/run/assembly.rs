@@ -144,6 +144,7 @@ pub fn build_part(
     susp.set_operator_storage(storage);
     susp.set_preconditioning(preconditioning);
     susp.set_coupling_mode(scene.numerics.coupling);
+    susp.set_start_up_passes(scene.numerics.start_up_passes);
     susp.set_contacts(p, scene.numerics.contact_distance.map(ContactParams::new))
         .map_err(|e| step_error(0, 0.0, e))?;
     if !scene.walls.is_empty() {

@@ -185,6 +185,10 @@ pub struct Counters {
     /// What the rigid walls did (`[[walls]]`; zeros otherwise): walls, unknowns, setup
     /// seconds, solves, seconds, the largest wall velocity at a cell in the last step.
     pub walls: crate::timestep::wall_coupling::WallStats,
+    /// The start-up before the first step (`[numerics] start_up_passes`; `None` where it did
+    /// not run: one cell and no walls, passes 0, or a resumed run, which continues from its
+    /// checkpoint's densities): passes taken and the last pass's relative tension change.
+    pub start_up: Option<crate::timestep::suspension::StartUpReport>,
 }
 
 /// How the run's work was split between ranks (`summary.json`'s `split`).

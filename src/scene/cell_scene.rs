@@ -324,6 +324,10 @@ pub struct Numerics {
     /// projection (`[numerics] contact_distance`, a length; `None`: off; absent from the file,
     /// [`crate::scene::dense_defaults::auto_contact_distance`]; [`crate::timestep::contact`]).
     pub contact_distance: Option<f64>,
+    /// The most start-up passes before the first step of a coupled scene (`[numerics]
+    /// start_up_passes`, default [`crate::timestep::suspension::START_UP_PASSES`]; 0: none;
+    /// see [`crate::timestep::suspension`]'s start-up).
+    pub start_up_passes: usize,
     /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
     /// ([`crate::fmm::gpu_near::choose`]).
     pub gpu: GpuChoice,

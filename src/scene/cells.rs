@@ -81,6 +81,9 @@
 //! # contact_distance = 0.02       # keep every surface gap >= 0.02 at the end of each step
 //! #                               # (a length; default 0.4·R_min/p with two cells or a cell
 //! #                               # and a wall, 0: off; see scene::dense_defaults)
+//! start_up_passes = 4             # first steps solved and thrown away to start the coupled
+//! #                               # cells from a consistent tension and membrane velocity
+//! #                               # (0: off; see timestep::suspension)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [[walls]]                       # rigid walls (optional; see scene::walls, docs/walls.md)
@@ -444,6 +447,19 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             Some(v) if *v.get_ref() == 0.0 => None,
             Some(v) => Some(positive(v, "[numerics] contact_distance")?),
             None => None,
+        },
+        start_up_passes: match n.and_then(|n| n.start_up_passes.as_ref()) {
+            Some(v) if *v.get_ref() > 100 => {
+                return Err(at(
+                    v.span(),
+                    format!(
+                        "[numerics] start_up_passes must be at most 100, got {}",
+                        v.get_ref()
+                    ),
+                ))
+            }
+            Some(v) => *v.get_ref() as usize,
+            None => crate::timestep::suspension::START_UP_PASSES,
         },
         gpu: match n.and_then(|n| n.gpu.as_ref()) {
             None => GpuChoice::Auto,

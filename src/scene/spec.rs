@@ -494,6 +494,10 @@ pub struct NumericsSpec {
     /// [`crate::scene::dense_defaults`]; 0: no projection).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_distance: Option<f64>,
+    /// `start_up_passes`: the most first steps solved and thrown away to start coupled cells
+    /// from a consistent tension and membrane velocity (absent: 4; 0: none).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub start_up_passes: Option<u64>,
     /// `gpu`: `"auto"`, `true` or `false`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gpu: Option<GpuSpec>,

@@ -16,9 +16,12 @@
 //! `u` of the cell's previous solve ([`CellState::membrane_velocity`]: `(Xⁿ − Xⁿ⁻¹)/Δt` for Euler,
 //! a first-order lag, consistent with the explicit coupling; the BDF2 derivative
 //! `(3Xⁿ − 4Xⁿ⁻¹ + Xⁿ⁻²)/(2Δt)` for BDF2, which then extrapolates the whole inter-cell velocity
-//! as above). The first step has no velocity yet and couples the single layers only (the
-//! cells' initial velocity is not known before their first solve); the double layer enters
-//! from the second step on. A restart restores the velocities
+//! as above). A scene gives no tension and no velocity at `t = 0`: the start-up
+//! ([`Suspension::set_start_up_passes`], on by default) solves the first step and throws it
+//! away, keeping its tension and membrane velocity as `σ⁰` and `u⁰`, so that the first step
+//! couples the tension's traction and the double layer too, off by `O(Δt)` only (without it,
+//! `σ⁰ = 0`, the double layer enters from the second step on, and every explicit part of the
+//! coupling is first order in `Δt`). A restart restores the velocities
 //! (the state's membrane velocity). Only what is called for: with every `λ = 1` (or one cell)
 //! no double-layer density is passed and no stresslet FMM is built.
 //!
@@ -35,8 +38,11 @@ use rayon::prelude::*;
 
 mod contacts;
 mod field;
+mod start_up;
 mod stepping;
 mod walls;
+
+pub use start_up::{StartUpReport, START_UP_PASSES, START_UP_TOLERANCE};
 
 use super::cell_force::{CellForce, CellView, VectorField};
 use super::cell_state::CellState;
@@ -157,6 +163,10 @@ pub struct Suspension {
     coupling_record: Option<Vec<Vec<f64>>>,
     /// The evaluators of [`Suspension::velocity_at`], kept between calls.
     field: Option<field::FieldEvaluators>,
+    /// The most start-up passes before the first step, and what they did
+    /// ([`Suspension::set_start_up_passes`]).
+    start_up_passes: usize,
+    start_up: Option<StartUpReport>,
 }
 
 impl Suspension {
@@ -211,6 +221,8 @@ impl Suspension {
             contact_stats: ContactStats::default(),
             walls: None,
             field: None,
+            start_up_passes: START_UP_PASSES,
+            start_up: None,
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
         for (id, c) in cells {

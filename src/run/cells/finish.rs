@@ -185,6 +185,7 @@ impl<'a> CellRun<'a> {
                 near_implicit: susp.joint_stats(),
                 contacts: susp.contact_stats(),
                 walls: susp.wall_stats(),
+                start_up: susp.start_up_report(),
             },
             units: scene.units,
             dimensionless: scene.groups(),

@@ -69,6 +69,20 @@ impl Suspension {
         time: f64,
         forces: &[&dyn CellForce],
     ) -> Result<SuspensionReport, CellStepError> {
+        if self.needs_start_up(comm)? {
+            self.start_up(comm, u_inf, time, forces)?;
+        }
+        self.step_once(comm, u_inf, time, forces)
+    }
+
+    /// One step of [`Suspension::step_with_forces`] from the state as it is.
+    pub(super) fn step_once(
+        &mut self,
+        comm: &dyn Communicator,
+        u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
+        time: f64,
+        forces: &[&dyn CellForce],
+    ) -> Result<SuspensionReport, CellStepError> {
         let t0 = std::time::Instant::now();
         // (Without forces nothing can fail, and no rank has any: no agreement needed.)
         let user = if forces.is_empty() {
