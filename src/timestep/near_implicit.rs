@@ -30,7 +30,8 @@
 //! RBCs with `λ = 5` sliding past each other in shear, p = 6, docs/hard_cases.md): with the
 //! grid left where the flow takes it, 2.04, 2.08, 2.32 with the surfaces 0.8 apart and 1.98,
 //! 1.99, 2.22 with them 0.1 apart, where the explicit coupling gives 1.04, 1.19, 1.57 at 0.8
-//! (its stiff near part taken explicitly) and fails at 0.1. With the grid relaxed
+//! without the start-up (the first step's `σ⁰ = 0` coupled explicitly; 1.89, 2.04 with it,
+//! [`super::suspension`]) and fails at 0.1. With the grid relaxed
 //! (`[numerics] grid = "relaxed"`; an RBC's grid follows its material points by default), the
 //! reparametrisation of every step re-fits the moved grid at order `p`, which changes the shape
 //! a little at every call:
