@@ -57,9 +57,9 @@ fn williams(l: f64) -> f64 {
 
 /// A spherical vesicle (radius 1) pulled by `F = 1` at the centre of a container of radius 2
 /// settles at `F / 6πμaK(½)`, `K = 7.294` (the wall's response enters each step from the
-/// tractions at its start; the tension it causes settles within a few steps: the first step's
-/// speed is 8 % off, the fifth's 1.5e-9). Without the container it would settle 7.3 times as
-/// fast.
+/// tractions at its start; without the start-up, which finds the tension before the first step,
+/// the first step's speed was 8 % off and the fifth's 1.5e-9; with it the first is 2.5e-6 off).
+/// Without the container it would settle 7.3 times as fast.
 #[test]
 fn a_sphere_settles_in_a_spherical_container_at_the_exact_rate() {
     let text = settling_scene(2.0, 8, 12);
@@ -73,16 +73,21 @@ fn a_sphere_settles_in_a_spherical_container_at_the_exact_rate() {
     let want = -1.0 / (6.0 * PI * williams(0.5));
     let speeds: Vec<f64> = z.windows(2).map(|w| (w[1] - w[0]) / 0.01).collect();
     println!("settling speeds: {speeds:?}; exact {want}");
-    // Measured: 2.5e-6 at the fourth step, 1.5e-9 at the fifth, then the drift off the centre (0.1 % of the gap
-    // in 12 steps) adds its quadratic effect, 6e-7 at step 12.
-    for (k, v) in speeds.iter().enumerate().skip(4) {
+    // Measured: 2.5e-6 at the first step (the start-up's tension is the first step's, off by
+    // O(Δt)), 7e-8 at the second, then the drift off the centre (0.1 % of the gap in 12 steps)
+    // adds its quadratic effect, 6e-7 at step 12. (Without the start-up the first step had no
+    // tension: the free-space-like traction, 8 % off.)
+    for (k, v) in speeds.iter().enumerate() {
         let rel = (v - want).abs() / want.abs();
-        assert!(rel < 2e-6, "step {k}: {v} against {want} ({rel:.2e})");
+        let tol = if k == 0 { 1e-5 } else { 2e-6 };
+        assert!(rel < tol, "step {k}: {v} against {want} ({rel:.2e})");
     }
-    // The first step has no tension yet: the free-space-like traction 8 % off.
-    assert!((speeds[0] - want).abs() / want.abs() > 1e-2);
     let stats = susp.wall_stats();
-    assert_eq!((stats.walls, stats.solves), (1, 12));
+    let passes = susp
+        .start_up_report()
+        .expect("a cell and a wall start up")
+        .passes;
+    assert_eq!((stats.walls, stats.solves), (1, 12 + passes));
 }
 
 fn scene_error(text: &str) -> String {
@@ -189,7 +194,9 @@ fn mobo_run_reports_the_walls() {
     let s = summary(&out);
     assert_eq!(s["completed"], true);
     assert_eq!(s["counters"]["walls"]["walls"], 1);
-    assert_eq!(s["counters"]["walls"]["solves"], 5);
+    // One wall solve per step and per start-up pass (a cell and a wall couple).
+    let passes = s["counters"]["start_up"]["passes"].as_u64().unwrap();
+    assert_eq!(s["counters"]["walls"]["solves"].as_u64(), Some(5 + passes));
     let effects = s["effects"].as_array().unwrap();
     assert!(
         effects
