@@ -82,6 +82,16 @@ pub struct CellStepError {
     pub source: TimestepError,
 }
 
+/// A failure of the ranks' communication is the coupling's (no cell named).
+impl From<crate::comm::CommError> for CellStepError {
+    fn from(e: crate::comm::CommError) -> Self {
+        CellStepError {
+            cell: None,
+            source: TimestepError::Comm(e),
+        }
+    }
+}
+
 /// What one step of the suspension did.
 #[derive(Clone, Debug)]
 pub struct SuspensionReport {
@@ -616,15 +626,7 @@ pub(crate) fn agree_cells<T>(
             .chain(text_words(&e.source.to_string()))
             .collect(),
     };
-    let all = match comm.all_gather_u64(&mine) {
-        Ok(a) => a,
-        Err(c) => {
-            return Err(CellStepError {
-                cell: None,
-                source: TimestepError::Comm(c),
-            })
-        }
-    };
+    let all = comm.all_gather_u64(&mine)?;
     let Some((rank, first)) = all
         .iter()
         .enumerate()

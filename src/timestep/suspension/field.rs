@@ -71,10 +71,7 @@ impl Suspension {
             .collect();
         let radii = agree_cells(comm, radii)?;
         let mut radius = [radii.into_iter().fold(f64::INFINITY, f64::min)];
-        comm.all_min(&mut radius).map_err(|e| CellStepError {
-            cell: None,
-            source: TimestepError::Comm(e),
-        })?;
+        comm.all_min(&mut radius)?;
         // This rank's cells: their layers (component-major) and, per target, the viscosity
         // ratio of the cell it lies in (0: in none of them).
         let mut local = vec![0.0; 4 * nt];

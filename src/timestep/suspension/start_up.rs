@@ -30,7 +30,7 @@
 
 use super::super::contact::ContactStats;
 use super::super::near_implicit::JointStats;
-use super::{CellForce, CellStepError, Suspension, TimestepError};
+use super::{CellForce, CellStepError, Suspension};
 use crate::comm::Communicator;
 
 /// The start-up stops when a pass changes the tension by less than this fraction of its
@@ -75,10 +75,7 @@ impl Suspension {
         }
         let coupled = self.cells.iter().any(|c| c.state.velocity.is_some());
         let mut flag = [u64::from(coupled)];
-        comm.all_sum_u64(&mut flag).map_err(|e| CellStepError {
-            cell: None,
-            source: TimestepError::Comm(e),
-        })?;
+        comm.all_sum_u64(&mut flag)?;
         Ok(flag[0] == 0)
     }
 
@@ -111,10 +108,7 @@ impl Suspension {
                 sigma.copy_from_slice(&c.state.sigma);
                 *u = c.state.membrane_velocity.clone();
             }
-            comm.all_max(&mut change).map_err(|e| CellStepError {
-                cell: None,
-                source: TimestepError::Comm(e),
-            })?;
+            comm.all_max(&mut change)?;
             self.restore(&initial)?;
             for (c, (sigma, u)) in self.cells.iter_mut().zip(&found) {
                 c.state.sigma.copy_from_slice(sigma);
