@@ -1198,10 +1198,12 @@ fn resume_data_checkpoint(
 /// shear (`tests/data/rbc_pressed_p8.ckpt`: cell 11 of the 27-cell lattice at 17 %, `λ = 5`,
 /// p = 8, at step 690; docs/hard_cases.md). With its grid relaxed after every step, the
 /// relabelling of its Skalak reference by a re-fit at order 8 feeds the explicit elastic force,
-/// and the cell blows up within 15 steps (it did so inside the 27-cell run at step 706). With
-/// its grid on its material points (`[numerics] grid = "auto"`, the default for a cell with
-/// shear elasticity) it runs on, its area/volume error before correction at the level of the
-/// steps before.
+/// and the cell blows up within the 40 steps (inside the 27-cell run at step 706; alone at step
+/// 705 while the local area relaxation closed its whole gap every step, at 713 with its rate of
+/// 10 per time unit). With its grid on its material points (`[numerics] grid = "auto"`, the
+/// default for a cell with shear elasticity) it runs on, its area/volume error before
+/// correction at the level of the steps before (4.2e-4 with the whole gap closed every step,
+/// 7.7e-5 with the rate).
 #[test]
 fn pressed_rbc_runs_with_its_grid_on_its_material_points() {
     let dir = std::env::temp_dir().join(format!("mobo-hard-pressed-{}", std::process::id()));
@@ -1241,7 +1243,7 @@ fn pressed_rbc_runs_with_its_grid_on_its_material_points() {
         .and_then(|s| s.split(' ').next())
         .and_then(|s| s.parse().ok())
         .unwrap_or_else(|| panic!("no step in: {stderr}"));
-    assert!((691..=705).contains(&failed_at), "{stderr}");
+    assert!((691..=730).contains(&failed_at), "{stderr}");
     let (auto, rows) = run("auto");
     assert!(
         auto.status.success(),

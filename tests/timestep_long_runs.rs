@@ -419,7 +419,8 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
     // 0.07 at t = 2, 0.28 at t = 36, 2.0 at t = 74; largest tension 0.74 → 1.7 → 28) until
     // GMRES stagnated. The constraint now relaxes the area element to the reference's
     // (`semi_implicit`, "Local area"). Shortened here to p = 6 and 100 steps, where the drift
-    // already shows (measured: largest |J − 1| 0.15 without the relaxation, 0.03 with).
+    // already shows (measured: largest |J − 1| 0.140 without the relaxation; with it 0.042 at
+    // its default rate of 10 per time unit, 0.037 closing the whole gap every step).
     let (p, dt, steps) = (6, 0.02, 100);
     let mut s = shapes::rbc(p).unwrap();
     let (st, ct) = 60f64.to_radians().sin_cos();
@@ -479,6 +480,61 @@ fn an_rbc_with_skalak_keeps_its_local_area_in_shear() {
         drift_on < 0.4 * drift_off,
         "{drift_on:.3} vs {drift_off:.3}"
     );
+}
+
+/// The local area relaxation at a rate keeps BDF2's second order; closing the whole gap every
+/// step does not. One RBC (Skalak, `G_s = 1`, `C = 10`, `κ = 0.1`) tilted 40° in shear, p = 8,
+/// its grid on its material points, drift correction on (as `mobo run` steps it), to t = 0.2:
+/// the shape coefficients at `Δt = 0.02` and 0.01 against `Δt = 0.0025`. Closing the whole gap,
+/// the relaxation and the drift correction pull toward targets that differ by the
+/// discretisation's error and move the surface by a fixed amount every step, so the error
+/// grows with the number of steps (docs/long_runs_cause.md). Measured: at the default rate
+/// 4.01e-5, 9.14e-6 (order 2.13); whole gap 5.91e-5, 4.21e-5 (order 0.49). About 4 s.
+#[test]
+fn the_local_area_rate_keeps_bdf2_second_order() {
+    let p = 8;
+    let mut s = shapes::rbc(p).unwrap();
+    let norm = (0.3f64 * 0.3 + 1.0 + 0.5 * 0.5).sqrt();
+    s.rotate(rotation([0.3 / norm, 1.0 / norm, 0.5 / norm], 40f64.to_radians()))
+        .unwrap();
+    let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
+    let run = |rate: f64, steps: usize| {
+        let mut prm = params(p, 0.2 / steps as f64);
+        prm.bending_modulus = 0.1;
+        prm.scheme = TimeScheme::Bdf2;
+        prm.reparametrize = None;
+        prm.gmres.tol = 1e-11;
+        let mut st = VesicleStepper::new(p, prm).unwrap();
+        st.set_local_area_rate(rate).unwrap();
+        let mut coefs = s.coefs().to_vec();
+        st.set_skalak(SkalakParams::skalak(1.0, 10.0), &coefs)
+            .unwrap();
+        for _ in 0..steps {
+            st.step(&mut coefs, &shear).unwrap();
+        }
+        coefs
+    };
+    let error = |a: &[f64], b: &[f64]| {
+        let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((x - y).abs())) / scale
+    };
+    let mut orders = vec![];
+    for rate in [mobo::timestep::cell_stepper::LOCAL_AREA_RATE, f64::INFINITY] {
+        let reference = run(rate, 80);
+        let (e1, e2) = (
+            error(&run(rate, 10), &reference),
+            error(&run(rate, 20), &reference),
+        );
+        let order = (e1 / e2).log2();
+        println!("local area rate {rate}: errors {e1:.3e}, {e2:.3e}, order {order:.2}");
+        orders.push(order);
+    }
+    assert!(orders[0] > 1.8, "{orders:?}");
+    assert!(orders[1] < 1.2, "{orders:?}");
+    let mut st = VesicleStepper::new(p, params(p, 0.01)).unwrap();
+    for bad in [0.0, -1.0, f64::NAN] {
+        assert!(st.set_local_area_rate(bad).is_err(), "{bad}");
+    }
 }
 
 // ---------------------------------------------------------------------------------------------

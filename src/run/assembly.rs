@@ -7,6 +7,7 @@ use crate::linalg3::{cross3, sub3};
 use crate::scene::cells::{CellScene, Effect, Flow, Scheme};
 use crate::scene::walls::WallShape;
 use crate::timestep::cell_preconditioner;
+use crate::timestep::cell_stepper::LOCAL_AREA_RATE;
 use crate::timestep::contact::ContactParams;
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
@@ -109,6 +110,26 @@ pub(super) fn coupling_params(scene: &CellScene) -> CouplingParams {
     }
 }
 
+/// The local area relaxation's rate for `scene`
+/// ([`crate::timestep::cell_stepper::CellStepper::set_local_area_rate`]):
+/// [`LOCAL_AREA_RATE`] per unit of the scene's fastest time scale, the largest of the flow's
+/// rate, `G/(μ R)`, `κ/(μ R³)` and `|F|/(μ R²)` over the cells (one unit without any).
+pub(super) fn local_area_rate(scene: &CellScene) -> f64 {
+    let mu = scene.viscosity;
+    let scale = scene
+        .cells
+        .iter()
+        .map(|c| {
+            let r = c.radius;
+            let f = c.force.iter().map(|v| v * v).sum::<f64>().sqrt();
+            (c.shear_modulus / (mu * r))
+                .max(c.bending_modulus / (mu * r.powi(3)))
+                .max(f / (mu * r * r))
+        })
+        .fold(scene.flow.rate_scale(), f64::max);
+    LOCAL_AREA_RATE * if scale > 0.0 { scale } else { 1.0 }
+}
+
 /// The cells of `scene` as a [`Suspension`] ready to step (the settings `mobo run` uses:
 /// drift correction and reparametrisation every step, GMRES restart 200). Library users and
 /// studies (`mobo report`) step it themselves.
@@ -145,6 +166,8 @@ pub fn build_part(
     susp.set_preconditioning(preconditioning);
     susp.set_coupling_mode(scene.numerics.coupling);
     susp.set_start_up_passes(scene.numerics.start_up_passes);
+    susp.set_local_area_rate(local_area_rate(scene))
+        .map_err(|e| step_error(0, 0.0, e))?;
     susp.set_contacts(p, scene.numerics.contact_distance.map(ContactParams::new))
         .map_err(|e| step_error(0, 0.0, e))?;
     if !scene.walls.is_empty() {

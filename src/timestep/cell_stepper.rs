@@ -65,6 +65,28 @@ pub struct CellStepper {
     /// Whether an inextensible cell with a Skalak reference relaxes its local area element to
     /// the reference's in the constraint (see "Local area" in the module docs).
     pub(super) local_area_relaxation: bool,
+    /// The rate (per unit time) at which that relaxation closes the gap between the area
+    /// element and the reference's ([`CellStepper::set_local_area_rate`]).
+    pub(super) local_area_rate: f64,
+}
+
+/// The default rate (per unit time) of the local area relaxation
+/// ([`CellStepper::set_local_area_rate`]): the share `min(k Δt, 1)` of the gap is closed per
+/// step. Ten per unit of the cell's fastest time scale; `mobo run` scales it by that scale
+/// (`run::assembly`).
+pub const LOCAL_AREA_RATE: f64 = 10.0;
+
+/// A local area rate must be positive ([`CellStepper::set_local_area_rate`]).
+pub(super) fn check_local_area_rate(rate: f64) -> Result<(), TimestepError> {
+    if rate > 0.0 {
+        Ok(())
+    } else {
+        Err(TimestepError::InvalidParameter {
+            name: "local_area_rate",
+            value: format!("{rate}"),
+            reason: "must be positive (infinity: the whole gap every step)",
+        })
+    }
 }
 
 impl CellStepper {
@@ -105,6 +127,7 @@ impl CellStepper {
             own: None,
             own_preconditioner_builds: 0,
             local_area_relaxation: true,
+            local_area_rate: LOCAL_AREA_RATE,
         })
     }
 
@@ -295,6 +318,26 @@ impl CellStepper {
     /// the first step.
     pub fn set_local_area_relaxation(&mut self, on: bool) {
         self.local_area_relaxation = on;
+    }
+
+    /// The rate `k` (per unit time, positive; default [`LOCAL_AREA_RATE`]) at which the local
+    /// area relaxation closes the gap: the share `min(k Δt, 1)` of it per step, so
+    /// `f64::INFINITY` closes the whole gap every step. A finite rate keeps BDF2's order: the
+    /// relaxation and the drift correction pull toward targets that differ by the
+    /// discretisation's error, and closing the whole gap every step moves the surface by an
+    /// amount that does not shrink with `Δt` (module docs, "Local area").
+    ///
+    /// # Errors
+    /// [`TimestepError::InvalidParameter`] unless `rate > 0` (NaN included).
+    pub fn set_local_area_rate(&mut self, rate: f64) -> Result<(), TimestepError> {
+        check_local_area_rate(rate)?;
+        self.local_area_rate = rate;
+        Ok(())
+    }
+
+    /// The rate set by [`Self::set_local_area_rate`].
+    pub fn local_area_rate(&self) -> f64 {
+        self.local_area_rate
     }
 
     /// Hold the own preconditioner of `record` (`None`: none): unless it is the one held, it is

@@ -135,21 +135,29 @@
 //! reference the constraint therefore carries the source
 //!
 //! ```text
-//!     Div (X − X̂) = (τ/Δt) (W_ref (A/A_ref) / Wⁿ − 1)
+//!     Div (X − X̂) = min(k Δt, 1) (τ/Δt) (W_ref (A/A_ref) / Wⁿ − 1)
 //! ```
 //!
-//! (filtered as `Div` is, so that it lies in its range), which brings `W` back to the
+//! (filtered as `Div` is, so that it lies in its range), which brings `W` back toward the
 //! reference's area element at the same material point (the reference moves with the grid, so
-//! that `W_ref` is at the same point), scaled to the area `A` the drift correction restores, in
-//! one step for Euler (`Wⁿ⁺¹ ≈ Wⁿ (1 + Div (X − Xⁿ))`). For BDF2 the constraint is linearised
+//! that `W_ref` is at the same point), scaled to the area `A` the drift correction restores: at
+//! the rate `k` per unit time ([`super::cell_stepper::CellStepper::set_local_area_rate`],
+//! default 10; `mobo run` multiplies it by the scene's fastest rate), or the whole gap in one
+//! step for Euler when `k Δt ≥ 1` (`Wⁿ⁺¹ ≈ Wⁿ (1 + Div (X − Xⁿ))`). Why a rate and not the
+//! whole gap: the relaxation and the drift correction pull toward targets that differ by the
+//! discretisation's error, so closing the whole gap every step moves the surface by an amount
+//! that does not shrink with `Δt` (at p = 8, about 1.5e-6 a step), and the error of a run then
+//! grows with the number of steps: one RBC at p = 8 in shear had a floor of about 2e-4 in its
+//! shape error whatever `Δt`; at the rate 10 it is second order (2.03, 2.09, 2.35 from
+//! `Δt = 0.04` to 0.005; docs/long_runs_cause.md). For BDF2 the constraint is linearised
 //! about `X̂`, `Wⁿ⁺¹ ≈ Ŵ (1 + Div (X − X̂))`, and this source closes the share `τ/Δt` (2/3 at a
-//! constant step) of the gap per step; the error of the gap then obeys a two-step recursion
+//! constant step) of that share per step; the error of the gap then obeys a two-step recursion
 //! that is stable for step ratios `ω ≲ 2.4`, above the adaptive controller's bound `√2`. (The
 //! one-step form `W_ref/Ŵ − 1` was tried: it broke the second order of BDF2 measured by
 //! tests/capsule.rs, the difference of the explicit and the implicit elasticity rising from
 //! 7.8e-6 at Δt = 0.001 to 1.5e-5 at 0.0005.) A correction toward the constraint's manifold,
-//! zero when `W = W_ref` and of the size of the linearisation's error (`O(Δt²)` per step)
-//! otherwise, so the step keeps its order.
+//! zero when `W = W_ref` and, at a finite rate, `O(Δt)` times the gap per step otherwise, so
+//! the step keeps its order.
 //! [`super::cell_stepper::CellStepper::set_local_area_relaxation`] switches it off.
 //!
 //! ## After the step

@@ -441,7 +441,7 @@ impl CellStepper {
         Ok(())
     }
 
-    /// The source `r = (τ/Δt)(W_ref (A/A_ref) / Wⁿ − 1)` of the constraint `Div (X − X̂) = r`
+    /// The source `r = min(k Δt, 1)(τ/Δt)(W_ref (A/A_ref) / Wⁿ − 1)` of the constraint `Div (X − X̂) = r`
     /// that brings the area element `W` of every material point back toward the reference's
     /// (module docs, "Local area"), `w_now` the area element `Wⁿ` on the grid; `None` without
     /// a Skalak reference, for a capsule, or when switched off. Needs the drift targets set.
@@ -464,7 +464,8 @@ impl CellStepper {
             .drift_targets
             .expect("set by the step before this call");
         let ratio = target / g_ref.area();
-        let scale = tau / self.params.dt;
+        // The share `min(k Δt, 1)` of the gap closed in this step.
+        let scale = (self.local_area_rate * self.params.dt).min(1.0) * tau / self.params.dt;
         Ok(Some(
             w_now
                 .iter()

@@ -152,6 +152,8 @@ pub struct Suspension {
     /// (`None`: the stepper's default).
     storage: Option<OperatorStorage>,
     far_side: Option<FarSideParams>,
+    /// The local area relaxation's rate of every cell ([`Suspension::set_local_area_rate`]).
+    local_area_rate: Option<f64>,
     /// Preconditioner of every cell, also of cells inserted later (`None`: the stepper's
     /// default).
     preconditioning: Option<Preconditioning>,
@@ -222,6 +224,7 @@ impl Suspension {
             contrast,
             storage: None,
             far_side: None,
+            local_area_rate: None,
             preconditioning: None,
             solve_s: 0.0,
             coupling_mode: CouplingMode::Explicit,
@@ -282,6 +285,9 @@ impl Suspension {
         }
         if let Some(far_side) = self.far_side {
             st.set_far_side_params(far_side).map_err(err)?;
+        }
+        if let Some(rate) = self.local_area_rate {
+            st.set_local_area_rate(rate).map_err(err)?;
         }
         let at = self.cells.partition_point(|c| c.id < id);
         if self.cells.get(at).map(|c| c.id) == Some(id) {
@@ -397,6 +403,26 @@ impl Suspension {
             .iter()
             .map(|c| c.stepper.own_preconditioner_builds)
             .sum()
+    }
+
+    /// The local area relaxation's rate of every cell, also of cells inserted later
+    /// ([`CellStepper::set_local_area_rate`]).
+    ///
+    /// # Errors
+    /// A rate that is not positive (no cell named).
+    pub fn set_local_area_rate(&mut self, rate: f64) -> Result<(), CellStepError> {
+        super::cell_stepper::check_local_area_rate(rate)
+            .map_err(|source| CellStepError { cell: None, source })?;
+        for c in &mut self.cells {
+            c.stepper
+                .set_local_area_rate(rate)
+                .map_err(|source| CellStepError {
+                    cell: Some(c.id),
+                    source,
+                })?;
+        }
+        self.local_area_rate = Some(rate);
+        Ok(())
     }
 
     /// Far-side settings of every cell (also of cells inserted later).

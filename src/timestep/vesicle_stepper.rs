@@ -177,6 +177,14 @@ impl VesicleStepper {
         self.stepper.set_local_area_relaxation(on);
     }
 
+    /// The local area relaxation's rate ([`CellStepper::set_local_area_rate`]).
+    ///
+    /// # Errors
+    /// [`TimestepError::InvalidParameter`] unless `rate > 0`.
+    pub fn set_local_area_rate(&mut self, rate: f64) -> Result<(), TimestepError> {
+        self.stepper.set_local_area_rate(rate)
+    }
+
     /// What the cell's own preconditioner was built from (`None`: it has none).
     pub fn own_preconditioner_record(&self) -> Option<&PreconditionerRecord> {
         self.state.preconditioner.as_ref()
