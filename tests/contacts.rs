@@ -322,6 +322,103 @@ fn bad_packing_and_contact_keys_are_refused_with_their_place() {
     assert!(e.contains("jam.toml:") && e.contains("jammed"), "{e}");
 }
 
+/// Smallest distance into the fluid of the walls of `scene` over the order-`q` samples of
+/// `coefs` (order `p`): Newton's closest point on each wall's surface, measured here from a
+/// finer sampling than the packing's (order `2q` against the packing's `2p`).
+fn smallest_wall_gap(scene: &mobo::scene::cells::CellScene, coefs: &[Vec<f64>], q: usize) -> f64 {
+    use mobo::wall::WallKind;
+    let p = scene.numerics.order;
+    let sht = ShTransform::new(q).unwrap();
+    let mut least = f64::INFINITY;
+    for w in &scene.walls {
+        let wall_sht = ShTransform::new(2 * w.order).unwrap();
+        let d = SurfaceDistance::new(w.order, w.surface().unwrap().coefs(), &wall_sht).unwrap();
+        let mut scratch = DistanceScratch::new(w.order);
+        for c in coefs {
+            for &x in SurfaceDistance::new(p, c, &sht).unwrap().samples() {
+                let s = d.closest(&mut scratch, x).distance;
+                least = least.min(match w.kind {
+                    WallKind::Container => -s,
+                    WallKind::Body => s,
+                });
+            }
+        }
+    }
+    least
+}
+
+/// In a scene with a container, `placement = "packed"` fills the container's fluid: the count
+/// follows from the volume fraction and the walls' enclosed volumes, and every gap (between
+/// cells, and to every wall, bodies included) is at least `min_gap`, checked from finer samples
+/// than the packing's. Measured (2 cores, beside a test suite): 5 RBCs at 22.0 % of a tube in
+/// 11 s, smallest gaps 0.115 and 0.116 to the wall; 15 spheres at 24.7 % of a shell in 7 s,
+/// 0.120 and 0.119. The wall's gap is refined by Newton between its samples (before, the
+/// shell's was 0.0984 < `min_gap`: the packing measured only the cells' samples).
+#[test]
+fn packed_cells_fill_a_tube_and_a_shell_keeping_every_gap() {
+    use std::f64::consts::PI;
+    let cells = |shape: &str, order: usize, phi: f64| {
+        format!(
+            "[[cells]]\nshape = \"{shape}\"\nplacement = \"packed\"\nvolume_fraction = {phi}\n\
+             min_gap = 0.1\nseed = 3\nbending_modulus = 0.1\nshear_modulus = 1.0\n\
+             [numerics]\norder = {order}\ndt = 0.01\nt_end = 0.05\n"
+        )
+    };
+    // Red cells in a tube of radius 1.8 and length 10 (a 10 µm capillary for a 2.8 µm cell);
+    // spheres in a spherical shell between radii 1.5 and 4.
+    let tube = "[[walls]]\nkind = \"container\"\nshape = \"tube\"\nradius = 1.8\nlength = 10.0\n\
+                order = 16\n";
+    let shell = "[[walls]]\nkind = \"container\"\nshape = \"sphere\"\nradius = 4.0\n\
+                 [[walls]]\nkind = \"body\"\nshape = \"sphere\"\nradius = 1.5\n";
+    let cell_volume = 4.0 / 3.0 * PI;
+    for (name, text, fluid) in [
+        // The tube's volume (a superellipsoid of revolution) from its surface.
+        ("tube", format!("{}{tube}", cells("rbc", 8, 0.2)), None),
+        (
+            "shell",
+            format!("{}{shell}", cells("sphere", 6, 0.25)),
+            Some(4.0 / 3.0 * PI * (64.0 - 1.5f64.powi(3))),
+        ),
+    ] {
+        let (scene, coefs, placed_s) = packed(&text);
+        let fluid = fluid.unwrap_or_else(|| {
+            let w = &scene.walls[0];
+            let mut calc = mobo::vesicle::geometry::SurfaceCalculus::new(w.order).unwrap();
+            calc.geometry(w.surface().unwrap().coefs())
+                .unwrap()
+                .volume()
+        });
+        let n = scene.cells.len();
+        let phi: f64 = if name == "tube" { 0.2 } else { 0.25 };
+        assert_eq!(n, (phi * fluid / cell_volume).round() as usize, "{name}");
+        let p = scene.numerics.order;
+        let gap = smallest_gap(&coefs, p, 32);
+        let wall_gap = smallest_wall_gap(&scene, &coefs, 32);
+        eprintln!(
+            "| {n} cells packed in the {name} at {:.1} % | placed in {placed_s:.1} s | smallest \
+             gap {gap:.4}, to the walls {wall_gap:.4} |",
+            100.0 * n as f64 * cell_volume / fluid
+        );
+        assert!(gap >= 0.1 * (1.0 - 1e-9), "{name}: smallest gap {gap}");
+        assert!(
+            wall_gap >= 0.1 * (1.0 - 1e-6),
+            "{name}: smallest wall gap {wall_gap}"
+        );
+    }
+    // The count follows from the fluid's volume: giving it is refused at its place.
+    let text = format!(
+        "{}{tube}",
+        cells("rbc", 8, 0.2).replace("placement", "count = 5\nplacement")
+    );
+    let e = parse(std::path::Path::new("tube.toml"), &text)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("tube.toml:3") && e.contains("leave count out"),
+        "{e}"
+    );
+}
+
 /// The typed scene spec of a research code packs the same cells as the file.
 #[test]
 fn a_packed_group_from_the_typed_spec_equals_the_file() {

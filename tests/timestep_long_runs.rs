@@ -495,8 +495,11 @@ fn the_local_area_rate_keeps_bdf2_second_order() {
     let p = 8;
     let mut s = shapes::rbc(p).unwrap();
     let norm = (0.3f64 * 0.3 + 1.0 + 0.5 * 0.5).sqrt();
-    s.rotate(rotation([0.3 / norm, 1.0 / norm, 0.5 / norm], 40f64.to_radians()))
-        .unwrap();
+    s.rotate(rotation(
+        [0.3 / norm, 1.0 / norm, 0.5 / norm],
+        40f64.to_radians(),
+    ))
+    .unwrap();
     let shear = |x: [f64; 3]| [x[1], 0.0, 0.0];
     let run = |rate: f64, steps: usize| {
         let mut prm = params(p, 0.2 / steps as f64);
@@ -516,7 +519,10 @@ fn the_local_area_rate_keeps_bdf2_second_order() {
     };
     let error = |a: &[f64], b: &[f64]| {
         let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((x - y).abs())) / scale
+        a.iter()
+            .zip(b)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+            / scale
     };
     let mut orders = vec![];
     for rate in [mobo::timestep::cell_stepper::LOCAL_AREA_RATE, f64::INFINITY] {

@@ -12,9 +12,9 @@ use super::{line_col, SceneError};
 use crate::vesicle::shapes::{Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
 
-use super::cell_scene::{rotation, unit_shape, CellSpec, Shape};
+use super::cell_scene::{rotation, unit_shape, CellSpec, Shape, WallSpec};
 use super::cells_schema::{CellSection, Origin};
-use super::packing::{pack, PackingRequest};
+use super::packing::{cells_in_walls, fluid_volume, pack, PackingRequest};
 use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 
 pub(super) type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
@@ -33,6 +33,7 @@ pub(super) fn cell_specs(
     finite: &Check,
     text: &str,
     order: usize,
+    walls: &[WallSpec],
 ) -> Result<Vec<CellSpec>, SceneError> {
     let key = |name: &str| match origin {
         Origin::File => format!("[[cells]] #{} {name}", k + 1),
@@ -348,6 +349,29 @@ pub(super) fn cell_specs(
             Some(g) => positive(g, &key("min_gap"))?,
             None => 0.05 * radius,
         };
+        let fail = |m: String| at(span.clone(), format!("{}: {m}", key("placement")));
+        // In a container the fluid's volume fixes the count.
+        let (count, phi) = match fluid_volume(walls).map_err(fail)? {
+            None => (count, phi),
+            Some(_) if c.count.is_some() => {
+                let n = c.count.as_ref().expect("checked");
+                return Err(at(
+                    n.span(),
+                    format!(
+                        "{}: in a scene with a container wall the cells are packed in its fluid, \
+                         and volume_fraction fixes their number; leave count out",
+                        key("count")
+                    ),
+                ));
+            }
+            Some(v) => {
+                let n = cells_in_walls(&base, phi, v);
+                (
+                    n,
+                    n as f64 * 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3) / v,
+                )
+            }
+        };
         let req = PackingRequest {
             count,
             volume_fraction: phi,
@@ -355,7 +379,7 @@ pub(super) fn cell_specs(
             seed: c.seed.unwrap_or(1),
             order,
         };
-        return pack(&base, &req).map_err(|m| at(span, format!("{}: {m}", key("placement"))));
+        return pack(&base, &req, walls).map_err(fail);
     }
     let spacing = match &c.spacing {
         Some(s) => positive(s, &key("spacing"))?,

@@ -45,6 +45,9 @@
 //! # random placement keeps every cell's bounding sphere 5 % clear of the others', those of
 //! # earlier [[cells]] entries included (groups may share a region); a region that cannot hold
 //! # the count is an error giving how many were placed and the volume fraction asked.
+//! # placement = "packed", volume_fraction = 0.4, min_gap = 0.05: grown to full size with
+//! # contacts on (scene::packing) in a cube of count cells; in a scene with a container wall
+//! # (a tube, ...) in the fluid it bounds, where volume_fraction fixes the count (leave it out)
 //!
 //! [numerics]
 //! order = 12                      # SH order p
@@ -558,6 +561,8 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             Origin::Spec => format!("cells[{k}] of the spec"),
         }
     };
+    // The walls before the cells: a packed placement fills their fluid.
+    let walls = super::walls::walls(f.walls.as_deref().unwrap_or(&[]), origin, text, &at)?;
     let mut cells = Vec::new();
     for (k, c) in sections.iter().enumerate() {
         let group = cell_specs(
@@ -570,11 +575,11 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             &finite,
             text,
             numerics.order.max(RBC_MIN_ORDER),
+            &walls,
         )?;
         cells.extend(group);
     }
     check_overlaps(&cells, file, &entry, numerics.order.max(RBC_MIN_ORDER))?;
-    let walls = super::walls::walls(f.walls.as_deref().unwrap_or(&[]), origin, text, &at)?;
     let flow = match tube_drive {
         Some(d) => super::tube_flow::tube_flow(&d, &walls, viscosity, &at)?,
         None => flow,

@@ -1,17 +1,24 @@
-//! `placement = "packed"`: `count` cells at a volume fraction `φ` in a cube, every pair of
-//! surfaces (and every surface and the cube's faces) at least `min_gap` apart.
+//! `placement = "packed"`: `count` cells at a volume fraction `φ`, every pair of surfaces at
+//! least `min_gap` apart, in a cube or in the fluid the scene's walls bound.
 //!
 //! The protocol grows shrunk cells to full size with contacts active, as Lubachevsky &
 //! Stillinger (J. Stat. Phys. 60, 1990) grow hard particles, with the contact projection of
 //! [`crate::timestep::contact`] in place of event-driven collisions:
 //!
-//! 1. The cube's side is `L = (N V / φ)^{1/3}` with `V = 4πr³/3` the volume of one cell of
-//!    equivalent radius `r`, centred on the entry's `center`. Volume fraction is `N V / L³`.
+//! 1. The region. Without a container wall: the cube of side `L = (N V / φ)^{1/3}` with
+//!    `V = 4πr³/3` the volume of one cell of equivalent radius `r`, centred on the entry's
+//!    `center`; volume fraction is `N V / L³`. In a scene with a container (`[[walls]]
+//!    kind = "container"`, e.g. a tube): the fluid inside it and outside its bodies, whose
+//!    volume `V_f` (the walls' enclosed volumes) fixes the number of cells,
+//!    `N = round(φ V_f / V)` ([`cells_in_walls`]); the volume fraction is then `N V / V_f`.
 //! 2. Every cell gets a uniformly random orientation (a uniform unit quaternion) and a uniformly
-//!    random centre in the cube, at half its size (`s = 1/2`).
+//!    random centre in the region, at half its size (`s = 1/2`): in the cube's inner 90 %, or
+//!    in the walls' fluid at least half the cell's bounding radius plus `min_gap` from every
+//!    wall (rejection sampling in the container's bounding box, by the true distance).
 //! 3. The projection moves (translations and small rotations) the cells until every surface gap
 //!    (true distance: Newton's closest points, [`crate::vesicle::surface_distance`]) and every
-//!    gap to the cube's faces is at least `min_gap`.
+//!    gap to the cube's faces, or to every wall (a fixed surface of the projection), is at least
+//!    `min_gap`.
 //! 4. The size grows by a factor `1 + g` (`g = 4 %` at first) and step 3 repeats; a growth the
 //!    projection cannot resolve in 40 rounds (or 10 without progress) is undone and retried with `g / 2`, a resolved one
 //!    lets `g` grow back by 1.5 (up to 4 %). The protocol ends at full size, or fails (jammed)
@@ -22,9 +29,16 @@
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
-use super::cell_scene::CellSpec;
+use super::cell_scene::{CellSpec, WallShape, WallSpec};
 use crate::linalg3::{dot3, matmul3};
-use crate::timestep::contact::{ContactParams, ContactSolver, Wall};
+use crate::sph_harmonics::ShTransform;
+use crate::timestep::contact::{ContactParams, ContactSolver, FixedSurface, Wall};
+use crate::vesicle::geometry::SurfaceCalculus;
+use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
+use crate::wall::WallKind;
+
+/// Random centres tried per cell before the walls' fluid is declared too small to start in.
+const CENTRE_TRIES: usize = 10_000;
 
 /// Relative growth of the first attempts.
 const GROWTH: f64 = 0.04;
@@ -59,37 +73,157 @@ pub fn cube_side(base: &CellSpec, req: &PackingRequest) -> f64 {
     (req.count as f64 * v / req.volume_fraction).cbrt()
 }
 
-/// `req.count` copies of `base` packed in the cube of [`cube_side`] about `base.center` (see
-/// the module docs); an error says how far the growth came.
-pub fn pack(base: &CellSpec, req: &PackingRequest) -> Result<Vec<CellSpec>, String> {
+/// The volume of the fluid the scene's walls bound: the container's enclosed volume less its
+/// bodies' (`None` without a container).
+pub fn fluid_volume(walls: &[WallSpec]) -> Result<Option<f64>, String> {
+    if !walls.iter().any(|w| w.kind == WallKind::Container) {
+        return Ok(None);
+    }
+    let mut volume = 0.0;
+    for (k, w) in walls.iter().enumerate() {
+        let s = w.surface().map_err(|e| format!("wall {k}: {e}"))?;
+        let v = SurfaceCalculus::new(w.order)
+            .and_then(|mut c| c.geometry(s.coefs()))
+            .map_err(|e| format!("wall {k}: {e}"))?
+            .volume();
+        volume += match w.kind {
+            WallKind::Container => v,
+            WallKind::Body => -v,
+        };
+    }
+    Ok(Some(volume))
+}
+
+/// The number of cells like `base` at volume fraction `phi` of the fluid of volume
+/// `fluid_volume` ([`fluid_volume`]): `round(φ V_f / V)`, at least one.
+pub fn cells_in_walls(base: &CellSpec, phi: f64, fluid_volume: f64) -> usize {
+    let v = 4.0 / 3.0 * std::f64::consts::PI * base.radius.powi(3);
+    ((phi * fluid_volume / v).round() as usize).max(1)
+}
+
+/// The walls as the distance evaluators of the centre sampling and the projection's fixed
+/// surfaces.
+struct PackingWalls {
+    distance: Vec<(SurfaceDistance, WallKind, usize)>,
+    fixed: Vec<FixedSurface>,
+    /// The container's bounding box (its centre and half extents).
+    bounds: ([f64; 3], [f64; 3]),
+}
+
+impl PackingWalls {
+    fn new(walls: &[WallSpec]) -> Result<Option<Self>, String> {
+        let Some(container) = walls.iter().find(|w| w.kind == WallKind::Container) else {
+            return Ok(None);
+        };
+        let half = match container.shape {
+            WallShape::Sphere { radius } => [radius; 3],
+            WallShape::Ellipsoid { axes } => axes,
+            WallShape::Tube { radius, length } => [length / 2.0, radius, radius],
+        };
+        let (mut distance, mut fixed) = (vec![], vec![]);
+        for (k, w) in walls.iter().enumerate() {
+            let err = |e: String| format!("wall {k}: {e}");
+            let s = w.surface().map_err(|e| err(e.to_string()))?;
+            let sht = ShTransform::new(2 * w.order).map_err(|e| err(e.to_string()))?;
+            distance.push((
+                SurfaceDistance::new(w.order, s.coefs(), &sht).map_err(|e| err(e.to_string()))?,
+                w.kind,
+                w.order,
+            ));
+            fixed.push(
+                FixedSurface::new(w.order, s.coefs(), w.kind == WallKind::Container)
+                    .map_err(|e| err(e.to_string()))?,
+            );
+        }
+        Ok(Some(PackingWalls {
+            distance,
+            fixed,
+            bounds: (container.center, half),
+        }))
+    }
+
+    /// The smallest distance of `x` from the walls, positive in the fluid.
+    fn clearance(&self, x: [f64; 3]) -> f64 {
+        self.distance
+            .iter()
+            .map(|(d, kind, order)| {
+                let s = d.closest(&mut DistanceScratch::new(*order), x).distance;
+                match kind {
+                    WallKind::Container => -s,
+                    WallKind::Body => s,
+                }
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
+    /// `n` random centres at least `margin` inside the fluid.
+    fn centres(&self, rng: &mut StdRng, n: usize, margin: f64) -> Result<Vec<[f64; 3]>, String> {
+        let (c, h) = self.bounds;
+        let mut out = Vec::with_capacity(n);
+        let mut tries = 0;
+        while out.len() < n {
+            let x: [f64; 3] =
+                std::array::from_fn(|d| c[d] + h[d] * (2.0 * rng.random::<f64>() - 1.0));
+            if self.clearance(x) >= margin {
+                out.push(x);
+            } else {
+                tries += 1;
+                if tries > CENTRE_TRIES * n {
+                    return Err(format!(
+                        "no point of the walls' fluid is {margin:.3} from every wall, the room a \
+                         cell needs at half its size: the walls leave no room for these cells"
+                    ));
+                }
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// `req.count` copies of `base` packed in the cube of [`cube_side`] about `base.center`, or,
+/// in a scene with a container wall, in the fluid of `walls` (see the module docs; the count
+/// then comes from [`cells_in_walls`]); an error says how far the growth came.
+pub fn pack(
+    base: &CellSpec,
+    req: &PackingRequest,
+    walls: &[WallSpec],
+) -> Result<Vec<CellSpec>, String> {
     let n = req.count;
     let side = cube_side(base, req);
     let c = base.center;
     let mut rng = StdRng::seed_from_u64(req.seed);
-    let mut centres: Vec<[f64; 3]> = (0..n)
-        .map(|_| std::array::from_fn(|d| c[d] + side * (rng.random::<f64>() - 0.5) * 0.9))
-        .collect();
+    let region = PackingWalls::new(walls)?;
+    let mut centres: Vec<[f64; 3]> = match &region {
+        None => (0..n)
+            .map(|_| std::array::from_fn(|d| c[d] + side * (rng.random::<f64>() - 0.5) * 0.9))
+            .collect(),
+        Some(r) => r.centres(&mut rng, n, START * base.bounding_radius + req.min_gap)?,
+    };
     let mut rotations: Vec<[[f64; 3]; 3]> = (0..n).map(|_| random_rotation(&mut rng)).collect();
     // The shape at the origin, full size, in its own frame.
     let mut unit = base.clone();
     unit.center = [0.0; 3];
     unit.rotation = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
     let shape = unit.surface(req.order).map_err(|e| e.to_string())?;
-    let walls: Vec<Wall> = (0..3)
-        .flat_map(|d| {
-            let mut e = [0.0; 3];
-            e[d] = 1.0;
-            let lo = Wall {
-                normal: e,
-                offset: c[d] - side / 2.0,
-            };
-            let hi = Wall {
-                normal: e.map(|v| -v),
-                offset: -(c[d] + side / 2.0),
-            };
-            [lo, hi]
-        })
-        .collect();
+    let planes: Vec<Wall> = match region {
+        Some(_) => vec![],
+        None => (0..3)
+            .flat_map(|d| {
+                let mut e = [0.0; 3];
+                e[d] = 1.0;
+                let lo = Wall {
+                    normal: e,
+                    offset: c[d] - side / 2.0,
+                };
+                let hi = Wall {
+                    normal: e.map(|v| -v),
+                    offset: -(c[d] + side / 2.0),
+                };
+                [lo, hi]
+            })
+            .collect(),
+    };
+    let fixed: &[FixedSurface] = region.as_ref().map_or(&[], |r| &r.fixed);
     let mut params = ContactParams::new(req.min_gap);
     params.rotations = true;
     params.max_rounds = 40;
@@ -113,7 +247,7 @@ pub fn pack(base: &CellSpec, req: &PackingRequest) -> Result<Vec<CellSpec>, Stri
     loop {
         let coefs = surfaces(trial, &centres, &rotations)?;
         let refs: Vec<&[f64]> = coefs.iter().map(|v| v.as_slice()).collect();
-        match solver.resolve(&refs, &walls) {
+        match solver.resolve_with(&refs, &planes, fixed) {
             Ok(out) => {
                 for (i, m) in out.moves.iter().enumerate() {
                     // x ↦ m.c + R (x − m.c) + t keeps the shape's frame: the rotation becomes
@@ -139,10 +273,15 @@ pub fn pack(base: &CellSpec, req: &PackingRequest) -> Result<Vec<CellSpec>, Stri
                 failures += 1;
                 if growth < MIN_GROWTH || failures > MAX_FAILURES {
                     return Err(format!(
-                        "could not pack {n} cells at a volume fraction of {:.1} % with gaps of at \
-                         least {}: jammed at {:.1} % of the cells' size (a volume fraction of \
-                         {:.1} %); lower volume_fraction or min_gap",
+                        "could not pack {n} cells at a volume fraction of {:.1} % {} with gaps \
+                         of at least {}: jammed at {:.1} % of the cells' size (a volume fraction \
+                         of {:.1} %); lower volume_fraction or min_gap",
                         100.0 * req.volume_fraction,
+                        if fixed.is_empty() {
+                            "in a cube"
+                        } else {
+                            "of the walls' fluid"
+                        },
                         req.min_gap,
                         100.0 * size,
                         100.0 * req.volume_fraction * size.powi(3)

@@ -460,6 +460,7 @@ impl ContactSolver {
         }
         for f in fixed {
             let mut scratch = DistanceScratch::new(f.p);
+            let mut own_scratch = DistanceScratch::new(p);
             let fc = f.surface.centre();
             for (a, body) in bodies.iter().enumerate() {
                 let c = body.centre();
@@ -472,25 +473,50 @@ impl ContactSolver {
                 if far {
                     continue;
                 }
-                for &x in body.samples() {
+                let gap_and_normal = |cl: &crate::vesicle::surface_distance::Closest| {
+                    if f.container {
+                        (-cl.distance, cl.normal.map(|v| -v))
+                    } else {
+                        (cl.distance, cl.normal)
+                    }
+                };
+                let mut push = |x: [f64; 3], g: f64, nm: [f64; 3]| {
+                    let ra = cross3(sub3(x, c), nm);
+                    cons.push(Constraint {
+                        a,
+                        b: None,
+                        ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
+                        jb: [0.0; 6],
+                        gap: g,
+                    });
+                };
+                let mut nearest: Option<(usize, f64)> = None;
+                for (j, &x) in body.samples().iter().enumerate() {
                     if f.container && dist(x, fc) + range < f.r_min {
                         continue;
                     }
                     let cl = f.surface.closest(&mut scratch, x);
-                    let (g, nm) = if f.container {
-                        (-cl.distance, cl.normal.map(|v| -v))
-                    } else {
-                        (cl.distance, cl.normal)
-                    };
+                    let (g, nm) = gap_and_normal(&cl);
                     if g < range {
-                        let ra = cross3(sub3(x, c), nm);
-                        cons.push(Constraint {
-                            a,
-                            b: None,
-                            ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
-                            jb: [0.0; 6],
-                            gap: g,
-                        });
+                        push(x, g, nm);
+                        if nearest.is_none_or(|(_, least)| g < least) {
+                            nearest = Some((j, g));
+                        }
+                    }
+                }
+                // Between the samples the surfaces can come closer: Newton from the nearest
+                // sample (as between cells, `SurfaceDistance::gaps_to`).
+                if let Some((j, g0)) = nearest.filter(|n| n.1 > 0.0) {
+                    let (x, cl) = body.closest_pair_to(
+                        &mut own_scratch,
+                        &f.surface,
+                        &mut scratch,
+                        j,
+                        f.container,
+                    );
+                    let (g, nm) = gap_and_normal(&cl);
+                    if g < g0 {
+                        push(x, g, nm);
                     }
                 }
             }

@@ -184,10 +184,38 @@ impl SurfaceDistance {
         other: &SurfaceDistance,
         start: usize,
     ) -> ([f64; 3], Closest) {
-        let eval = |scratch: &mut DistanceScratch, u: (f64, f64)| {
+        self.closest_pair_by(scratch, start, 1.0, |s, x| other.closest(s, x))
+    }
+
+    /// [`Self::closest_pair`] with a surface `other` of another order (its own scratch
+    /// `other_scratch`), from the inside when `inside`: for a closed surface `other` holding
+    /// this one, the signed distance is maximised (the point of this surface nearest to
+    /// `other` from within).
+    pub fn closest_pair_to(
+        &self,
+        scratch: &mut DistanceScratch,
+        other: &SurfaceDistance,
+        other_scratch: &mut DistanceScratch,
+        start: usize,
+        inside: bool,
+    ) -> ([f64; 3], Closest) {
+        let sign = if inside { -1.0 } else { 1.0 };
+        self.closest_pair_by(scratch, start, sign, |_, x| other.closest(other_scratch, x))
+    }
+
+    /// The Newton search of [`Self::closest_pair`] on `sign · d(u)`, `closest` the other
+    /// surface's closest point to a point.
+    fn closest_pair_by(
+        &self,
+        scratch: &mut DistanceScratch,
+        start: usize,
+        sign: f64,
+        mut closest: impl FnMut(&mut DistanceScratch, [f64; 3]) -> Closest,
+    ) -> ([f64; 3], Closest) {
+        let mut eval = |scratch: &mut DistanceScratch, u: (f64, f64)| {
             let pd = scratch.point.eval(&self.lay, &self.coefs, u.0, u.1);
-            let cl = other.closest(scratch, pd.x);
-            let g = [dot(cl.normal, pd.xt), dot(cl.normal, pd.xp)];
+            let cl = closest(scratch, pd.x);
+            let g = [sign * dot(cl.normal, pd.xt), sign * dot(cl.normal, pd.xp)];
             (pd.x, cl, g)
         };
         let mut u = self.angles[start];
@@ -213,7 +241,7 @@ impl SurfaceDistance {
             for _ in 0..20 {
                 let trial = (u.0 + step[0], u.1 + step[1]);
                 let (xt, ct, gt) = eval(scratch, trial);
-                if ct.distance < cl.distance {
+                if sign * ct.distance < sign * cl.distance {
                     (u, x, cl, g) = (trial, xt, ct, gt);
                     accepted = true;
                     break;
