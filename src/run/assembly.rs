@@ -113,18 +113,16 @@ pub(super) fn coupling_params(scene: &CellScene) -> CouplingParams {
 /// The local area relaxation's rate for `scene`
 /// ([`crate::timestep::cell_stepper::CellStepper::set_local_area_rate`]):
 /// [`LOCAL_AREA_RATE`] per unit of the scene's fastest time scale, the largest of the flow's
-/// rate, `G/(μ R)`, `κ/(μ R³)` and `|F|/(μ R²)` over the cells (one unit without any).
+/// rate, `G/(μ R)` and `κ/(μ R³)` over the cells (one unit without any). Not a body force's:
+/// a traction given through the library's force hooks must step as the same body force does
+/// (`tests/simulation.rs`).
 pub(super) fn local_area_rate(scene: &CellScene) -> f64 {
     let mu = scene.viscosity;
     let scale = scene
         .cells
         .iter()
         .map(|c| {
-            let r = c.radius;
-            let f = c.force.iter().map(|v| v * v).sum::<f64>().sqrt();
-            (c.shear_modulus / (mu * r))
-                .max(c.bending_modulus / (mu * r.powi(3)))
-                .max(f / (mu * r * r))
+            (c.shear_modulus / (mu * c.radius)).max(c.bending_modulus / (mu * c.radius.powi(3)))
         })
         .fold(scene.flow.rate_scale(), f64::max);
     LOCAL_AREA_RATE * if scale > 0.0 { scale } else { 1.0 }
