@@ -367,4 +367,58 @@ mod tests {
             .closest_within(&mut scratch, [0.0, 0.0, 3.0], 0.5)
             .is_none());
     }
+
+    /// The closest pair of two spheres of different orders, from outside (a sphere beside a
+    /// body) and from inside (a sphere in a container): the exact gaps `|c₁ − c₂| − r₁ − r₂` and
+    /// `R − |c₁ − c₂| − r₁`, found by Newton from the nearest sample, where the samples
+    /// themselves miss the closest point.
+    #[test]
+    fn closest_pair_to_finds_the_exact_gap_of_two_spheres() {
+        let (p, q) = (6, 16);
+        let mut small = shapes::sphere(p, 0.7).unwrap();
+        // Off every grid direction of the small sphere's samples.
+        let c1 = [0.31, -0.17, 0.23];
+        small.translate(c1);
+        let sd = SurfaceDistance::new(p, small.coefs(), &ShTransform::new(2 * p).unwrap()).unwrap();
+        let (mut own, mut other) = (DistanceScratch::new(p), DistanceScratch::new(q));
+        for (inside, radius, c2) in [
+            (false, 1.1, [2.43, 0.91, -0.37]),
+            (true, 2.6, [-0.12, 0.05, 0.08]),
+        ] {
+            let mut big = shapes::sphere(q, radius).unwrap();
+            big.translate(c2);
+            let wall =
+                SurfaceDistance::new(q, big.coefs(), &ShTransform::new(2 * q).unwrap()).unwrap();
+            let d = dist(c1, c2);
+            let exact = if inside {
+                radius - d - 0.7
+            } else {
+                d - radius - 0.7
+            };
+            let gap = |cl: &Closest| if inside { -cl.distance } else { cl.distance };
+            let (start, sampled) = sd
+                .samples()
+                .iter()
+                .map(|&x| gap(&wall.closest(&mut other, x)))
+                .enumerate()
+                .fold(
+                    (0, f64::INFINITY),
+                    |b, (j, g)| if g < b.1 { (j, g) } else { b },
+                );
+            let (x, cl) = sd.closest_pair_to(&mut own, &wall, &mut other, start, inside);
+            assert!(
+                sampled - exact > 1e-4,
+                "the samples already hold it: {sampled} vs {exact}"
+            );
+            assert!(
+                (gap(&cl) - exact).abs() < 1e-10,
+                "{inside}: {} vs {exact}",
+                gap(&cl)
+            );
+            assert!(
+                (dist(x, c1) - 0.7).abs() < 1e-12,
+                "{x:?} is on the small sphere"
+            );
+        }
+    }
 }
