@@ -225,8 +225,9 @@ pub enum PlacementKind {
     Lattice,
     /// At random in `region`, clear of each other and of earlier groups.
     Random,
-    /// Packed at `volume_fraction` in a cube about `center`, surfaces `min_gap` apart
-    /// ([`crate::scene::packing`]).
+    /// Packed at `volume_fraction` in a cube about `center`, surfaces `min_gap` apart; in a
+    /// scene with a container wall, in the fluid it bounds, the count then fixed by the volume
+    /// fraction (leave `count` out) ([`crate::scene::packing`]).
     Packed,
 }
 
@@ -276,7 +277,7 @@ pub struct CellGroupSpec {
     /// `force`: body force per cell.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub force: Option<[f64; 3]>,
-    /// `count` of cells in the group (default 1).
+    /// `count` of cells in the group (default 1; none for a group packed in a container).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub count: Option<usize>,
     /// `placement` of a group.
