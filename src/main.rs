@@ -472,6 +472,24 @@ fn run(
         s.inclination_deg,
         out.display()
     );
+    for pk in &s.packings {
+        println!(
+            "packed: [[cells]] #{} as {} cells at {:.1} % of the {} in {:.1} s (smallest gap {})",
+            pk.entry + 1,
+            pk.cells,
+            100.0 * pk.volume_fraction,
+            if pk.region == "walls" {
+                "walls' fluid"
+            } else {
+                "cube"
+            },
+            pk.seconds,
+            pk.smallest_gap
+                .map_or("beyond the projection's range".to_string(), |g| format!(
+                    "{g:.4}"
+                ))
+        );
+    }
     if let Some(st) = s.counters.start_up {
         println!(
             "start-up: {} pass{} before the first step (the coupled cells' tension and membrane velocity at t = 0; last change {:.1e} of the tension)",

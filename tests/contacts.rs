@@ -84,6 +84,20 @@ fn packed_red_cells_at_40_percent_keep_every_gap() {
     let gap = smallest_gap(&coefs, p, 32);
     // The packing measures at order 16 plus the closest pair; order 32 finds nothing closer.
     assert!(gap >= 0.05 * (1.0 - 1e-9), "smallest gap {gap}");
+    // What the placement reports (summary.json's `packings`) is what was placed.
+    let [pk] = scene.packings.as_slice() else {
+        panic!("{:?}", scene.packings)
+    };
+    assert_eq!((pk.entry, pk.cells, pk.region), (0, 16, "cube"));
+    assert_eq!(pk.volume_fraction, 0.4);
+    let reported = pk
+        .smallest_gap
+        .expect("packed cells touch the projection's range");
+    // Refined by Newton (and to the cube's faces too): at most the sampled gap, at least d_min.
+    assert!(
+        reported <= gap + 1e-9 && reported >= 0.05 * (1.0 - 1e-9),
+        "reported {reported} vs {gap}"
+    );
     // Inside the cube of side (N V / φ)^(1/3) about the origin, 40 % by volume.
     let v = 4.0 / 3.0 * std::f64::consts::PI;
     let side = (16.0 * v / 0.4f64).cbrt();
@@ -403,6 +417,23 @@ fn packed_cells_fill_a_tube_and_a_shell_keeping_every_gap() {
         assert!(
             wall_gap >= 0.1 * (1.0 - 1e-6),
             "{name}: smallest wall gap {wall_gap}"
+        );
+        let [pk] = scene.packings.as_slice() else {
+            panic!("{:?}", scene.packings)
+        };
+        assert_eq!((pk.cells, pk.region), (n, "walls"), "{name}");
+        let phi_placed = n as f64 * cell_volume / fluid;
+        assert!(
+            (pk.volume_fraction - phi_placed).abs() < 1e-3 * phi_placed,
+            "{name}: {pk:?}"
+        );
+        // The projection refines its gaps by Newton, the check above samples: the reported
+        // gap is at most the sampled one and at least min_gap (measured: tube 0.1134 against
+        // 0.1152 sampled).
+        let reported = pk.smallest_gap.expect("within range");
+        assert!(
+            reported <= gap.min(wall_gap) + 1e-9 && reported >= 0.1 * (1.0 - 1e-9),
+            "{name}: {pk:?}"
         );
     }
     // The count follows from the fluid's volume: giving it is refused at its place.

@@ -47,6 +47,8 @@ pub struct CellSummary {
 /// `per_cell` has every cell's.
 #[derive(Clone, Debug, Serialize)]
 pub struct CellRunSummary {
+    /// What each packed placement achieved (`placement = "packed"`).
+    pub packings: Vec<crate::scene::packing::PackingReport>,
     /// Number of cells.
     pub cells: usize,
     /// Spherical-harmonic order `p`.

@@ -14,7 +14,7 @@ use crate::vesicle::skalak::ElasticLaw;
 
 use super::cell_scene::{rotation, unit_shape, CellSpec, Shape, WallSpec};
 use super::cells_schema::{CellSection, Origin};
-use super::packing::{cells_in_walls, fluid_volume, pack, PackingRequest};
+use super::packing::{cells_in_walls, fluid_volume, pack, PackingReport, PackingRequest};
 use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 
 pub(super) type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
@@ -34,6 +34,7 @@ pub(super) fn cell_specs(
     text: &str,
     order: usize,
     walls: &[WallSpec],
+    packings: &mut Vec<PackingReport>,
 ) -> Result<Vec<CellSpec>, SceneError> {
     let key = |name: &str| match origin {
         Origin::File => format!("[[cells]] #{} {name}", k + 1),
@@ -379,7 +380,9 @@ pub(super) fn cell_specs(
             seed: c.seed.unwrap_or(1),
             order,
         };
-        return pack(&base, &req, walls).map_err(fail);
+        let (cells, report) = pack(&base, &req, walls).map_err(fail)?;
+        packings.push(PackingReport { entry: k, ..report });
+        return Ok(cells);
     }
     let spacing = match &c.spacing {
         Some(s) => positive(s, &key("spacing"))?,

@@ -370,6 +370,8 @@ pub struct CellScene {
     /// The physical scales of a scene written in SI units (`[units] system = "SI"`; `None`:
     /// the file's numbers are the solver's own). Every value above is dimensionless.
     pub units: Option<UnitScales>,
+    /// What each packed placement achieved (`placement = "packed"`; in `summary.json`).
+    pub packings: Vec<super::packing::PackingReport>,
 }
 
 impl CellScene {

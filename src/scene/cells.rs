@@ -563,7 +563,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
     };
     // The walls before the cells: a packed placement fills their fluid.
     let walls = super::walls::walls(f.walls.as_deref().unwrap_or(&[]), origin, text, &at)?;
-    let mut cells = Vec::new();
+    let (mut cells, mut packings) = (Vec::new(), Vec::new());
     for (k, c) in sections.iter().enumerate() {
         let group = cell_specs(
             c,
@@ -576,6 +576,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             text,
             numerics.order.max(RBC_MIN_ORDER),
             &walls,
+            &mut packings,
         )?;
         cells.extend(group);
     }
@@ -690,6 +691,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         effects,
         walls,
         units,
+        packings,
     })
 }
 

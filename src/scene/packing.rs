@@ -37,6 +37,33 @@ use crate::vesicle::geometry::SurfaceCalculus;
 use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 use crate::wall::WallKind;
 
+/// What a packed placement achieved (`summary.json`'s `packings`, printed by `mobo run`).
+/// Two reports are equal when they place the same: the seconds are left out.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct PackingReport {
+    /// The `[[cells]]` entry (from 0).
+    pub entry: usize,
+    /// Cells placed.
+    pub cells: usize,
+    /// Their volume fraction of the region.
+    pub volume_fraction: f64,
+    /// `"cube"` or `"walls"` (the fluid of the scene's container).
+    pub region: &'static str,
+    /// The smallest surface gap at full size, between cells or to a wall or face, as the
+    /// projection measured it (`None`: none within its range, a few `min_gap`).
+    pub smallest_gap: Option<f64>,
+    /// Seconds the placement took.
+    pub seconds: f64,
+}
+
+impl PartialEq for PackingReport {
+    fn eq(&self, other: &Self) -> bool {
+        (self.entry, self.cells, self.region) == (other.entry, other.cells, other.region)
+            && self.volume_fraction == other.volume_fraction
+            && self.smallest_gap == other.smallest_gap
+    }
+}
+
 /// Random centres tried per cell before the walls' fluid is declared too small to start in.
 const CENTRE_TRIES: usize = 10_000;
 
@@ -187,7 +214,8 @@ pub fn pack(
     base: &CellSpec,
     req: &PackingRequest,
     walls: &[WallSpec],
-) -> Result<Vec<CellSpec>, String> {
+) -> Result<(Vec<CellSpec>, PackingReport), String> {
+    let started = std::time::Instant::now();
     let n = req.count;
     let side = cube_side(base, req);
     let c = base.center;
@@ -243,6 +271,7 @@ pub fn pack(
             .collect::<Result<Vec<Vec<f64>>, String>>()
     };
     let (mut size, mut growth) = (START, GROWTH);
+    let mut smallest_gap: f64;
     let (mut trial, mut failures) = (size, 0);
     loop {
         let coefs = surfaces(trial, &centres, &rotations)?;
@@ -263,6 +292,7 @@ pub fn pack(
                     rotations[i] = matmul3(m.rotation, rotations[i]);
                 }
                 size = trial;
+                smallest_gap = out.gap_after;
                 if size >= 1.0 {
                     break;
                 }
@@ -291,13 +321,22 @@ pub fn pack(
         }
         trial = (size * (1.0 + growth)).min(1.0);
     }
-    Ok((0..n)
+    let cells = (0..n)
         .map(|i| CellSpec {
             center: centres[i],
             rotation: rotations[i],
             ..base.clone()
         })
-        .collect())
+        .collect();
+    let report = PackingReport {
+        entry: 0,
+        cells: n,
+        volume_fraction: req.volume_fraction,
+        region: if fixed.is_empty() { "cube" } else { "walls" },
+        smallest_gap: smallest_gap.is_finite().then_some(smallest_gap),
+        seconds: started.elapsed().as_secs_f64(),
+    };
+    Ok((cells, report))
 }
 
 /// A uniformly random rotation (Shoemake's uniform unit quaternion).

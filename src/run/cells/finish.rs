@@ -136,6 +136,7 @@ impl<'a> CellRun<'a> {
         let threads = rayon::current_num_threads() * k_ranks;
         let done = prog.step;
         let summary = CellRunSummary {
+            packings: scene.packings.clone(),
             cells: nc,
             order: p,
             upsampled_order: q,
