@@ -365,13 +365,7 @@ pub(super) fn cell_specs(
                     ),
                 ));
             }
-            Some(v) => {
-                let n = cells_in_walls(&base, phi, v);
-                (
-                    n,
-                    n as f64 * 4.0 / 3.0 * std::f64::consts::PI * radius.powi(3) / v,
-                )
-            }
+            Some(v) => cells_in_walls(&base, phi, v),
         };
         let req = PackingRequest {
             count,

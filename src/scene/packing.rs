@@ -31,10 +31,9 @@ use rand::{Rng, SeedableRng};
 
 use super::cell_scene::{CellSpec, WallShape, WallSpec};
 use crate::linalg3::{dot3, matmul3};
-use crate::sph_harmonics::ShTransform;
 use crate::timestep::contact::{ContactParams, ContactSolver, FixedSurface, Wall};
 use crate::vesicle::geometry::SurfaceCalculus;
-use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
+use crate::vesicle::surface_distance::DistanceScratch;
 use crate::wall::WallKind;
 
 /// What a packed placement achieved (`summary.json`'s `packings`, printed by `mobo run`).
@@ -122,16 +121,17 @@ pub fn fluid_volume(walls: &[WallSpec]) -> Result<Option<f64>, String> {
 }
 
 /// The number of cells like `base` at volume fraction `phi` of the fluid of volume
-/// `fluid_volume` ([`fluid_volume`]): `round(φ V_f / V)`, at least one.
-pub fn cells_in_walls(base: &CellSpec, phi: f64, fluid_volume: f64) -> usize {
+/// `fluid_volume` ([`fluid_volume`]), `N = round(φ V_f / V)` (at least one), and the volume
+/// fraction `N V / V_f` they fill.
+pub fn cells_in_walls(base: &CellSpec, phi: f64, fluid_volume: f64) -> (usize, f64) {
     let v = 4.0 / 3.0 * std::f64::consts::PI * base.radius.powi(3);
-    ((phi * fluid_volume / v).round() as usize).max(1)
+    let n = ((phi * fluid_volume / v).round() as usize).max(1);
+    (n, n as f64 * v / fluid_volume)
 }
 
-/// The walls as the distance evaluators of the centre sampling and the projection's fixed
-/// surfaces.
+/// The walls as the projection's fixed surfaces, which also measure the centre sampling's
+/// clearance, and the container's bounding box.
 struct PackingWalls {
-    distance: Vec<(SurfaceDistance, WallKind, usize)>,
     fixed: Vec<FixedSurface>,
     /// The container's bounding box (its centre and half extents).
     bounds: ([f64; 3], [f64; 3]),
@@ -147,51 +147,42 @@ impl PackingWalls {
             WallShape::Ellipsoid { axes } => axes,
             WallShape::Tube { radius, length } => [length / 2.0, radius, radius],
         };
-        let (mut distance, mut fixed) = (vec![], vec![]);
-        for (k, w) in walls.iter().enumerate() {
-            let err = |e: String| format!("wall {k}: {e}");
-            let s = w.surface().map_err(|e| err(e.to_string()))?;
-            let sht = ShTransform::new(2 * w.order).map_err(|e| err(e.to_string()))?;
-            distance.push((
-                SurfaceDistance::new(w.order, s.coefs(), &sht).map_err(|e| err(e.to_string()))?,
-                w.kind,
-                w.order,
-            ));
-            fixed.push(
+        let fixed = walls
+            .iter()
+            .enumerate()
+            .map(|(k, w)| {
+                let s = w.surface().map_err(|e| format!("wall {k}: {e}"))?;
                 FixedSurface::new(w.order, s.coefs(), w.kind == WallKind::Container)
-                    .map_err(|e| err(e.to_string()))?,
-            );
-        }
+                    .map_err(|e| format!("wall {k}: {e}"))
+            })
+            .collect::<Result<Vec<_>, String>>()?;
         Ok(Some(PackingWalls {
-            distance,
             fixed,
             bounds: (container.center, half),
         }))
     }
 
-    /// The smallest distance of `x` from the walls, positive in the fluid.
-    fn clearance(&self, x: [f64; 3]) -> f64 {
-        self.distance
-            .iter()
-            .map(|(d, kind, order)| {
-                let s = d.closest(&mut DistanceScratch::new(*order), x).distance;
-                match kind {
-                    WallKind::Container => -s,
-                    WallKind::Body => s,
-                }
-            })
-            .fold(f64::INFINITY, f64::min)
-    }
-
     /// `n` random centres at least `margin` inside the fluid.
     fn centres(&self, rng: &mut StdRng, n: usize, margin: f64) -> Result<Vec<[f64; 3]>, String> {
         let (c, h) = self.bounds;
+        let mut scratch: Vec<DistanceScratch> = self
+            .fixed
+            .iter()
+            .map(|f| DistanceScratch::new(f.order()))
+            .collect();
         let mut out = Vec::with_capacity(n);
         let mut tries = 0;
         while out.len() < n {
             let x: [f64; 3] =
                 std::array::from_fn(|d| c[d] + h[d] * (2.0 * rng.random::<f64>() - 1.0));
-            if self.clearance(x) >= margin {
+            // The smallest distance of `x` from the walls, positive in the fluid.
+            let clearance = self
+                .fixed
+                .iter()
+                .zip(&mut scratch)
+                .map(|(f, s)| f.clearance(s, x))
+                .fold(f64::INFINITY, f64::min);
+            if clearance >= margin {
                 out.push(x);
             } else {
                 tries += 1;

@@ -34,7 +34,7 @@ use rayon::prelude::*;
 
 use crate::linalg3::{cross3, dist3 as dist, dot3, matmul3, rotation_from_vector, sub3};
 use crate::sph_harmonics::ShTransform;
-use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
+use crate::vesicle::surface_distance::{Closest, DistanceScratch, SurfaceDistance};
 use crate::vesicle::VesicleError;
 
 /// The margin `d_target / d_min` the projection aims at.
@@ -159,6 +159,27 @@ impl FixedSurface {
             container,
             r_min,
         })
+    }
+
+    /// The order of the surface (the order of a [`DistanceScratch`] for it).
+    pub fn order(&self) -> usize {
+        self.p
+    }
+
+    /// The gap of a point whose closest point on the surface is `cl`, positive on the allowed
+    /// side, and the normal into that side.
+    fn gap_and_normal(&self, cl: &Closest) -> (f64, [f64; 3]) {
+        if self.container {
+            (-cl.distance, cl.normal.map(|v| -v))
+        } else {
+            (cl.distance, cl.normal)
+        }
+    }
+
+    /// The distance of `x` from the surface, positive on the allowed side (`scratch` of
+    /// [`Self::order`]).
+    pub fn clearance(&self, scratch: &mut DistanceScratch, x: [f64; 3]) -> f64 {
+        self.gap_and_normal(&self.surface.closest(scratch, x)).0
     }
 }
 
@@ -473,13 +494,6 @@ impl ContactSolver {
                 if far {
                     continue;
                 }
-                let gap_and_normal = |cl: &crate::vesicle::surface_distance::Closest| {
-                    if f.container {
-                        (-cl.distance, cl.normal.map(|v| -v))
-                    } else {
-                        (cl.distance, cl.normal)
-                    }
-                };
                 let mut push = |x: [f64; 3], g: f64, nm: [f64; 3]| {
                     let ra = cross3(sub3(x, c), nm);
                     cons.push(Constraint {
@@ -496,7 +510,7 @@ impl ContactSolver {
                         continue;
                     }
                     let cl = f.surface.closest(&mut scratch, x);
-                    let (g, nm) = gap_and_normal(&cl);
+                    let (g, nm) = f.gap_and_normal(&cl);
                     if g < range {
                         push(x, g, nm);
                         if nearest.is_none_or(|(_, least)| g < least) {
@@ -514,7 +528,7 @@ impl ContactSolver {
                         j,
                         f.container,
                     );
-                    let (g, nm) = gap_and_normal(&cl);
+                    let (g, nm) = f.gap_and_normal(&cl);
                     if g < g0 {
                         push(x, g, nm);
                     }
