@@ -371,7 +371,7 @@ pub struct CellScene {
     /// the file's numbers are the solver's own). Every value above is dimensionless.
     pub units: Option<UnitScales>,
     /// What each packed placement achieved (`placement = "packed"`; in `summary.json`).
-    pub packings: Vec<super::packing::PackingReport>,
+    pub packings: Vec<super::packing_report::PackingReport>,
 }
 
 impl CellScene {

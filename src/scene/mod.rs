@@ -11,6 +11,7 @@ mod cells_schema;
 pub mod dense_defaults;
 pub mod dpd;
 pub mod packing;
+mod packing_report;
 pub mod spec;
 pub mod tube_flow;
 pub mod units;
