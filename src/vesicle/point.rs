@@ -238,7 +238,25 @@ pub(crate) fn closest_point(
             break;
         }
     }
-    ((t, f), pd)
+    // Newton may have stepped across a pole: the point is the same, but there `X_θ × X_φ`
+    // points inward; its angles with θ in [0, π] give the outward normal.
+    let (tc, fc) = canonical_angles(t, f);
+    if tc != t {
+        pd = pe.eval(lay, coefs, tc, fc);
+    }
+    ((tc, fc), pd)
+}
+
+/// The angles of the same surface point with `θ ∈ [0, π]`: `X(θ, φ) = X(2π − θ, φ + π)` (the
+/// basis has the factor `sinᵐθ` and `cos m(φ + π) = (−1)ᵐ cos mφ`), and only for `θ ∈ [0, π]`
+/// is the orientation of `(θ, φ)`, hence `X_θ × X_φ`, outward.
+pub(crate) fn canonical_angles(theta: f64, phi: f64) -> (f64, f64) {
+    let t = theta.rem_euclid(2.0 * PI);
+    if t > PI {
+        (2.0 * PI - t, phi + PI)
+    } else {
+        (t, phi)
+    }
 }
 
 #[cfg(test)]
@@ -297,6 +315,53 @@ mod tests {
                     assert!((x[c] - want[c]).abs() < 1e-12, "p = {p}: {x:?} vs {want:?}");
                 }
             }
+        }
+    }
+
+    /// Newton's closest point may step across a pole (θ < 0 or θ > π), where the point is
+    /// still on the surface but `X_θ × X_φ` points inward: the returned angles are brought back
+    /// to θ ∈ [0, π], so the normal there is outward and the side of the target is right (a
+    /// point outside an ellipsoid near its pole, Newton started across the pole).
+    #[test]
+    fn the_closest_point_across_a_pole_keeps_the_outward_normal() {
+        let (a, b, c) = (1.3, 0.9, 0.6);
+        let ellipsoid =
+            |t: f64, f: f64| [a * t.sin() * f.cos(), b * t.sin() * f.sin(), c * t.cos()];
+        let p = 8;
+        let sht = crate::sph_harmonics::ShTransform::new(p).unwrap();
+        let np = sht.n_points();
+        let mut pos = vec![0.0; 3 * np];
+        for j in 0..np {
+            let (t, f) = sht.grid().angles(j);
+            let x = ellipsoid(t, f);
+            for k in 0..3 {
+                pos[k * np + j] = x[k];
+            }
+        }
+        let mut coefs = vec![0.0; 3 * sht.n_coefs()];
+        sht.forward(&pos, &mut coefs, &mut sht.workspace()).unwrap();
+        let lay = sht.layout().clone();
+        let mut pe = PointEval::new(p);
+        for (t0, f0, lift) in [(0.15, 0.3, 0.2), (0.05, 2.0, 0.05), (PI - 0.1, 4.0, 0.3)] {
+            let on = pe.eval(&lay, &coefs, t0, f0);
+            let nv = pe.normal(&lay, &coefs, (t0, f0), &on);
+            let len = dot(nv, nv).sqrt();
+            // Outside, above the surface point (t0, f0); start from the point across the pole.
+            let x: [f64; 3] = std::array::from_fn(|k| on.x[k] + lift * nv[k] / len);
+            let start = (t0, f0 + PI);
+            let (u, pd) = closest_point(&mut pe, &lay, &coefs, x, start);
+            assert!((0.0..=PI).contains(&u.0), "θ = {} outside [0, π]", u.0);
+            let n = pe.normal(&lay, &coefs, u, &pd);
+            let r = [x[0] - pd.x[0], x[1] - pd.x[1], x[2] - pd.x[2]];
+            let d = dot(r, r).sqrt();
+            assert!(
+                (d - lift).abs() < 1e-3 * lift,
+                "distance {d} for a point {lift} above the surface"
+            );
+            assert!(
+                dot(r, n) > 0.99 * d * dot(n, n).sqrt(),
+                "the normal at the closest point must point to the outside target: r {r:?}, n {n:?}"
+            );
         }
     }
 }
