@@ -328,19 +328,9 @@ mod tests {
         let ellipsoid =
             |t: f64, f: f64| [a * t.sin() * f.cos(), b * t.sin() * f.sin(), c * t.cos()];
         let p = 8;
-        let sht = crate::sph_harmonics::ShTransform::new(p).unwrap();
-        let np = sht.n_points();
-        let mut pos = vec![0.0; 3 * np];
-        for j in 0..np {
-            let (t, f) = sht.grid().angles(j);
-            let x = ellipsoid(t, f);
-            for k in 0..3 {
-                pos[k * np + j] = x[k];
-            }
-        }
-        let mut coefs = vec![0.0; 3 * sht.n_coefs()];
-        sht.forward(&pos, &mut coefs, &mut sht.workspace()).unwrap();
-        let lay = sht.layout().clone();
+        let surface = super::super::shapes::Surface::from_fn(p, ellipsoid).unwrap();
+        let coefs = surface.coefs().to_vec();
+        let lay = CoefLayout::new(p);
         let mut pe = PointEval::new(p);
         for (t0, f0, lift) in [(0.15, 0.3, 0.2), (0.05, 2.0, 0.05), (PI - 0.1, 4.0, 0.3)] {
             let on = pe.eval(&lay, &coefs, t0, f0);
