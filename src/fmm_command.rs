@@ -360,6 +360,12 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         },
         fmm.setup_bytes_sent as f64,
         fmm.comm.messages_sent as f64,
+        fmm.tree
+            .top_reduce
+            .iter()
+            .chain(&fmm.tree.top_broadcast)
+            .map(|s| s.inn.len())
+            .sum::<usize>() as f64,
     ]);
     let all = comm.gather_f64(&stats, 0)?;
     if comm.rank() != 0 {
@@ -414,6 +420,8 @@ fn fmm_on(comm: &dyn Communicator, a: &FmmArgs) -> Result<(), CliError> {
         "rank_repeated_far_fraction": col(18),
         "rank_setup_bytes_sent": as_int(col(19)),
         "rank_messages_sent": as_int(col(20)),
+        "rank_top_messages_received": as_int(col(21)),
+        "top_stages": [fmm.tree.top_reduce.len(), fmm.tree.top_broadcast.len()],
         "rank_comm_s": col(4),
         "phases_max_s": phases_max,
     });

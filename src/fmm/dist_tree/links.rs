@@ -2,6 +2,7 @@
 //! each top box, the links a rank sends and receives at each evaluation, and the checks that
 //! the locally essential tree is complete and the ranks agree on it.
 
+use super::stages::{broadcast_partner, reduce_partner, stage_count, Partner};
 use super::*;
 
 /// The far region of `key`: the boxes of its level around its parent (the children of the
@@ -14,6 +15,11 @@ pub(super) fn far_region(key: &BoxKey) -> impl Iterator<Item = BoxKey> + '_ {
         .filter_map(|n| n.children())
         .flatten()
         .filter(move |c| !c.adjacent(key))
+}
+
+/// The links that carry something.
+fn keep(v: Vec<GhostLink>) -> Vec<GhostLink> {
+    v.into_iter().filter(|l| !l.boxes.is_empty()).collect()
 }
 
 impl DistTree {
@@ -52,8 +58,11 @@ impl DistTree {
     }
 
     /// The top boxes whose expansions move at each evaluation (levels from 2, with sources),
-    /// in key order on every rank: partials from sharers to owners, whole ones from owners to
-    /// the ranks overlapping each box's far region.
+    /// in key order on every rank: the partials reduced to each box's owner over a binomial
+    /// tree of its sharers, then the whole expansion broadcast from the owner over a binomial
+    /// tree of the ranks overlapping the box's far region ([`super::stages`]). Every rank holds
+    /// the same top boxes and splitters, so every rank finds the same participants and the
+    /// same number of stages.
     pub(super) fn top_links(&mut self) {
         let k = self.splitters.len() - 1;
         let me = self.rank;
@@ -65,7 +74,9 @@ impl DistTree {
                 })
                 .collect()
         };
-        let (mut p_out, mut p_in, mut t_out, mut t_in) = (links(), links(), links(), links());
+        // (participants in tree order, box index) of every moving top box.
+        let mut reduce: Vec<(Vec<usize>, usize)> = Vec::new();
+        let mut broadcast: Vec<(Vec<usize>, usize)> = Vec::new();
         for (b, bx) in self.boxes.iter().enumerate() {
             if bx.role != Role::Top || bx.n_sources == 0 || bx.key.level < 2 {
                 continue;
@@ -74,41 +85,57 @@ impl DistTree {
             let Some(&owner) = sharers.first() else {
                 continue;
             };
-            let users = self.ranks_overlapping(far_region(&bx.key));
-            if owner == me {
-                for &s in &sharers[1..] {
-                    p_in[s].boxes.push(b);
-                }
-                for &r in users.iter().filter(|&&r| r != me) {
-                    t_out[r].boxes.push(b);
-                }
-            } else {
-                if sharers.contains(&me) {
-                    p_out[owner].boxes.push(b);
-                }
-                if users.binary_search(&me).is_ok() {
-                    t_in[owner].boxes.push(b);
-                }
-            }
+            let mut users = vec![owner];
+            users.extend(
+                self.ranks_overlapping(far_region(&bx.key))
+                    .into_iter()
+                    .filter(|&r| r != owner),
+            );
+            reduce.push((sharers, b));
+            broadcast.push((users, b));
         }
-        let keep = |v: Vec<GhostLink>| v.into_iter().filter(|l| !l.boxes.is_empty()).collect();
-        self.top_partials_out = keep(p_out);
-        self.top_partials_in = keep(p_in);
-        self.top_out = keep(t_out);
-        self.top_in = keep(t_in);
+        let staged = |trees: &[(Vec<usize>, usize)],
+                      partner: fn(usize, usize, usize) -> Option<Partner>|
+         -> Vec<TopStage> {
+            let n = trees.iter().map(|(p, _)| stage_count(p.len())).max();
+            (0..n.unwrap_or(0))
+                .map(|j| {
+                    let (mut out, mut inn) = (links(), links());
+                    for (parts, b) in trees {
+                        let Some(i) = parts.iter().position(|&r| r == me) else {
+                            continue;
+                        };
+                        match partner(i, parts.len(), j) {
+                            Some(Partner::SendTo(t)) => out[parts[t]].boxes.push(*b),
+                            Some(Partner::ReceiveFrom(f)) => inn[parts[f]].boxes.push(*b),
+                            None => {}
+                        }
+                    }
+                    TopStage {
+                        out: keep(out),
+                        inn: keep(inn),
+                    }
+                })
+                .collect()
+        };
+        self.top_reduce = staged(&reduce, reduce_partner);
+        self.top_broadcast = staged(&broadcast, broadcast_partner);
     }
 
     /// Check that every rank expects what its partners will send at each evaluation (the
-    /// three exchanges: top partials, LET, whole top boxes) and receives all its lists read
+    /// exchanges: each stage of the top reduction, the LET, each stage of the top broadcast)
+    /// and receives all its lists read
     /// ([`DistTree::let_is_complete`]), so that a fault fails the build on every rank with its
     /// reason instead of hanging, mixing messages or reading zeros later.
     pub(super) fn check_links(&self, comm: &dyn Communicator) -> Result<(), CommError> {
         let k = self.splitters.len() - 1;
-        let kinds = [
-            (&self.top_partials_out, &self.top_partials_in),
-            (&self.ghosts_out, &self.ghosts_in),
-            (&self.top_out, &self.top_in),
-        ];
+        let kinds: Vec<(&Vec<GhostLink>, &Vec<GhostLink>)> = self
+            .top_reduce
+            .iter()
+            .map(|s| (&s.out, &s.inn))
+            .chain([(&self.ghosts_out, &self.ghosts_in)])
+            .chain(self.top_broadcast.iter().map(|s| (&s.out, &s.inn)))
+            .collect();
         let counts = |l: &GhostLink| [l.boxes.len() as u64, l.len(0, 1) as u64];
         let mut send = vec![vec![0u64; 2 * kinds.len()]; k];
         let mut expect = vec![vec![0u64; 2 * kinds.len()]; k];
@@ -190,7 +217,7 @@ impl DistTree {
                 expansion[b] = true;
             }
         }
-        for l in &self.top_in {
+        for l in self.top_broadcast.iter().flat_map(|s| &s.inn) {
             for &b in &l.boxes {
                 expansion[b] = true;
             }

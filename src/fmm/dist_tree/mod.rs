@@ -23,14 +23,16 @@
 //!    records per rank. Their expansions do not travel to everyone. A top box is shared by the
 //!    ranks whose key intervals overlap it (at most two per level for each rank); the first of
 //!    them *owns* it. At each evaluation each sharer computes the box's partial upward expansion
-//!    from its own points (M2M and the fit are linear) and sends it to the owner, which sums
-//!    them and sends the whole expansion on to the ranks that overlap the box's far region
-//!    (below), the only ones whose V and W lists can hold it. Levels 0 and 1 are in no one's
-//!    lists and are skipped. So a rank receives the top expansions its lists use (up to 189
-//!    per level for each box it computes) and, as an owner, one partial per other sharer, not
-//!    all `O(K · depth)` local roots. A box of level `ℓ` has about `K / 8^ℓ + 2` sharers, so
-//!    past `K ≈ 64` the owner of a level-2 box receives `O(K)` partials and sends to `O(K)`
-//!    ranks: a reduction over the sharers in `log K` stages (PVFMM's hypercube) would bound it.
+//!    from its own points (M2M and the fit are linear); the partials are summed at the owner
+//!    over a binomial tree of the sharers, and the owner's sum goes on, over a binomial tree
+//!    rooted at the owner, to the ranks that overlap the box's far region (below), the only
+//!    ones whose V and W lists can hold it ([`stages`]). Levels 0 and 1 are in no one's lists
+//!    and are skipped. So a rank receives the top expansions its lists use (up to 189 per
+//!    level for each box it computes), not all `O(K · depth)` local roots. A box of level `ℓ`
+//!    has about `K / 8^ℓ + 2` sharers and, at level 2, `O(K)` users: past `K ≈ 64` a single
+//!    owner would receive `O(K)` partials and send `O(K)` copies; with the trees it takes
+//!    `⌈log₂ m⌉` messages each way for `m` participants (the hypercube stages of PVFMM and
+//!    MOBO), in `⌈log₂ K⌉` rounds at most each.
 //! 5. **Locally essential tree.** Every owned box `S` with sources is described (key, leaf
 //!    flag, counts) to each other rank whose key interval overlaps the 27 boxes around `S`'s
 //!    parent, so that the rank's tree holds the structure its lists are found in. What moves at
@@ -68,6 +70,7 @@ use crate::comm::{CommError, Communicator};
 mod links;
 mod lists;
 mod route;
+pub mod stages;
 
 use links::far_region;
 use route::distribute;
@@ -122,6 +125,16 @@ pub struct GhostLink {
     pub sources: Vec<Range<usize>>,
 }
 
+/// One stage of the top boxes' exchange ([`DistTree::top_reduce`],
+/// [`DistTree::top_broadcast`]): links to the ranks this rank sends to and receives from.
+#[derive(Clone, Debug, Default)]
+pub struct TopStage {
+    /// What this rank sends, one link per receiving rank.
+    pub out: Vec<GhostLink>,
+    /// What this rank receives, one link per sending rank.
+    pub inn: Vec<GhostLink>,
+}
+
 impl GhostLink {
     /// Values per evaluation: `ne` per box, `ds` per source.
     pub fn len(&self, ne: usize, ds: usize) -> usize {
@@ -168,15 +181,14 @@ pub struct DistTree {
     pub ghosts_out: Vec<GhostLink>,
     /// What this rank receives at each evaluation, one link per sending rank.
     pub ghosts_in: Vec<GhostLink>,
-    /// Top boxes this rank shares but does not own: its partial upward expansions, one link
-    /// per owner.
-    pub top_partials_out: Vec<GhostLink>,
-    /// Top boxes this rank owns: the other sharers' partial expansions, one link per sharer.
-    pub top_partials_in: Vec<GhostLink>,
-    /// Top boxes this rank owns: their whole expansions, one link per rank whose lists use them.
-    pub top_out: Vec<GhostLink>,
-    /// Top boxes this rank's lists use and another rank owns, one link per owner.
-    pub top_in: Vec<GhostLink>,
+    /// The reduction of the top boxes' partial upward expansions to their owners, stage by
+    /// stage (a binomial tree over each box's sharers, [`stages`]): what this rank sends (its
+    /// running sums) and receives (partial sums it adds) at each stage.
+    pub top_reduce: Vec<TopStage>,
+    /// The broadcast of the owned top boxes' whole expansions to the ranks whose lists use
+    /// them, stage by stage (a binomial tree from the owner over those ranks, [`stages`]):
+    /// what this rank sends (boxes it owns or has received) and receives at each stage.
+    pub top_broadcast: Vec<TopStage>,
     /// Interaction lists of the boxes this rank computes.
     pub lists: Lists,
 }
@@ -342,10 +354,8 @@ impl DistTree {
             roots: vec![Vec::new(); k],
             ghosts_out: Vec::new(),
             ghosts_in: Vec::new(),
-            top_partials_out: Vec::new(),
-            top_partials_in: Vec::new(),
-            top_out: Vec::new(),
-            top_in: Vec::new(),
+            top_reduce: Vec::new(),
+            top_broadcast: Vec::new(),
             lists: Lists::default(),
         };
         let mut boxes: HashMap<BoxKey, TreeBox> = HashMap::new();

@@ -28,7 +28,7 @@ use rayon::prelude::*;
 
 use super::blocks::SourceBlock;
 use super::calibration;
-use super::dist_tree::{DistTree, GhostLink, Role, TreeInput};
+use super::dist_tree::{DistTree, GhostLink, Role, TopStage, TreeInput};
 use super::fit_cache;
 pub use super::kernels::FmmKernel;
 use super::kernels::Kernel;
@@ -555,21 +555,23 @@ impl Fmm {
             total: t0.elapsed().as_secs_f64(),
         };
         let tree = &self.tree;
-        let top_bytes = |links: [&[GhostLink]; 2]| -> u64 {
-            let boxes: usize = links
+        let top_bytes = |side: fn(&TopStage) -> &[GhostLink]| -> u64 {
+            let boxes: usize = tree
+                .top_reduce
                 .iter()
-                .flat_map(|l| l.iter())
+                .chain(&tree.top_broadcast)
+                .flat_map(side)
                 .map(|l| l.boxes.len())
                 .sum();
             8 * (ne * boxes) as u64
         };
-        let top_sent = top_bytes([&tree.top_partials_out, &tree.top_out]);
+        let top_sent = top_bytes(|s| &s.out);
         let bytes_sent = comm.bytes_sent() - bytes0;
         self.comm = FmmComm {
             ranks,
             bytes_sent,
             let_bytes_sent: bytes_sent.saturating_sub(top_sent),
-            top_bytes_received: top_bytes([&tree.top_partials_in, &tree.top_in]),
+            top_bytes_received: top_bytes(|s| &s.inn),
             messages_sent: comm.messages_sent() - messages0,
             seconds: comm_s,
         };

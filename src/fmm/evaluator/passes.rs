@@ -6,9 +6,11 @@ use super::*;
 
 impl Fmm {
     /// After the upward pass over this rank's own boxes and its partial top boxes: the top
-    /// boxes' partial expansions to their owners, who sum them; the ghost boxes' expansions and
-    /// leaf densities to the neighbours that need them (into `up` and the ghost part of
-    /// `dens`); the owned top boxes' whole expansions to the ranks whose lists use them.
+    /// boxes' partial expansions summed at their owners, stage by stage over each box's
+    /// sharers ([`DistTree::top_reduce`]); the ghost boxes' expansions and leaf densities to
+    /// the neighbours that need them (into `up` and the ghost part of `dens`); the owned top
+    /// boxes' whole expansions to the ranks whose lists use them, stage by stage
+    /// ([`DistTree::top_broadcast`]).
     pub(super) fn share_upward(
         &self,
         comm: &dyn Communicator,
@@ -18,26 +20,19 @@ impl Fmm {
         let ne = self.ops.n_equiv();
         let ds = self.near.density_dim();
         let tree = &self.tree;
-        let got = exchange_links(
-            comm,
-            &tree.top_partials_out,
-            &tree.top_partials_in,
-            up,
-            dens,
-            ne,
-            ds,
-        )?;
-        for (l, buf) in tree.top_partials_in.iter().zip(&got) {
-            for (&bx, v) in l.boxes.iter().zip(buf.chunks_exact(ne)) {
-                for (u, x) in up[bx * ne..(bx + 1) * ne].iter_mut().zip(v) {
-                    *u += x;
+        for stage in &tree.top_reduce {
+            let got = exchange_links(comm, &stage.out, &stage.inn, up, dens, ne, ds)?;
+            for (l, buf) in stage.inn.iter().zip(&got) {
+                for (&bx, v) in l.boxes.iter().zip(buf.chunks_exact(ne)) {
+                    for (u, x) in up[bx * ne..(bx + 1) * ne].iter_mut().zip(v) {
+                        *u += x;
+                    }
                 }
             }
         }
-        for (out, inn) in [
-            (&tree.ghosts_out, &tree.ghosts_in),
-            (&tree.top_out, &tree.top_in),
-        ] {
+        let copies = std::iter::once((&tree.ghosts_out, &tree.ghosts_in))
+            .chain(tree.top_broadcast.iter().map(|s| (&s.out, &s.inn)));
+        for (out, inn) in copies {
             let got = exchange_links(comm, out, inn, up, dens, ne, ds)?;
             for (l, buf) in inn.iter().zip(&got) {
                 let mut at = 0;

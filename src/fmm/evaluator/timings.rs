@@ -78,9 +78,9 @@ pub struct FmmComm {
     /// to point to neighbouring ranks) and the routing of densities and results between the
     /// caller's ranks and the owners: all but the top of the tree.
     pub let_bytes_sent: u64,
-    /// Bytes of top-box expansions this rank received: other sharers' partial expansions of the
-    /// top boxes it owns, and the whole expansions of the top boxes its lists use
-    /// (`8 · ne` per box; see [`crate::fmm::dist_tree`] for how many).
+    /// Bytes of top-box expansions this rank received: partial sums in the stages of the
+    /// reduction to the owners, and whole expansions in the stages of the broadcast (those its
+    /// lists use, and those it forwards; `8 · ne` per box; see [`crate::fmm::dist_tree`]).
     pub top_bytes_received: u64,
     /// Messages this rank sent to other ranks during the evaluation
     /// ([`crate::comm::Communicator::messages_sent`]).
