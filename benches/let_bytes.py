@@ -12,8 +12,9 @@ Prints one Markdown row per K: max over ranks of the bytes sent (all of the eval
 LET, top), of the LET + routing part, of the top-of-tree bytes received, and their ratios to
 the first K, the largest share of a rank's far-field work (M2L pairs and P2L sources) spent on
 top boxes that other ranks compute too, the most bytes a rank sent while building the tree
-(splitters, routing of the points, LET structure), the points' balance over ranks, and the most
-messages a rank sent in the evaluation.
+(splitters, routing of the points, LET structure), the points' balance over ranks, the most
+messages a rank sent in the evaluation, and the most bytes of top-box expansions a rank sent
+(partials and whole expansions: what the owner of a widely used box pays).
 """
 import argparse, json, os, subprocess, sys, tempfile
 import numpy as np
@@ -36,8 +37,8 @@ def main():
     a = ap.parse_args()
     print("| K | N | max MB sent | max LET + routing MB | max top MB received | "
           "ratio sent | ratio LET | ratio top | max repeated far work | max setup MB sent | "
-          "points max/mean | max messages sent |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "points max/mean | max messages sent | max top MB sent |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     base = None
     with tempfile.TemporaryDirectory() as tmp:
         for k in [int(x) for x in a.ranks.split(",")]:
@@ -66,7 +67,13 @@ def main():
                   f"{r[0]:.2f} | {r[1]:.2f} | {r[2]:.2f} | "
                   f"{100 * max(info['rank_repeated_far_fraction']):.1f} % | "
                   f"{max(info.get('rank_setup_bytes_sent', [0])) / 1e6:.3f} | "
-                  f"{balance(info):.3f} | {max(info['rank_messages_sent'])} |", flush=True)
+                  f"{balance(info):.3f} | {max(info['rank_messages_sent'])} | "
+                  f"{top_sent(info) / 1e6:.3f} |", flush=True)
+
+
+def top_sent(info):
+    """Most bytes of top-box expansions a rank sent (all it sent less the LET and routing)."""
+    return max(b - l for b, l in zip(info["rank_bytes_sent"], info["rank_let_bytes_sent"]))
 
 
 def balance(info):

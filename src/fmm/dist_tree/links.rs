@@ -85,12 +85,17 @@ impl DistTree {
             let Some(&owner) = sharers.first() else {
                 continue;
             };
+            // The users in rank order from the owner on, cyclically: the ranks that forward
+            // (the tree's first participants) differ from box to box instead of being the
+            // lowest ranks of every tree.
             let mut users = vec![owner];
-            users.extend(
-                self.ranks_overlapping(far_region(&bx.key))
-                    .into_iter()
-                    .filter(|&r| r != owner),
-            );
+            let mut others: Vec<usize> = self
+                .ranks_overlapping(far_region(&bx.key))
+                .into_iter()
+                .filter(|&r| r != owner)
+                .collect();
+            others.sort_by_key(|&r| (r + k - owner) % k);
+            users.extend(others);
             reduce.push((sharers, b));
             broadcast.push((users, b));
         }
