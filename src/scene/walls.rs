@@ -32,6 +32,7 @@ use super::cells_schema::{Origin, WallSection};
 use super::line_col;
 use super::SceneError;
 use crate::sph_harmonics::ShTransform;
+use crate::timestep::contact::FixedSurface;
 use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 use crate::vesicle::VesicleError;
 use crate::wall::WallKind;
@@ -238,32 +239,30 @@ pub(super) fn check_cells_in_fluid(
         place: (line > 0).then_some((line, 1)),
         message,
     };
-    let mut wall_distance = vec![];
-    for (k, w) in walls.iter().enumerate() {
-        let e = |e: VesicleError| fail(w.line, format!("wall {k}: {e}"));
-        let s = w
-            .surface()
-            .map_err(|e| fail(w.line, format!("wall {k}: {e}")))?;
-        let sht = ShTransform::new(2 * w.order).map_err(|x| e(x.into()))?;
-        wall_distance.push(SurfaceDistance::new(w.order, s.coefs(), &sht).map_err(e)?);
-    }
+    // The walls as the contact projection sees them: their clearance is the signed distance,
+    // positive in the fluid.
+    let fixed = walls
+        .iter()
+        .enumerate()
+        .map(|(k, w)| {
+            let s = w
+                .surface()
+                .map_err(|e| fail(w.line, format!("wall {k}: {e}")))?;
+            FixedSurface::new(w.order, s.coefs(), w.kind == WallKind::Container)
+                .map_err(|e| fail(w.line, format!("wall {k}: {e}")))
+        })
+        .collect::<Result<Vec<_>, SceneError>>()?;
     let sht = ShTransform::new(2 * p).map_err(|e| fail(0, e.to_string()))?;
     for (i, c) in cells.iter().enumerate() {
         let e = |e: VesicleError| fail(c.line, format!("cell {i} of {}: {e}", entry(c.line)));
         let s = c.surface(p).map_err(e)?;
         let samples = SurfaceDistance::new(p, s.coefs(), &sht).map_err(e)?;
-        for (k, (w, d)) in walls.iter().zip(&wall_distance).enumerate() {
-            let mut scratch = DistanceScratch::new(w.order);
+        for (k, (w, f)) in walls.iter().zip(&fixed).enumerate() {
+            let mut scratch = DistanceScratch::new(f.order());
             let margin = samples
                 .samples()
                 .iter()
-                .map(|&x| {
-                    let s = d.closest(&mut scratch, x).distance;
-                    match w.kind {
-                        WallKind::Container => -s,
-                        WallKind::Body => s,
-                    }
-                })
+                .map(|&x| f.clearance(&mut scratch, x))
                 .fold(f64::INFINITY, f64::min);
             if margin <= 0.0 {
                 let (side, what) = match w.kind {

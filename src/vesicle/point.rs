@@ -250,7 +250,7 @@ pub(crate) fn closest_point(
 /// The angles of the same surface point with `θ ∈ [0, π]`: `X(θ, φ) = X(2π − θ, φ + π)` (the
 /// basis has the factor `sinᵐθ` and `cos m(φ + π) = (−1)ᵐ cos mφ`), and only for `θ ∈ [0, π]`
 /// is the orientation of `(θ, φ)`, hence `X_θ × X_φ`, outward.
-pub(crate) fn canonical_angles(theta: f64, phi: f64) -> (f64, f64) {
+fn canonical_angles(theta: f64, phi: f64) -> (f64, f64) {
     let t = theta.rem_euclid(2.0 * PI);
     if t > PI {
         (2.0 * PI - t, phi + PI)

@@ -74,9 +74,12 @@ impl DistTree {
                 })
                 .collect()
         };
-        // (participants in tree order, box index) of every moving top box.
-        let mut reduce: Vec<(Vec<usize>, usize)> = Vec::new();
-        let mut broadcast: Vec<(Vec<usize>, usize)> = Vec::new();
+        // (participants in tree order, this rank's place among them, box index) of the moving
+        // top boxes this rank takes part in, and the stages of the deepest tree over all
+        // boxes (the same on every rank).
+        let mut reduce: Vec<(Vec<usize>, usize, usize)> = Vec::new();
+        let mut broadcast: Vec<(Vec<usize>, usize, usize)> = Vec::new();
+        let (mut reduce_stages, mut broadcast_stages) = (0, 0);
         for (b, bx) in self.boxes.iter().enumerate() {
             if bx.role != Role::Top || bx.n_sources == 0 || bx.key.level < 2 {
                 continue;
@@ -96,23 +99,26 @@ impl DistTree {
                 .collect();
             others.sort_by_key(|&r| (r + k - owner) % k);
             users.extend(others);
-            reduce.push((sharers, b));
-            broadcast.push((users, b));
+            reduce_stages = reduce_stages.max(stage_count(sharers.len()));
+            broadcast_stages = broadcast_stages.max(stage_count(users.len()));
+            if let Some(i) = sharers.iter().position(|&r| r == me) {
+                reduce.push((sharers, i, b));
+            }
+            if let Some(i) = users.iter().position(|&r| r == me) {
+                broadcast.push((users, i, b));
+            }
         }
-        let staged = |trees: &[(Vec<usize>, usize)],
+        let staged = |trees: &[(Vec<usize>, usize, usize)],
+                      stages: usize,
                       partner: fn(usize, usize, usize) -> Option<Partner>|
          -> Vec<TopStage> {
-            let n = trees.iter().map(|(p, _)| stage_count(p.len())).max();
-            (0..n.unwrap_or(0))
+            (0..stages)
                 .map(|j| {
                     let (mut out, mut inn) = (links(), links());
-                    for (parts, b) in trees {
-                        let Some(i) = parts.iter().position(|&r| r == me) else {
-                            continue;
-                        };
+                    for &(ref parts, i, b) in trees {
                         match partner(i, parts.len(), j) {
-                            Some(Partner::SendTo(t)) => out[parts[t]].boxes.push(*b),
-                            Some(Partner::ReceiveFrom(f)) => inn[parts[f]].boxes.push(*b),
+                            Some(Partner::SendTo(t)) => out[parts[t]].boxes.push(b),
+                            Some(Partner::ReceiveFrom(f)) => inn[parts[f]].boxes.push(b),
                             None => {}
                         }
                     }
@@ -123,8 +129,8 @@ impl DistTree {
                 })
                 .collect()
         };
-        self.top_reduce = staged(&reduce, reduce_partner);
-        self.top_broadcast = staged(&broadcast, broadcast_partner);
+        self.top_reduce = staged(&reduce, reduce_stages, reduce_partner);
+        self.top_broadcast = staged(&broadcast, broadcast_stages, broadcast_partner);
     }
 
     /// Check that every rank expects what its partners will send at each evaluation (the
