@@ -164,6 +164,7 @@ pub fn build_part(
     susp.set_preconditioning(preconditioning);
     susp.set_coupling_mode(scene.numerics.coupling);
     susp.set_start_up_passes(scene.numerics.start_up_passes);
+    susp.set_start_up_anderson_depth(scene.numerics.start_up_anderson_depth);
     susp.set_local_area_rate(local_area_rate(scene))
         .map_err(|e| step_error(0, 0.0, e))?;
     susp.set_contacts(p, scene.numerics.contact_distance.map(ContactParams::new))

@@ -328,6 +328,10 @@ pub struct Numerics {
     /// start_up_passes`, default [`crate::timestep::suspension::START_UP_PASSES`]; 0: none;
     /// see [`crate::timestep::suspension`]'s start-up).
     pub start_up_passes: usize,
+    /// The depth of Anderson's mixing of the start-up passes (`[numerics]
+    /// start_up_anderson_depth`, default
+    /// [`crate::timestep::suspension::START_UP_ANDERSON_DEPTH`]; 0: plain passes).
+    pub start_up_anderson_depth: usize,
     /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
     /// ([`crate::fmm::gpu_near::choose`]).
     pub gpu: GpuChoice,

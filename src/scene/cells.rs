@@ -84,9 +84,10 @@
 //! # contact_distance = 0.02       # keep every surface gap >= 0.02 at the end of each step
 //! #                               # (a length; default 0.4·R_min/p with two cells or a cell
 //! #                               # and a wall, 0: off; see scene::dense_defaults)
-//! start_up_passes = 4             # first steps solved and thrown away to start the coupled
+//! start_up_passes = 8             # first steps solved and thrown away to start the coupled
 //! #                               # cells from a consistent tension and membrane velocity
 //! #                               # (0: off; see timestep::suspension)
+//! start_up_anderson_depth = 3     # passes mixed into the next by Anderson's method (0: plain)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
 //!
 //! [[walls]]                       # rigid walls (optional; see scene::walls, docs/walls.md)
@@ -157,6 +158,14 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
                 format!("{key} must be a positive number, got {x}"),
             ))
         }
+    };
+    let at_most = |v: Option<&Spanned<u64>>, max: u64, key: &str| match v {
+        Some(v) if *v.get_ref() > max => Err(at(
+            v.span(),
+            format!("{key} must be at most {max}, got {}", v.get_ref()),
+        )),
+        Some(v) => Ok(Some(*v.get_ref() as usize)),
+        None => Ok(None),
     };
     let finite = |v: &Spanned<f64>, key: &str| -> Result<f64, SceneError> {
         let x = *v.get_ref();
@@ -451,19 +460,18 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             Some(v) => Some(positive(v, "[numerics] contact_distance")?),
             None => None,
         },
-        start_up_passes: match n.and_then(|n| n.start_up_passes.as_ref()) {
-            Some(v) if *v.get_ref() > 100 => {
-                return Err(at(
-                    v.span(),
-                    format!(
-                        "[numerics] start_up_passes must be at most 100, got {}",
-                        v.get_ref()
-                    ),
-                ))
-            }
-            Some(v) => *v.get_ref() as usize,
-            None => crate::timestep::suspension::START_UP_PASSES,
-        },
+        start_up_passes: at_most(
+            n.and_then(|n| n.start_up_passes.as_ref()),
+            100,
+            "[numerics] start_up_passes",
+        )?
+        .unwrap_or(crate::timestep::suspension::START_UP_PASSES),
+        start_up_anderson_depth: at_most(
+            n.and_then(|n| n.start_up_anderson_depth.as_ref()),
+            10,
+            "[numerics] start_up_anderson_depth",
+        )?
+        .unwrap_or(crate::timestep::suspension::START_UP_ANDERSON_DEPTH),
         gpu: match n.and_then(|n| n.gpu.as_ref()) {
             None => GpuChoice::Auto,
             Some(g) => g

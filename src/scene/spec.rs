@@ -496,9 +496,13 @@ pub struct NumericsSpec {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_distance: Option<f64>,
     /// `start_up_passes`: the most first steps solved and thrown away to start coupled cells
-    /// from a consistent tension and membrane velocity (absent: 4; 0: none).
+    /// from a consistent tension and membrane velocity (absent: 8; 0: none).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub start_up_passes: Option<u64>,
+    /// `start_up_anderson_depth`: the passes whose densities Anderson's method mixes into the
+    /// next pass's (absent: 3; 0: plain passes).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub start_up_anderson_depth: Option<u64>,
     /// `gpu`: `"auto"`, `true` or `false`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gpu: Option<GpuSpec>,

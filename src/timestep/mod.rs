@@ -89,6 +89,7 @@
 //! ```
 
 pub mod adaptive;
+pub mod anderson;
 pub mod cell_force;
 pub mod cell_preconditioner;
 pub mod cell_state;

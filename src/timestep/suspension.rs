@@ -42,7 +42,7 @@ mod start_up;
 mod stepping;
 mod walls;
 
-pub use start_up::{StartUpReport, START_UP_PASSES, START_UP_TOLERANCE};
+pub use start_up::{StartUpReport, START_UP_ANDERSON_DEPTH, START_UP_PASSES, START_UP_TOLERANCE};
 
 use super::cell_force::{CellForce, CellView, VectorField};
 use super::cell_state::CellState;
@@ -178,6 +178,8 @@ pub struct Suspension {
     /// The most start-up passes before the first step, and what they did
     /// ([`Suspension::set_start_up_passes`]).
     start_up_passes: usize,
+    /// The depth of Anderson's mixing of the start-up passes (0: plain passes).
+    start_up_depth: usize,
     start_up: Option<StartUpReport>,
 }
 
@@ -235,6 +237,7 @@ impl Suspension {
             walls: None,
             field: None,
             start_up_passes: START_UP_PASSES,
+            start_up_depth: START_UP_ANDERSON_DEPTH,
             start_up: None,
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);

@@ -20,7 +20,14 @@
 //! pass solves the step with the coupling of the previous pass's densities, so the passes are
 //! a fixed-point iteration on `(σ⁰, u⁰)` whose contraction is the coupling's strength; the
 //! passes stop when the tension changes by less than [`START_UP_TOLERANCE`] of its largest
-//! value. Everything else the passes changed (surfaces, history, preconditioner records,
+//! value. Between cells alone the contraction is strong and 2–4 plain passes reach it; against
+//! rigid walls, whose response to the cells enters explicitly, a pass contracts by only
+//! 0.5–0.6 (13 plain passes in the spherical Couette cell of docs/walls.md). So each pass's
+//! output is mixed with the last passes' by Anderson's method
+//! ([`crate::timestep::anderson`], depth [`START_UP_ANDERSON_DEPTH`];
+//! [`Suspension::set_start_up_anderson_depth`]) before it starts the next pass; the last pass
+//! keeps what it found, unmixed. The mixing's inner products are summed in the cells' global
+//! order, so the passes are the same on every number of ranks. Everything else the passes changed (surfaces, history, preconditioner records,
 //! contact moves and counters) goes back to the scene's initial state.
 //!
 //! It runs once, before the first step of a suspension whose cells have never been coupled (no
@@ -32,13 +39,18 @@ use super::super::contact::ContactStats;
 use super::super::near_implicit::JointStats;
 use super::{CellForce, CellStepError, Suspension};
 use crate::comm::Communicator;
+use crate::timestep::anderson::Anderson;
 
 /// The start-up stops when a pass changes the tension by less than this fraction of its
 /// largest value.
 pub const START_UP_TOLERANCE: f64 = 1e-3;
 
 /// The most start-up passes by default ([`Suspension::set_start_up_passes`]).
-pub const START_UP_PASSES: usize = 4;
+pub const START_UP_PASSES: usize = 8;
+
+/// The depth of Anderson's mixing of the passes by default
+/// ([`Suspension::set_start_up_anderson_depth`]).
+pub const START_UP_ANDERSON_DEPTH: usize = 3;
 
 /// What the start-up did ([`Suspension::start_up_report`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
@@ -57,10 +69,26 @@ impl Suspension {
         self.start_up_passes = passes;
     }
 
+    /// Mix each pass's densities with the last `depth` passes' by Anderson's method
+    /// ([`crate::timestep::anderson`]) before the next pass; 0: plain passes, each starting
+    /// from the last one's densities.
+    pub fn set_start_up_anderson_depth(&mut self, depth: usize) {
+        self.start_up_depth = depth;
+    }
+
+    /// The depth of the start-up's mixing ([`Suspension::set_start_up_anderson_depth`]).
+    pub fn start_up_anderson_depth(&self) -> usize {
+        self.start_up_depth
+    }
+
     /// The most start-up passes allowed ([`Suspension::set_start_up_passes`]).
     pub fn start_up_passes(&self) -> usize {
         self.start_up_passes
     }
+
+    /// The depth of Anderson's mixing of the passes by default
+    /// ([`Suspension::set_start_up_anderson_depth`]).
+    pub const START_UP_ANDERSON_DEPTH: usize = 3;
 
     /// What the start-up did (`None`: it has not run).
     pub fn start_up_report(&self) -> Option<StartUpReport> {
@@ -91,36 +119,56 @@ impl Suspension {
     ) -> Result<(), CellStepError> {
         let initial = self.snapshot();
         let kept: (JointStats, ContactStats) = (self.joint, self.contact_stats);
-        let mut found: Vec<(Vec<f64>, Option<Vec<f64>>)> = self
-            .cells
-            .iter()
-            .map(|c| (c.state.sigma.clone(), None))
-            .collect();
+        // The densities every cell started the last pass with (`x`) and the ones it found (`g`).
+        let mut x: Vec<Vec<f64>> = self.cells.iter().map(|c| c.state.sigma.clone()).collect();
+        let mut found: Vec<(Vec<f64>, Option<Vec<f64>>)> = Vec::new();
+        let mut mixing = Anderson::new(self.start_up_depth);
+        let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
         let mut report = StartUpReport::default();
         while report.passes < self.start_up_passes {
             self.step_once(comm, u_inf, time, forces)?;
             let mut change = [0.0, 0.0];
-            for (c, (sigma, u)) in self.cells.iter().zip(&mut found) {
-                for (new, old) in c.state.sigma.iter().zip(sigma.iter()) {
+            found.clear();
+            for (c, x) in self.cells.iter().zip(&x) {
+                for (new, old) in c.state.sigma.iter().zip(x) {
                     change[0] = f64::max(change[0], (new - old).abs());
                     change[1] = f64::max(change[1], new.abs());
                 }
-                sigma.copy_from_slice(&c.state.sigma);
-                *u = c.state.membrane_velocity.clone();
+                found.push((c.state.sigma.clone(), c.state.membrane_velocity.clone()));
             }
             comm.all_max(&mut change)?;
             self.restore(&initial)?;
-            for (c, (sigma, u)) in self.cells.iter_mut().zip(&found) {
-                c.state.sigma.copy_from_slice(sigma);
-                c.state.membrane_velocity.clone_from(u);
-            }
             report.passes += 1;
             report.tension_change = if change[1] > 0.0 {
                 change[0] / change[1]
             } else {
                 0.0
             };
-            if report.tension_change < START_UP_TOLERANCE {
+            let done =
+                report.tension_change < START_UP_TOLERANCE || report.passes == self.start_up_passes;
+            // The next pass starts from the mixed densities; the last keeps what it found.
+            let g: Vec<Vec<f64>> = found.iter().map(|(s, u)| stack(s, u.as_deref())).collect();
+            let x_full: Vec<Vec<f64>> = x
+                .iter()
+                .zip(&g)
+                .map(|(x, g)| {
+                    let mut v = x.clone();
+                    v.resize(g.len(), 0.0);
+                    v
+                })
+                .collect();
+            let next = if done {
+                g
+            } else {
+                mixing.next(&x_full, &g, |rows| sum_in_cell_order(comm, &ids, rows))?
+            };
+            for ((c, next), (sigma, u)) in self.cells.iter_mut().zip(&next).zip(&found) {
+                let n = sigma.len();
+                c.state.sigma.copy_from_slice(&next[..n]);
+                c.state.membrane_velocity = u.as_ref().map(|_| next[n..].to_vec());
+            }
+            x = next;
+            if done {
                 break;
             }
         }
@@ -128,4 +176,40 @@ impl Suspension {
         self.start_up = Some(report);
         Ok(())
     }
+}
+
+/// A cell's tension followed by its membrane velocity (when it has one): the unknowns of the
+/// start-up's fixed point.
+fn stack(sigma: &[f64], u: Option<&[f64]>) -> Vec<f64> {
+    let mut v = sigma.to_vec();
+    v.extend_from_slice(u.unwrap_or(&[]));
+    v
+}
+
+/// The sums of the cells' rows of partial inner products, over every rank, added in the cells'
+/// global order: one rank and many give the same sums bit for bit.
+fn sum_in_cell_order(
+    comm: &dyn Communicator,
+    ids: &[usize],
+    rows: Vec<Vec<f64>>,
+) -> Result<Vec<f64>, CellStepError> {
+    let width = rows.first().map_or(0, Vec::len);
+    let mut local = Vec::with_capacity(rows.len() * (width + 1));
+    for (id, row) in ids.iter().zip(&rows) {
+        local.push(*id as f64);
+        local.extend_from_slice(row);
+    }
+    let gathered = comm.all_gather_f64(&local)?;
+    let mut all: Vec<&[f64]> = gathered
+        .iter()
+        .flat_map(|g| g.chunks_exact(width + 1))
+        .collect();
+    all.sort_by(|a, b| a[0].total_cmp(&b[0]));
+    let mut sums = vec![0.0; width];
+    for row in all {
+        for (s, v) in sums.iter_mut().zip(&row[1..]) {
+            *s += v;
+        }
+    }
+    Ok(sums)
 }
