@@ -410,6 +410,74 @@ fn a_sphere_on_the_axis_of_a_tube_flow_moves_at_haberman_and_sayres_speed() {
     assert!(u[1..].iter().flatten().all(|v| v.is_nan()), "{u:?}");
 }
 
+/// `[flow] recycle = true`: the sphere of the test above, started near the outlet of the
+/// tube's straight section, is moved back by the section's length when its centre passes the
+/// outlet, and goes on at the same speed, Haberman & Sayre's. A second sphere sitting where the
+/// first would land keeps it from being moved (deferred), and it goes on toward the outlet.
+#[test]
+fn a_recycled_sphere_reenters_the_tube_upstream_at_the_same_speed() {
+    let u = 1.0;
+    let text = tube_scene("speed = 1.0\nrecycle = true", "");
+    let scene = parse(Path::new("tube.toml"), &text).unwrap();
+    let w = scene.recycle.expect("a recycling window");
+    // The tube (length 20, radius 10/3) is within 1e-3 of its radius over |x| < 4.261.
+    let period = w.outlet - w.inlet;
+    assert!((w.outlet - 4.26099).abs() < 1e-5 && (w.inlet + w.outlet).abs() < 1e-12);
+    let l: f64 = 0.3;
+    let want = u * (1.0 - 2.0 * l * l / 3.0 - 0.20217 * l.powi(5)) / (1.0 - 0.75857 * l.powi(5));
+    let start = |x: f64| format!("center = [{x}, 0.0, 0.0]\nradius = 1.0");
+    // Alone: 4 steps to settle, then across the outlet at the sixth.
+    let alone = text.replacen("radius = 1.0", &start(w.outlet - 0.05), 1);
+    let mut susp = build(&parse(Path::new("tube.toml"), &alone).unwrap()).unwrap();
+    let mut x = vec![centroid(&susp)[0]];
+    for _ in 0..10 {
+        susp.step(&|_| [0.0; 3]).unwrap();
+        x.push(centroid(&susp)[0]);
+    }
+    let speeds: Vec<f64> = x.windows(2).map(|w| (w[1] - w[0]) / 0.01).collect();
+    println!("x {x:?}\nspeeds {speeds:?}; Haberman & Sayre {want}");
+    let jumps: Vec<usize> = (0..speeds.len()).filter(|&k| speeds[k] < 0.0).collect();
+    assert_eq!(jumps.len(), 1, "{speeds:?}");
+    let k = jumps[0];
+    assert!(
+        x[k] <= w.outlet + 0.02 && x[k + 1] < w.inlet + 0.02,
+        "{x:?}"
+    );
+    // The step's motion plus the move: the speed of that step, less the period.
+    let moved = x[k + 1] - x[k] + period;
+    let s = susp.recycle_stats();
+    assert_eq!((s.recycled, s.deferred), (1, 0));
+    // Measured: 0.94109 before, 0.94049-0.94081 after (the tube's order-28 quadrature near
+    // the ends of its straight section, 4e-4 either side of the outlet too).
+    for (j, v) in speeds.iter().enumerate().skip(4) {
+        let v = if j == k { moved / 0.01 } else { *v };
+        let rel = (v - want).abs() / want;
+        assert!(rel < 1e-3, "step {j}: {v} against {want} ({rel:.2e})");
+        assert!((v - speeds[4]).abs() < 1e-3 * want, "step {j}: {v}");
+    }
+    // Blocked: a second sphere where the first would land.
+    let both = text.replacen(
+        "[[walls]]",
+        &format!(
+            "[[cells]]\nshape = \"sphere\"\nbending_modulus = 0.05\n{}\n\n[[walls]]",
+            start(w.outlet - 0.03 - period + 0.5)
+        ),
+        1,
+    );
+    let both = both.replacen("radius = 1.0", &start(w.outlet - 0.03), 1);
+    let scene = parse(Path::new("tube.toml"), &both).unwrap();
+    assert_eq!(scene.cells.len(), 2);
+    let mut susp = build(&scene).unwrap();
+    for _ in 0..6 {
+        susp.step(&|_| [0.0; 3]).unwrap();
+    }
+    let s = susp.recycle_stats();
+    let x = centroid(&susp)[0];
+    println!("blocked: {s:?}, x = {x}");
+    assert_eq!(s.recycled, 0);
+    assert!(s.deferred >= 2 && x > w.outlet, "{s:?}, x = {x}");
+}
+
 /// The drives of a tube flow give the same centreline speed, and bad tube flows and tube walls
 /// are refused with the place and the reason.
 #[test]
@@ -491,6 +559,11 @@ fn tube_flows_are_read_and_checked() {
             settling_scene(2.0, 8, 4) + "[flow]\nkind = \"shear\"\nrate = 1.0\nflow_rate = 2.0\n",
             26,
             "applies to kind = \"tube\" only",
+        ),
+        (
+            settling_scene(2.0, 8, 4) + "[flow]\nkind = \"shear\"\nrate = 1.0\nrecycle = true\n",
+            26,
+            "recycle applies to kind = \"tube\" only",
         ),
     ] {
         let e = scene_error(&text);

@@ -12,7 +12,7 @@ use crate::timestep::contact::ContactParams;
 use crate::timestep::coupling::CouplingParams;
 use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
 use crate::timestep::suspension::CellStepError;
-use crate::timestep::suspension::{CellSetup, Suspension};
+use crate::timestep::suspension::{CellSetup, Recycling, Suspension};
 use crate::timestep::wall_coupling::WallCoupling;
 use crate::timestep::GmresParams;
 use crate::timestep::TimestepError;
@@ -172,6 +172,13 @@ pub fn build_part(
     if !scene.walls.is_empty() {
         susp.set_walls(Some(walls(scene).map_err(|e| step_error(0, 0.0, e))?));
     }
+    // A recycled cell lands at least twice the contact distance from everything (0.1 cell
+    // radii without contacts), so that the projection need not move it at once.
+    susp.set_recycling(scene.recycle.map(|w| Recycling {
+        outlet: w.outlet,
+        period: w.outlet - w.inlet,
+        clearance: 2.0 * scene.numerics.contact_distance.unwrap_or(0.05),
+    }));
     if !scene.numerics.far_side_split {
         let off = FarSideParams {
             enabled: false,

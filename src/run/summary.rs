@@ -191,6 +191,10 @@ pub struct Counters {
     /// not run: one cell and no walls, passes 0, or a resumed run, which continues from its
     /// checkpoint's densities): passes taken and the last pass's relative tension change.
     pub start_up: Option<crate::timestep::suspension::StartUpReport>,
+    /// Cells recycled through a tube (`[flow] recycle = true`; `None` otherwise): cells moved
+    /// back from the outlet, steps at which a cell could not land clear, seconds.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recycling: Option<crate::timestep::suspension::RecycleStats>,
 }
 
 /// How the run's work was split between ranks (`summary.json`'s `split`).

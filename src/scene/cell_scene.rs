@@ -82,6 +82,21 @@ pub enum Flow {
     },
 }
 
+/// The straight middle section of a tube, through which cells are recycled (`[flow] recycle =
+/// true`; [`crate::timestep::suspension::Recycling`]): a cell whose centre passes `outlet` is
+/// moved back by `outlet − inlet`. It is where the tube's radius is within
+/// [`TUBE_WINDOW_TOLERANCE`] of its value ([`crate::wall::straight_length`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TubeWindow {
+    /// Where cells re-enter (`x`).
+    pub inlet: f64,
+    /// Where cells leave (`x`).
+    pub outlet: f64,
+}
+
+/// The relative departure of a tube's radius from `R` that bounds its recycling window.
+pub const TUBE_WINDOW_TOLERANCE: f64 = 1e-3;
+
 impl Flow {
     /// The background velocity at `x` in a frame whose origin is `origin`: for an extensional
     /// flow that follows the cells, `u(x − origin)`; every other flow is the lab frame's
@@ -355,6 +370,9 @@ pub struct Effect {
 /// A validated cell scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CellScene {
+    /// The window of a tube through which cells are recycled (`[flow] recycle = true`;
+    /// `None`: off).
+    pub recycle: Option<TubeWindow>,
     /// Viscosity `μ` of the suspending fluid (`[fluid] viscosity`; default 1).
     pub viscosity: f64,
     /// Background flow (`[flow]`; default none).

@@ -16,6 +16,8 @@
 //! # flow_rate = 2.0               # tube: Poiseuille's flow through the tube wall, driven by
 //! #                               # one of flow_rate, mean_speed, speed, pressure_gradient
 //! #                               # (see `super::tube_flow`)
+//! # recycle = true                # tube: a cell leaving the straight section re-enters it
+//! #                               # upstream (timestep::suspension::Recycling)
 //! # frame = "cells"               # extensional: stagnation point at the cells' centre ("cells",
 //! #                               # the default: a uniform translation) or at 0 ("lab")
 //!
@@ -118,7 +120,7 @@ use super::cell_groups::{cell_specs, check_overlaps};
 pub(crate) use super::cell_scene::rotation;
 pub use super::cell_scene::{
     CellScene, CellSpec, Effect, Flow, GridMotion, Numerics, OutputSettings, Scheme, Shape,
-    MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY,
+    TubeWindow, MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY, TUBE_WINDOW_TOLERANCE,
 };
 pub(crate) use super::cells_schema::Origin;
 use super::cells_schema::{File, NumericsSection};
@@ -593,6 +595,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         Some(d) => super::tube_flow::tube_flow(&d, &walls, viscosity, &at)?,
         None => flow,
     };
+    let recycle = super::tube_flow::recycle_window(f.flow.as_ref(), &walls, &at)?;
     super::walls::check_cells_in_fluid(
         &cells,
         &walls,
@@ -690,6 +693,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         });
     }
     Ok(CellScene {
+        recycle,
         viscosity,
         flow,
         cells,

@@ -49,6 +49,7 @@ pub(super) struct FlowSection {
     pub(super) flow_rate: Option<Spanned<f64>>,
     pub(super) mean_speed: Option<Spanned<f64>>,
     pub(super) pressure_gradient: Option<Spanned<f64>>,
+    pub(super) recycle: Option<Spanned<bool>>,
 }
 
 #[derive(Debug, Deserialize)]

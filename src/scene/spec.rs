@@ -196,6 +196,9 @@ pub struct FlowSpec {
     /// `pressure_gradient` `−dp/dx` along a tube.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pressure_gradient: Option<f64>,
+    /// `recycle`: cells leaving a tube's straight section re-enter it upstream.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub recycle: Option<bool>,
     /// `frame` of an extensional flow.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frame: Option<FrameKind>,

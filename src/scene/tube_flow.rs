@@ -14,6 +14,7 @@
 //! # mean_speed = 0.5        # Q / (πR²)
 //! # speed = 1.0             # the centreline speed U
 //! # pressure_gradient = 0.16  # G = −dp/dx
+//! recycle = true            # optional: cells leaving the straight section re-enter upstream
 //! ```
 //!
 //! The profile is `u = (U (1 − (y² + z²)/R²), 0, 0)` with `R` the tube's radius and
@@ -21,10 +22,17 @@
 //! wall takes this velocity: zero along its straight side, the inflow and outflow profile across
 //! its rounded ends ([`crate::wall::tube_surface`]). Without cells the flow inside is exactly
 //! Poiseuille's; cells disturb it, and the wall keeps the disturbance from leaving the tube.
+//!
+//! With `recycle = true` the tube's straight middle section (its radius within
+//! [`TUBE_WINDOW_TOLERANCE`] of `R`, [`crate::wall::straight_length`]) is a window: a cell whose
+//! centre passes its downstream end is moved back by the window's length, where it lands clear
+//! of the other cells and the wall ([`crate::timestep::suspension::Recycling`]). The cells see
+//! a tube of unbounded length; the flow itself stays that of the finite tube (the fluid enters
+//! and leaves through the rounded ends).
 
 use std::ops::Range;
 
-use super::cell_scene::{Flow, WallShape, WallSpec};
+use super::cell_scene::{Flow, TubeWindow, WallShape, WallSpec, TUBE_WINDOW_TOLERANCE};
 use super::cells_schema::FlowSection;
 use super::SceneError;
 use crate::wall::WallKind;
@@ -162,4 +170,41 @@ pub(super) fn tube_flow(
         Drive::PressureGradient => drive.value * radius * radius / (4.0 * viscosity),
     };
     Ok(Flow::Tube { speed, radius })
+}
+
+/// `[flow] recycle = true`: the tube's straight middle section, through which cells are
+/// recycled (`None` when absent or false). Only a tube flow recycles; [`tube_flow`] has
+/// checked its tube.
+pub(super) fn recycle_window(
+    fl: Option<&FlowSection>,
+    walls: &[WallSpec],
+    at: At,
+) -> Result<Option<TubeWindow>, SceneError> {
+    let Some(flag) = fl.and_then(|fl| fl.recycle.as_ref()) else {
+        return Ok(None);
+    };
+    if !*flag.get_ref() {
+        return Ok(None);
+    }
+    if fl.is_some_and(|fl| fl.kind.get_ref() != "tube") {
+        return Err(at(
+            flag.span(),
+            "[flow] recycle applies to kind = \"tube\" only".into(),
+        ));
+    }
+    let tube = walls.iter().find_map(|w| match (w.kind, w.shape) {
+        (WallKind::Container, WallShape::Tube { length, .. }) => Some((w.center[0], length)),
+        _ => None,
+    });
+    let Some((x, length)) = tube else {
+        return Err(at(
+            flag.span(),
+            "[flow] recycle needs a tube container".into(),
+        ));
+    };
+    let half = 0.5 * crate::wall::straight_length(length, TUBE_WINDOW_TOLERANCE);
+    Ok(Some(TubeWindow {
+        inlet: x - half,
+        outlet: x + half,
+    }))
 }

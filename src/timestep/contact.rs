@@ -392,6 +392,25 @@ impl ContactSolver {
         unreachable!("the last round returns")
     }
 
+    /// The smallest gap between body `k` of `coefs` and every other body and fixed surface,
+    /// or `range` when none is closer than `range`: the test a body placed by hand must pass
+    /// (a cell recycled through a tube, [`super::suspension::Recycling`]).
+    pub fn clearance_of(
+        &self,
+        coefs: &[&[f64]],
+        k: usize,
+        fixed: &[FixedSurface],
+        range: f64,
+    ) -> Result<f64, ContactError> {
+        let bodies = self.bodies(coefs)?;
+        let (cons, _) = self.measure(&bodies, &[], fixed, range);
+        Ok(cons
+            .iter()
+            .filter(|c| c.a == k || c.b == Some(k))
+            .map(|c| c.gap)
+            .fold(range, f64::min))
+    }
+
     fn bodies(&self, coefs: &[&[f64]]) -> Result<Vec<SurfaceDistance>, ContactError> {
         let expected = 3 * crate::sph_harmonics::CoefLayout::new(self.p).len();
         for (body, c) in coefs.iter().enumerate() {

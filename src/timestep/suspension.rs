@@ -38,10 +38,12 @@ use rayon::prelude::*;
 
 mod contacts;
 mod field;
+mod recycle;
 mod start_up;
 mod stepping;
 mod walls;
 
+pub use recycle::{RecycleStats, Recycling};
 pub use start_up::{StartUpReport, START_UP_ANDERSON_DEPTH, START_UP_PASSES, START_UP_TOLERANCE};
 
 use super::cell_force::{CellForce, CellView, VectorField};
@@ -181,6 +183,9 @@ pub struct Suspension {
     /// The depth of Anderson's mixing of the start-up passes (0: plain passes).
     start_up_depth: usize,
     start_up: Option<StartUpReport>,
+    /// Cells recycled through a tube's window (`None`: off) and what that did.
+    recycling: Option<Recycling>,
+    recycle_stats: RecycleStats,
 }
 
 impl Suspension {
@@ -239,6 +244,8 @@ impl Suspension {
             start_up_passes: START_UP_PASSES,
             start_up_depth: START_UP_ANDERSON_DEPTH,
             start_up: None,
+            recycling: None,
+            recycle_stats: RecycleStats::default(),
         };
         let dt0 = cells.first().map(|c| c.1.params.dt);
         for (id, c) in cells {

@@ -187,6 +187,7 @@ impl<'a> CellRun<'a> {
                 contacts: susp.contact_stats(),
                 walls: susp.wall_stats(),
                 start_up: susp.start_up_report(),
+                recycling: susp.recycling().map(|_| susp.recycle_stats()),
             },
             units: scene.units,
             dimensionless: scene.groups(),

@@ -36,6 +36,35 @@ impl Suspension {
         self.contact_stats
     }
 
+    /// Every cell's surface (order-`p` coefficients) on every rank, in the order of the cells'
+    /// global indices, with those indices (collective).
+    pub(super) fn all_surfaces(
+        &self,
+        comm: &dyn Communicator,
+    ) -> Result<(Vec<usize>, Vec<Vec<f64>>), CellStepError> {
+        let mut local = Vec::new();
+        for c in &self.cells {
+            local.push(c.id as f64);
+            local.push(c.state.coefs.len() as f64);
+            local.extend_from_slice(&c.state.coefs);
+        }
+        let gathered = comm.all_gather_f64(&local).map_err(|e| CellStepError {
+            cell: None,
+            source: TimestepError::Comm(e),
+        })?;
+        let mut all: Vec<(usize, &[f64])> = Vec::with_capacity(self.n_global);
+        for part in &gathered {
+            let mut at = 0;
+            while at < part.len() {
+                let (id, len) = (part[at] as usize, part[at + 1] as usize);
+                all.push((id, &part[at + 2..at + 2 + len]));
+                at += 2 + len;
+            }
+        }
+        all.sort_by_key(|a| a.0);
+        Ok(all.into_iter().map(|(id, c)| (id, c.to_vec())).unzip())
+    }
+
     /// The projection after a step (collective; nothing without contacts, or with one cell
     /// and no walls). Rigid walls are fixed surfaces the cells are kept `d_min` from.
     pub(super) fn resolve_contacts(
@@ -55,27 +84,8 @@ impl Suspension {
         }
         let t0 = std::time::Instant::now();
         let fail = |source| CellStepError { cell: None, source };
-        let mut local = Vec::new();
-        for c in &self.cells {
-            local.push(c.id as f64);
-            local.push(c.state.coefs.len() as f64);
-            local.extend_from_slice(&c.state.coefs);
-        }
-        let gathered = comm
-            .all_gather_f64(&local)
-            .map_err(|e| fail(TimestepError::Comm(e)))?;
-        let mut all: Vec<(usize, &[f64])> = Vec::with_capacity(self.n_global);
-        for part in &gathered {
-            let mut at = 0;
-            while at < part.len() {
-                let (id, len) = (part[at] as usize, part[at + 1] as usize);
-                all.push((id, &part[at + 2..at + 2 + len]));
-                at += 2 + len;
-            }
-        }
-        all.sort_by_key(|a| a.0);
-        let ids: Vec<usize> = all.iter().map(|a| a.0).collect();
-        let coefs: Vec<&[f64]> = all.iter().map(|a| a.1).collect();
+        let (ids, all) = self.all_surfaces(comm)?;
+        let coefs: Vec<&[f64]> = all.iter().map(|c| c.as_slice()).collect();
         let out = solver.resolve_with(&coefs, &[], fixed).map_err(|e| {
             fail(TimestepError::Contact(match e {
                 super::super::contact::ContactError::Unresolved {

@@ -72,7 +72,9 @@ impl Suspension {
         if self.needs_start_up(comm)? {
             self.start_up(comm, u_inf, time, forces)?;
         }
-        self.step_once(comm, u_inf, time, forces)
+        let report = self.step_once(comm, u_inf, time, forces)?;
+        self.recycle(comm)?;
+        Ok(report)
     }
 
     /// One step of [`Suspension::step_with_forces`] from the state as it is.
