@@ -1,0 +1,119 @@
+#!/usr/bin/env python3
+"""Tube hematocrit, Fåhræus ratio and cell-free layer of a recycled tube run, against Pries et al.
+
+    python3 scripts/blood_in_tube.py OUT [--cell-radius-um 2.8] [--every-rows 10]
+
+OUT is the output folder of `mobo run` on a scene with `[flow] kind = "tube"`, `recycle = true`
+and a tube container (docs/walls.md). Frames must be written (`[output] every`); the script
+reads `OUT/scene.toml` and `OUT/frames/*.npy` and prints, over consecutive blocks of frames:
+
+* the cells whose centre lies in the window (the tube's straight section, where its radius is
+  within 1e-3 of R: the window the cells are recycled through);
+* the tube hematocrit H_T: those cells' volume (each the volume of a sphere of the cells' radius,
+  the equivalent radius) over the window's volume pi R^2 L_w;
+* the cells' mean axial speed <U_c> over the mean flow speed u_mean = U/2 (recycling moves are
+  undone when the speed is measured);
+* the Fåhræus ratio H_T/H_D = u_mean/<U_c> (the cells' flux through a cross-section is
+  H_T <U_c> pi R^2 = H_D Q, Q = u_mean pi R^2);
+* the cell-free layer: R less the largest distance of a membrane point (of a cell in the
+  window) from the axis, averaged over the block's frames.
+
+And, for the tube's diameter in micrometres (D = 2R times the cell radius in um) and the
+measured H_D, the in-vitro fits of Pries et al. (Circ. Res. 67, 1990; Am. J. Physiol. 263,
+1992): H_T/H_D = H_D + (1 - H_D)(1 + 1.7 e^(-0.415 D) - 0.6 e^(-0.011 D)).
+"""
+
+import argparse
+import glob
+import math
+import os
+import sys
+import tomllib
+
+import numpy as np
+
+TOLERANCE = 1e-3  # scene::TUBE_WINDOW_TOLERANCE
+EXPONENT = 6  # wall::TUBE_END_EXPONENT
+
+
+def pries_ht_over_hd(d_um, hd):
+    return hd + (1 - hd) * (1 + 1.7 * math.exp(-0.415 * d_um) - 0.6 * math.exp(-0.011 * d_um))
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("out")
+    ap.add_argument("--cell-radius-um", type=float, default=2.8)
+    ap.add_argument("--every-rows", type=int, default=10, help="frames per printed block")
+    a = ap.parse_args()
+    scene = tomllib.load(open(os.path.join(a.out, "scene.toml"), "rb"))
+    tube = [w for w in scene.get("walls", []) if w.get("shape") == "tube"]
+    if not tube:
+        sys.exit(f"{a.out}/scene.toml: no tube wall")
+    tube = tube[0]
+    radius, length = tube["radius"], tube["length"]
+    xc = tube.get("center", [0.0, 0.0, 0.0])[0]
+    flow = scene.get("flow", {})
+    mu = scene.get("fluid", {}).get("viscosity", 1.0)
+    if "speed" in flow:
+        u_centre = flow["speed"]
+    elif "mean_speed" in flow:
+        u_centre = 2 * flow["mean_speed"]
+    elif "flow_rate" in flow:
+        u_centre = 2 * flow["flow_rate"] / (math.pi * radius**2)
+    elif "pressure_gradient" in flow:
+        u_centre = flow["pressure_gradient"] * radius**2 / (4 * mu)
+    else:
+        sys.exit(f"{a.out}/scene.toml: not a tube flow")
+    u_mean = u_centre / 2
+    half = 0.5 * length * (1 - (1 - TOLERANCE) ** EXPONENT) ** (1 / EXPONENT)
+    period = 2 * half
+    cell_radius = scene["cells"][0].get("radius", 1.0)
+    v_cell = 4 / 3 * math.pi * cell_radius**3
+    v_window = math.pi * radius**2 * period
+
+    frames = sorted(glob.glob(os.path.join(a.out, "frames", "frame_*_positions.npy")))
+    times = np.load(os.path.join(a.out, "frames", "times.npy"))
+    if len(frames) < 2:
+        sys.exit(f"{a.out}: fewer than two frames")
+    s = math.sqrt(4 * math.pi)
+    rows = []
+    prev = None
+    for k, f in enumerate(frames):
+        pos = np.load(f)  # (cells, 3, points)
+        coefs = np.load(f.replace("_positions", "_coefs"))
+        centre = coefs[:, :, 0] / s  # c_00 / sqrt(4 pi): the recycling's centre
+        inside = np.abs(centre[:, 0] - xc) <= half
+        r_max = np.sqrt(pos[:, 1, :] ** 2 + pos[:, 2, :] ** 2).max(axis=1)
+        speed = np.nan
+        if prev is not None:
+            dt = times[k] - prev[0]
+            dx = centre[:, 0] - prev[1][:, 0]
+            dx = np.where(dx < -0.5 * period, dx + period, dx)  # undo the recycling moves
+            both = inside & prev[2]
+            if both.any() and dt > 0:
+                speed = float(np.mean(dx[both]) / dt)
+        rows.append((times[k], int(inside.sum()), speed,
+                     float(r_max[inside].max()) if inside.any() else np.nan))
+        prev = (times[k], centre, inside)
+
+    d_um = 2 * radius * a.cell_radius_um / cell_radius
+    print(f"tube: R = {radius}, length {length}, window |x - {xc}| <= {half:.4f} "
+          f"(L_w = {period:.4f}); D = {d_um:.2f} um; centreline speed {u_centre}, "
+          f"mean {u_mean}; {len(frames)} frames to t = {times[-1]:g}")
+    print("| t | cells in window | H_T | <U_c>/u_mean | H_T/H_D | H_D | Pries H_T/H_D at that H_D | cell-free layer |")
+    print("|---|---|---|---|---|---|---|---|")
+    for b in range(1, len(rows), a.every_rows):
+        block = rows[b:b + a.every_rows]
+        n = np.mean([r[1] for r in block])
+        ht = n * v_cell / v_window
+        sp = np.nanmean([r[2] for r in block])
+        ratio = u_mean / sp
+        hd = ht / ratio
+        layer = radius - np.nanmean([r[3] for r in block])
+        print(f"| {block[0][0]:g}–{block[-1][0]:g} | {n:.2f} | {ht:.3f} | {sp / u_mean:.3f} | "
+              f"{ratio:.3f} | {hd:.3f} | {pries_ht_over_hd(d_um, hd):.3f} | {layer:.3f} |")
+
+
+if __name__ == "__main__":
+    main()
