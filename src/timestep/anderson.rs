@@ -120,9 +120,11 @@ impl Anderson {
             f: f.clone(),
             g: g.to_vec(),
         });
+        // The history grows in step on every rank, so all of them skip the reduction together.
         let m = self.history.len();
-        // Every rank takes part in the reduction, also with nothing kept (m = 0 on all ranks
-        // alike: the history grows in step).
+        if m == 0 {
+            return Ok(g.to_vec());
+        }
         let width = m * (m + 1) / 2 + m;
         let rows: Vec<Vec<f64>> = (0..f.len())
             .map(|b| {
@@ -138,9 +140,6 @@ impl Anderson {
                 row
             })
             .collect();
-        if m == 0 {
-            return Ok(g.to_vec());
-        }
         let sums = reduce(rows)?;
         // A, m × m, row-major.
         let mut a = vec![0.0; m * m];
@@ -278,6 +277,13 @@ mod tests {
         vec![x[..at].to_vec(), x[at..].to_vec()]
     }
 
+    /// The reduction of one rank: the blocks' rows summed in order.
+    fn sum_rows(rows: Vec<Vec<f64>>) -> Result<Vec<f64>, ()> {
+        Ok((0..rows[0].len())
+            .map(|i| rows.iter().map(|r| r[i]).sum())
+            .collect())
+    }
+
     fn residual(m: &[Vec<f64>], b: &[f64], x: &[f64]) -> f64 {
         apply(m, b, x)
             .iter()
@@ -299,13 +305,7 @@ mod tests {
             let g = apply(m, b, &x);
             // The reduction sums the blocks' rows in order, as one rank does.
             let next = acc
-                .next(&split(&x, n / 3), &split(&g, n / 3), |rows| {
-                    Ok::<_, ()>(
-                        (0..rows[0].len())
-                            .map(|i| rows.iter().map(|r| r[i]).sum())
-                            .collect(),
-                    )
-                })
+                .next(&split(&x, n / 3), &split(&g, n / 3), sum_rows)
                 .unwrap();
             x = next.concat();
         }
@@ -363,13 +363,7 @@ mod tests {
         let mut acc = Anderson::new(2);
         for _ in 0..3 {
             let next = acc
-                .next(&split(&fixed, 3), &split(&g, 3), |rows| {
-                    Ok::<_, ()>(
-                        (0..rows[0].len())
-                            .map(|i| rows.iter().map(|r| r[i]).sum())
-                            .collect(),
-                    )
-                })
+                .next(&split(&fixed, 3), &split(&g, 3), sum_rows)
                 .unwrap()
                 .concat();
             assert!(next.iter().all(|v| v.is_finite()));

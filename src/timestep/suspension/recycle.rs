@@ -70,14 +70,24 @@ impl Suspension {
             return Ok(());
         };
         let t0 = std::time::Instant::now();
-        let (ids, mut coefs) = self.all_surfaces(comm)?;
         let s = (4.0 * std::f64::consts::PI).sqrt();
-        let past: Vec<usize> = (0..ids.len())
-            .filter(|&k| coefs[k][0] / s > r.outlet)
-            .collect();
+        let shift = r.period * s;
+        let fail = |source| CellStepError { cell: None, source };
+        // The surfaces are gathered only at the steps where some rank has a cell past the
+        // outlet.
+        let mut any = [self
+            .cells
+            .iter()
+            .filter(|c| c.state.coefs[0] / s > r.outlet)
+            .count() as u64];
+        comm.all_sum_u64(&mut any)
+            .map_err(|e| fail(TimestepError::Comm(e)))?;
         let mut moved = Vec::new();
-        if !past.is_empty() {
-            let fail = |source| CellStepError { cell: None, source };
+        if any[0] > 0 {
+            let (ids, mut coefs) = self.all_surfaces(comm)?;
+            let past: Vec<usize> = (0..ids.len())
+                .filter(|&k| coefs[k][0] / s > r.outlet)
+                .collect();
             // Every cell has the suspension's order: 3 (p + 1)² coefficients.
             let p = ((coefs[0].len() / 3) as f64).sqrt().round() as usize - 1;
             let solver = ContactSolver::new(p, ContactParams::new(r.clearance))
@@ -89,7 +99,7 @@ impl Suspension {
                 .unwrap_or(&[]);
             for k in past {
                 let before = coefs[k][0];
-                coefs[k][0] -= r.period * s;
+                coefs[k][0] -= shift;
                 let views: Vec<&[f64]> = coefs.iter().map(|c| c.as_slice()).collect();
                 let gap = solver
                     .clearance_of(&views, k, fixed, 2.0 * r.clearance)
@@ -102,7 +112,6 @@ impl Suspension {
                 }
             }
         }
-        let shift = r.period * s;
         for c in &mut self.cells {
             if moved.binary_search(&c.id).is_ok() {
                 c.state.coefs[0] -= shift;

@@ -86,10 +86,6 @@ impl Suspension {
         self.start_up_passes
     }
 
-    /// The depth of Anderson's mixing of the passes by default
-    /// ([`Suspension::set_start_up_anderson_depth`]).
-    pub const START_UP_ANDERSON_DEPTH: usize = 3;
-
     /// What the start-up did (`None`: it has not run).
     pub fn start_up_report(&self) -> Option<StartUpReport> {
         self.start_up
@@ -121,20 +117,22 @@ impl Suspension {
         let kept: (JointStats, ContactStats) = (self.joint, self.contact_stats);
         // The densities every cell started the last pass with (`x`) and the ones it found (`g`).
         let mut x: Vec<Vec<f64>> = self.cells.iter().map(|c| c.state.sigma.clone()).collect();
-        let mut found: Vec<(Vec<f64>, Option<Vec<f64>>)> = Vec::new();
         let mut mixing = Anderson::new(self.start_up_depth);
         let ids: Vec<usize> = self.cells.iter().map(|c| c.id).collect();
         let mut report = StartUpReport::default();
         while report.passes < self.start_up_passes {
             self.step_once(comm, u_inf, time, forces)?;
             let mut change = [0.0, 0.0];
-            found.clear();
+            // What every cell found (`g`), and whether it has a membrane velocity.
+            let mut g = Vec::with_capacity(self.cells.len());
+            let mut has_u = Vec::with_capacity(self.cells.len());
             for (c, x) in self.cells.iter().zip(&x) {
                 for (new, old) in c.state.sigma.iter().zip(x) {
                     change[0] = f64::max(change[0], (new - old).abs());
                     change[1] = f64::max(change[1], new.abs());
                 }
-                found.push((c.state.sigma.clone(), c.state.membrane_velocity.clone()));
+                g.push(stack(&c.state.sigma, c.state.membrane_velocity.as_deref()));
+                has_u.push(c.state.membrane_velocity.is_some());
             }
             comm.all_max(&mut change)?;
             self.restore(&initial)?;
@@ -147,7 +145,6 @@ impl Suspension {
             let done =
                 report.tension_change < START_UP_TOLERANCE || report.passes == self.start_up_passes;
             // The next pass starts from the mixed densities; the last keeps what it found.
-            let g: Vec<Vec<f64>> = found.iter().map(|(s, u)| stack(s, u.as_deref())).collect();
             let x_full: Vec<Vec<f64>> = x
                 .iter()
                 .zip(&g)
@@ -162,10 +159,10 @@ impl Suspension {
             } else {
                 mixing.next(&x_full, &g, |rows| sum_in_cell_order(comm, &ids, rows))?
             };
-            for ((c, next), (sigma, u)) in self.cells.iter_mut().zip(&next).zip(&found) {
-                let n = sigma.len();
+            for ((c, next), has_u) in self.cells.iter_mut().zip(&next).zip(&has_u) {
+                let n = c.state.sigma.len();
                 c.state.sigma.copy_from_slice(&next[..n]);
-                c.state.membrane_velocity = u.as_ref().map(|_| next[n..].to_vec());
+                c.state.membrane_velocity = has_u.then(|| next[n..].to_vec());
             }
             x = next;
             if done {
