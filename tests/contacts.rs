@@ -361,6 +361,63 @@ fn smallest_wall_gap(scene: &mobo::scene::cells::CellScene, coefs: &[Vec<f64>], 
     least
 }
 
+/// In a recycled tube (`[flow] recycle = true`), `placement = "packed"` fills the tube's
+/// straight section, the window of length `P` cells are recycled through, as a periodic
+/// suspension: the count follows from the window's cylinder `π R² P`, every centre is in the
+/// window, and every cell is at least `min_gap` from the others and from their images shifted
+/// by `±P` along the axis (so a cell leaving through the outlet lands clear of the cells at the
+/// inlet), checked from order-32 samples; the rounded ends start empty.
+#[test]
+fn packed_cells_in_a_recycled_tube_keep_their_gaps_across_the_window() {
+    use std::f64::consts::PI;
+    let text = "[flow]\nkind = \"tube\"\nspeed = 1.0\nrecycle = true\n\
+                [[cells]]\nshape = \"rbc\"\nplacement = \"packed\"\nvolume_fraction = 0.3\n\
+                min_gap = 0.1\nseed = 5\nbending_modulus = 0.1\nshear_modulus = 1.0\n\
+                [[walls]]\nkind = \"container\"\nshape = \"tube\"\nradius = 1.8\n\
+                length = 10.0\norder = 16\n[numerics]\norder = 8\ndt = 0.01\nt_end = 0.05\n";
+    let (scene, coefs, placed_s) = packed(text);
+    let w = scene.recycle.expect("a recycling window");
+    let period = w.outlet - w.inlet;
+    let window = PI * 1.8 * 1.8 * period;
+    let n = scene.cells.len();
+    assert_eq!(n, (0.3 * window / (4.0 / 3.0 * PI)).round() as usize);
+    assert!(n >= 3, "{n} cells");
+    for c in &scene.cells {
+        assert!(
+            c.center[0] >= w.inlet && c.center[0] < w.outlet,
+            "{:?} outside [{}, {})",
+            c.center,
+            w.inlet,
+            w.outlet
+        );
+    }
+    // The cells and their images one period downstream: every pair across the window's ends.
+    let p = scene.numerics.order;
+    let mut all = coefs.clone();
+    for c in &coefs {
+        let mut image = c.clone();
+        image[0] += period * (4.0 * PI).sqrt();
+        all.push(image);
+    }
+    let gap = smallest_gap(&all, p, 32);
+    let direct = smallest_gap(&coefs, p, 32);
+    let wall_gap = smallest_wall_gap(&scene, &coefs, 32);
+    eprintln!(
+        "{n} cells in a window of {period:.3} at {:.1} % in {placed_s:.1} s: smallest gap {direct:.4}, \
+         across the window {gap:.4}, to the wall {wall_gap:.4}",
+        100.0 * n as f64 * 4.0 / 3.0 * PI / window
+    );
+    assert!(gap >= 0.1 * (1.0 - 1e-9), "smallest gap with images {gap}");
+    assert!(
+        wall_gap >= 0.1 * (1.0 - 1e-6),
+        "smallest wall gap {wall_gap}"
+    );
+    let [pk] = scene.packings.as_slice() else {
+        panic!("{:?}", scene.packings)
+    };
+    assert_eq!((pk.cells, pk.region), (n, "tube window"));
+}
+
 /// In a scene with a container, `placement = "packed"` fills the container's fluid: the count
 /// follows from the volume fraction and the walls' enclosed volumes, and every gap (between
 /// cells, and to every wall, bodies included) is at least `min_gap`, checked from finer samples

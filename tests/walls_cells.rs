@@ -455,16 +455,19 @@ fn a_recycled_sphere_reenters_the_tube_upstream_at_the_same_speed() {
         assert!(rel < 1e-3, "step {j}: {v} against {want} ({rel:.2e})");
         assert!((v - speeds[4]).abs() < 1e-3 * want, "step {j}: {v}");
     }
-    // Blocked: a second sphere where the first would land.
-    let both = text.replacen(
-        "[[walls]]",
-        &format!(
-            "[[cells]]\nshape = \"sphere\"\nbending_modulus = 0.05\n{}\n\n[[walls]]",
-            start(w.outlet - 0.03 - period + 0.5)
-        ),
-        1,
-    );
-    let both = both.replacen("radius = 1.0", &start(w.outlet - 0.03), 1);
+    // Blocked: a second sphere where the first would land (`place(x)`: a sphere at `x`).
+    let pair = |place: &dyn Fn(f64) -> String, x: f64| {
+        text.replacen(
+            "[[walls]]",
+            &format!(
+                "[[cells]]\nshape = \"sphere\"\nbending_modulus = 0.05\n{}\n\n[[walls]]",
+                place(x - period + 0.5)
+            ),
+            1,
+        )
+        .replacen("radius = 1.0", &place(x), 1)
+    };
+    let both = pair(&start, w.outlet - 0.03);
     let scene = parse(Path::new("tube.toml"), &both).unwrap();
     assert_eq!(scene.cells.len(), 2);
     let mut susp = build(&scene).unwrap();
@@ -475,7 +478,32 @@ fn a_recycled_sphere_reenters_the_tube_upstream_at_the_same_speed() {
     let x = centroid(&susp)[0];
     println!("blocked: {s:?}, x = {x}");
     assert_eq!(s.recycled, 0);
-    assert!(s.deferred >= 2 && x > w.outlet, "{s:?}, x = {x}");
+    // On the axis, no turn about it frees the landing.
+    assert!(
+        s.deferred >= 2 && s.turned == 0 && x > w.outlet,
+        "{s:?}, x = {x}"
+    );
+    // Off the axis (1.5 from it, both), the landing is tried turned about the axis: 90° is the
+    // first turn that clears the second sphere (centres √(0.5² + (3 sin 45°)²) = 2.18 apart,
+    // against 1.59 at 60°), and the sphere goes on from there, 1.5 from the axis.
+    let off = |x: f64| format!("center = [{x}, 1.5, 0.0]\nradius = 1.0");
+    let both = pair(&off, w.outlet - 0.02);
+    let mut susp = build(&parse(Path::new("tube.toml"), &both).unwrap()).unwrap();
+    let mut x = vec![centroid(&susp)];
+    for _ in 0..5 {
+        susp.step(&|_| [0.0; 3]).unwrap();
+        x.push(centroid(&susp));
+    }
+    let s = susp.recycle_stats();
+    let c = *x.last().unwrap();
+    let (radial, azimuth) = ((c[1] * c[1] + c[2] * c[2]).sqrt(), c[2].atan2(c[1]));
+    println!("turned: {s:?}, centres {x:?}");
+    assert_eq!((s.recycled, s.turned, s.deferred), (1, 1, 0), "{s:?}");
+    assert!(
+        (radial - 1.5).abs() < 1e-2 && (azimuth - std::f64::consts::FRAC_PI_2).abs() < 1e-2,
+        "{c:?}"
+    );
+    assert!(c[0] < w.inlet + 0.1, "{c:?}");
 }
 
 /// The drives of a tube flow give the same centreline speed, and bad tube flows and tube walls

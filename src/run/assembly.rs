@@ -178,6 +178,7 @@ pub fn build_part(
         outlet: w.outlet,
         period: w.outlet - w.inlet,
         clearance: 2.0 * scene.numerics.contact_distance.unwrap_or(0.05),
+        axis: w.axis,
     }));
     if !scene.numerics.far_side_split {
         let off = FarSideParams {

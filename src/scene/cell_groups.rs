@@ -12,9 +12,11 @@ use super::{line_col, SceneError};
 use crate::vesicle::shapes::{Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
 
-use super::cell_scene::{rotation, unit_shape, CellSpec, Shape, WallSpec};
+use super::cell_scene::{rotation, unit_shape, CellSpec, Shape, TubeWindow, WallSpec};
 use super::cells_schema::{CellSection, Origin};
-use super::packing::{cells_in_walls, fluid_volume, pack, PackingReport, PackingRequest};
+use super::packing::{
+    cells_in_walls, fluid_volume, pack, window_volume, PackingReport, PackingRequest,
+};
 use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 
 pub(super) type At<'a> = dyn Fn(std::ops::Range<usize>, String) -> SceneError + 'a;
@@ -34,6 +36,7 @@ pub(super) fn cell_specs(
     text: &str,
     order: usize,
     walls: &[WallSpec],
+    window: Option<&TubeWindow>,
     packings: &mut Vec<PackingReport>,
 ) -> Result<Vec<CellSpec>, SceneError> {
     let key = |name: &str| match origin {
@@ -351,8 +354,12 @@ pub(super) fn cell_specs(
             None => 0.05 * radius,
         };
         let fail = |m: String| at(span.clone(), format!("{}: {m}", key("placement")));
-        // In a container the fluid's volume fixes the count.
-        let (count, phi) = match fluid_volume(walls).map_err(fail)? {
+        // In a container the fluid's volume fixes the count; in a recycled tube, the window's.
+        let region = match window.and_then(|w| window_volume(walls, w)) {
+            Some(v) => Some(v),
+            None => fluid_volume(walls).map_err(fail)?,
+        };
+        let (count, phi) = match region {
             None => (count, phi),
             Some(_) if c.count.is_some() => {
                 let n = c.count.as_ref().expect("checked");
@@ -374,7 +381,7 @@ pub(super) fn cell_specs(
             seed: c.seed.unwrap_or(1),
             order,
         };
-        let (cells, report) = pack(&base, &req, walls).map_err(fail)?;
+        let (cells, report) = pack(&base, &req, walls, window).map_err(fail)?;
         packings.push(PackingReport { entry: k, ..report });
         return Ok(cells);
     }

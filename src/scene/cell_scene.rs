@@ -92,6 +92,9 @@ pub struct TubeWindow {
     pub inlet: f64,
     /// Where cells leave (`x`).
     pub outlet: f64,
+    /// The tube's centre, on its axis (parallel to `x`): recycled cells may land turned about
+    /// the axis.
+    pub axis: [f64; 3],
 }
 
 /// The relative departure of a tube's radius from `R` that bounds its recycling window.

@@ -573,6 +573,8 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
     };
     // The walls before the cells: a packed placement fills their fluid.
     let walls = super::walls::walls(f.walls.as_deref().unwrap_or(&[]), origin, text, &at)?;
+    // The recycling window before the cells: a packed placement fills it periodically.
+    let recycle = super::tube_flow::recycle_window(f.flow.as_ref(), &walls, &at)?;
     let (mut cells, mut packings) = (Vec::new(), Vec::new());
     for (k, c) in sections.iter().enumerate() {
         let group = cell_specs(
@@ -586,6 +588,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             text,
             numerics.order.max(RBC_MIN_ORDER),
             &walls,
+            recycle.as_ref(),
             &mut packings,
         )?;
         cells.extend(group);
@@ -595,7 +598,6 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         Some(d) => super::tube_flow::tube_flow(&d, &walls, viscosity, &at)?,
         None => flow,
     };
-    let recycle = super::tube_flow::recycle_window(f.flow.as_ref(), &walls, &at)?;
     super::walls::check_cells_in_fluid(
         &cells,
         &walls,

@@ -24,12 +24,21 @@
 //!    lets `g` grow back by 1.5 (up to 4 %). The protocol ends at full size, or fails (jammed)
 //!    when `g` falls below `10⁻⁴` or after 30 failed growths.
 //!
+//! **A recycled tube** (`[flow] recycle = true`, [`TubeWindow`]): the cells are packed in the
+//! tube's straight section, the window `x_in ≤ x < x_out` of length `P` they are recycled
+//! through, as a periodic suspension. The volume fraction is of the window's cylinder,
+//! `N = round(φ π R² P / V)` (the tube hematocrit); centres start in the window; the
+//! projection keeps every cell `min_gap` from the others' images shifted by `(P, 0, 0)` as well
+//! ([`ContactParams::period`]), and after every growth a centre that left the window is wrapped
+//! back by `±P`. So a cell that leaves through the outlet finds its landing place clear of the
+//! cells near the inlet, as it was at the start, and the tube's rounded ends start empty.
+//!
 //! Deterministic for a given `seed`. The surfaces are those of the scene's order `p`.
 
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
 
-use super::cell_scene::{CellSpec, WallShape, WallSpec};
+use super::cell_scene::{CellSpec, TubeWindow, WallShape, WallSpec};
 pub use super::packing_report::PackingReport;
 use crate::linalg3::{dot3, matmul3};
 use crate::timestep::contact::{ContactParams, ContactSolver, FixedSurface, Wall};
@@ -51,6 +60,10 @@ const MAX_FAILURES: usize = 30;
 
 /// Size at which the cells start.
 const START: f64 = 0.5;
+
+/// Projections repeated at the same size after wrapping centres back into a recycled tube's
+/// window (beyond them a centre may end just outside it).
+const MAX_WRAPS: usize = 200;
 
 /// What was asked, and what a placement achieved.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -103,24 +116,40 @@ pub fn cells_in_walls(base: &CellSpec, phi: f64, fluid_volume: f64) -> (usize, f
     (n, n as f64 * v / fluid_volume)
 }
 
+/// The volume of a recycled tube's window `π R² P` (`None` without a tube container).
+pub fn window_volume(walls: &[WallSpec], window: &TubeWindow) -> Option<f64> {
+    walls.iter().find_map(|w| match (w.kind, w.shape) {
+        (WallKind::Container, WallShape::Tube { radius, .. }) => {
+            Some(std::f64::consts::PI * radius * radius * (window.outlet - window.inlet))
+        }
+        _ => None,
+    })
+}
+
 /// The walls as the projection's fixed surfaces, which also measure the centre sampling's
-/// clearance, and the container's bounding box.
+/// clearance, and the box the centres are drawn from.
 struct PackingWalls {
     fixed: Vec<FixedSurface>,
-    /// The container's bounding box (its centre and half extents).
+    /// The box's centre and half extents: the container's bounding box, or a recycled tube's
+    /// window.
     bounds: ([f64; 3], [f64; 3]),
 }
 
 impl PackingWalls {
-    fn new(walls: &[WallSpec]) -> Result<Option<Self>, String> {
+    fn new(walls: &[WallSpec], window: Option<&TubeWindow>) -> Result<Option<Self>, String> {
         let Some(container) = walls.iter().find(|w| w.kind == WallKind::Container) else {
             return Ok(None);
         };
-        let half = match container.shape {
+        let mut centre = container.center;
+        let mut half = match container.shape {
             WallShape::Sphere { radius } => [radius; 3],
             WallShape::Ellipsoid { axes } => axes,
             WallShape::Tube { radius, length } => [length / 2.0, radius, radius],
         };
+        if let Some(w) = window {
+            centre[0] = 0.5 * (w.inlet + w.outlet);
+            half[0] = 0.5 * (w.outlet - w.inlet);
+        }
         let fixed = walls
             .iter()
             .enumerate()
@@ -132,7 +161,7 @@ impl PackingWalls {
             .collect::<Result<Vec<_>, String>>()?;
         Ok(Some(PackingWalls {
             fixed,
-            bounds: (container.center, half),
+            bounds: (centre, half),
         }))
     }
 
@@ -174,18 +203,21 @@ impl PackingWalls {
 
 /// `req.count` copies of `base` packed in the cube of [`cube_side`] about `base.center`, or,
 /// in a scene with a container wall, in the fluid of `walls` (see the module docs; the count
-/// then comes from [`cells_in_walls`]); an error says how far the growth came.
+/// then comes from [`cells_in_walls`]), or periodically in a recycled tube's `window`; an error
+/// says how far the growth came.
 pub fn pack(
     base: &CellSpec,
     req: &PackingRequest,
     walls: &[WallSpec],
+    window: Option<&TubeWindow>,
 ) -> Result<(Vec<CellSpec>, PackingReport), String> {
     let started = std::time::Instant::now();
     let n = req.count;
     let side = cube_side(base, req);
     let c = base.center;
     let mut rng = StdRng::seed_from_u64(req.seed);
-    let region = PackingWalls::new(walls)?;
+    let region = PackingWalls::new(walls, window)?;
+    let window = window.filter(|_| region.is_some());
     let mut centres: Vec<[f64; 3]> = match &region {
         None => (0..n)
             .map(|_| std::array::from_fn(|d| c[d] + side * (rng.random::<f64>() - 0.5) * 0.9))
@@ -221,6 +253,7 @@ pub fn pack(
     params.rotations = true;
     params.max_rounds = 40;
     params.stall_rounds = 10;
+    params.period = window.map(|w| [w.outlet - w.inlet, 0.0, 0.0]);
     let solver = ContactSolver::new(req.order, params).map_err(|e| e.to_string())?;
     let surfaces = |size: f64, centres: &[[f64; 3]], rotations: &[[[f64; 3]; 3]]| {
         (0..n)
@@ -237,7 +270,7 @@ pub fn pack(
     };
     let (mut size, mut growth) = (START, GROWTH);
     let mut smallest_gap: f64;
-    let (mut trial, mut failures) = (size, 0);
+    let (mut trial, mut failures, mut wraps) = (size, 0, 0);
     loop {
         let coefs = surfaces(trial, &centres, &rotations)?;
         let refs: Vec<&[f64]> = coefs.iter().map(|v| v.as_slice()).collect();
@@ -258,6 +291,15 @@ pub fn pack(
                 }
                 size = trial;
                 smallest_gap = out.gap_after;
+                // In a recycled tube's window, a centre that left it is wrapped back: the
+                // same periodic suspension, and a projection at the same size checks the
+                // walls at its new place.
+                let wrapped = window.map_or(0, |w| wrap(&mut centres, w));
+                if wrapped > 0 && wraps < MAX_WRAPS {
+                    wraps += 1;
+                    trial = size;
+                    continue;
+                }
                 if size >= 1.0 {
                     break;
                 }
@@ -297,11 +339,31 @@ pub fn pack(
         entry: 0,
         cells: n,
         volume_fraction: req.volume_fraction,
-        region: if fixed.is_empty() { "cube" } else { "walls" },
+        region: match (fixed.is_empty(), window) {
+            (true, _) => "cube",
+            (false, None) => "walls",
+            (false, Some(_)) => "tube window",
+        },
         smallest_gap: smallest_gap.is_finite().then_some(smallest_gap),
         seconds: started.elapsed().as_secs_f64(),
     };
     Ok((cells, report))
+}
+
+/// Wrap the centres that left the window back into it by `±P`; how many were wrapped.
+fn wrap(centres: &mut [[f64; 3]], w: &TubeWindow) -> usize {
+    let period = w.outlet - w.inlet;
+    let mut n = 0;
+    for c in centres {
+        if c[0] >= w.outlet {
+            c[0] -= period;
+            n += 1;
+        } else if c[0] < w.inlet {
+            c[0] += period;
+            n += 1;
+        }
+    }
+    n
 }
 
 /// A uniformly random rotation (Shoemake's uniform unit quaternion).

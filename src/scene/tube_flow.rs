@@ -193,10 +193,10 @@ pub(super) fn recycle_window(
         ));
     }
     let tube = walls.iter().find_map(|w| match (w.kind, w.shape) {
-        (WallKind::Container, WallShape::Tube { length, .. }) => Some((w.center[0], length)),
+        (WallKind::Container, WallShape::Tube { length, .. }) => Some((w.center, length)),
         _ => None,
     });
-    let Some((x, length)) = tube else {
+    let Some((axis, length)) = tube else {
         return Err(at(
             flag.span(),
             "[flow] recycle needs a tube container".into(),
@@ -204,7 +204,8 @@ pub(super) fn recycle_window(
     };
     let half = 0.5 * crate::wall::straight_length(length, TUBE_WINDOW_TOLERANCE);
     Ok(Some(TubeWindow {
-        inlet: x - half,
-        outlet: x + half,
+        inlet: axis[0] - half,
+        outlet: axis[0] + half,
+        axis,
     }))
 }

@@ -29,6 +29,12 @@
 //! Rahimian & Zorin (J. Comput. Phys. 347, 2017): the same guarantee (no pair closer than
 //! `d_min` at the end of a step), with the contact impulse distributed by the rigid-body metric
 //! `M` instead of the cells' Stokes mobility. A translation changes no shape, area or volume.
+//!
+//! **Periodic images.** With [`ContactParams::period`] a vector `P`, the bodies are also kept
+//! `d_min` from each other's images `x + P` (the periodic packing of a tube's recycling window,
+//! [`crate::scene::packing`]): a sample of body `a` near the image of body `b` gives the same
+//! constraint with `c_b + P` in place of `c_b`, and a move of `b` moves its image alike. Each
+//! pair across the period is measured once (against the images shifted by `+P`).
 
 use rayon::prelude::*;
 
@@ -84,6 +90,21 @@ pub enum ContactError {
         /// The other body (`None`: a wall).
         b: Option<usize>,
     },
+    /// A period too short for the bodies: one would meet its own image.
+    #[error(
+        "contact: the period {period:.3e} is shorter than twice body {body}'s reach {reach:.3e} \
+         plus the range {range:.3e}: the body would meet its own image"
+    )]
+    Period {
+        /// The period's length.
+        period: f64,
+        /// The body.
+        body: usize,
+        /// Its reach.
+        reach: f64,
+        /// The range within which gaps are measured.
+        range: f64,
+    },
 }
 
 impl From<VesicleError> for ContactError {
@@ -105,6 +126,9 @@ pub struct ContactParams {
     /// Rounds without the smallest gap growing (by `10⁻³ d_min`) after which the projection
     /// gives up (an infeasible set: cells jammed between others or walls).
     pub stall_rounds: usize,
+    /// The bodies' images shifted by this vector keep `d_min` from the bodies as well (module
+    /// docs; `None`: no images). It must exceed twice a body's reach plus `3 d_min`.
+    pub period: Option<[f64; 3]>,
 }
 
 impl ContactParams {
@@ -115,6 +139,7 @@ impl ContactParams {
             rotations: false,
             max_rounds: 30,
             stall_rounds: 5,
+            period: None,
         }
     }
 }
@@ -325,7 +350,8 @@ impl ContactSolver {
         let (mut active, mut gap_before) = (0, f64::INFINITY);
         let (mut best, mut stalled) = (f64::NEG_INFINITY, 0);
         for round in 0..=self.params.max_rounds {
-            let (cons, least) = self.measure(&bodies, walls, fixed, range);
+            let images = self.images(&bodies, range)?;
+            let (cons, least) = self.measure(&bodies, &images, walls, fixed, range, None);
             let gap = least.map_or(f64::INFINITY, |l| l.0);
             if round == 0 {
                 gap_before = gap;
@@ -393,8 +419,7 @@ impl ContactSolver {
     }
 
     /// The smallest gap between body `k` of `coefs` and every other body and fixed surface,
-    /// or `range` when none is closer than `range`: the test a body placed by hand must pass
-    /// (a cell recycled through a tube, [`super::suspension::Recycling`]).
+    /// or `range` when none is closer than `range`: the test a body placed by hand must pass.
     pub fn clearance_of(
         &self,
         coefs: &[&[f64]],
@@ -402,13 +427,75 @@ impl ContactSolver {
         fixed: &[FixedSurface],
         range: f64,
     ) -> Result<f64, ContactError> {
-        let bodies = self.bodies(coefs)?;
-        let (cons, _) = self.measure(&bodies, &[], fixed, range);
-        Ok(cons
+        let mut bodies = self.bodies(coefs)?;
+        self.gap_at(&mut bodies, k, coefs[k], fixed, range)
+    }
+
+    /// The first of the `places` (coefficients for body `k`, tried in order) where body `k`
+    /// is at least `need` from every other body of `coefs` and every fixed surface, with its
+    /// gap (measured within `range ≥ need`; `range` when nothing is that close), or `None`:
+    /// where a cell recycled through a tube may land ([`super::suspension::Recycling`]). The
+    /// other bodies are prepared once, and only the pairs with body `k` are measured.
+    pub fn first_clear(
+        &self,
+        coefs: &[&[f64]],
+        k: usize,
+        places: &[Vec<f64>],
+        fixed: &[FixedSurface],
+        need: f64,
+        range: f64,
+    ) -> Result<Option<(usize, f64)>, ContactError> {
+        let mut bodies = self.bodies(coefs)?;
+        for (i, place) in places.iter().enumerate() {
+            let gap = self.gap_at(&mut bodies, k, place, fixed, range)?;
+            if gap >= need {
+                return Ok(Some((i, gap)));
+            }
+        }
+        Ok(None)
+    }
+
+    /// The smallest gap of body `k` placed at `place` (within `range`; `range` when nothing is
+    /// closer), the other `bodies` prepared.
+    fn gap_at(
+        &self,
+        bodies: &mut [SurfaceDistance],
+        k: usize,
+        place: &[f64],
+        fixed: &[FixedSurface],
+        range: f64,
+    ) -> Result<f64, ContactError> {
+        bodies[k] = self.bodies(&[place])?.remove(0);
+        let (cons, _) = self.measure(bodies, &[], &[], fixed, range, Some(k));
+        Ok(cons.iter().map(|c| c.gap).fold(range, f64::min))
+    }
+
+    /// The bodies' images shifted by the period (none without one), each with its body's
+    /// index; an error when a body would meet its own image.
+    fn images(
+        &self,
+        bodies: &[SurfaceDistance],
+        range: f64,
+    ) -> Result<Vec<(usize, SurfaceDistance)>, ContactError> {
+        let Some(v) = self.params.period else {
+            return Ok(Vec::new());
+        };
+        let period = dot3(v, v).sqrt();
+        bodies
             .iter()
-            .filter(|c| c.a == k || c.b == Some(k))
-            .map(|c| c.gap)
-            .fold(range, f64::min))
+            .enumerate()
+            .map(|(k, b)| {
+                if period <= 2.0 * b.reach() + range {
+                    return Err(ContactError::Period {
+                        period,
+                        body: k,
+                        reach: b.reach(),
+                        range,
+                    });
+                }
+                Ok((k, b.translated(v)))
+            })
+            .collect()
     }
 
     fn bodies(&self, coefs: &[&[f64]]) -> Result<Vec<SurfaceDistance>, ContactError> {
@@ -428,24 +515,38 @@ impl ContactSolver {
             .collect()
     }
 
-    /// Every gap below `range` as a linearised constraint (deterministic order: pairs, then
-    /// walls), and the smallest gap with its bodies.
+    /// Every gap below `range` as a linearised constraint (deterministic order: pairs, pairs
+    /// with images, then walls), and the smallest gap with its bodies; with `only`, just the
+    /// gaps of that body.
     #[allow(clippy::type_complexity)]
     fn measure(
         &self,
         bodies: &[SurfaceDistance],
+        images: &[(usize, SurfaceDistance)],
         walls: &[Wall],
         fixed: &[FixedSurface],
         range: f64,
+        only: Option<usize>,
     ) -> (Vec<Constraint>, Option<(f64, usize, Option<usize>)>) {
         let n = bodies.len();
-        let mut pairs = Vec::new();
+        let wanted = |i: usize, j: usize| only.is_none_or(|k| i == k || j == k);
+        // (a, its surface, b, its surface): a's samples against b's surface.
+        let mut pairs: Vec<(usize, &SurfaceDistance, usize, &SurfaceDistance)> = Vec::new();
         for i in 0..n {
             for j in i + 1..n {
                 let d = dist(bodies[i].centre(), bodies[j].centre());
-                if d <= bodies[i].reach() + bodies[j].reach() + range {
-                    pairs.push((i, j));
-                    pairs.push((j, i));
+                if wanted(i, j) && d <= bodies[i].reach() + bodies[j].reach() + range {
+                    pairs.push((i, &bodies[i], j, &bodies[j]));
+                    pairs.push((j, &bodies[j], i, &bodies[i]));
+                }
+            }
+        }
+        for (i, body) in bodies.iter().enumerate() {
+            for (j, image) in images {
+                let d = dist(body.centre(), image.centre());
+                if i != *j && wanted(i, *j) && d <= body.reach() + image.reach() + range {
+                    pairs.push((i, body, *j, image));
+                    pairs.push((*j, image, i, body));
                 }
             }
         }
@@ -454,8 +555,7 @@ impl ContactSolver {
             .par_iter()
             .map_init(
                 || DistanceScratch::new(p),
-                |scratch, &(a, b)| {
-                    let (ba, bb) = (&bodies[a], &bodies[b]);
+                |scratch, &(a, ba, b, bb)| {
                     let (ca, cb) = (ba.centre(), bb.centre());
                     ba.gaps_to(bb, scratch, range)
                         .into_iter()
@@ -477,6 +577,9 @@ impl ContactSolver {
             .flatten()
             .collect();
         for (a, body) in bodies.iter().enumerate() {
+            if only.is_some_and(|k| k != a) {
+                continue;
+            }
             for w in walls {
                 let c = body.centre();
                 if dot3(w.normal, c) - w.offset > body.reach() + range {
@@ -503,6 +606,9 @@ impl ContactSolver {
             let mut own_scratch = DistanceScratch::new(p);
             let fc = f.surface.centre();
             for (a, body) in bodies.iter().enumerate() {
+                if only.is_some_and(|k| k != a) {
+                    continue;
+                }
                 let c = body.centre();
                 let d = dist(c, fc);
                 let far = if f.container {
@@ -673,6 +779,63 @@ mod tests {
         let least = 0.5 * (2.0 + d_min - (1.7f64.powi(2) + 0.3f64.powi(2)).sqrt());
         let moved = dot3(ta, ta).sqrt();
         assert!(moved >= least && moved < 1.1 * least, "{ta:?} {least}");
+    }
+
+    /// With a period `P`: two unit spheres that overlap only across it (`c₂ + P` within `2` of
+    /// `c₁`) are moved apart by the same least move as without one (the exact gap is
+    /// `|c₁ − c₂ − P| − 2`), and the bodies that are apart in both senses stay. A period a body
+    /// could meet its own image across is refused.
+    #[test]
+    fn periodic_images_are_kept_apart_too() {
+        let p = 6;
+        let id = rotation_from_vector([0.0; 3]);
+        let period = [5.0, 0.0, 0.0];
+        let a = placed(shapes::sphere(p, 1.0).unwrap(), id, [2.0, 0.0, 0.0]);
+        let b = placed(shapes::sphere(p, 1.0).unwrap(), id, [-1.3, 0.3, 0.0]);
+        let d_min = 0.05;
+        let free = ContactSolver::new(p, ContactParams::new(d_min)).unwrap();
+        let out = free.resolve(&[&a, &b], &[]).unwrap();
+        assert_eq!(out.rounds, 0, "apart without the period");
+        let mut params = ContactParams::new(d_min);
+        params.period = Some(period);
+        let solver = ContactSolver::new(p, params).unwrap();
+        let out = solver.resolve(&[&a, &b], &[]).unwrap();
+        let s = 1.0 / (4.0 * std::f64::consts::PI).sqrt();
+        let nc = a.len() / 3;
+        let centre = |c: &[f64]| [c[0] * s, c[nc] * s, c[2 * nc] * s];
+        let add3 = |x: [f64; 3], y: [f64; 3]| std::array::from_fn(|k| x[k] + y[k]);
+        let gap0 = dist(centre(&a), add3(centre(&b), period)) - 2.0;
+        assert!(out.rounds >= 1 && out.moved == 2, "{out:?}");
+        // (Overlapping, the deepest sample measures a little less than the centres' overlap.)
+        assert!(
+            gap0 < -0.25 && out.gap_before < -0.25,
+            "{} {gap0}",
+            out.gap_before
+        );
+        let (mut a2, mut b2) = (a.clone(), b.clone());
+        out.moves[0].apply(&mut a2);
+        out.moves[1].apply(&mut b2);
+        let gap = dist(centre(&a2), add3(centre(&b2), period)) - 2.0;
+        let direct = dist(centre(&a2), centre(&b2)) - 2.0;
+        assert!(
+            gap >= d_min && gap < 2.0 * d_min && direct > 0.5,
+            "{gap} {direct}"
+        );
+        assert!(
+            (out.gap_after - gap).abs() < 1e-9,
+            "{} {gap}",
+            out.gap_after
+        );
+        let least = 0.5 * (2.0 + d_min - (1.7f64.powi(2) + 0.3f64.powi(2)).sqrt());
+        let moved = dot3(out.moves[0].translation, out.moves[0].translation).sqrt();
+        assert!(moved >= least && moved < 1.1 * least, "{moved} {least}");
+        // A period of 2.1 holds a unit sphere and its image 0.1 apart: refused.
+        params.period = Some([2.1, 0.0, 0.0]);
+        let short = ContactSolver::new(p, params).unwrap();
+        assert!(matches!(
+            short.resolve(&[&a], &[]),
+            Err(ContactError::Period { body: 0, .. })
+        ));
     }
 
     /// A tilted red blood cell pushed into a wall and into its neighbour comes out with every

@@ -92,6 +92,23 @@ impl SurfaceDistance {
         })
     }
 
+    /// The same surface translated by `d` (a periodic image).
+    pub fn translated(&self, d: [f64; 3]) -> Self {
+        let mut out = self.clone();
+        let nc = out.coefs.len() / 3;
+        let s = (4.0 * std::f64::consts::PI).sqrt();
+        for (a, da) in d.iter().enumerate() {
+            out.coefs[a * nc] += da * s;
+            out.centre[a] += da;
+        }
+        for x in &mut out.samples {
+            for (xa, da) in x.iter_mut().zip(d) {
+                *xa += da;
+            }
+        }
+        out
+    }
+
     /// The order-`q` samples of the surface (grid points, latitude-major).
     pub fn samples(&self) -> &[[f64; 3]] {
         &self.samples

@@ -14,16 +14,28 @@
 //!
 //! A cell is moved only where it lands clear of every other cell and of the walls by at least
 //! [`Recycling::clearance`] (the contact solver's measure,
-//! [`crate::timestep::contact::ContactSolver::clearance_of`]); otherwise it goes on toward the
-//! outlet and is tried again at the next step (counted as deferred). Cells are tried in the
-//! order of their global index, each against the others as already moved, and every rank
-//! decides the same moves from the gathered surfaces, so the result does not depend on the
-//! number of ranks.
+//! [`crate::timestep::contact::ContactSolver::first_clear`]). Where its periodic image is taken
+//! (by a cell that entered upstream meanwhile), the landing is tried turned about the tube's
+//! axis by `±30°, ±60°, …, 180°` in that order ([`LANDING_TURNS`]): the tube and Poiseuille's
+//! flow are axisymmetric, so a cell turned about the axis is the same cell in the same flow at
+//! another azimuth. The turn moves its whole state: the surface and BDF2's previous surface
+//! (every mode's vector turned), the velocities and densities kept on its grid (every point's
+//! vector turned), while its tension and Skalak reference (the reference metric, unchanged by a
+//! rigid motion) stay; its own preconditioner is rebuilt. Where no turn lands clear, the cell
+//! goes on toward the outlet and is tried again at the next step (counted as deferred).
+//! Cells are tried in the order of their global index, each against the others as already
+//! moved, and every rank decides the same moves from the gathered surfaces, so the result does
+//! not depend on the number of ranks.
 
-use super::super::contact::{ContactParams, ContactSolver};
+use super::super::cell_state::CellState;
+use super::super::contact::{ContactParams, ContactSolver, Move};
 use super::{CellStepError, Suspension};
 use crate::comm::Communicator;
 use crate::timestep::TimestepError;
+
+/// The turns about the tube's axis at which a recycled cell may land, in the order tried (in
+/// units of 30°): its periodic image first, then ever larger turns either way.
+pub const LANDING_TURNS: [i32; 12] = [0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6];
 
 /// Where a tube's cells leave and re-enter ([`Suspension::set_recycling`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -34,6 +46,20 @@ pub struct Recycling {
     pub period: f64,
     /// The smallest gap to other cells and walls at which a moved cell may land.
     pub clearance: f64,
+    /// A point of the tube's axis, which is parallel to `x` (the centre of the tube).
+    pub axis: [f64; 3],
+}
+
+impl Recycling {
+    /// The move that lands a cell past the outlet turned by `turn` × 30° about the axis.
+    pub fn landing(&self, turn: i32) -> Move {
+        let (s, c) = (f64::from(turn) * std::f64::consts::PI / 6.0).sin_cos();
+        Move {
+            centre: self.axis,
+            rotation: [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]],
+            translation: [-self.period, 0.0, 0.0],
+        }
+    }
 }
 
 /// What the recycling did (cumulative; `summary.json`'s `counters.recycling`).
@@ -43,6 +69,8 @@ pub struct RecycleStats {
     pub recycled: usize,
     /// Steps at which a cell past the outlet could not land clear and went on.
     pub deferred: usize,
+    /// Cells that landed turned about the axis (their periodic image was taken).
+    pub turned: usize,
     /// Seconds spent deciding and moving.
     pub seconds: f64,
 }
@@ -71,7 +99,6 @@ impl Suspension {
         };
         let t0 = std::time::Instant::now();
         let s = (4.0 * std::f64::consts::PI).sqrt();
-        let shift = r.period * s;
         let fail = |source| CellStepError { cell: None, source };
         // The surfaces are gathered only at the steps where some rank has a cell past the
         // outlet.
@@ -98,30 +125,159 @@ impl Suspension {
                 .map(|w| w.fixed_surfaces())
                 .unwrap_or(&[]);
             for k in past {
-                let before = coefs[k][0];
-                coefs[k][0] -= shift;
+                let places: Vec<Vec<f64>> = LANDING_TURNS
+                    .iter()
+                    .map(|&t| {
+                        let mut c = coefs[k].clone();
+                        r.landing(t).apply(&mut c);
+                        c
+                    })
+                    .collect();
                 let views: Vec<&[f64]> = coefs.iter().map(|c| c.as_slice()).collect();
-                let gap = solver
-                    .clearance_of(&views, k, fixed, 2.0 * r.clearance)
+                let found = solver
+                    .first_clear(&views, k, &places, fixed, r.clearance, 2.0 * r.clearance)
                     .map_err(|e| fail(TimestepError::Contact(e)))?;
-                if gap >= r.clearance {
-                    moved.push(ids[k]);
-                } else {
-                    coefs[k][0] = before;
-                    self.recycle_stats.deferred += 1;
+                match found {
+                    Some((i, _)) => {
+                        coefs[k].clone_from(&places[i]);
+                        moved.push((ids[k], LANDING_TURNS[i]));
+                    }
+                    None => self.recycle_stats.deferred += 1,
                 }
             }
         }
         for c in &mut self.cells {
-            if moved.binary_search(&c.id).is_ok() {
-                c.state.coefs[0] -= shift;
-                if let Some(prev) = &mut c.state.previous_coefs {
-                    prev[0] -= shift;
-                }
+            if let Some(&(_, turn)) = moved.iter().find(|m| m.0 == c.id) {
+                land(&mut c.state, &r.landing(turn));
             }
         }
+        self.recycle_stats.turned += moved.iter().filter(|m| m.1 != 0).count();
         self.recycle_stats.recycled += moved.len();
         self.recycle_stats.seconds += t0.elapsed().as_secs_f64();
         Ok(())
+    }
+}
+
+/// Move a cell's state by the rigid `m` (a landing, [`Recycling::landing`]): its surfaces'
+/// modes, and the vectors it keeps on its grid (component blocks of `n` points), turned; its
+/// own preconditioner dropped when `m` turns it.
+fn land(state: &mut CellState, m: &Move) {
+    m.apply(&mut state.coefs);
+    if let Some(prev) = &mut state.previous_coefs {
+        m.apply(prev);
+    }
+    if m.rotation == Move::identity(m.centre).rotation {
+        return;
+    }
+    let turn = |v: &mut [f64]| {
+        let n = v.len() / 3;
+        for j in 0..n {
+            let x = [v[j], v[n + j], v[2 * n + j]];
+            for (a, row) in m.rotation.iter().enumerate() {
+                v[a * n + j] = crate::linalg3::dot3(*row, x);
+            }
+        }
+    };
+    for v in [
+        &mut state.membrane_velocity,
+        &mut state.velocity,
+        &mut state.previous_velocity,
+    ]
+    .into_iter()
+    .flatten()
+    {
+        turn(v);
+    }
+    if let Some(d) = &mut state.previous_density {
+        let half = d.len() / 2;
+        let (f, g) = d.split_at_mut(half);
+        turn(f);
+        turn(g);
+    }
+    state.preconditioner = None;
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vesicle::shapes;
+
+    /// A landing turned by 90° about the axis moves a sphere at `(x, 1.5, 0)` (axis through
+    /// `(0, 0.2, −0.1)`: `(1.3, 0.1)` from it) to `(x − P, 0.2 − 0.1, −0.1 + 1.3)`, its previous
+    /// surface alike, turns
+    /// every grid vector `(a, b, c) ↦ (a, −c, b)`, keeps the tension and drops the
+    /// preconditioner; the unturned landing only translates, bit for bit as `c_00 −= P √(4π)`.
+    #[test]
+    fn a_turned_landing_moves_the_whole_state() {
+        let p = 4;
+        let mut s = shapes::sphere(p, 1.0).unwrap();
+        s.translate([3.0, 1.5, 0.0]);
+        let n = 10;
+        let field: Vec<f64> = (0..3 * n)
+            .map(|k| (k / n + 1) as f64 + 0.01 * k as f64)
+            .collect();
+        let state = CellState {
+            coefs: s.coefs().to_vec(),
+            sigma: vec![0.7; n],
+            drift_targets: None,
+            previous_coefs: Some(s.coefs().to_vec()),
+            previous_dt: Some(0.01),
+            membrane_velocity: Some(field.clone()),
+            skalak_reference: None,
+            material_labels: None,
+            velocity: Some(field.clone()),
+            previous_velocity: Some(field.clone()),
+            iterations: 3,
+            preconditioner: Some(crate::timestep::cell_state::PreconditionerRecord {
+                surface: s.coefs().to_vec(),
+                tau: 0.01,
+                jacobian_reference: None,
+                last_iterations: 2,
+            }),
+            previous_density: Some([field.clone(), field.clone()].concat()),
+        };
+        let r = Recycling {
+            outlet: 2.0,
+            period: 5.0,
+            clearance: 0.1,
+            axis: [0.0, 0.2, -0.1],
+        };
+        let sq = (4.0 * std::f64::consts::PI).sqrt();
+        let nc = state.coefs.len() / 3;
+        let centre = |c: &[f64]| [c[0] / sq, c[nc] / sq, c[2 * nc] / sq];
+        let mut turned = state.clone();
+        land(&mut turned, &r.landing(3));
+        for c in [&turned.coefs, turned.previous_coefs.as_ref().unwrap()] {
+            let got = centre(c);
+            let want = [-2.0, 0.2 - 0.1, -0.1 + 1.3];
+            assert!((0..3).all(|k| (got[k] - want[k]).abs() < 1e-12), "{got:?}");
+        }
+        let turn = |v: &[f64]| -> Vec<f64> {
+            let mut out = v.to_vec();
+            for j in 0..n {
+                out[n + j] = -v[2 * n + j];
+                out[2 * n + j] = v[n + j];
+            }
+            out
+        };
+        let close = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12);
+        for v in [
+            &turned.membrane_velocity,
+            &turned.velocity,
+            &turned.previous_velocity,
+        ] {
+            assert!(close(v.as_ref().unwrap(), &turn(&field)));
+        }
+        let d = turned.previous_density.as_ref().unwrap();
+        assert!(close(&d[..3 * n], &turn(&field)) && close(&d[3 * n..], &turn(&field)));
+        assert_eq!(turned.sigma, state.sigma);
+        assert!(turned.preconditioner.is_none());
+        // Unturned: a translation of the constant modes only, the rest as it was.
+        let mut moved = state.clone();
+        land(&mut moved, &r.landing(0));
+        let mut want = state.clone();
+        want.coefs[0] -= 5.0 * sq;
+        want.previous_coefs.as_mut().unwrap()[0] -= 5.0 * sq;
+        assert_eq!(moved, want);
     }
 }
