@@ -18,9 +18,17 @@ reads `OUT/scene.toml` and `OUT/frames/*.npy` and prints, over consecutive block
 * the cell-free layer: R less the largest distance of a membrane point (of a cell in the
   window) from the axis, averaged over the block's frames.
 
+* the relative apparent viscosity mu_app/mu of the tube's straight section, averaged over the
+  block's steps: the `relative_viscosity` column of OUT/observables.csv, 1 + (P - P_0)/(Q G L),
+  the cells' extra dissipation by the reciprocal theorem over the flow rate times the pressure
+  drop of the section without cells (docs/walls.md).
+
 And, for the tube's diameter in micrometres (D = 2R times the cell radius in um) and the
 measured H_D, the in-vitro fits of Pries et al. (Circ. Res. 67, 1990; Am. J. Physiol. 263,
-1992): H_T/H_D = H_D + (1 - H_D)(1 + 1.7 e^(-0.415 D) - 0.6 e^(-0.011 D)).
+1992): H_T/H_D = H_D + (1 - H_D)(1 + 1.7 e^(-0.415 D) - 0.6 e^(-0.011 D)), and
+mu_rel = 1 + (mu_0.45 - 1)((1 - H_D)^C - 1)/((1 - 0.45)^C - 1) with
+mu_0.45 = 220 e^(-1.3 D) + 3.2 - 2.44 e^(-0.06 D^0.645) and
+C = (0.8 + e^(-0.075 D))(-1 + 1/(1 + 1e-11 D^12)) + 1/(1 + 1e-11 D^12).
 """
 
 import argparse
@@ -38,6 +46,31 @@ EXPONENT = 6  # wall::TUBE_END_EXPONENT
 
 def pries_ht_over_hd(d_um, hd):
     return hd + (1 - hd) * (1 + 1.7 * math.exp(-0.415 * d_um) - 0.6 * math.exp(-0.011 * d_um))
+
+
+def pries_mu_rel(d_um, hd):
+    mu45 = 220 * math.exp(-1.3 * d_um) + 3.2 - 2.44 * math.exp(-0.06 * d_um**0.645)
+    w = 1 / (1 + 1e-11 * d_um**12)
+    c = (0.8 + math.exp(-0.075 * d_um)) * (-1 + w) + w
+    return 1 + (mu45 - 1) * ((1 - hd) ** c - 1) / ((1 - 0.45) ** c - 1)
+
+
+def relative_viscosity(out):
+    """(time, relative_viscosity) rows of OUT/observables.csv (none in older tables)."""
+    path = os.path.join(out, "observables.csv")
+    if not os.path.exists(path):
+        return np.zeros((0, 2))
+    lines = open(path).read().splitlines()
+    head = lines[0].split(",")
+    if "relative_viscosity" not in head:
+        return np.zeros((0, 2))
+    it, iv = head.index("time"), head.index("relative_viscosity")
+    rows = []
+    for line in lines[1:]:
+        f = line.split(",")
+        if len(f) > iv and f[iv]:
+            rows.append((float(f[it]), float(f[iv])))
+    return np.array(rows).reshape(-1, 2)
 
 
 def main():
@@ -101,8 +134,10 @@ def main():
     print(f"tube: R = {radius}, length {length}, window |x - {xc}| <= {half:.4f} "
           f"(L_w = {period:.4f}); D = {d_um:.2f} um; centreline speed {u_centre}, "
           f"mean {u_mean}; {len(frames)} frames to t = {times[-1]:g}")
-    print("| t | cells in window | H_T | <U_c>/u_mean | H_T/H_D | H_D | Pries H_T/H_D at that H_D | cell-free layer |")
-    print("|---|---|---|---|---|---|---|---|")
+    mu_rows = relative_viscosity(a.out)
+    print("| t | cells in window | H_T | <U_c>/u_mean | H_T/H_D | H_D | Pries H_T/H_D at that H_D "
+          "| cell-free layer | mu_app/mu | Pries mu_rel at that H_D |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for b in range(1, len(rows), a.every_rows):
         block = rows[b:b + a.every_rows]
         n = np.mean([r[1] for r in block])
@@ -111,8 +146,13 @@ def main():
         ratio = u_mean / sp
         hd = ht / ratio
         layer = radius - np.nanmean([r[3] for r in block])
+        # The steps after the block's first frame up to its last.
+        sel = (mu_rows[:, 0] > rows[b - 1][0]) & (mu_rows[:, 0] <= block[-1][0] + 1e-12)
+        mu = f"{mu_rows[sel, 1].mean():.4f}" if sel.any() else "-"
+        pries_mu = f"{pries_mu_rel(d_um, hd):.3f}" if 0 < hd < 1 else "-"
         print(f"| {block[0][0]:g}–{block[-1][0]:g} | {n:.2f} | {ht:.3f} | {sp / u_mean:.3f} | "
-              f"{ratio:.3f} | {hd:.3f} | {pries_ht_over_hd(d_um, hd):.3f} | {layer:.3f} |")
+              f"{ratio:.3f} | {hd:.3f} | {pries_ht_over_hd(d_um, hd):.3f} | {layer:.3f} | "
+              f"{mu} | {pries_mu} |")
 
 
 if __name__ == "__main__":

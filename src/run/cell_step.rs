@@ -163,3 +163,40 @@ pub(crate) fn flow_origin(
         }
     }))
 }
+
+/// The cells' extra dissipation `P − P₀` in the scene's flow (about `origin`,
+/// [`flow_origin`]) and, for a tube flow, the relative apparent viscosity of the tube's
+/// straight section of length `L` (where its radius is within
+/// [`crate::scene::cells::TUBE_WINDOW_TOLERANCE`] of `R`): `1 + (P − P₀)/(Q G L)` with
+/// `Q G = 2πμU²` ([`Suspension::extra_dissipation`]; collective). Both `None` without a flow
+/// or before the first step.
+pub(crate) fn rheology(
+    comm: &dyn Communicator,
+    susp: &Suspension,
+    scene: &CellScene,
+    origin: [f64; 3],
+) -> Result<(Option<f64>, Option<f64>), CellStepError> {
+    let (flow, mu) = (scene.flow, scene.viscosity);
+    if flow == Flow::None {
+        return Ok((None, None));
+    }
+    let d = susp.extra_dissipation(comm, &|x| flow.velocity_about(x, origin), &|x| {
+        flow.stress(x, mu)
+    })?;
+    let section = scene.walls.iter().find_map(|w| match (w.kind, w.shape) {
+        (crate::wall::WallKind::Container, crate::scene::walls::WallShape::Tube { length, .. }) => {
+            Some(crate::wall::straight_length(
+                length,
+                crate::scene::cells::TUBE_WINDOW_TOLERANCE,
+            ))
+        }
+        _ => None,
+    });
+    let relative = match (flow, d, section) {
+        (Flow::Tube { speed, .. }, Some(d), Some(l)) if speed != 0.0 => {
+            Some(1.0 + d / (2.0 * std::f64::consts::PI * mu * speed * speed * l))
+        }
+        _ => None,
+    };
+    Ok((d, relative))
+}

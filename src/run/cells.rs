@@ -36,7 +36,7 @@ use std::time::Instant;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use super::assembly::{build_part, run_effects, setups};
-use super::cell_step::{accepted_step, adaptive_control, flow_origin, step_error};
+use super::cell_step::{accepted_step, adaptive_control, flow_origin, rheology, step_error};
 use super::checkpoint::{self, Progress, Split};
 use super::error::{agreed, CellRunError};
 use super::observables::{FailedRunSummary, Observables, StepRow};
@@ -540,6 +540,8 @@ impl<'a> CellRun<'a> {
         let it = it[0] as usize;
         prog.iters_sum += it_sum[0] as usize;
         prog.iters_max = prog.iters_max.max(it);
+        let (extra_dissipation, relative_viscosity) =
+            rheology(comm, susp, scene, origin).map_err(|e| step_error(k, prog.time, e))?;
         let step_gap = susp.coupling_stats().map(|st| st.min_gap);
         if let Some(g) = step_gap {
             prog.min_gap = prog.min_gap.min(g);
@@ -553,6 +555,8 @@ impl<'a> CellRun<'a> {
             min_gap: step_gap.filter(|g| g.is_finite()),
             area_volume_error: acc.error,
             end_gap: susp.contact_stats().last_gap,
+            extra_dissipation,
+            relative_viscosity,
         });
         match &adaptive {
             None => {

@@ -1,14 +1,19 @@
 //! The per-step record of a cell run, `DIR/observables.csv`, and what a failed run leaves.
 //!
 //! One row per accepted step: `step, time, dt, gmres_max, gmres_mean, min_gap,
-//! area_volume_error, end_gap`. `gmres_max` and `gmres_mean` are the step's GMRES iterations over the
+//! area_volume_error, end_gap, extra_dissipation, relative_viscosity`. `gmres_max` and `gmres_mean` are the step's GMRES iterations over the
 //! cells, `min_gap` the smallest distance of a grid point to another cell's surface seen by
 //! the coupling's near-zone monitor (empty when no point was near another cell, and for one
 //! cell), `area_volume_error` the step's relative area/volume change before the drift
 //! correction (the adaptive step's error estimate), `end_gap` the smallest surface gap at the end
 //! of the step as the contact projection measured it (`[numerics] contact_distance` set; empty
-//! otherwise, and when no gap is below `3 d_min`). A table of the 7 columns before `end_gap` is
-//! read as one without it. The file is rewritten atomically with
+//! otherwise, and when no gap is below `3 d_min`), `extra_dissipation` the power the cells add
+//! to the background flow's, `P − P₀` by the reciprocal theorem
+//! ([`crate::timestep::suspension::Suspension::extra_dissipation`]; empty without a flow), and
+//! `relative_viscosity` the apparent viscosity of a tube flow's straight section
+//! `μ_app/μ = 1 + (P − P₀)/(Q G L)` (flow rate `Q`, pressure gradient `G`, the section's length
+//! `L`; empty for other flows). Tables of the 7 or 8 columns before these are read as ones
+//! without them. The file is rewritten atomically with
 //! every checkpoint and when a run fails; a resumed run keeps the rows up to its checkpoint.
 //!
 //! When a step fails, `summary.json` says so (`completed = false`, the error, the last good
@@ -25,7 +30,11 @@ use crate::io::write_atomic;
 /// The file's name in the output directory.
 pub const FILE: &str = "observables.csv";
 
-const HEADER: &str = "step,time,dt,gmres_max,gmres_mean,min_gap,area_volume_error,end_gap";
+const HEADER: &str = "step,time,dt,gmres_max,gmres_mean,min_gap,area_volume_error,end_gap,\
+                      extra_dissipation,relative_viscosity";
+
+/// The header of the tables written before `extra_dissipation`.
+const HEADER_8: &str = "step,time,dt,gmres_max,gmres_mean,min_gap,area_volume_error,end_gap";
 
 /// The header of the tables written before `end_gap`.
 const HEADER_7: &str = "step,time,dt,gmres_max,gmres_mean,min_gap,area_volume_error";
@@ -50,6 +59,11 @@ pub struct StepRow {
     /// Smallest surface gap at the end of the step measured by the contact projection
     /// (`None`: no projection, or no gap below `3 d_min`).
     pub end_gap: Option<f64>,
+    /// The cells' extra dissipation `P − P₀` in the background flow (`None`: no flow).
+    pub extra_dissipation: Option<f64>,
+    /// A tube flow's relative apparent viscosity over its straight section (`None`: another
+    /// flow).
+    pub relative_viscosity: Option<f64>,
 }
 
 /// The rows so far.
@@ -75,7 +89,8 @@ impl Observables {
         };
         let mut lines = text.lines().enumerate();
         let columns = match lines.next() {
-            Some((_, h)) if h == HEADER => 8,
+            Some((_, h)) if h == HEADER => 10,
+            Some((_, h)) if h == HEADER_8 => 8,
             Some((_, h)) if h == HEADER_7 => 7,
             _ => {
                 return Err(io_error(
@@ -98,6 +113,10 @@ impl Observables {
             }
             let num = |s: &str| s.parse::<f64>().map_err(|_| bad());
             let count = |s: &str| s.parse::<usize>().map_err(|_| bad());
+            let optional = |k: usize| match f.get(k) {
+                Some(g) if !g.is_empty() => num(g).map(Some),
+                _ => Ok(None),
+            };
             let row = StepRow {
                 step: count(f[0])?,
                 time: num(f[1])?,
@@ -110,10 +129,9 @@ impl Observables {
                     Some(num(f[5])?)
                 },
                 area_volume_error: num(f[6])?,
-                end_gap: match f.get(7) {
-                    Some(g) if !g.is_empty() => Some(num(g)?),
-                    _ => None,
-                },
+                end_gap: optional(7)?,
+                extra_dissipation: optional(8)?,
+                relative_viscosity: optional(9)?,
             };
             if row.step <= up_to {
                 rows.push(row);
@@ -138,16 +156,19 @@ impl Observables {
         s.push_str(HEADER);
         s.push('\n');
         for r in &self.rows {
+            let opt = |v: Option<f64>| v.map(|g| format!("{g:?}")).unwrap_or_default();
             s.push_str(&format!(
-                "{},{:?},{:?},{},{:?},{},{:?},{}\n",
+                "{},{:?},{:?},{},{:?},{},{:?},{},{},{}\n",
                 r.step,
                 r.time,
                 r.dt,
                 r.gmres_max,
                 r.gmres_mean,
-                r.min_gap.map(|g| format!("{g:?}")).unwrap_or_default(),
+                opt(r.min_gap),
                 r.area_volume_error,
-                r.end_gap.map(|g| format!("{g:?}")).unwrap_or_default()
+                opt(r.end_gap),
+                opt(r.extra_dissipation),
+                opt(r.relative_viscosity)
             ));
         }
         s
@@ -209,6 +230,8 @@ mod tests {
                 min_gap: (k % 2 == 0).then_some(0.01 / k as f64),
                 area_volume_error: 1e-9 * k as f64,
                 end_gap: (k % 3 == 0).then_some(0.02 * k as f64),
+                extra_dissipation: (k > 1).then_some(0.3 * k as f64),
+                relative_viscosity: (k > 2).then_some(1.0 + 0.1 * k as f64),
             });
         }
         o.write(&dir).unwrap();
@@ -224,6 +247,17 @@ mod tests {
         let old = Observables::resume(&dir, 10).unwrap();
         assert_eq!(old.rows.len(), 1);
         assert_eq!((old.rows[0].end_gap, old.rows[0].gmres_max), (None, 3));
+        // One written before extra_dissipation, with no dissipation.
+        std::fs::write(
+            dir.join(FILE),
+            format!("{HEADER_8}\n1,0.1,0.1,3,2.5,,1e-9,0.04\n"),
+        )
+        .unwrap();
+        let old = Observables::resume(&dir, 10).unwrap();
+        assert_eq!(
+            (old.rows[0].end_gap, old.rows[0].extra_dissipation),
+            (Some(0.04), None)
+        );
         // A damaged file names its line.
         std::fs::write(dir.join(FILE), format!("{HEADER}\n1,0.1,0.1,3\n")).unwrap();
         let e = Observables::resume(&dir, 10).unwrap_err().to_string();

@@ -135,6 +135,32 @@ impl Flow {
         }
     }
 
+    /// The background flow's stress `σ₀ = −p₀ I + μ (∇u₀ + ∇u₀ᵀ)` at `x` (lab frame) in a
+    /// fluid of viscosity `mu`, up to a constant pressure: the pressure gradient
+    /// `∇p₀ = −(4μU/R²) e_x` of a Poiseuille or tube flow (taken zero at `x = 0`), and the rate of
+    /// strain of every flow (an extensional flow's is the same about any origin).
+    pub fn stress(&self, x: [f64; 3], mu: f64) -> [[f64; 3]; 3] {
+        match *self {
+            Flow::None => [[0.0; 3]; 3],
+            Flow::Shear { rate } => [
+                [0.0, mu * rate, 0.0],
+                [mu * rate, 0.0, 0.0],
+                [0.0, 0.0, 0.0],
+            ],
+            Flow::Extensional { rate, .. } => [
+                [2.0 * mu * rate, 0.0, 0.0],
+                [0.0, -2.0 * mu * rate, 0.0],
+                [0.0, 0.0, 0.0],
+            ],
+            Flow::Poiseuille { speed, radius } | Flow::Tube { speed, radius } => {
+                let r2 = radius * radius;
+                let minus_p = 4.0 * mu * speed / r2 * x[0];
+                let (sy, sz) = (-2.0 * mu * speed * x[1] / r2, -2.0 * mu * speed * x[2] / r2);
+                [[minus_p, sy, sz], [sy, minus_p, 0.0], [sz, 0.0, minus_p]]
+            }
+        }
+    }
+
     /// The background velocity at `x` (lab frame).
     pub fn velocity(&self, x: [f64; 3]) -> [f64; 3] {
         match *self {
@@ -501,4 +527,67 @@ pub(crate) fn rotation(axis: [f64; 3], deg: f64) -> Option<[[f64; 3]; 3]> {
         [t * x * y + s * z, t * y * y + c, t * y * z - s * x],
         [t * x * z - s * y, t * y * z + s * x, t * z * z + c],
     ])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every flow's stress is in Stokes equilibrium (`∇·σ₀ = 0`, central differences) and its
+    /// deviatoric part is `μ (∇u₀ + ∇u₀ᵀ)` of the flow's velocity (central differences).
+    #[test]
+    #[allow(clippy::needless_range_loop)]
+    fn background_stress_is_the_velocitys_and_in_equilibrium() {
+        let mu = 1.7;
+        let flows = [
+            Flow::None,
+            Flow::Shear { rate: -0.8 },
+            Flow::Extensional {
+                rate: 0.6,
+                follow_cells: false,
+            },
+            Flow::Poiseuille {
+                speed: 1.3,
+                radius: 2.0,
+            },
+            Flow::Tube {
+                speed: 2.0,
+                radius: 1.8,
+            },
+        ];
+        let h = 1e-4;
+        for flow in flows {
+            for x in [[0.3, -0.7, 0.4], [-1.1, 0.2, 0.9]] {
+                let shifted = |d: usize, s: f64| {
+                    let mut y = x;
+                    y[d] += s;
+                    y
+                };
+                let s = flow.stress(x, mu);
+                let trace = (s[0][0] + s[1][1] + s[2][2]) / 3.0;
+                for i in 0..3 {
+                    let div: f64 = (0..3)
+                        .map(|j| {
+                            (flow.stress(shifted(j, h), mu)[i][j]
+                                - flow.stress(shifted(j, -h), mu)[i][j])
+                                / (2.0 * h)
+                        })
+                        .sum();
+                    assert!(div.abs() < 1e-8, "{flow:?}: div {div}");
+                    for j in 0..3 {
+                        let du = |a: usize, b: usize| {
+                            (flow.velocity(shifted(b, h))[a] - flow.velocity(shifted(b, -h))[a])
+                                / (2.0 * h)
+                        };
+                        let strain = mu * (du(i, j) + du(j, i));
+                        let dev = s[i][j] - if i == j { trace } else { 0.0 };
+                        assert!(
+                            (dev - strain).abs() < 1e-8,
+                            "{flow:?} {i}{j}: {dev} {strain}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 }

@@ -37,6 +37,7 @@
 use rayon::prelude::*;
 
 mod contacts;
+mod dissipation;
 mod field;
 mod recycle;
 mod start_up;

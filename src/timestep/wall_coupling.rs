@@ -232,28 +232,36 @@ impl WallCoupling {
 
     /// The data of the wall system: `U_w − u_∞ − u_cells` on every wall's grid (the walls'
     /// layout, component-major per wall), with `u_cells` the cells' velocity there in the same
-    /// layout (`None`: no cells).
+    /// layout (`None`: no cells); and `∫ (|U_w| + |u_∞| + |u_cells|) dA` over the container,
+    /// the size of the fields it is formed from ([`crate::wall::WallSystem::solve_formed`]).
     fn boundary_data(
         &self,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         cells: Option<&[f64]>,
-    ) -> Vec<f64> {
+    ) -> (Vec<f64>, f64) {
         let mut data = self.velocity.clone();
         let mut offset = 0;
+        let mut scale = 0.0;
         for w in self.system.walls() {
             let n = w.n_points();
+            let da = &w.geometry().da;
             for (j, &x) in w.geometry().x.iter().enumerate() {
+                let mut sizes = [0.0; 3];
                 for (a, u) in u_inf(x).into_iter().enumerate() {
                     let i = offset + a * n + j;
-                    match cells {
-                        Some(c) => data[i] -= u + c[i],
-                        None => data[i] -= u,
-                    }
+                    let c = cells.map_or(0.0, |c| c[i]);
+                    sizes[0] += data[i] * data[i];
+                    sizes[1] += u * u;
+                    sizes[2] += c * c;
+                    data[i] -= u + c;
+                }
+                if w.kind() == WallKind::Container {
+                    scale += sizes.iter().map(|s| s.sqrt()).sum::<f64>() * da[j];
                 }
             }
             offset += 3 * n;
         }
-        data
+        (data, scale)
     }
 
     /// Solve the walls for the cells' layers at the wall points summed over every cell
@@ -287,7 +295,7 @@ impl WallCoupling {
             }
             offset += 3 * n;
         }
-        let mut data = self.boundary_data(u_inf, Some(&cells));
+        let (mut data, scale) = self.boundary_data(u_inf, Some(&cells));
         let mut offset = 0;
         for w in self.system.walls() {
             let n = w.n_points();
@@ -311,7 +319,7 @@ impl WallCoupling {
             }
             offset += 3 * n;
         }
-        let solution = self.system.solve(&data).map_err(wall_error)?;
+        let solution = self.system.solve_formed(&data, scale).map_err(wall_error)?;
         let t2 = Instant::now();
         let mut out = Vec::with_capacity(points.len());
         let mut speed: f64 = 0.0;
@@ -361,8 +369,8 @@ impl WallCoupling {
         let solution = match &self.last {
             Some(s) => s,
             None => {
-                let data = self.boundary_data(u_inf, None);
-                background = self.system.solve(&data).map_err(wall_error)?;
+                let (data, scale) = self.boundary_data(u_inf, None);
+                background = self.system.solve_formed(&data, scale).map_err(wall_error)?;
                 &background
             }
         };
