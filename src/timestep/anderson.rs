@@ -87,13 +87,15 @@ impl Anderson {
     }
 
     /// The next input from this pass's input `x` and output `g = G(x)` (per block, of equal
-    /// shapes). `reduce` takes one row per block of partial inner products and returns their
-    /// sums over all blocks (of every rank); every row has the same length.
+    /// shapes). `reduce` takes one row per block of partial inner products, of the width it is
+    /// given (also when this rank has no block), and returns their sums over all blocks of
+    /// every rank. Whether a block changed shape since the last pass is decided over every
+    /// rank the same way (a sum of flags), so that every rank keeps the same history.
     pub fn next<E>(
         &mut self,
         x: &[Vec<f64>],
         g: &[Vec<f64>],
-        mut reduce: impl FnMut(Vec<Vec<f64>>) -> Result<Vec<f64>, E>,
+        mut reduce: impl FnMut(Vec<Vec<f64>>, usize) -> Result<Vec<f64>, E>,
     ) -> Result<Vec<Vec<f64>>, E> {
         let f: Vec<Vec<f64>> = x
             .iter()
@@ -103,8 +105,21 @@ impl Anderson {
         let same_shape = |a: &[Vec<f64>]| {
             a.len() == f.len() && a.iter().zip(&f).all(|(a, f)| a.len() == f.len())
         };
-        match self.last.take() {
-            Some(last) if same_shape(&last.f) => {
+        // A change of shape (a block gained its membrane velocity) on any rank: every rank
+        // starts afresh. (At the first pass no rank has a history.)
+        let last = self.last.take();
+        let changed = match &last {
+            // Nothing is kept at depth 0 (on every rank): no flags to sum.
+            None => true,
+            Some(_) if self.depth == 0 => true,
+            Some(last) => {
+                let mine = f64::from(u8::from(!same_shape(&last.f)));
+                let flags = (0..f.len()).map(|b| vec![if b == 0 { mine } else { 0.0 }]);
+                reduce(flags.collect(), 1)?[0] > 0.0
+            }
+        };
+        match last {
+            Some(last) if !changed => {
                 self.history.push_back(Pair {
                     f: diff(&f, &last.f),
                     g: diff(g, &last.g),
@@ -113,7 +128,6 @@ impl Anderson {
                     self.history.pop_front();
                 }
             }
-            // A change of shape (a block gained its membrane velocity): start afresh.
             _ => self.history.clear(),
         }
         self.last = Some(Pair {
@@ -140,7 +154,7 @@ impl Anderson {
                 row
             })
             .collect();
-        let sums = reduce(rows)?;
+        let sums = reduce(rows, width)?;
         // A, m × m, row-major.
         let mut a = vec![0.0; m * m];
         let mut k = 0;
@@ -278,8 +292,8 @@ mod tests {
     }
 
     /// The reduction of one rank: the blocks' rows summed in order.
-    fn sum_rows(rows: Vec<Vec<f64>>) -> Result<Vec<f64>, ()> {
-        Ok((0..rows[0].len())
+    fn sum_rows(rows: Vec<Vec<f64>>, width: usize) -> Result<Vec<f64>, ()> {
+        Ok((0..width)
             .map(|i| rows.iter().map(|r| r[i]).sum())
             .collect())
     }
@@ -338,6 +352,74 @@ mod tests {
         }
     }
 
+    /// Two ranks, one holding every block and one holding none (a rank of a suspension with
+    /// fewer cells than ranks), take the same passes as one rank, bit for bit, including the
+    /// pass at which a block changes shape (grows, as a cell's membrane velocity joins its
+    /// tension): the empty rank sums rows of the width it is given and follows the same
+    /// history.
+    #[test]
+    fn a_rank_without_blocks_keeps_in_step() {
+        use std::sync::mpsc::channel;
+        let (m, b) = linear_map(12, 0.7, 5);
+        // Pass 0 sees only the first 4 unknowns of block 1 (a shorter block), later passes
+        // the whole.
+        let blocks = |x: &[f64], k: usize| {
+            let mut v = split(x, 4);
+            if k == 0 {
+                v[1].truncate(4);
+            }
+            v
+        };
+        let run = |reduce: &mut dyn FnMut(Vec<Vec<f64>>, usize) -> Result<Vec<f64>, ()>| {
+            let mut acc = Anderson::new(3);
+            let mut x = vec![0.0; 12];
+            let mut out = Vec::new();
+            for k in 0..12 {
+                let g = apply(&m, &b, &x);
+                let next = acc
+                    .next(&blocks(&x, k), &blocks(&g, k), &mut *reduce)
+                    .unwrap()
+                    .concat();
+                x[..next.len()].copy_from_slice(&next);
+                out.push(x.clone());
+            }
+            out
+        };
+        let alone = run(&mut sum_rows);
+        // Rank 0 holds the blocks, rank 1 none; each reduction exchanges rows.
+        let (to1, from0) = channel::<Vec<Vec<f64>>>();
+        let (to0, from1) = channel::<Vec<Vec<f64>>>();
+        let empty = std::thread::spawn(move || {
+            let mut acc = Anderson::new(3);
+            let mut calls = 0;
+            for _ in 0..12 {
+                acc.next(
+                    &[],
+                    &[],
+                    |rows: Vec<Vec<f64>>, width| -> Result<Vec<f64>, ()> {
+                        calls += 1;
+                        let theirs = from0.recv().unwrap();
+                        to0.send(rows.clone()).unwrap();
+                        sum_rows(theirs.into_iter().chain(rows).collect(), width)
+                    },
+                )
+                .unwrap();
+            }
+            (acc.kept(), calls)
+        });
+        let mut calls = 0;
+        let shared = run(&mut |rows: Vec<Vec<f64>>, width| {
+            calls += 1;
+            to1.send(rows.clone()).unwrap();
+            let theirs = from1.recv().unwrap();
+            sum_rows(rows.into_iter().chain(theirs).collect(), width)
+        });
+        let (kept, empty_calls) = empty.join().unwrap();
+        assert_eq!(shared, alone);
+        assert_eq!((kept, empty_calls), (3, calls));
+        assert!(calls > 12, "{calls}");
+    }
+
     /// Depth 0 is plain iteration, bit for bit; a zero history gives the plain step.
     #[test]
     fn depth_zero_is_plain_iteration() {
@@ -348,9 +430,11 @@ mod tests {
         for _ in 0..5 {
             let g = apply(&m, &b, &x);
             x = acc
-                .next(&split(&x, 3), &split(&g, 3), |_| -> Result<Vec<f64>, ()> {
-                    panic!("no reduction without history")
-                })
+                .next(
+                    &split(&x, 3),
+                    &split(&g, 3),
+                    |_, _| -> Result<Vec<f64>, ()> { panic!("no reduction without history") },
+                )
                 .unwrap()
                 .concat();
             y = apply(&m, &b, &y);

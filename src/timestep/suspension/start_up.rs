@@ -157,7 +157,9 @@ impl Suspension {
             let next = if done {
                 g
             } else {
-                mixing.next(&x_full, &g, |rows| sum_in_cell_order(comm, &ids, rows))?
+                mixing.next(&x_full, &g, |rows, width| {
+                    sum_in_cell_order(comm, &ids, rows, width)
+                })?
             };
             for ((c, next), has_u) in self.cells.iter_mut().zip(&next).zip(&has_u) {
                 let n = c.state.sigma.len();
@@ -183,14 +185,15 @@ fn stack(sigma: &[f64], u: Option<&[f64]>) -> Vec<f64> {
     v
 }
 
-/// The sums of the cells' rows of partial inner products, over every rank, added in the cells'
-/// global order: one rank and many give the same sums bit for bit.
+/// The sums of the cells' rows (each of `width` partial inner products; a rank may hold no
+/// cell) over every rank, added in the cells' global order: one rank and many give the same
+/// sums bit for bit.
 fn sum_in_cell_order(
     comm: &dyn Communicator,
     ids: &[usize],
     rows: Vec<Vec<f64>>,
+    width: usize,
 ) -> Result<Vec<f64>, CellStepError> {
-    let width = rows.first().map_or(0, Vec::len);
     let mut local = Vec::with_capacity(rows.len() * (width + 1));
     for (id, row) in ids.iter().zip(&rows) {
         local.push(*id as f64);
