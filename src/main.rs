@@ -478,10 +478,10 @@ fn run(
             pk.entry + 1,
             pk.cells,
             100.0 * pk.volume_fraction,
-            if pk.region == "walls" {
-                "walls' fluid"
-            } else {
-                "cube"
+            match pk.region {
+                "walls" => "walls' fluid",
+                "tube window" => "recycled tube's window",
+                _ => "cube",
             },
             pk.seconds,
             pk.smallest_gap

@@ -487,19 +487,22 @@ fn a_recycled_sphere_reenters_the_tube_upstream_at_the_same_speed() {
         assert!(rel < 1e-3, "step {j}: {v} against {want} ({rel:.2e})");
         assert!((v - speeds[4]).abs() < 1e-3 * want, "step {j}: {v}");
     }
-    // Blocked: a second sphere where the first would land (`place(x)`: a sphere at `x`).
-    let pair = |place: &dyn Fn(f64) -> String, x: f64| {
+    // Blocked: a second sphere `ahead` of where the first would land (`place(x)`: a sphere
+    // at `x`).
+    let pair = |place: &dyn Fn(f64) -> String, x: f64, ahead: f64| {
         text.replacen(
             "[[walls]]",
             &format!(
                 "[[cells]]\nshape = \"sphere\"\nbending_modulus = 0.05\n{}\n\n[[walls]]",
-                place(x - period + 0.5)
+                place(x - period + ahead)
             ),
             1,
         )
         .replacen("radius = 1.0", &place(x), 1)
     };
-    let both = pair(&start, w.outlet - 0.03);
+    // On the axis no turn about it frees the landing; 1 behind the image, no place up to 2
+    // further upstream is clear either, and the move is deferred.
+    let both = pair(&start, w.outlet - 0.03, -1.0);
     let scene = parse(Path::new("tube.toml"), &both).unwrap();
     assert_eq!(scene.cells.len(), 2);
     let mut susp = build(&scene).unwrap();
@@ -510,16 +513,33 @@ fn a_recycled_sphere_reenters_the_tube_upstream_at_the_same_speed() {
     let x = centroid(&susp)[0];
     println!("blocked: {s:?}, x = {x}");
     assert_eq!(s.recycled, 0);
-    // On the axis, no turn about it frees the landing.
     assert!(
         s.deferred >= 2 && s.turned == 0 && x > w.outlet,
         "{s:?}, x = {x}"
     );
+    // 1.2 ahead of the image, the sphere lands 1 upstream of it (at 0.5 the spheres would
+    // cross), clear by 0.2.
+    let both = pair(&start, w.outlet - 0.03, 1.2);
+    let mut susp = build(&parse(Path::new("tube.toml"), &both).unwrap()).unwrap();
+    let mut x = vec![centroid(&susp)[0]];
+    for _ in 0..6 {
+        susp.step(&|_| [0.0; 3]).unwrap();
+        x.push(centroid(&susp)[0]);
+    }
+    let s = susp.recycle_stats();
+    println!("upstream: {s:?}, x = {x:?}");
+    assert_eq!(
+        (s.recycled, s.upstream, s.turned, s.projected),
+        (1, 1, 0, 0),
+        "{s:?}"
+    );
+    let k = (0..6).find(|&k| x[k + 1] < x[k]).expect("moved");
+    assert!((x[k + 1] - x[k] + period + 1.0).abs() < 0.02, "{x:?}");
     // Off the axis (1.5 from it, both), the landing is tried turned about the axis: 90° is the
     // first turn that clears the second sphere (centres √(0.5² + (3 sin 45°)²) = 2.18 apart,
     // against 1.59 at 60°), and the sphere goes on from there, 1.5 from the axis.
     let off = |x: f64| format!("center = [{x}, 1.5, 0.0]\nradius = 1.0");
-    let both = pair(&off, w.outlet - 0.02);
+    let both = pair(&off, w.outlet - 0.02, 0.5);
     let mut susp = build(&parse(Path::new("tube.toml"), &both).unwrap()).unwrap();
     let mut x = vec![centroid(&susp)];
     for _ in 0..5 {
@@ -536,6 +556,33 @@ fn a_recycled_sphere_reenters_the_tube_upstream_at_the_same_speed() {
         "{c:?}"
     );
     assert!(c[0] < w.inlet + 0.1, "{c:?}");
+    // With contacts (d_min = 0.05) and the second sphere 2.03 ahead on the axis, no turn is
+    // clear by d_min but the image leaves a gap of 0.03: the sphere lands there (before any
+    // place further upstream) and the contact projection moves the two apart at once.
+    let both = pair(&start, w.outlet - 0.03, 2.03).replacen(
+        "[numerics]\n",
+        "[numerics]\ncontact_distance = 0.05\n",
+        1,
+    );
+    let mut susp = build(&parse(Path::new("tube.toml"), &both).unwrap()).unwrap();
+    let mut gaps = Vec::new();
+    for _ in 0..6 {
+        susp.step(&|_| [0.0; 3]).unwrap();
+        let c: Vec<[f64; 3]> = susp
+            .cells()
+            .iter()
+            .map(|c| {
+                c.stepper
+                    .with_geometry(&c.state.coefs, |g| g.centroid())
+                    .unwrap()
+            })
+            .collect();
+        gaps.push(((c[0][0] - c[1][0]).powi(2) + c[0][1].powi(2) + c[0][2].powi(2)).sqrt() - 2.0);
+    }
+    let s = susp.recycle_stats();
+    println!("projected: {s:?}, gaps {gaps:?}");
+    assert_eq!((s.recycled, s.projected, s.deferred), (1, 1, 0), "{s:?}");
+    assert!(gaps.iter().all(|&g| g >= 0.05 * (1.0 - 1e-6)), "{gaps:?}");
 }
 
 /// The drives of a tube flow give the same centreline speed, and bad tube flows and tube walls

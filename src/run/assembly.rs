@@ -172,12 +172,12 @@ pub fn build_part(
     if !scene.walls.is_empty() {
         susp.set_walls(Some(walls(scene).map_err(|e| step_error(0, 0.0, e))?));
     }
-    // A recycled cell lands at least twice the contact distance from everything (0.1 cell
-    // radii without contacts), so that the projection need not move it at once.
+    // A recycled cell lands at least the contact distance from everything (0.05 cell radii
+    // without contacts), the gap the projection keeps between the cells it lands among.
     susp.set_recycling(scene.recycle.map(|w| Recycling {
         outlet: w.outlet,
         period: w.outlet - w.inlet,
-        clearance: 2.0 * scene.numerics.contact_distance.unwrap_or(0.05),
+        clearance: scene.numerics.contact_distance.unwrap_or(0.05),
         axis: w.axis,
     }));
     if !scene.numerics.far_side_split {

@@ -314,10 +314,10 @@ pub fn pack(
                          of at least {}: jammed at {:.1} % of the cells' size (a volume fraction \
                          of {:.1} %); lower volume_fraction or min_gap",
                         100.0 * req.volume_fraction,
-                        if fixed.is_empty() {
-                            "in a cube"
-                        } else {
-                            "of the walls' fluid"
+                        match (fixed.is_empty(), window) {
+                            (true, _) => "in a cube",
+                            (false, None) => "of the walls' fluid",
+                            (false, Some(_)) => "of the recycled tube's window",
                         },
                         req.min_gap,
                         100.0 * size,

@@ -432,11 +432,12 @@ impl ContactSolver {
     }
 
     /// The first of the `places` (coefficients for body `k`, tried in order) where body `k`
-    /// is at least `need` from every other body of `coefs` and every fixed surface, with its
-    /// gap (measured within `range ≥ need`; `range` when nothing is that close), or `None`:
-    /// where a cell recycled through a tube may land ([`super::suspension::Recycling`]). The
-    /// other bodies are prepared once, and only the pairs with body `k` are measured.
-    pub fn first_clear(
+    /// is at least `need` from every other body of `coefs` and every fixed surface, or, when
+    /// none is, the place with the largest gap; with its gap (signed, negative where surfaces
+    /// cross; measured within `range ≥ need`, `range` when nothing is that close): where a
+    /// cell recycled through a tube may land ([`super::suspension::Recycling`]). The other
+    /// bodies are prepared once, and only the pairs with body `k` are measured.
+    pub fn first_clear_or_best(
         &self,
         coefs: &[&[f64]],
         k: usize,
@@ -444,15 +445,19 @@ impl ContactSolver {
         fixed: &[FixedSurface],
         need: f64,
         range: f64,
-    ) -> Result<Option<(usize, f64)>, ContactError> {
+    ) -> Result<(usize, f64), ContactError> {
         let mut bodies = self.bodies(coefs)?;
+        let mut best = (0, f64::NEG_INFINITY);
         for (i, place) in places.iter().enumerate() {
             let gap = self.gap_at(&mut bodies, k, place, fixed, range)?;
             if gap >= need {
-                return Ok(Some((i, gap)));
+                return Ok((i, gap));
+            }
+            if gap > best.1 {
+                best = (i, gap);
             }
         }
-        Ok(None)
+        Ok(best)
     }
 
     /// The smallest gap of body `k` placed at `place` (within `range`; `range` when nothing is

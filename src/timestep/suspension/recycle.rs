@@ -12,16 +12,25 @@
 //! the contact projection moves cells. The cell keeps its shape, tension and radial position;
 //! the flow in the straight section is the same at both places, so its velocity carries over.
 //!
-//! A cell is moved only where it lands clear of every other cell and of the walls by at least
+//! A cell is moved where it lands clear of every other cell and of the walls by at least
 //! [`Recycling::clearance`] (the contact solver's measure,
-//! [`crate::timestep::contact::ContactSolver::first_clear`]). Where its periodic image is taken
-//! (by a cell that entered upstream meanwhile), the landing is tried turned about the tube's
-//! axis by `±30°, ±60°, …, 180°` in that order ([`LANDING_TURNS`]): the tube and Poiseuille's
-//! flow are axisymmetric, so a cell turned about the axis is the same cell in the same flow at
-//! another azimuth. The turn moves its whole state: the surface and BDF2's previous surface
+//! [`crate::timestep::contact::ContactSolver::first_clear_or_best`]). Where its periodic image
+//! is taken (by a cell that entered upstream meanwhile), the landing is tried turned about the
+//! tube's axis by `±30°, ±60°, …, 180°` in that order ([`LANDING_TURNS`]): the tube and
+//! Poiseuille's flow are axisymmetric, so a cell turned about the axis is the same cell in the
+//! same flow at another azimuth. Where no turn is that clear but the best one leaves the
+//! surfaces apart (a positive gap) and the suspension has a contact projection, the cell lands
+//! there and the projection runs again at once, restoring `d_min` (counted as `projected`): two
+//! cells that travel side by side closer than the clearance reach the outlet one after the
+//! other, and the second's image lies that close to the first's. Where neither, the same is
+//! tried further upstream, by `0.5, 1, 1.5` ([`LANDING_BACKS`], in the solver's length unit,
+//! the cells' radius), into the entrance of the tube's rounded inlet end, where the flow is
+//! still nearly Poiseuille's and carries the cell into the window (the run is not periodic:
+//! a cell near the outlet does not feel the cells near the inlet, so its image can come to
+//! overlap one of them). The turn moves its whole state: the surface and BDF2's previous surface
 //! (every mode's vector turned), the velocities and densities kept on its grid (every point's
 //! vector turned), while its tension and Skalak reference (the reference metric, unchanged by a
-//! rigid motion) stay; its own preconditioner is rebuilt. Where no turn lands clear, the cell
+//! rigid motion) stay; its own preconditioner is rebuilt. Where no place will do, the cell
 //! goes on toward the outlet and is tried again at the next step (counted as deferred).
 //! Cells are tried in the order of their global index, each against the others as already
 //! moved, and every rank decides the same moves from the gathered surfaces, so the result does
@@ -37,6 +46,10 @@ use crate::timestep::TimestepError;
 /// units of 30°): its periodic image first, then ever larger turns either way.
 pub const LANDING_TURNS: [i32; 12] = [0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6];
 
+/// How much further upstream than its periodic image a recycled cell may land, in the order
+/// tried (each with every turn of [`LANDING_TURNS`]).
+pub const LANDING_BACKS: [f64; 4] = [0.0, 0.5, 1.0, 1.5];
+
 /// Where a tube's cells leave and re-enter ([`Suspension::set_recycling`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct Recycling {
@@ -51,13 +64,14 @@ pub struct Recycling {
 }
 
 impl Recycling {
-    /// The move that lands a cell past the outlet turned by `turn` × 30° about the axis.
-    pub fn landing(&self, turn: i32) -> Move {
+    /// The move that lands a cell past the outlet turned by `turn` × 30° about the axis and
+    /// `back` further upstream than its periodic image.
+    pub fn landing(&self, turn: i32, back: f64) -> Move {
         let (s, c) = (f64::from(turn) * std::f64::consts::PI / 6.0).sin_cos();
         Move {
             centre: self.axis,
             rotation: [[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]],
-            translation: [-self.period, 0.0, 0.0],
+            translation: [-self.period - back, 0.0, 0.0],
         }
     }
 }
@@ -71,6 +85,10 @@ pub struct RecycleStats {
     pub deferred: usize,
     /// Cells that landed turned about the axis (their periodic image was taken).
     pub turned: usize,
+    /// Cells that landed upstream of their periodic image (no turn of it was clear).
+    pub upstream: usize,
+    /// Cells that landed closer than the clearance, after which the contact projection ran.
+    pub projected: usize,
     /// Seconds spent deciding and moving.
     pub seconds: f64,
 }
@@ -110,6 +128,8 @@ impl Suspension {
         comm.all_sum_u64(&mut any)
             .map_err(|e| fail(TimestepError::Comm(e)))?;
         let mut moved = Vec::new();
+        // Whether a cell landed closer than the clearance (every rank decides the same).
+        let mut project = false;
         if any[0] > 0 {
             let (ids, mut coefs) = self.all_surfaces(comm)?;
             let past: Vec<usize> = (0..ids.len())
@@ -125,33 +145,57 @@ impl Suspension {
                 .map(|w| w.fixed_surfaces())
                 .unwrap_or(&[]);
             for k in past {
-                let places: Vec<Vec<f64>> = LANDING_TURNS
-                    .iter()
-                    .map(|&t| {
-                        let mut c = coefs[k].clone();
-                        r.landing(t).apply(&mut c);
-                        c
-                    })
-                    .collect();
-                let views: Vec<&[f64]> = coefs.iter().map(|c| c.as_slice()).collect();
-                let found = solver
-                    .first_clear(&views, k, &places, fixed, r.clearance, 2.0 * r.clearance)
-                    .map_err(|e| fail(TimestepError::Contact(e)))?;
-                match found {
-                    Some((i, _)) => {
-                        coefs[k].clone_from(&places[i]);
-                        moved.push((ids[k], LANDING_TURNS[i]));
+                // Each distance upstream with every turn: the first clear place, else (with
+                // a projection) the best that leaves the surfaces apart.
+                let mut landed = false;
+                for back in LANDING_BACKS {
+                    let places: Vec<Vec<f64>> = LANDING_TURNS
+                        .iter()
+                        .map(|&t| {
+                            let mut c = coefs[k].clone();
+                            r.landing(t, back).apply(&mut c);
+                            c
+                        })
+                        .collect();
+                    let views: Vec<&[f64]> = coefs.iter().map(|c| c.as_slice()).collect();
+                    let (i, gap) = solver
+                        .first_clear_or_best(
+                            &views,
+                            k,
+                            &places,
+                            fixed,
+                            r.clearance,
+                            2.0 * r.clearance,
+                        )
+                        .map_err(|e| fail(TimestepError::Contact(e)))?;
+                    let pressed = gap < r.clearance;
+                    if pressed && !(gap > 0.0 && self.contacts.is_some()) {
+                        continue;
                     }
-                    None => self.recycle_stats.deferred += 1,
+                    coefs[k].clone_from(&places[i]);
+                    moved.push((ids[k], (LANDING_TURNS[i], back)));
+                    if pressed {
+                        self.recycle_stats.projected += 1;
+                        project = true;
+                    }
+                    landed = true;
+                    break;
+                }
+                if !landed {
+                    self.recycle_stats.deferred += 1;
                 }
             }
         }
         for c in &mut self.cells {
-            if let Some(&(_, turn)) = moved.iter().find(|m| m.0 == c.id) {
-                land(&mut c.state, &r.landing(turn));
+            if let Some(&(_, (turn, back))) = moved.iter().find(|m| m.0 == c.id) {
+                land(&mut c.state, &r.landing(turn, back));
             }
         }
-        self.recycle_stats.turned += moved.iter().filter(|m| m.1 != 0).count();
+        self.recycle_stats.turned += moved.iter().filter(|m| m.1 .0 != 0).count();
+        self.recycle_stats.upstream += moved.iter().filter(|m| m.1 .1 > 0.0).count();
+        if project {
+            self.resolve_contacts(comm)?;
+        }
         self.recycle_stats.recycled += moved.len();
         self.recycle_stats.seconds += t0.elapsed().as_secs_f64();
         Ok(())
@@ -246,7 +290,7 @@ mod tests {
         let nc = state.coefs.len() / 3;
         let centre = |c: &[f64]| [c[0] / sq, c[nc] / sq, c[2 * nc] / sq];
         let mut turned = state.clone();
-        land(&mut turned, &r.landing(3));
+        land(&mut turned, &r.landing(3, 0.0));
         for c in [&turned.coefs, turned.previous_coefs.as_ref().unwrap()] {
             let got = centre(c);
             let want = [-2.0, 0.2 - 0.1, -0.1 + 1.3];
@@ -274,7 +318,7 @@ mod tests {
         assert!(turned.preconditioner.is_none());
         // Unturned: a translation of the constant modes only, the rest as it was.
         let mut moved = state.clone();
-        land(&mut moved, &r.landing(0));
+        land(&mut moved, &r.landing(0, 0.0));
         let mut want = state.clone();
         want.coefs[0] -= 5.0 * sq;
         want.previous_coefs.as_mut().unwrap()[0] -= 5.0 * sq;
