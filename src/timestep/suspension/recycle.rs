@@ -23,11 +23,12 @@
 //! there and the projection runs again at once, restoring `d_min` (counted as `projected`): two
 //! cells that travel side by side closer than the clearance reach the outlet one after the
 //! other, and the second's image lies that close to the first's. Where neither, the same is
-//! tried further upstream, by `0.5, 1, 1.5` ([`LANDING_BACKS`], in the solver's length unit,
-//! the cells' radius), into the entrance of the tube's rounded inlet end, where the flow is
-//! still nearly Poiseuille's and carries the cell into the window (the run is not periodic:
-//! a cell near the outlet does not feel the cells near the inlet, so its image can come to
-//! overlap one of them). The turn moves its whole state: the surface and BDF2's previous surface
+//! tried further upstream in steps of 0.5 ([`landing_backs`], in the solver's length unit, the
+//! cells' radius) up to 1.5 beyond the inlet, into the entrance of the tube's rounded inlet
+//! end, where the flow is still nearly Poiseuille's and carries the cell into the window (the
+//! run is not periodic: a cell near the outlet does not feel the cells near the inlet, so its
+//! image can come to overlap one of them; and a cell deferred into the outlet's end has its
+//! image deep in the window). The turn moves its whole state: the surface and BDF2's previous surface
 //! (every mode's vector turned), the velocities and densities kept on its grid (every point's
 //! vector turned), while its tension and Skalak reference (the reference metric, unchanged by a
 //! rigid motion) stay; its own preconditioner is rebuilt. Where no place will do, the cell
@@ -46,9 +47,21 @@ use crate::timestep::TimestepError;
 /// units of 30°): its periodic image first, then ever larger turns either way.
 pub const LANDING_TURNS: [i32; 12] = [0, 1, -1, 2, -2, 3, -3, 4, -4, 5, -5, 6];
 
-/// How much further upstream than its periodic image a recycled cell may land, in the order
-/// tried (each with every turn of [`LANDING_TURNS`]).
-pub const LANDING_BACKS: [f64; 4] = [0.0, 0.5, 1.0, 1.5];
+/// The step between the distances further upstream than its periodic image a recycled cell
+/// may land ([`landing_backs`]; each with every turn of [`LANDING_TURNS`]).
+pub const LANDING_BACK_STEP: f64 = 0.5;
+
+/// How far upstream of the inlet a recycled cell may land (in the solver's length unit).
+pub const LANDING_BEYOND_INLET: f64 = 1.5;
+
+/// The distances further upstream than its periodic image tried for a cell whose centre has
+/// passed the outlet by `past`: `0, 0.5, 1, …` while the place stays within
+/// [`LANDING_BEYOND_INLET`] of the inlet (so a cell carried deep into the outlet's end can
+/// still come back at the inlet).
+pub fn landing_backs(past: f64) -> impl Iterator<Item = f64> {
+    let n = ((past.max(0.0) + LANDING_BEYOND_INLET) / LANDING_BACK_STEP).floor() as usize;
+    (0..=n).map(|k| k as f64 * LANDING_BACK_STEP)
+}
 
 /// Where a tube's cells leave and re-enter ([`Suspension::set_recycling`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -148,7 +161,7 @@ impl Suspension {
                 // Each distance upstream with every turn: the first clear place, else (with
                 // a projection) the best that leaves the surfaces apart.
                 let mut landed = false;
-                for back in LANDING_BACKS {
+                for back in landing_backs(coefs[k][0] / s - r.outlet) {
                     let places: Vec<Vec<f64>> = LANDING_TURNS
                         .iter()
                         .map(|&t| {
@@ -245,6 +258,17 @@ fn land(state: &mut CellState, m: &Move) {
 mod tests {
     use super::*;
     use crate::vesicle::shapes;
+
+    /// Just past the outlet the places reach 1.5 upstream of the image; 2.5 past it, 4.0
+    /// (still 1.5 beyond the inlet).
+    #[test]
+    fn landing_places_reach_back_beyond_the_inlet() {
+        let backs = |past: f64| landing_backs(past).collect::<Vec<f64>>();
+        assert_eq!(backs(0.03), [0.0, 0.5, 1.0, 1.5]);
+        assert_eq!(backs(-0.1), [0.0, 0.5, 1.0, 1.5]);
+        assert_eq!(backs(2.5).len(), 9);
+        assert_eq!(backs(2.5).last(), Some(&4.0));
+    }
 
     /// A landing turned by 90° about the axis moves a sphere at `(x, 1.5, 0)` (axis through
     /// `(0, 0.2, −0.1)`: `(1.3, 0.1)` from it) to `(x − P, 0.2 − 0.1, −0.1 + 1.3)`, its previous
