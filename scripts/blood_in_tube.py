@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Tube hematocrit, Fåhræus ratio and cell-free layer of a recycled tube run, against Pries et al.
 
-    python3 scripts/blood_in_tube.py OUT [--cell-radius-um 2.8] [--every-rows 10]
+    python3 scripts/blood_in_tube.py OUT [--cell-radius-um 2.8] [--every-rows 10] [--svg FILE]
 
 OUT is the output folder of `mobo run` on a scene with `[flow] kind = "tube"`, `recycle = true`
 and a tube container (docs/walls.md). Frames must be written (`[output] every`); the script
@@ -73,11 +73,49 @@ def relative_viscosity(out):
     return np.array(rows).reshape(-1, 2)
 
 
+def svg(path, mu_rows, blocks, pries_mu, pries_ratio):
+    """mu_app/mu per step and H_T/H_D per block against time, with Pries' values (dashed)."""
+    w, h, m = 640, 400, 60
+    t1 = max(mu_rows[-1, 0] if len(mu_rows) else 0, blocks[-1][0] if blocks else 0) or 1
+    values = list(mu_rows[:, 1]) + [b[1] for b in blocks] + [pries_mu, pries_ratio]
+    lo, hi = min(values) - 0.05, max(values) + 0.05
+    x = lambda t: m + (w - 2 * m) * t / t1
+    y = lambda v: h - m - (h - 2 * m) * (v - lo) / (hi - lo)
+    out = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{w}" height="{h}" '
+           f'font-family="sans-serif" font-size="12">',
+           f'<rect width="{w}" height="{h}" fill="white"/>',
+           f'<line x1="{m}" y1="{h - m}" x2="{w - m}" y2="{h - m}" stroke="black"/>',
+           f'<line x1="{m}" y1="{m}" x2="{m}" y2="{h - m}" stroke="black"/>',
+           f'<text x="{w / 2}" y="{h - 20}" text-anchor="middle">t (the run\'s '
+           f'time unit)</text>']
+    for k in range(6):
+        v = lo + (hi - lo) * k / 5
+        out.append(f'<text x="{m - 6}" y="{y(v) + 4:.1f}" text-anchor="end">{v:.2f}</text>')
+        t = t1 * k / 5
+        out.append(f'<text x="{x(t):.1f}" y="{h - m + 16}" text-anchor="middle">{t:.1f}</text>')
+    if len(mu_rows):
+        pts = " ".join(f"{x(t):.1f},{y(v):.1f}" for t, v in mu_rows)
+        out.append(f'<polyline points="{pts}" fill="none" stroke="#1f5fbf" stroke-width="1.5"/>')
+    for t, v in blocks:
+        out.append(f'<circle cx="{x(t):.1f}" cy="{y(v):.1f}" r="3" fill="#c0392b"/>')
+    for v, colour in [(pries_mu, "#1f5fbf"), (pries_ratio, "#c0392b")]:
+        out.append(f'<line x1="{m}" y1="{y(v):.1f}" x2="{w - m}" y2="{y(v):.1f}" '
+                   f'stroke="{colour}" stroke-dasharray="6,4"/>')
+    out.append(f'<text x="{m + 8}" y="{m - 24}" fill="#1f5fbf">mu_app/mu per step (line); '
+               f'Pries et al. mu_rel at the mean H_D (dashed)</text>')
+    out.append(f'<text x="{m + 8}" y="{m - 8}" fill="#c0392b">H_T/H_D per block (dots); '
+               f'Pries et al. at the mean H_D (dashed)</text>')
+    out.append("</svg>")
+    with open(path, "w") as f:
+        f.write("\n".join(out) + "\n")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out")
     ap.add_argument("--cell-radius-um", type=float, default=2.8)
     ap.add_argument("--every-rows", type=int, default=10, help="frames per printed block")
+    ap.add_argument("--svg", help="write a plot of mu_app/mu and H_T/H_D against time")
     a = ap.parse_args()
     scene = tomllib.load(open(os.path.join(a.out, "scene.toml"), "rb"))
     tube = [w for w in scene.get("walls", []) if w.get("shape") == "tube"]
@@ -138,6 +176,7 @@ def main():
     print("| t | cells in window | H_T | <U_c>/u_mean | H_T/H_D | H_D | Pries H_T/H_D at that H_D "
           "| cell-free layer | mu_app/mu | Pries mu_rel at that H_D |")
     print("|---|---|---|---|---|---|---|---|---|---|")
+    plotted, hds = [], []
     for b in range(1, len(rows), a.every_rows):
         block = rows[b:b + a.every_rows]
         n = np.mean([r[1] for r in block])
@@ -150,9 +189,17 @@ def main():
         sel = (mu_rows[:, 0] > rows[b - 1][0]) & (mu_rows[:, 0] <= block[-1][0] + 1e-12)
         mu = f"{mu_rows[sel, 1].mean():.4f}" if sel.any() else "-"
         pries_mu = f"{pries_mu_rel(d_um, hd):.3f}" if 0 < hd < 1 else "-"
+        if 0 < hd < 1:
+            plotted.append((0.5 * (block[0][0] + block[-1][0]), ratio))
+            hds.append(hd)
         print(f"| {block[0][0]:g}–{block[-1][0]:g} | {n:.2f} | {ht:.3f} | {sp / u_mean:.3f} | "
               f"{ratio:.3f} | {hd:.3f} | {pries_ht_over_hd(d_um, hd):.3f} | {layer:.3f} | "
               f"{mu} | {pries_mu} |")
+    if a.svg and hds:
+        hd = float(np.mean(hds))
+        svg(a.svg, mu_rows, plotted, pries_mu_rel(d_um, hd), pries_ht_over_hd(d_um, hd))
+        print(f"plot: {a.svg} (Pries at the mean H_D {hd:.3f}: mu_rel "
+              f"{pries_mu_rel(d_um, hd):.3f}, H_T/H_D {pries_ht_over_hd(d_um, hd):.3f})")
 
 
 if __name__ == "__main__":
