@@ -40,7 +40,9 @@
 //! for _ in 0..4 {
 //!     let gx = g(&x);
 //!     x = acc
-//!         .next(&[x.clone()], &[gx], |rows: Vec<Vec<f64>>| -> Result<Vec<f64>, ()> { Ok(rows[0].clone()) })
+//!         .next(&[x.clone()], &[gx], |rows: Vec<Vec<f64>>, _width| -> Result<Vec<f64>, ()> {
+//!             Ok(rows[0].clone())
+//!         })
 //!         .unwrap()
 //!         .remove(0);
 //! }
