@@ -418,19 +418,6 @@ impl ContactSolver {
         unreachable!("the last round returns")
     }
 
-    /// The smallest gap between body `k` of `coefs` and every other body and fixed surface,
-    /// or `range` when none is closer than `range`: the test a body placed by hand must pass.
-    pub fn clearance_of(
-        &self,
-        coefs: &[&[f64]],
-        k: usize,
-        fixed: &[FixedSurface],
-        range: f64,
-    ) -> Result<f64, ContactError> {
-        let mut bodies = self.bodies(coefs)?;
-        self.gap_at(&mut bodies, k, coefs[k], fixed, range)
-    }
-
     /// The first of the `places` (coefficients for body `k`, tried in order) where body `k`
     /// is at least `need` from every other body of `coefs` and every fixed surface, or, when
     /// none is, the place with the largest gap; with its gap (signed, negative where surfaces
