@@ -300,6 +300,12 @@ struct Constraint {
     gap: f64,
 }
 
+/// Every body's distance surface, built by [`ContactSolver::prepare`]: the others' surfaces
+/// against which places for one body are tried.
+pub struct PreparedBodies {
+    bodies: Vec<SurfaceDistance>,
+}
+
 /// The contact projection for bodies of SH order `p` (see the module docs).
 pub struct ContactSolver {
     p: usize,
@@ -418,25 +424,55 @@ impl ContactSolver {
         unreachable!("the last round returns")
     }
 
+    /// Every body's distance surface, built once, for [`Self::first_clear_or_best`] to try
+    /// places for one body against the others.
+    pub fn prepare(&self, coefs: &[&[f64]]) -> Result<PreparedBodies, ContactError> {
+        Ok(PreparedBodies {
+            bodies: self.bodies(coefs)?,
+        })
+    }
+
+    /// Body `k` of `prepared` now has `coefs`.
+    pub fn set(
+        &self,
+        prepared: &mut PreparedBodies,
+        k: usize,
+        coefs: &[f64],
+    ) -> Result<(), ContactError> {
+        prepared.bodies[k] = self.bodies(&[coefs])?.remove(0);
+        Ok(())
+    }
+
     /// The first of the `places` (coefficients for body `k`, tried in order) where body `k`
-    /// is at least `need` from every other body of `coefs` and every fixed surface, or, when
-    /// none is, the place with the largest gap; with its gap (signed, negative where surfaces
-    /// cross; measured within `range ≥ need`, `range` when nothing is that close): where a
-    /// cell recycled through a tube may land ([`super::suspension::Recycling`]). The other
-    /// bodies are prepared once, and only the pairs with body `k` are measured.
+    /// is at least `need` from every other body of `prepared` and every fixed surface, or,
+    /// when none is, the place with the largest gap; with its gap (signed, negative where
+    /// surfaces cross; measured within `range ≥ need`, `range` when nothing is that close):
+    /// where a cell recycled through a tube may land ([`super::suspension::Recycling`]). Only
+    /// the pairs with body `k` are measured; body `k` of `prepared` is left at the last place
+    /// tried, so the caller [`Self::set`]s it to where the body stays.
     pub fn first_clear_or_best(
         &self,
-        coefs: &[&[f64]],
+        prepared: &mut PreparedBodies,
         k: usize,
         places: &[Vec<f64>],
         fixed: &[FixedSurface],
         need: f64,
         range: f64,
     ) -> Result<(usize, f64), ContactError> {
-        let mut bodies = self.bodies(coefs)?;
         let mut best = (0, f64::NEG_INFINITY);
+        let smallest = |cons: Vec<Constraint>| cons.iter().map(|c| c.gap).fold(range, f64::min);
         for (i, place) in places.iter().enumerate() {
-            let gap = self.gap_at(&mut bodies, k, place, fixed, range)?;
+            let bodies = &mut prepared.bodies;
+            bodies[k] = self.bodies(&[place])?.remove(0);
+            // The other bodies first; the fixed surfaces (Newton's closest point on a large
+            // wall at every sample: the dearer measure) only where the place can still be
+            // taken, clear or better than the best so far.
+            let (cons, _) = self.measure(bodies, &[], &[], &[], range, Some(k));
+            let mut gap = smallest(cons);
+            if gap >= need || gap > best.1 {
+                let (cons, _) = self.measure(&bodies[k..=k], &[], &[], fixed, range, Some(0));
+                gap = gap.min(smallest(cons));
+            }
             if gap >= need {
                 return Ok((i, gap));
             }
@@ -445,21 +481,6 @@ impl ContactSolver {
             }
         }
         Ok(best)
-    }
-
-    /// The smallest gap of body `k` placed at `place` (within `range`; `range` when nothing is
-    /// closer), the other `bodies` prepared.
-    fn gap_at(
-        &self,
-        bodies: &mut [SurfaceDistance],
-        k: usize,
-        place: &[f64],
-        fixed: &[FixedSurface],
-        range: f64,
-    ) -> Result<f64, ContactError> {
-        bodies[k] = self.bodies(&[place])?.remove(0);
-        let (cons, _) = self.measure(bodies, &[], &[], fixed, range, Some(k));
-        Ok(cons.iter().map(|c| c.gap).fold(range, f64::min))
     }
 
     /// The bodies' images shifted by the period (none without one), each with its body's

@@ -157,6 +157,12 @@ impl Suspension {
                 .as_ref()
                 .map(|w| w.fixed_surfaces())
                 .unwrap_or(&[]);
+            // Every cell's distance surface once; a landed or deferred cell's is set to where
+            // it stays.
+            let views: Vec<&[f64]> = coefs.iter().map(|c| c.as_slice()).collect();
+            let mut prepared = solver
+                .prepare(&views)
+                .map_err(|e| fail(TimestepError::Contact(e)))?;
             for k in past {
                 // Each distance upstream with every turn: the first clear place, else (with
                 // a projection) the best that leaves the surfaces apart.
@@ -170,10 +176,9 @@ impl Suspension {
                             c
                         })
                         .collect();
-                    let views: Vec<&[f64]> = coefs.iter().map(|c| c.as_slice()).collect();
                     let (i, gap) = solver
                         .first_clear_or_best(
-                            &views,
+                            &mut prepared,
                             k,
                             &places,
                             fixed,
@@ -197,6 +202,9 @@ impl Suspension {
                 if !landed {
                     self.recycle_stats.deferred += 1;
                 }
+                solver
+                    .set(&mut prepared, k, &coefs[k])
+                    .map_err(|e| fail(TimestepError::Contact(e)))?;
             }
         }
         for c in &mut self.cells {
