@@ -3,13 +3,19 @@
 //! ([`Simulation`] and a [`PatchPair`] force) rather than a scene file.
 //!
 //! ```text
-//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION ELASTICITY EDGE MEMBRANE]
+//! cargo run --release --example rbc_tweezers [-- ORDER FORCES_PN T_MAX DT FRACTION ELASTICITY EDGE MEMBRANE LOAD]
 //! ```
 //!
 //! Defaults: `12 0,88,193 40 0.01 0.025 implicit 0` (`ELASTICITY`: the scene's
 //! `[numerics] elasticity`, `implicit` or `explicit`; `EDGE` > 0: a [`SmoothPatchPair`] whose
 //! edge is that share of the cell's extent, 0: the hard [`PatchPair`]; `MEMBRANE`: `vesicle`,
-//! locally inextensible, or `capsule:C`, a membrane whose area is resisted by Skalak's `C` alone). The cell: the biconcave RBC scaled to a diameter of
+//! locally inextensible, or `capsule:C`, a membrane whose area is resisted by Skalak's `C` alone;
+//! `LOAD`: `patch`, the force spread as a traction over patches free to deform, or `bead:K`, the
+//! patches bonded with stiffness `K` (in `G_s/R²`) to rigid beads of Mills' 4.12 µm diameter
+//! that carry the force, a `mobo::timestep::bead_pair::BeadPair`: the patch keeps the bead's
+//! shape and slides over it), or `bonded:K`, the patches glued with stiffness `K` to rigid
+//! bodies that carry the force (`BondedPatchPair`: the patch moves as one body; needs
+//! `MEMBRANE` `capsule:C`, whose grid follows the material). Both need `EDGE` > 0. The cell: the biconcave RBC scaled to a diameter of
 //! 7.82 µm (equivalent radius `R = 7.82/(2α)` µm, `α` = [`RBC_ALPHA`]), Skalak shear modulus
 //! `G_s = 6.3 µN/m` and bending rigidity `κ = 2.4·10⁻¹⁹ J` (the moduli of Fedosov et al.,
 //! Biophys. J. 98, 2010, fitted to Mills' data), a locally inextensible membrane, viscosity
@@ -37,7 +43,10 @@ use mobo::scene::cells::parse;
 /// `tweezers_probe` and `tests/rbc_tweezers.rs`).
 #[path = "common/tweezers.rs"]
 mod tweezers;
-use tweezers::{extent, pull, Units, DIAMETER_UM, MILLS, SHEAR_UN_PER_M};
+use tweezers::{
+    bead_misfit, extent, pull, pull_by_beads, pull_by_bonds, Units, BEAD_DIAMETER_UM, DIAMETER_UM,
+    MILLS, SHEAR_UN_PER_M,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
@@ -61,6 +70,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             None => return Err(format!("MEMBRANE {m}: vesicle or capsule:C").into()),
         },
     };
+    // "patch" (a traction on patches free to deform) or "bead:K" (rigid beads, bond stiffness K).
+    let load = a.get(8).map_or("patch", |s| s.as_str());
+    let (bead, bonded): (Option<f64>, Option<f64>) = match load {
+        "patch" => (None, None),
+        l => {
+            let (kind, k) = l
+                .split_once(':')
+                .ok_or(format!("LOAD {l}: patch, bead:K or bonded:K"))?;
+            let k: f64 = k.parse()?;
+            if edge <= 0.0 {
+                return Err(format!("LOAD {l} needs EDGE > 0 (smooth patches)").into());
+            }
+            match kind {
+                "bead" => (Some(k), None),
+                "bonded" if membrane.is_empty() => {
+                    return Err("LOAD bonded:K needs MEMBRANE capsule:C (material grid)".into())
+                }
+                "bonded" => (None, Some(k)),
+                _ => return Err(format!("LOAD {l}: patch, bead:K or bonded:K").into()),
+            }
+        }
+    };
     let shear_un_per_m: f64 = match std::env::var("SHEAR_MODULUS") {
         Ok(s) => s
             .parse()
@@ -72,11 +103,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     }
     let units = Units::new(shear_un_per_m);
     let (r_um, kappa) = (units.r_um, units.kappa);
+    let bead_radius = 0.5 * BEAD_DIAMETER_UM / units.r_um;
     println!(
         "RBC of diameter {DIAMETER_UM} µm (R = {r_um:.4} µm), G_s = {shear_un_per_m} µN/m, κ = 2.4e-19 J: \
          κ/(G_s R²) = {kappa:.4e}; p = {p}, dt = {dt}, patches {:.1} % of the area each \
-         (edge {edge}), elasticity {elasticity}",
-        100.0 * fraction
+         (edge {edge}), elasticity {elasticity}, load {}",
+        100.0 * fraction,
+        match (bead, bonded) {
+            (Some(k), _) =>
+                format!("rigid beads of {BEAD_DIAMETER_UM} µm, bond stiffness {k} G_s/R²"),
+            (_, Some(k)) =>
+                format!("patches glued to rigid bodies, bond stiffness {k} G_s/R²"),
+            _ => "traction on the patches".to_string(),
+        }
     );
     println!();
     println!("| F (pN) | F/(G_s R) | D_A (µm) | Mills D_A | error | D_T (µm) | Mills D_T | error | t | steps | area drift |");
@@ -94,7 +133,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
         let scene = parse(Path::new("rbc_tweezers (in code)"), &text)?;
         let mut sim = Simulation::new(scene)?;
-        pull(&mut sim, f, fraction, edge);
+        match (bead, bonded) {
+            (Some(k), _) => pull_by_beads(&mut sim, f, fraction, edge, bead_radius, k),
+            (_, Some(k)) => pull_by_bonds(&mut sim, f, fraction, edge, k),
+            _ => pull(&mut sim, f, fraction, edge),
+        }
         let a0 = sim.cell(0)?.geometry.area();
         let mut last = extent(&sim.cell(0)?.geometry, 0);
         let check = 0.5;
@@ -103,13 +146,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             sim.advance_to(t, |_, _| {})?;
             let d = extent(&sim.cell(0)?.geometry, 0);
             let rate = (d - last).abs() * r_um / check;
+            let g = &sim.cell(0)?.geometry;
+            let misfit = bead.map_or(String::new(), |k| {
+                let m = bead_misfit(g, f, fraction, edge, bead_radius, k);
+                format!("  bond misfit {:.4} µm", m * r_um)
+            });
             eprintln!(
                 "F = {f_pn} pN  t = {:.1}  D_A = {:.4} µm  D_T = {:.4} µm  D_z = {:.4} µm  \
-                 rate {rate:.2e} µm/time",
+                 rate {rate:.2e} µm/time{misfit}",
                 sim.time(),
                 d * r_um,
-                extent(&sim.cell(0)?.geometry, 1) * r_um,
-                extent(&sim.cell(0)?.geometry, 2) * r_um
+                extent(g, 1) * r_um,
+                extent(g, 2) * r_um
             );
             last = d;
             if rate < 1e-4 {

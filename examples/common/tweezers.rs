@@ -9,6 +9,7 @@
 
 use mobo::fmm::octree::bounding_box;
 use mobo::run::simulation::Simulation;
+use mobo::timestep::bead_pair::{BeadPair, BondedPatchPair};
 use mobo::timestep::cell_force::{PatchPair, SmoothPatchPair};
 use mobo::vesicle::geometry::Geometry;
 use mobo::vesicle::shapes::RBC_ALPHA;
@@ -20,6 +21,9 @@ pub const MILLS: [(f64, f64, f64); 3] =
 pub const DIAMETER_UM: f64 = 7.82;
 pub const SHEAR_UN_PER_M: f64 = 6.3;
 pub const BENDING_J: f64 = 2.4e-19;
+/// Diameter of the silica beads of Mills et al. (2004), µm.
+#[allow(dead_code)] // not every includer pulls by beads
+pub const BEAD_DIAMETER_UM: f64 = 4.12;
 
 /// The cell's scales for a shear modulus `G_s` in µN/m.
 pub struct Units {
@@ -75,6 +79,86 @@ pub fn pull(sim: &mut Simulation, force: f64, fraction: f64, edge: f64) {
     } else {
         sim.add_force(pair);
     }
+}
+
+/// Pull cell 0 by `±force` along x through two rigid beads of radius `radius` (simulation
+/// units) bonded to the patches of [`pull`] with stiffness `stiffness` (a [`BeadPair`]).
+#[allow(dead_code)] // not every includer pulls by beads
+pub fn pull_by_beads(
+    sim: &mut Simulation,
+    force: f64,
+    fraction: f64,
+    edge: f64,
+    radius: f64,
+    stiffness: f64,
+) {
+    let pair = PatchPair {
+        cell: 0,
+        axis: [1.0, 0.0, 0.0],
+        fraction,
+        force,
+    };
+    sim.add_force(BeadPair {
+        patches: SmoothPatchPair { pair, width: edge },
+        radius,
+        stiffness,
+    });
+}
+
+/// Pull cell 0 by `±force` along x through the patches of [`pull`] glued (stiffness
+/// `stiffness`) to rigid bodies that carry the force (a [`BondedPatchPair`]: the membrane's
+/// grid must follow its material points, a capsule).
+#[allow(dead_code)] // not every includer pulls by bonds
+pub fn pull_by_bonds(sim: &mut Simulation, force: f64, fraction: f64, edge: f64, stiffness: f64) {
+    let pair = PatchPair {
+        cell: 0,
+        axis: [1.0, 0.0, 0.0],
+        fraction,
+        force,
+    };
+    sim.add_force(BondedPatchPair::new(
+        SmoothPatchPair { pair, width: edge },
+        stiffness,
+    ));
+}
+
+/// The largest distance from its bead's sphere of a point bonded with a weight of at least ½
+/// (simulation units), for the beads of [`pull_by_beads`] on the cell `g`: how far the bond is
+/// from rigid.
+#[allow(dead_code)] // not every includer pulls by beads
+pub fn bead_misfit(
+    g: &Geometry,
+    force: f64,
+    fraction: f64,
+    edge: f64,
+    radius: f64,
+    stiffness: f64,
+) -> f64 {
+    let pair = PatchPair {
+        cell: 0,
+        axis: [1.0, 0.0, 0.0],
+        fraction,
+        force,
+    };
+    let beads = BeadPair {
+        patches: SmoothPatchPair { pair, width: edge },
+        radius,
+        stiffness,
+    };
+    let weights = beads.patches.weights(g);
+    let mut worst: f64 = 0.0;
+    for (bead, w) in beads.beads(g).iter().zip(&weights) {
+        for (x, wj) in g.x.iter().zip(w) {
+            if *wj >= 0.5 {
+                let d = (0..3)
+                    .map(|c| (x[c] - bead.centre[c]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                worst = worst.max((d - radius).abs());
+            }
+        }
+    }
+    worst
 }
 
 /// The extent of the cell's grid points along axis `d` (simulation units).

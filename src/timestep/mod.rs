@@ -90,6 +90,7 @@
 
 pub mod adaptive;
 pub mod anderson;
+pub mod bead_pair;
 pub mod cell_force;
 pub mod cell_preconditioner;
 pub mod cell_state;
