@@ -7,7 +7,8 @@
 # Settings (environment): KS (rank counts, default "1 2"), CELLS (default: strong 125, weak
 # 60), ORDER (SH order p, default 6), STEPS (default 10), THREADS (rayon threads per rank,
 # default 1: one core a rank), OUT (work directory, default target/scaling), RESULTS (the
-# file the table is appended to, default benches/RESULTS.md; "-" prints it only).
+# file the table is appended to, default benches/RESULTS.md; "-" prints it only). The last
+# column is each rank's peak resident memory (summary.json's split.peak_rss_mib).
 # MOBO_BIN: a prebuilt binary with the mpi feature (no cargo build).
 # The cells are placed at random at a volume fraction of about 6 % (the box grows with the
 # cell count); the flow is simple shear. Each run's summary.json gives the phases per rank
@@ -83,8 +84,8 @@ for r in sys.argv[4:]:
     runs.append((int(k), int(n), s))
 k0, _, s0 = runs[0]
 t0 = s0["step_s"] / s0["steps"]
-print(f"| K | cells | cells/rank min–max | s/step | efficiency | solve s/step (max/mean) | coupling s/step (max) | FMM s/step (max) | near + ghosts s/step (max) | MB sent/step/rank (FMM, ghosts) | ghost cells/rank | solve imbalance | re-balances |")
-print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+print(f"| K | cells | cells/rank min–max | s/step | efficiency | solve s/step (max/mean) | coupling s/step (max) | FMM s/step (max) | near + ghosts s/step (max) | MB sent/step/rank (FMM, ghosts) | ghost cells/rank | solve imbalance | re-balances | peak MiB/rank (max/mean) |")
+print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
 for k, n, s in runs:
     sp, st = s["split"], s["steps"]
     t = s["step_s"] / st
@@ -95,7 +96,8 @@ for k, n, s in runs:
         f"| {per(sp['solve_s'][0]):.3f}/{per(sp['solve_s'][1]):.3f} | {per(sp['coupling_s'][0]):.3f} "
         f"| {per(sp['fmm_s'][0]):.3f} | {per(sp['near_s'][0] + sp['ghost_exchange_s'][0]):.3f} "
         f"| {sp['fmm_bytes_per_step'][0] / 1e6:.2f}, {sp['ghost_bytes_per_step'][0] / 1e6:.2f} "
-        f"| {sp['ghost_cells_per_step'][0]:.0f} | {sp['solve_imbalance']:.2f} | {len(sp['rebalances'])} |"
+        f"| {sp['ghost_cells_per_step'][0]:.0f} | {sp['solve_imbalance']:.2f} | {len(sp['rebalances'])} "
+        f"| {sp.get('peak_rss_mib', [0, 0])[0]:.0f}/{sp.get('peak_rss_mib', [0, 0])[1]:.0f} |"
     )
 EOF
 )

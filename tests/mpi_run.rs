@@ -209,6 +209,11 @@ fn the_125_rbc_suspension_gives_the_one_rank_result_on_2_3_4_ranks() {
         assert!(phases["p2p"].as_f64().unwrap() > 0.0);
         assert!(f("fmm_points_moved_per_step", 0) > 0.0);
         assert!(f("fmm_setup_bytes_per_step", 0) > 0.0);
+        // Every rank's peak memory (a rank is a process of some MiB at least; the largest is
+        // at least the mean).
+        let rss = [f("peak_rss_mib", 0), f("peak_rss_mib", 1)];
+        eprintln!("125 RBCs, {k} ranks: peak MiB per rank {rss:?}");
+        assert!(rss[1] > 1.0 && rss[0] >= rss[1], "{rss:?}");
     }
 }
 

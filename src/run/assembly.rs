@@ -199,7 +199,8 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
     };
     let mut walls = vec![];
     // A tube container carrying a tube flow moves with it (in at one end, out at the other);
-    // a wall with an angular velocity turns in place; every other wall is at rest.
+    // a wall with an angular velocity turns in place; a grid wall moves as its velocity file
+    // says; every other wall is at rest.
     let mut velocity = vec![];
     for (k, w) in scene.walls.iter().enumerate() {
         let surface = w.surface().map_err(|e| fail(format!("wall {k}: {e}")))?;
@@ -207,13 +208,29 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
         let n = wall.n_points();
         let mut u = vec![0.0; 3 * n];
         if let (Flow::Tube { .. }, WallShape::Tube { .. }, WallKind::Container) =
-            (scene.flow, w.shape, w.kind)
+            (scene.flow, &w.shape, w.kind)
         {
             for (j, &x) in wall.geometry().x.iter().enumerate() {
                 let v = scene.flow.velocity(x);
                 for a in 0..3 {
                     u[a * n + j] = v[a];
                 }
+            }
+        }
+        // A grid wall's own velocity, given at the points of its grid.
+        if let Some(v) = w
+            .grid_velocity()
+            .map_err(|e| fail(format!("wall {k}: {e}")))?
+        {
+            if v.len() != u.len() {
+                return Err(fail(format!(
+                    "wall {k}: {} velocity values for {} wall points",
+                    v.len() / 3,
+                    n
+                )));
+            }
+            for (uj, vj) in u.iter_mut().zip(v) {
+                *uj += vj;
             }
         }
         // A turning wall: Ω × (x − c), tangential (checked when the scene was read).

@@ -183,13 +183,14 @@ pub(crate) fn rheology(
     let d = susp.extra_dissipation(comm, &|x| flow.velocity_about(x, origin), &|x| {
         flow.stress(x, mu)
     })?;
-    let section = scene.walls.iter().find_map(|w| match (w.kind, w.shape) {
-        (crate::wall::WallKind::Container, crate::scene::walls::WallShape::Tube { length, .. }) => {
-            Some(crate::wall::straight_length(
-                length,
-                crate::scene::cells::TUBE_WINDOW_TOLERANCE,
-            ))
-        }
+    let section = scene.walls.iter().find_map(|w| match (w.kind, &w.shape) {
+        (
+            crate::wall::WallKind::Container,
+            &crate::scene::walls::WallShape::Tube { length, .. },
+        ) => Some(crate::wall::straight_length(
+            length,
+            crate::scene::cells::TUBE_WINDOW_TOLERANCE,
+        )),
         _ => None,
     });
     let relative = match (flow, d, section) {

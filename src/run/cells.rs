@@ -43,6 +43,7 @@ use super::observables::{FailedRunSummary, Observables, StepRow};
 use super::output::{gather_rows, gather_states, gathered_frame, write_walls_vtp};
 use super::partition::{self, Reason};
 use super::plane::PlaneOutput;
+use super::scene_copy::write_scene_copy;
 use super::summary::{
     split_summary, AdaptiveSummary, CellRunSummary, CellSummary, Counters, RankClock, Rebalance,
 };
@@ -356,7 +357,7 @@ impl<'a> CellRun<'a> {
                             let (x, a, v, inc) = observe(&mut calc, &s.coefs)?;
                             prog.start_obs.push([x[0], x[1], x[2], a, v, inc]);
                         }
-                        write_atomic(&out.join(SCENE_COPY), scene_text.as_bytes())?;
+                        write_scene_copy(scene, scene_text, out, SCENE_COPY)?;
                         Ok(Some(FrameWriter::new(out, formats)?))
                     })()
                 } else {

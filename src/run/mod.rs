@@ -22,6 +22,7 @@ pub mod observables;
 mod output;
 pub mod partition;
 mod plane;
+pub mod scene_copy;
 pub mod simulation;
 pub mod summary;
 

@@ -246,6 +246,9 @@ pub struct SplitSummary {
     pub migration_bytes_per_step: [f64; 2],
     /// Ghost cells a rank received per step (largest and mean).
     pub ghost_cells_per_step: [f64; 2],
+    /// Peak resident memory of a rank's process in MiB (Linux's `VmHWM`), largest and mean
+    /// over the ranks; zeros where the system does not say.
+    pub peak_rss_mib: [f64; 2],
     /// Imbalance of the solve time at the end: largest over mean, minus 1.
     pub solve_imbalance: f64,
     /// The re-balances of this invocation.
@@ -307,9 +310,11 @@ pub(super) fn split_summary(
         st.fmm_build_s,
         st.fmm_comm_s,
     ];
-    // Columns 16..25: the FMM's phases.
+    // Columns 16..25: the FMM's phases; then the peak memory.
     let phases = st.fmm_phases.phases();
     mine.extend(phases.iter().map(|p| p.1));
+    let rss = mine.len();
+    mine.push(peak_rss_bytes().map_or(0.0, |b| b as f64 / (1u64 << 20) as f64));
     let s = spread(comm, &mine).map_err(CellRunError::Comm)?;
     let max_mean = |j: usize| [s[j].max, s[j].mean];
     let solve = max_mean(1);
@@ -336,6 +341,7 @@ pub(super) fn split_summary(
             .enumerate()
             .map(|(j, (name, _))| (name.to_string(), s[16 + j].max))
             .collect(),
+        peak_rss_mib: max_mean(rss),
         solve_imbalance: if solve[1] > 0.0 {
             solve[0] / solve[1] - 1.0
         } else {
@@ -343,4 +349,44 @@ pub(super) fn split_summary(
         },
         rebalances: log.to_vec(),
     })
+}
+
+/// The process's peak resident memory in bytes (`VmHWM` of `/proc/self/status`), where the
+/// system gives it.
+pub(super) fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The peak memory read from `/proc/self/status` against the kernel's other account of
+    /// it, `getrusage`'s `ru_maxrss` (KiB on Linux); both grow by at least what a new buffer
+    /// touches.
+    #[test]
+    #[cfg(target_os = "linux")]
+    fn peak_memory_agrees_with_getrusage() {
+        let rusage = || {
+            let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+            // SAFETY: `u` is a valid rusage for the kernel to fill.
+            assert_eq!(unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) }, 0);
+            u.ru_maxrss as f64 * 1024.0
+        };
+        let before = peak_rss_bytes().expect("VmHWM on Linux") as f64;
+        let grow = 256usize << 20;
+        let buffer: Vec<u8> = (0..grow).map(|i| (i % 251) as u8).collect();
+        std::hint::black_box(&buffer);
+        let after = peak_rss_bytes().unwrap() as f64;
+        let reference = rusage();
+        assert!(after - before >= 0.99 * grow as f64, "{before} -> {after}");
+        // The two accounts are read a moment apart (other tests allocate meanwhile).
+        assert!(
+            (after - reference).abs() <= 0.05 * reference,
+            "VmHWM {after} B, ru_maxrss {reference} B"
+        );
+    }
 }

@@ -441,7 +441,7 @@ impl CellScene {
 }
 
 /// The shape of a wall.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq)]
 pub enum WallShape {
     /// A sphere of the given radius.
     Sphere {
@@ -460,6 +460,30 @@ pub enum WallShape {
         /// Its length end to end.
         length: f64,
     },
+    /// A surface given by the user as points on the spherical grid (`shape = "grid"`,
+    /// [`super::walls`]): its order-`p` coefficients, and those of the velocity given at
+    /// the same points (none: at rest).
+    Grid {
+        /// The order of the given grid.
+        p: usize,
+        /// The surface's coefficients (x, y, z) at order `p`, in the scene's units, before
+        /// the wall's `center` is added.
+        coefs: std::sync::Arc<Vec<f64>>,
+        /// The boundary velocity's coefficients (x, y, z) at order `p`.
+        velocity: Option<std::sync::Arc<Vec<f64>>>,
+    },
+}
+
+/// A file a wall was read from: which key, the file, and where its name is in the scene's
+/// text (so that a run can copy the file beside its scene copy).
+#[derive(Clone, Debug, PartialEq)]
+pub struct WallFile {
+    /// `positions` or `velocity`.
+    pub key: &'static str,
+    /// The file as resolved (relative names from the scene file's folder).
+    pub path: std::path::PathBuf,
+    /// The span of the quoted name in the scene's text.
+    pub span: std::ops::Range<usize>,
 }
 
 /// One validated `[[walls]]` entry.
@@ -479,6 +503,8 @@ pub struct WallSpec {
     pub angular_velocity: [f64; 3],
     /// The line of its entry (1-based; 0 for a spec).
     pub line: usize,
+    /// The files a grid wall was read from.
+    pub files: Vec<WallFile>,
 }
 
 /// Default order of a wall.
@@ -495,9 +521,29 @@ impl WallSpec {
             WallShape::Sphere { radius } => shapes::sphere(self.order, radius)?,
             WallShape::Ellipsoid { axes } => shapes::ellipsoid(self.order, axes)?,
             WallShape::Tube { radius, length } => tube_surface(self.order, radius, length)?,
+            WallShape::Grid { p, ref coefs, .. } => {
+                Surface::from_coefs(p, coefs.to_vec())?.resampled(self.order)?
+            }
         };
         s.translate(self.center);
         Ok(s)
+    }
+
+    /// The velocity a grid wall was given, at the points of its order-`order` grid
+    /// (component-major); `None` for every other wall and a grid wall at rest.
+    pub fn grid_velocity(&self) -> Result<Option<Vec<f64>>, WallError> {
+        let WallShape::Grid {
+            p,
+            velocity: Some(ref v),
+            ..
+        } = self.shape
+        else {
+            return Ok(None);
+        };
+        let field = Surface::from_coefs(p, v.to_vec())?.resampled(self.order)?;
+        let sht = crate::sph_harmonics::ShTransform::new(self.order)
+            .map_err(crate::vesicle::VesicleError::Sph)?;
+        Ok(Some(field.grid_positions(&sht)?))
     }
 }
 

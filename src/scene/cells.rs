@@ -572,7 +572,14 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         }
     };
     // The walls before the cells: a packed placement fills their fluid.
-    let walls = super::walls::walls(f.walls.as_deref().unwrap_or(&[]), origin, text, &at)?;
+    let walls = super::walls::walls(
+        f.walls.as_deref().unwrap_or(&[]),
+        origin,
+        text,
+        &at,
+        file,
+        units.as_ref(),
+    )?;
     // The recycling window before the cells: a packed placement fills it periodically.
     let recycle = super::tube_flow::recycle_window(f.flow.as_ref(), &walls, &at)?;
     let (mut cells, mut packings) = (Vec::new(), Vec::new());

@@ -143,4 +143,6 @@ pub(crate) struct WallSection {
     pub(super) center: Option<Spanned<[f64; 3]>>,
     pub(super) order: Option<Spanned<usize>>,
     pub(super) angular_velocity: Option<Spanned<[f64; 3]>>,
+    pub(super) positions: Option<Spanned<String>>,
+    pub(super) velocity: Option<Spanned<String>>,
 }

@@ -118,8 +118,8 @@ pub fn cells_in_walls(base: &CellSpec, phi: f64, fluid_volume: f64) -> (usize, f
 
 /// The volume of a recycled tube's window `π R² P` (`None` without a tube container).
 pub fn window_volume(walls: &[WallSpec], window: &TubeWindow) -> Option<f64> {
-    walls.iter().find_map(|w| match (w.kind, w.shape) {
-        (WallKind::Container, WallShape::Tube { radius, .. }) => {
+    walls.iter().find_map(|w| match (w.kind, &w.shape) {
+        (WallKind::Container, &WallShape::Tube { radius, .. }) => {
             Some(std::f64::consts::PI * radius * radius * (window.outlet - window.inlet))
         }
         _ => None,
@@ -145,6 +145,28 @@ impl PackingWalls {
             WallShape::Sphere { radius } => [radius; 3],
             WallShape::Ellipsoid { axes } => axes,
             WallShape::Tube { radius, length } => [length / 2.0, radius, radius],
+            WallShape::Grid { .. } => {
+                // The bounding box of the surface's grid points.
+                let s = container
+                    .surface()
+                    .map_err(|e| format!("the container: {e}"))?;
+                let sht = crate::sph_harmonics::ShTransform::new(container.order)
+                    .map_err(|e| format!("the container: {e}"))?;
+                let x = s
+                    .grid_positions(&sht)
+                    .map_err(|e| format!("the container: {e}"))?;
+                let n = x.len() / 3;
+                let mut half = [0.0; 3];
+                for a in 0..3 {
+                    let v = &x[a * n..(a + 1) * n];
+                    let (lo, hi) = v
+                        .iter()
+                        .fold((f64::MAX, f64::MIN), |(l, h), &y| (l.min(y), h.max(y)));
+                    centre[a] = 0.5 * (lo + hi);
+                    half[a] = 0.5 * (hi - lo);
+                }
+                half
+            }
         };
         if let Some(w) = window {
             centre[0] = 0.5 * (w.inlet + w.outlet);

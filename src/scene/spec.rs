@@ -106,6 +106,8 @@ pub enum WallShapeKind {
     Ellipsoid,
     /// Needs `radius` and `length` (axis along x).
     Tube,
+    /// Needs `positions`: a `.npy` file of the surface's points on the spherical grid.
+    Grid,
 }
 
 /// One `[[walls]]` entry ([`super::walls`]).
@@ -134,6 +136,12 @@ pub struct WallEntrySpec {
     /// `angular_velocity`: the wall turns about its centre (about an axis of symmetry).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub angular_velocity: Option<[f64; 3]>,
+    /// `positions` of a grid wall: the `.npy` file of its points on the spherical grid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub positions: Option<String>,
+    /// `velocity` of a grid wall: the `.npy` file of its velocity at the same points.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub velocity: Option<String>,
 }
 
 /// `[fluid]`.

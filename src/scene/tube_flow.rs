@@ -140,8 +140,8 @@ pub(super) fn tube_flow(
     viscosity: f64,
     at: At,
 ) -> Result<Flow, SceneError> {
-    let tube = walls.iter().find_map(|w| match (w.kind, w.shape) {
-        (WallKind::Container, WallShape::Tube { radius, .. }) => Some((w, radius)),
+    let tube = walls.iter().find_map(|w| match (w.kind, &w.shape) {
+        (WallKind::Container, &WallShape::Tube { radius, .. }) => Some((w, radius)),
         _ => None,
     });
     let Some((wall, radius)) = tube else {
@@ -192,8 +192,8 @@ pub(super) fn recycle_window(
             "[flow] recycle applies to kind = \"tube\" only".into(),
         ));
     }
-    let tube = walls.iter().find_map(|w| match (w.kind, w.shape) {
-        (WallKind::Container, WallShape::Tube { length, .. }) => Some((w.center, length)),
+    let tube = walls.iter().find_map(|w| match (w.kind, &w.shape) {
+        (WallKind::Container, &WallShape::Tube { length, .. }) => Some((w.center, length)),
         _ => None,
     });
     let Some((axis, length)) = tube else {

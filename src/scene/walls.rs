@@ -5,15 +5,31 @@
 //! [[walls]]
 //! kind = "container"       # "container" (the fluid inside: a cavity, a closed vessel) |
 //! #                        # "body" (a fixed obstacle, the fluid outside)
-//! shape = "sphere"         # "sphere" | "ellipsoid" | "tube"
+//! shape = "sphere"         # "sphere" | "ellipsoid" | "tube" | "grid"
 //! radius = 4.0             # sphere, tube
 //! # axes = [6.0, 4.0, 3.0] # ellipsoid semi-axes
 //! # length = 24.0          # tube: end to end along x (at least 2 radii), rounded ends
+//! # positions = "vessel.npy"          # grid: the surface's points (below)
+//! # velocity = "vessel_velocity.npy"  # grid: the wall's velocity at the same points
 //! center = [0.0, 0.0, 0.0]
 //! order = 16               # spherical-harmonic order of the wall (4 to 64; default 16, a
-//!                          # tube 32)
+//!                          # tube 32, a grid wall its file's order)
 //! # angular_velocity = [0.0, 0.0, 1.0]  # turn in place about the center (default at rest)
 //! ```
+//!
+//! **A wall of the user's own shape** (`shape = "grid"`): any closed surface that the sphere's
+//! angles parametrise smoothly (genus 0), given by its points on the spherical grid of order
+//! `p`: a `float64` `.npy` array of shape `(p + 1, 2p, 3)`, the point `X(θ_i, φ_k)` at latitude
+//! `θ_i = arccos x_i` (`x_i` the `p + 1` Gauss–Legendre nodes, decreasing) and longitude
+//! `φ_k = kπ/p`, its normals `X_θ × X_φ` pointing out of the enclosed volume. A relative file
+//! name starts from the scene file's folder; the values are in the scene's length unit (metres
+//! with `[units] system = "SI"`). The surface is its order-`p` spherical-harmonic fit, resampled
+//! to `order` if given, and moved by `center`. `velocity` gives the wall's velocity at the same
+//! points (speed units), for a wall that moves in its own shape or lets fluid in and out (a
+//! container's net flux must vanish); without it the wall is at rest. `scripts/grid_wall.py`
+//! writes a stenosed vessel and the velocity that drives Poiseuille's flow through it. A run
+//! copies the files into `DIR/walls/` and names them there in its scene copy, so `--resume`
+//! reads the same wall.
 //!
 //! Walls are at rest unless they turn; `[flow]` is the flow the walls disturb (a container at
 //! rest in a shear flow holds its fluid still at the wall). A tube container with
@@ -26,23 +42,33 @@
 
 use std::path::Path;
 
+use toml::Spanned;
+
 use super::cell_scene::CellSpec;
-pub use super::cell_scene::{WallShape, WallSpec, DEFAULT_TUBE_ORDER, DEFAULT_WALL_ORDER};
+pub use super::cell_scene::{
+    WallFile, WallShape, WallSpec, DEFAULT_TUBE_ORDER, DEFAULT_WALL_ORDER,
+};
 use super::cells_schema::{Origin, WallSection};
 use super::line_col;
+use super::units::UnitScales;
 use super::SceneError;
 use crate::sph_harmonics::ShTransform;
 use crate::timestep::contact::FixedSurface;
+use crate::vesicle::geometry::SurfaceCalculus;
+use crate::vesicle::shapes::Surface;
 use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 use crate::vesicle::VesicleError;
 use crate::wall::WallKind;
 
-/// Validate the `[[walls]]` entries.
+/// Validate the `[[walls]]` entries of the scene `file` (its folder: where a grid wall's
+/// relative file names start; `units`: the SI scales its files' values are divided by).
 pub(super) fn walls(
     sections: &[WallSection],
     origin: Origin,
     text: &str,
     at: &dyn Fn(std::ops::Range<usize>, String) -> SceneError,
+    file: &Path,
+    units: Option<&UnitScales>,
 ) -> Result<Vec<WallSpec>, SceneError> {
     let mut out: Vec<WallSpec> = vec![];
     for (k, w) in sections.iter().enumerate() {
@@ -79,6 +105,16 @@ pub(super) fn walls(
         if let (Some(l), false) = (&w.length, w.shape.get_ref() == "tube") {
             return Err(at(l.span(), format!("{name}: length is for a tube")));
         }
+        let grid = w.shape.get_ref() == "grid";
+        for (key, given) in [("positions", &w.positions), ("velocity", &w.velocity)] {
+            if let (Some(v), false) = (given, grid) {
+                return Err(at(
+                    v.span(),
+                    format!("{name}: {key} is for a grid wall (shape = \"grid\")"),
+                ));
+            }
+        }
+        let mut files = Vec::new();
         let shape = match w.shape.get_ref().as_str() {
             "tube" => {
                 if let Some(a) = &w.axes {
@@ -146,12 +182,94 @@ pub(super) fn walls(
                 }
                 WallShape::Ellipsoid { axes: *a.get_ref() }
             }
+            "grid" => {
+                for (key, span) in [
+                    ("radius", w.radius.as_ref().map(|v| v.span())),
+                    ("axes", w.axes.as_ref().map(|v| v.span())),
+                    (
+                        "angular_velocity",
+                        w.angular_velocity.as_ref().map(|v| v.span()),
+                    ),
+                ] {
+                    if let Some(span) = span {
+                        return Err(at(
+                            span,
+                            format!(
+                                "{name}: {key} is not for a grid wall (its shape is the \
+                                 positions file; a moving grid wall has a velocity file)"
+                            ),
+                        ));
+                    }
+                }
+                let Some(pos) = &w.positions else {
+                    return Err(at(
+                        w.shape.span(),
+                        format!("{name}: a grid wall needs positions (a .npy file)"),
+                    ));
+                };
+                let length = units.map_or(1.0, |u| u.length_m);
+                let speed = units.map_or(1.0, |u| u.length_m / u.time_s);
+                let base = file.parent().unwrap_or(Path::new(""));
+                let read = |v: &Spanned<String>, key: &'static str, scale: f64| {
+                    let path = base.join(v.get_ref());
+                    let fail = |m: String| at(v.span(), format!("{name}: {key}: {m}"));
+                    grid_values(&path, scale).map_err(fail).map(|(p, c)| {
+                        (
+                            p,
+                            c,
+                            WallFile {
+                                key,
+                                path: path.clone(),
+                                span: v.span(),
+                            },
+                        )
+                    })
+                };
+                let (p, coefs, f) = read(pos, "positions", length)?;
+                files.push(f);
+                // The geometry refuses a surface whose normals X_θ × X_φ point into the enclosed
+                // volume (or one that is not a surface).
+                SurfaceCalculus::new(p)
+                    .and_then(|mut c| c.geometry(&coefs))
+                    .map_err(|e| {
+                        at(
+                            pos.span(),
+                            format!(
+                                "{name}: positions: {e} (the normals X_θ × X_φ must point out \
+                                 of the enclosed volume: reverse the order of the longitudes \
+                                 if they point in)"
+                            ),
+                        )
+                    })?;
+                let velocity = match &w.velocity {
+                    None => None,
+                    Some(v) => {
+                        let (q, c, f) = read(v, "velocity", speed)?;
+                        if q != p {
+                            return Err(at(
+                                v.span(),
+                                format!(
+                                    "{name}: velocity is on the grid of order {q}, positions \
+                                     on that of order {p}: give both on the same grid"
+                                ),
+                            ));
+                        }
+                        files.push(f);
+                        Some(std::sync::Arc::new(c))
+                    }
+                };
+                WallShape::Grid {
+                    p,
+                    coefs: std::sync::Arc::new(coefs),
+                    velocity,
+                }
+            }
             other => {
                 return Err(at(
                     w.shape.span(),
                     format!(
-                        "{name}: shape must be \"sphere\", \"ellipsoid\" or \"tube\", got \
-                         \"{other}\""
+                        "{name}: shape must be \"sphere\", \"ellipsoid\", \"tube\" or \
+                         \"grid\", got \"{other}\""
                     ),
                 ))
             }
@@ -172,7 +290,19 @@ pub(super) fn walls(
             }
             Some(o) => *o.get_ref(),
             None if matches!(shape, WallShape::Tube { .. }) => DEFAULT_TUBE_ORDER,
-            None => DEFAULT_WALL_ORDER,
+            None => match shape {
+                WallShape::Grid { p, .. } if (4..=64).contains(&p) => p,
+                WallShape::Grid { p, .. } => {
+                    return Err(at(
+                        w.shape.span(),
+                        format!(
+                            "{name}: the positions are on the grid of order {p}; give an order \
+                             from 4 to 64 for the wall"
+                        ),
+                    ))
+                }
+                _ => DEFAULT_WALL_ORDER,
+            },
         };
         let angular_velocity = match &w.angular_velocity {
             None => [0.0; 3],
@@ -187,14 +317,15 @@ pub(super) fn walls(
                 let same = |a: f64, b: f64| (a - b).abs() <= 1e-12 * a.abs().max(b.abs());
                 // Rotation about coordinate axis k keeps the shape when the other two
                 // semi-axes are equal.
-                let keeps = match shape {
+                let keeps = match &shape {
                     WallShape::Sphere { .. } => true,
-                    WallShape::Ellipsoid { axes: [a, b, c] } => {
+                    &WallShape::Ellipsoid { axes: [a, b, c] } => {
                         (om[0] == 0.0 || same(b, c))
                             && (om[1] == 0.0 || same(a, c))
                             && (om[2] == 0.0 || same(a, b))
                     }
                     WallShape::Tube { .. } => om[1] == 0.0 && om[2] == 0.0,
+                    WallShape::Grid { .. } => false,
                 };
                 if !keeps {
                     return Err(at(
@@ -217,6 +348,7 @@ pub(super) fn walls(
             order,
             angular_velocity,
             line,
+            files,
         });
     }
     Ok(out)
@@ -282,4 +414,40 @@ pub(super) fn check_cells_in_fluid(
         }
     }
     Ok(())
+}
+
+/// The values of a grid wall's file: a `float64` array of shape `(p + 1, 2p, 3)`, the vector
+/// at latitude `i` (`θ_i`, increasing) and longitude `k` (`φ_k = kπ/p`) of the spherical grid
+/// of order `p`, divided by `scale`; its order-`p` coefficients.
+fn grid_values(path: &Path, scale: f64) -> Result<(usize, Vec<f64>), String> {
+    let (shape, data) = crate::io::npy::read_f64(path).map_err(|e| e.to_string())?;
+    let p = match shape[..] {
+        [lat, lon, 3] if lat >= 2 && lon == 2 * (lat - 1) => lat - 1,
+        _ => {
+            return Err(format!(
+                "{}: shape {shape:?}: expected (p + 1, 2p, 3), the points of the spherical grid of \
+                 order p (latitudes θ_i = arccos of the p + 1 Gauss–Legendre nodes, decreasing \
+                 in cos θ; longitudes φ_k = kπ/p) with x, y, z",
+                path.display()
+            ))
+        }
+    };
+    if let Some(j) = data.iter().position(|v| !v.is_finite()) {
+        let (i, k, c) = (j / (6 * p), (j / 3) % (2 * p), j % 3);
+        return Err(format!(
+            "{}: value [{i}, {k}, {c}] is {}",
+            path.display(),
+            data[j]
+        ));
+    }
+    let n = 2 * p * (p + 1);
+    let mut grid = vec![0.0; 3 * n];
+    for j in 0..n {
+        for c in 0..3 {
+            grid[c * n + j] = data[3 * j + c] / scale;
+        }
+    }
+    let sht = ShTransform::new(p).map_err(|e| e.to_string())?;
+    let s = Surface::from_grid(&sht, &grid).map_err(|e| e.to_string())?;
+    Ok((p, s.coefs().to_vec()))
 }
