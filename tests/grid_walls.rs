@@ -248,3 +248,56 @@ fn bad_grid_walls_are_refused_with_the_place_and_the_reason() {
     .unwrap();
     assert_eq!(scene.walls[0].order, 8);
 }
+
+/// With `[units] system = "SI"` a grid wall's files are in metres and metres per second: a
+/// sphere of twice the first cell's radius turning at `0.5 G/(μa)` reads as the dimensionless
+/// sphere of radius 2 with the velocity `0.5 e_z × x`.
+#[test]
+fn a_grid_wall_in_si_units_is_scaled_like_every_length() {
+    let dir = tmpdir("grid-wall-si");
+    let (a, mu, g) = (2.8e-6, 1.2e-3, 6e-6);
+    let t = mu * a / g;
+    let p = 8;
+    let point = |th: f64, f: f64| [th.sin() * f.cos(), th.sin() * f.sin(), th.cos()];
+    grid_file(&dir, "si.npy", p, |th, f| point(th, f).map(|v| 2.0 * a * v));
+    grid_file(&dir, "si_u.npy", p, |th, f| {
+        let x = point(th, f).map(|v| 2.0 * a * v);
+        [-0.5 / t * x[1], 0.5 / t * x[0], 0.0]
+    });
+    let text = format!(
+        "[units]\nsystem = \"SI\"\n[fluid]\nviscosity = {mu}\n[[cells]]\nshape = \"sphere\"\n\
+         radius = {a}\nshear_modulus = {g}\nbending_modulus = 2e-19\n[[walls]]\n\
+         kind = \"container\"\nshape = \"grid\"\npositions = \"si.npy\"\nvelocity = \"si_u.npy\"\n\
+         [numerics]\norder = 6\ndt = {}\nt_end = {}\n",
+        0.01 * t,
+        0.01 * t
+    );
+    let scene = parse(&dir.join("si.toml"), &text).unwrap();
+    let w = &scene.walls[0];
+    let want = mobo::vesicle::shapes::sphere(p, 2.0).unwrap();
+    let worst = w
+        .surface()
+        .unwrap()
+        .coefs()
+        .iter()
+        .zip(want.coefs())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    assert!(worst < 1e-12, "surface off by {worst:.2e}");
+    let u = w.grid_velocity().unwrap().unwrap();
+    let grid = Grid::new(p);
+    let n = u.len() / 3;
+    assert_eq!(n, 2 * p * (p + 1));
+    for j in 0..n {
+        let (th, f) = grid.angles(j);
+        let x = point(th, f).map(|v| 2.0 * v);
+        let want = [-0.5 * x[1], 0.5 * x[0], 0.0];
+        for c in 0..3 {
+            assert!(
+                (u[c * n + j] - want[c]).abs() < 1e-12,
+                "point {j}: {}",
+                u[c * n + j]
+            );
+        }
+    }
+}
