@@ -365,8 +365,9 @@ mod tests {
     use super::*;
 
     /// The peak memory read from `/proc/self/status` against the kernel's other account of
-    /// it, `getrusage`'s `ru_maxrss` (KiB on Linux); both grow by at least what a new buffer
-    /// touches.
+    /// it, `getrusage`'s `ru_maxrss` (KiB on Linux); the resident memory (`VmRSS`) grows by what
+    /// a new buffer touches, and the peak is at least it (the peak itself need not grow: an
+    /// earlier test in this process may have reached more).
     #[test]
     #[cfg(target_os = "linux")]
     fn peak_memory_agrees_with_getrusage() {
@@ -376,13 +377,26 @@ mod tests {
             assert_eq!(unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) }, 0);
             u.ru_maxrss as f64 * 1024.0
         };
-        let before = peak_rss_bytes().expect("VmHWM on Linux") as f64;
+        let resident = || {
+            let status = std::fs::read_to_string("/proc/self/status").unwrap();
+            let line = status.lines().find(|l| l.starts_with("VmRSS:")).unwrap();
+            line.split_whitespace()
+                .nth(1)
+                .unwrap()
+                .parse::<f64>()
+                .unwrap()
+                * 1024.0
+        };
+        let before = resident();
         let grow = 256usize << 20;
         let buffer: Vec<u8> = (0..grow).map(|i| (i % 251) as u8).collect();
         std::hint::black_box(&buffer);
-        let after = peak_rss_bytes().unwrap() as f64;
+        let now = resident();
+        let after = peak_rss_bytes().expect("VmHWM on Linux") as f64;
         let reference = rusage();
-        assert!(after - before >= 0.99 * grow as f64, "{before} -> {after}");
+        // Other tests' threads allocate and free meanwhile: most of the buffer shows.
+        assert!(now - before >= 0.9 * grow as f64, "VmRSS {before} -> {now}");
+        assert!(after >= now, "VmHWM {after} below VmRSS {now}");
         // The two accounts are read a moment apart (other tests allocate meanwhile).
         assert!(
             (after - reference).abs() <= 0.05 * reference,

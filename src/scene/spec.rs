@@ -136,10 +136,12 @@ pub struct WallEntrySpec {
     /// `angular_velocity`: the wall turns about its centre (about an axis of symmetry).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub angular_velocity: Option<[f64; 3]>,
-    /// `positions` of a grid wall: the `.npy` file of its points on the spherical grid.
+    /// `positions` of a grid wall: the `.npy` file of its points on the spherical grid (a
+    /// relative name starts from the working directory: a spec has no scene file).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub positions: Option<String>,
-    /// `velocity` of a grid wall: the `.npy` file of its velocity at the same points.
+    /// `velocity` of a grid wall: the `.npy` file of its velocity at the same points (named
+    /// as `positions`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub velocity: Option<String>,
 }

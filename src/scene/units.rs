@@ -22,6 +22,8 @@
 //! |---|---|---|
 //! | `[[cells]]` `radius`, `center`, `spacing`, `region`, `min_gap` | m | `L` |
 //! | `[[walls]]` `radius`, `length`, `axes`, `center` | m | `L` |
+//! | `[[walls]]` the values of a grid wall's `positions` file | m | `L` |
+//! | `[[walls]]` the values of a grid wall's `velocity` file | m/s | `L/T` |
 //! | `[output]` `velocity_plane` `origin`, `u`, `v` | m | `L` |
 //! | `[numerics]` `contact_distance` | m | `L` |
 //! | `[numerics]` `dt`, `t_end`, `dt_min`, `dt_max` | s | `T` |

@@ -134,12 +134,15 @@ impl BeadPair {
             let c = centre(s);
             patch.iter().map(|&j| dot3(bond(j, c), a) * g.da[j]).sum()
         };
-        // Bracket the bead's place from the patch's outermost point, then bisect.
+        // Bracket the bead's place, then bisect. The inner end starts with the bead's centre
+        // on the patch's outermost point, where the bond pushes the patch inwards: along the
+        // axis a second root lies inside the cell (the patch on the bead's far side), which an
+        // inner end further in could take.
         let tip = patch
             .iter()
             .map(|&j| side * dot3(g.x[j], a))
             .fold(f64::MIN, f64::max);
-        let (mut inner, mut outer) = (side * (tip - r), side * (tip + r));
+        let (mut inner, mut outer) = (side * tip, side * (tip + r));
         let mut step = r;
         for _ in 0..60 {
             if (axial(outer) - force) * side >= 0.0 {
@@ -334,15 +337,19 @@ fn weighted_centroid(g: &Geometry, points: impl Iterator<Item = (usize, f64)>) -
     scale(sum, 1.0 / total)
 }
 
-/// The rotation `R = A (AᵀA)^(−1/2)` nearest to `A` (its polar factor; `A` of positive
-/// determinant), from the eigen-decomposition of `AᵀA`.
+/// The rotation nearest to `A` (Kabsch): its polar factor `R = A (AᵀA)^(−1/2)` when
+/// `det A > 0`, and otherwise `A Σ ± λ_i^(−1/2) v_i v_iᵀ` with the sign of the smallest
+/// singular direction flipped (a proper rotation, not a reflection), from the
+/// eigen-decomposition `AᵀA = Σ λ_i v_i v_iᵀ`.
 fn polar_factor(a: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
     let at = [0, 1, 2].map(|i| [0, 1, 2].map(|j| a[j][i]));
     let (vals, vecs) = symmetric_eigen3(matmul3(at, a));
-    // (AᵀA)^(−1/2) = Σ λ_i^(−1/2) v_i v_iᵀ.
+    let det = dot3(a[0], crate::linalg3::cross3(a[1], a[2]));
     let mut inv_sqrt = [[0.0; 3]; 3];
     for (i, &l) in vals.iter().enumerate() {
-        let s = 1.0 / l.max(f64::MIN_POSITIVE).sqrt();
+        // The eigenvalues ascend: the first is the smallest singular direction.
+        let flip = if i == 0 && det < 0.0 { -1.0 } else { 1.0 };
+        let s = flip / l.max(f64::MIN_POSITIVE).sqrt();
         for (p, row) in inv_sqrt.iter_mut().enumerate() {
             for (q, v) in row.iter_mut().enumerate() {
                 *v += s * vecs[p][i] * vecs[q][i];
@@ -423,6 +430,21 @@ mod tests {
                 let want = scale(a, sign * f);
                 let err = dot3(sub3(net, want), sub3(net, want)).sqrt();
                 assert!(err < 1e-12 * f, "k = {k}: {net:?} against {want:?}");
+                // The bond's own force at the bead's place, before the lateral excess is taken
+                // off: the bisection found the place where it carries ±F along a (and nothing
+                // across it, the RBC being symmetric about the axis).
+                let w = &pair(f, k).patches.weights(&g)[if sign > 0.0 { 0 } else { 1 }];
+                let mut raw = [0.0; 3];
+                for j in (0..g.n_points()).filter(|&j| w[j] > 0.0) {
+                    let v = sub3(g.x[j], bead.centre);
+                    let d = dot3(v, v).sqrt();
+                    raw = add3(raw, scale(v, k * w[j] * (0.73 - d) / d * g.da[j]));
+                }
+                let err = dot3(sub3(raw, want), sub3(raw, want)).sqrt();
+                assert!(
+                    err < 1e-9 * f,
+                    "k = {k}: the bond carries {raw:?}, not {want:?}"
+                );
                 // The RBC's rim reaches x = ±1.386... (its bounding radius); the bead's centre
                 // lies beyond it by about its radius, on the axis by symmetry.
                 let c = bead.centre;

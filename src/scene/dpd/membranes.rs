@@ -59,6 +59,16 @@ pub(super) fn mapped_cells(
         std::array::from_fn(|i| rot[i][0] * v[0] + rot[i][1] * v[1] + rot[i][2] * v[2])
     };
     let scene = crate::scene::cells::parse(file, text)?;
+    if let Some(w) = scene.walls.first() {
+        let mut e = SceneError::new(
+            file,
+            "[[walls]] are the boundary-integral solver's walls, which [dpd.from_cells] does \
+             not map: a DPD fluid has its own walls ([dpd] walls = { kind = \"planes\" | \
+             \"cylinder\" })",
+        );
+        e.place = (w.line > 0).then_some((w.line, 1));
+        return Err(e);
+    }
     let (s, e) = (fc.length, fc.energy);
     let inner_gamma = coupling.and_then(|c| c.inner_gamma).is_some();
     let mut out = Vec::with_capacity(scene.cells.len());
