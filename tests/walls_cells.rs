@@ -149,7 +149,7 @@ fn bad_walls_are_refused_with_the_place_and_reason() {
             "order must be",
         ),
         (
-            "kind = \"container\"\nshape = \"sphere\"\nradius = 3.0\nvelocity = [1.0, 0.0, 0.0]",
+            "kind = \"container\"\nshape = \"sphere\"\nradius = 3.0\ntranslation = [1.0, 0.0, 0.0]",
             7,
             "unknown field",
         ),
