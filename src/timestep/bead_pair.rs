@@ -50,7 +50,7 @@
 
 use std::sync::Mutex;
 
-use super::cell_force::{CellForce, CellView, SmoothPatchPair, VectorField};
+use super::cell_force::{unit, CellForce, CellView, SmoothPatchPair, VectorField};
 use crate::linalg3::{dot3, matmul3, sub3, symmetric_eigen3};
 use crate::vesicle::geometry::Geometry;
 
@@ -80,9 +80,7 @@ impl BeadPair {
     /// Whether the parameters make sense (those of the patches, and a positive finite radius
     /// and stiffness).
     pub fn is_valid(&self) -> bool {
-        self.patches.pair.is_valid()
-            && self.patches.width.is_finite()
-            && self.patches.width > 0.0
+        self.patches.is_valid()
             && self.radius.is_finite()
             && self.radius > 0.0
             && self.stiffness.is_finite()
@@ -240,11 +238,7 @@ impl BondedPatchPair {
 
     /// Whether the parameters make sense.
     pub fn is_valid(&self) -> bool {
-        self.patches.pair.is_valid()
-            && self.patches.width.is_finite()
-            && self.patches.width > 0.0
-            && self.stiffness.is_finite()
-            && self.stiffness > 0.0
+        self.patches.is_valid() && self.stiffness.is_finite() && self.stiffness > 0.0
     }
 
     /// The bond's tractions at the grid points of `g` (bonding the patches of `g` if this is
@@ -316,7 +310,8 @@ impl CellForce for BondedPatchPair {
         if cell.id != self.patches.pair.cell {
             return;
         }
-        match self.bond(cell.geometry).filter(|_| self.is_valid()) {
+        // Invalid parameters bond nothing.
+        match self.is_valid().then(|| self.bond(cell.geometry)).flatten() {
             Some((traction, _)) => {
                 for (j, t) in traction.iter().enumerate() {
                     out.add(j, *t);
@@ -361,15 +356,6 @@ fn polar_factor(a: [[f64; 3]; 3]) -> [[f64; 3]; 3] {
 
 fn matvec(m: [[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
     m.map(|row| dot3(row, v))
-}
-
-fn unit(a: [f64; 3]) -> [f64; 3] {
-    let r = dot3(a, a).sqrt();
-    if r > 0.0 {
-        scale(a, 1.0 / r)
-    } else {
-        [1.0, 0.0, 0.0]
-    }
 }
 
 fn scale(a: [f64; 3], s: f64) -> [f64; 3] {

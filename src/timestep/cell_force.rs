@@ -189,6 +189,12 @@ fn ramp(u: f64) -> f64 {
 }
 
 impl SmoothPatchPair {
+    /// Whether the parameters make sense: those of [`PatchPair::is_valid`] and a positive,
+    /// finite edge width.
+    pub fn is_valid(&self) -> bool {
+        self.pair.is_valid() && self.width.is_finite() && self.width > 0.0
+    }
+
     /// Per grid point, the weights of the `+` and `−` patches (each in `[0, 1]`).
     pub fn weights(&self, g: &Geometry) -> [Vec<f64>; 2] {
         let a = unit(self.pair.axis);
@@ -234,7 +240,7 @@ impl CellForce for SmoothPatchPair {
         if cell.id != self.pair.cell {
             return;
         }
-        if !(self.pair.is_valid() && self.width.is_finite() && self.width > 0.0) {
+        if !self.is_valid() {
             out.fill([f64::NAN; 3]);
             return;
         }
@@ -263,7 +269,8 @@ fn spread(out: &mut VectorField, g: &Geometry, a: [f64; 3], force: f64, w: impl 
     }
 }
 
-fn unit(a: [f64; 3]) -> [f64; 3] {
+/// `a` normalised (the x axis for a zero vector).
+pub(super) fn unit(a: [f64; 3]) -> [f64; 3] {
     let r = dot(a, a).sqrt();
     if r > 0.0 {
         [a[0] / r, a[1] / r, a[2] / r]
