@@ -10,6 +10,7 @@ use crate::timestep::cell_preconditioner;
 use crate::timestep::cell_stepper::LOCAL_AREA_RATE;
 use crate::timestep::contact::ContactParams;
 use crate::timestep::coupling::CouplingParams;
+use crate::timestep::plane_coupling::PlaneCoupling;
 use crate::timestep::semi_implicit::{OperatorStorage, Preconditioning, TimeScheme, VesicleParams};
 use crate::timestep::suspension::CellStepError;
 use crate::timestep::suspension::{CellSetup, Recycling, Suspension};
@@ -171,6 +172,21 @@ pub fn build_part(
         .map_err(|e| step_error(0, 0.0, e))?;
     if !scene.walls.is_empty() {
         susp.set_walls(Some(walls(scene).map_err(|e| step_error(0, 0.0, e))?));
+    }
+    if let Some(w) = &scene.plane {
+        let plane = crate::wall::PlaneWall::new(w.point, w.normal).map_err(|e| {
+            step_error(
+                0,
+                0.0,
+                CellStepError {
+                    cell: None,
+                    source: TimestepError::Wall(e.to_string()),
+                },
+            )
+        })?;
+        let coupling = PlaneCoupling::new(plane, scene.viscosity)
+            .map_err(|source| step_error(0, 0.0, CellStepError { cell: None, source }))?;
+        susp.set_plane(Some(coupling));
     }
     // A recycled cell lands at least the contact distance from everything (0.05 cell radii
     // without contacts), the gap the projection keeps between the cells it lands among.

@@ -187,6 +187,11 @@ pub struct Counters {
     /// What the rigid walls did (`[[walls]]`; zeros otherwise): walls, unknowns, setup
     /// seconds, solves, seconds, the largest wall velocity at a cell in the last step.
     pub walls: crate::timestep::wall_coupling::WallStats,
+    /// What the plane wall did (`[[walls]] shape = "plane"`; `None` otherwise): evaluations of
+    /// the images, seconds, point forces, the last and the smallest height of a cell's grid
+    /// point above the plane.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub plane_wall: Option<crate::timestep::plane_coupling::PlaneStats>,
     /// The start-up before the first step (`[numerics] start_up_passes`; `None` where it did
     /// not run: one cell and no walls, passes 0, or a resumed run, which continues from its
     /// checkpoint's densities): passes taken and the last pass's relative tension change.

@@ -418,6 +418,8 @@ pub struct CellScene {
     pub effects: Vec<Effect>,
     /// Rigid walls (`[[walls]]`; none: free space).
     pub walls: Vec<WallSpec>,
+    /// A plane wall (`[[walls]] shape = "plane"`; then no other wall).
+    pub plane: Option<PlaneSpec>,
     /// The physical scales of a scene written in SI units (`[units] system = "SI"`; `None`:
     /// the file's numbers are the solver's own). Every value above is dimensionless.
     pub units: Option<UnitScales>,
@@ -505,6 +507,18 @@ pub struct WallSpec {
     pub line: usize,
     /// The files a grid wall was read from.
     pub files: Vec<WallFile>,
+}
+
+/// A plane wall at rest (`[[walls]] shape = "plane"`, [`crate::wall::PlaneWall`]): the fluid
+/// on the side its normal points into.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PlaneSpec {
+    /// A point of the plane (`center`, default the origin).
+    pub point: [f64; 3],
+    /// The unit normal into the fluid (`normal`).
+    pub normal: [f64; 3],
+    /// The line of its entry (1-based; 0 for a spec).
+    pub line: usize,
 }
 
 /// Default order of a wall.

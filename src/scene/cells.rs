@@ -572,7 +572,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         }
     };
     // The walls before the cells: a packed placement fills their fluid.
-    let walls = super::walls::walls(
+    let (walls, plane) = super::walls::walls(
         f.walls.as_deref().unwrap_or(&[]),
         origin,
         text,
@@ -612,6 +612,16 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         &entry,
         numerics.order.max(RBC_MIN_ORDER),
     )?;
+    if let Some(plane) = &plane {
+        super::walls::check_plane(
+            &cells,
+            plane,
+            &flow,
+            file,
+            &entry,
+            numerics.order.max(RBC_MIN_ORDER),
+        )?;
+    }
     if let Some(c) = cells
         .iter()
         .find(|c| matches!(c.shape, Shape::Rbc) && numerics.order < RBC_MIN_ORDER)
@@ -701,7 +711,19 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             ),
         });
     }
+    if let Some(w) = &plane {
+        effects.push(Effect {
+            name: "plane_wall",
+            enabled: true,
+            reason: format!(
+                "a plane wall through {:?} with normal {:?}: Blake's images of every cell's \
+                 single layer, added every step",
+                w.point, w.normal
+            ),
+        });
+    }
     Ok(CellScene {
+        plane,
         recycle,
         viscosity,
         flow,

@@ -145,4 +145,5 @@ pub(crate) struct WallSection {
     pub(super) angular_velocity: Option<Spanned<[f64; 3]>>,
     pub(super) positions: Option<Spanned<String>>,
     pub(super) velocity: Option<Spanned<String>>,
+    pub(super) normal: Option<Spanned<[f64; 3]>>,
 }

@@ -108,6 +108,8 @@ pub enum WallShapeKind {
     Tube,
     /// Needs `positions`: a `.npy` file of the surface's points on the spherical grid.
     Grid,
+    /// Needs `normal` (into the fluid); `center` is a point of it. `kind` is `body`.
+    Plane,
 }
 
 /// One `[[walls]]` entry ([`super::walls`]).
@@ -144,6 +146,9 @@ pub struct WallEntrySpec {
     /// as `positions`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub velocity: Option<String>,
+    /// `normal` of a plane, pointing into the fluid.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub normal: Option<[f64; 3]>,
 }
 
 /// `[fluid]`.

@@ -46,7 +46,7 @@ use toml::Spanned;
 
 use super::cell_scene::CellSpec;
 pub use super::cell_scene::{
-    WallFile, WallShape, WallSpec, DEFAULT_TUBE_ORDER, DEFAULT_WALL_ORDER,
+    PlaneSpec, WallFile, WallShape, WallSpec, DEFAULT_TUBE_ORDER, DEFAULT_WALL_ORDER,
 };
 use super::cells_schema::{Origin, WallSection};
 use super::line_col;
@@ -69,8 +69,9 @@ pub(super) fn walls(
     at: &dyn Fn(std::ops::Range<usize>, String) -> SceneError,
     file: &Path,
     units: Option<&UnitScales>,
-) -> Result<Vec<WallSpec>, SceneError> {
+) -> Result<(Vec<WallSpec>, Option<PlaneSpec>), SceneError> {
     let mut out: Vec<WallSpec> = vec![];
+    let mut plane: Option<(PlaneSpec, String, std::ops::Range<usize>)> = None;
     for (k, w) in sections.iter().enumerate() {
         let line = match origin {
             Origin::File => line_col(text, w.kind.span().start).0,
@@ -100,6 +101,20 @@ pub(super) fn walls(
                     ),
                 ));
             }
+        }
+        if w.shape.get_ref() == "plane" {
+            let p = plane_entry(w, &name, line, at)?;
+            if let Some((_, first, _)) = &plane {
+                return Err(at(
+                    w.shape.span(),
+                    format!("{name}: a second plane ({first} is one); a scene has at most one"),
+                ));
+            }
+            plane = Some((p, name, w.shape.span()));
+            continue;
+        }
+        if let Some(n) = &w.normal {
+            return Err(at(n.span(), format!("{name}: normal is for a plane")));
         }
         let positive = |v: f64| v.is_finite() && v > 0.0;
         if let (Some(l), false) = (&w.length, w.shape.get_ref() == "tube") {
@@ -268,8 +283,8 @@ pub(super) fn walls(
                 return Err(at(
                     w.shape.span(),
                     format!(
-                        "{name}: shape must be \"sphere\", \"ellipsoid\", \"tube\" or \
-                         \"grid\", got \"{other}\""
+                        "{name}: shape must be \"sphere\", \"ellipsoid\", \"tube\", \"grid\" \
+                         or \"plane\", got \"{other}\""
                     ),
                 ))
             }
@@ -351,7 +366,163 @@ pub(super) fn walls(
             files,
         });
     }
-    Ok(out)
+    match plane {
+        Some((_, name, span)) if !out.is_empty() => Err(at(
+            span,
+            format!(
+                "{name}: a plane's images hold for a plane alone; it cannot be combined with \
+                 other walls"
+            ),
+        )),
+        plane => Ok((out, plane.map(|(p, _, _)| p))),
+    }
+}
+
+/// A `[[walls]] shape = "plane"` entry: `kind = "body"`, a `normal` into the fluid, `center` a
+/// point of the plane (default the origin), and none of the other shapes' keys.
+fn plane_entry(
+    w: &WallSection,
+    name: &str,
+    line: usize,
+    at: &dyn Fn(std::ops::Range<usize>, String) -> SceneError,
+) -> Result<PlaneSpec, SceneError> {
+    if w.kind.get_ref() != "body" {
+        return Err(at(
+            w.kind.span(),
+            format!(
+                "{name}: a plane is kind = \"body\" (a fixed wall; the fluid is on the side its \
+                 normal points into), got \"{}\"",
+                w.kind.get_ref()
+            ),
+        ));
+    }
+    for (key, span) in [
+        ("radius", w.radius.as_ref().map(|v| v.span())),
+        ("axes", w.axes.as_ref().map(|v| v.span())),
+        ("length", w.length.as_ref().map(|v| v.span())),
+        ("order", w.order.as_ref().map(|v| v.span())),
+        (
+            "angular_velocity",
+            w.angular_velocity.as_ref().map(|v| v.span()),
+        ),
+        ("positions", w.positions.as_ref().map(|v| v.span())),
+        ("velocity", w.velocity.as_ref().map(|v| v.span())),
+    ] {
+        if let Some(span) = span {
+            return Err(at(
+                span,
+                format!(
+                    "{name}: {key} is not for a plane (a plane at rest has a normal and a point, \
+                     center)"
+                ),
+            ));
+        }
+    }
+    let Some(n) = &w.normal else {
+        return Err(at(
+            w.shape.span(),
+            format!("{name}: a plane needs normal (pointing into the fluid)"),
+        ));
+    };
+    let v = *n.get_ref();
+    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    if !(len.is_finite() && len > 0.0) {
+        return Err(at(
+            n.span(),
+            format!("{name}: normal must be a finite vector that is not zero, got {v:?}"),
+        ));
+    }
+    let point = match &w.center {
+        Some(c) if !c.get_ref().iter().all(|v| v.is_finite()) => {
+            return Err(at(c.span(), format!("{name}: center must be finite")))
+        }
+        Some(c) => *c.get_ref(),
+        None => [0.0; 3],
+    };
+    Ok(PlaneSpec {
+        point,
+        normal: v.map(|x| x / len),
+        line,
+    })
+}
+
+/// A plane wall's scene: every cell above it (each of its order-`2p` samples), every cell
+/// without a viscosity contrast (the image of a double layer is not built), and a background
+/// flow that vanishes on the plane (the wall is at rest: a shear flow along it, or none).
+pub(super) fn check_plane(
+    cells: &[CellSpec],
+    plane: &PlaneSpec,
+    flow: &super::cell_scene::Flow,
+    file: &Path,
+    entry: &dyn Fn(usize) -> String,
+    p: usize,
+) -> Result<(), SceneError> {
+    let fail = |line: usize, message: String| SceneError {
+        file: file.to_path_buf(),
+        place: (line > 0).then_some((line, 1)),
+        message,
+    };
+    let wall = crate::wall::PlaneWall::new(plane.point, plane.normal)
+        .map_err(|e| fail(plane.line, e.to_string()))?;
+    let sht = ShTransform::new(2 * p).map_err(|e| fail(0, e.to_string()))?;
+    for (i, c) in cells.iter().enumerate() {
+        if c.viscosity_ratio != 1.0 {
+            return Err(fail(
+                c.line,
+                format!(
+                    "cell {i} of {} has viscosity_ratio = {} beside the plane wall (line {}): \
+                     the plane's image of a cell's double layer is not built, so a plane \
+                     takes cells of viscosity_ratio = 1 only",
+                    entry(c.line),
+                    c.viscosity_ratio,
+                    plane.line
+                ),
+            ));
+        }
+        let e = |e: VesicleError| fail(c.line, format!("cell {i} of {}: {e}", entry(c.line)));
+        let s = c.surface(p).map_err(e)?;
+        let samples = SurfaceDistance::new(p, s.coefs(), &sht).map_err(e)?;
+        let low = samples
+            .samples()
+            .iter()
+            .map(|&x| wall.height(x))
+            .fold(f64::INFINITY, f64::min);
+        if low <= 0.0 {
+            return Err(fail(
+                c.line,
+                format!(
+                    "cell {i} of {} reaches {:.4} below the plane wall (line {}): every cell \
+                     must lie on the side its normal points into",
+                    entry(c.line),
+                    -low,
+                    plane.line
+                ),
+            ));
+        }
+    }
+    // The background flow at points of the plane out to 100 length units.
+    let scale = flow.rate_scale().abs() * 100.0;
+    for s in [-100.0, -1.0, 0.0, 1.0, 100.0] {
+        for r in [-100.0, -1.0, 0.0, 1.0, 100.0] {
+            let x: [f64; 3] = std::array::from_fn(|a| {
+                let t = wall.vector_to_global([s, r, 0.0]);
+                plane.point[a] + t[a]
+            });
+            let u = flow.velocity(x);
+            let speed = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+            if speed > 1e-12 * scale {
+                return Err(fail(
+                    plane.line,
+                    format!(
+                        "the background flow is {u:?} at {x:?} on the plane wall, which is at \
+                         rest: the flow must vanish on it (a shear flow u = (γ̇y, 0, 0) beside \
+                         the plane y = 0, or no flow)"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Every cell must lie in the fluid: inside the container, outside every body (the signed

@@ -104,6 +104,7 @@ pub mod near_pairs;
 mod operator;
 pub mod operator_storage;
 mod own_preconditioner;
+pub mod plane_coupling;
 pub mod semi_implicit;
 pub mod sphere_preconditioner;
 mod step_engine;

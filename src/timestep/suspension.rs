@@ -173,6 +173,8 @@ pub struct Suspension {
     contact_stats: ContactStats,
     /// Rigid walls around or among the cells (`None`: free space).
     walls: Option<super::wall_coupling::WallCoupling>,
+    /// A plane wall beside the cells (`None`: none).
+    plane: Option<super::plane_coupling::PlaneCoupling>,
     /// The velocity each cell felt from the others (and the walls) at the start of the last
     /// step, on the grid that step began on (`None`: not recorded; [`Suspension::record_coupling`]).
     coupling_record: Option<Vec<Vec<f64>>>,
@@ -241,6 +243,7 @@ impl Suspension {
             contacts: None,
             contact_stats: ContactStats::default(),
             walls: None,
+            plane: None,
             field: None,
             start_up_passes: START_UP_PASSES,
             start_up_depth: START_UP_ANDERSON_DEPTH,

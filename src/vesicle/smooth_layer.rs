@@ -17,6 +17,9 @@ use super::layer_kernel::kernel_entries;
 use super::{check_len, Geometry, LayerKernel, SurfaceCalculus, VesicleError};
 use crate::sph_harmonics::{resample_coefs, ShTransform, ShWorkspace};
 
+/// A point force: where it acts and the force (a quadrature node and its weighted density).
+pub type PointForce = ([f64; 3], [f64; 3]);
+
 /// Where a target is, as far as the bounding spheres tell.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Side {
@@ -188,6 +191,33 @@ impl SmoothLayer {
             }
         }
         Ok(())
+    }
+
+    /// The rule's nodes and the density set there times each node's weight: the point forces
+    /// `(y_i, f_i dA_i)` whose sum [`Self::add_to`] takes for the single layer, for kernels it
+    /// does not know (the images of a plane wall, [`crate::wall::PlaneWall`]).
+    pub fn weighted_points(&self) -> Result<Vec<PointForce>, VesicleError> {
+        if !self.has_surface {
+            return Err(VesicleError::Parameter {
+                name: "surface",
+                value: f64::NAN,
+                reason: "set_surface must come first",
+            });
+        }
+        let nq = self.geom.n_points();
+        Ok((0..nq)
+            .map(|i| {
+                let w = self.geom.da[i];
+                (
+                    self.geom.x[i],
+                    [
+                        self.dens[i] * w,
+                        self.dens[nq + i] * w,
+                        self.dens[2 * nq + i] * w,
+                    ],
+                )
+            })
+            .collect())
     }
 
     /// The surface order `p`.

@@ -70,12 +70,14 @@
 //! ```
 
 mod field;
+mod plane;
 mod quadrature;
 mod surface;
 mod system;
 mod tube;
 
 pub use field::{scatter_add, WallField};
+pub use plane::PlaneWall;
 pub use surface::{Wall, WallKind};
 pub use system::{WallParams, WallSolution, WallSystem, MAX_NET_FLUX};
 pub use tube::{straight_length, tube_surface, TUBE_END_EXPONENT};

@@ -186,6 +186,7 @@ impl<'a> CellRun<'a> {
                 near_implicit: susp.joint_stats(),
                 contacts: susp.contact_stats(),
                 walls: susp.wall_stats(),
+                plane_wall: susp.plane().map(|w| w.stats()),
                 start_up: susp.start_up_report(),
                 recycling: susp.recycling().map(|_| susp.recycle_stats()),
             },

@@ -59,14 +59,19 @@ pub(super) fn mapped_cells(
         std::array::from_fn(|i| rot[i][0] * v[0] + rot[i][1] * v[1] + rot[i][2] * v[2])
     };
     let scene = crate::scene::cells::parse(file, text)?;
-    if let Some(w) = scene.walls.first() {
+    let first_wall = scene
+        .walls
+        .first()
+        .map(|w| w.line)
+        .or(scene.plane.map(|p| p.line));
+    if let Some(line) = first_wall {
         let mut e = SceneError::new(
             file,
             "[[walls]] are the boundary-integral solver's walls, which [dpd.from_cells] does \
              not map: a DPD fluid has its own walls ([dpd] walls = { kind = \"planes\" | \
              \"cylinder\" })",
         );
-        e.place = (w.line > 0).then_some((w.line, 1));
+        e.place = (line > 0).then_some((line, 1));
         return Err(e);
     }
     let (s, e) = (fc.length, fc.energy);

@@ -79,14 +79,15 @@ impl Suspension {
             .as_ref()
             .map(|w| w.fixed_surfaces())
             .unwrap_or(&[]);
-        if self.n_global < 2 && fixed.is_empty() {
+        let planes: Vec<_> = self.plane.iter().map(|w| w.contact_plane()).collect();
+        if self.n_global < 2 && fixed.is_empty() && planes.is_empty() {
             return Ok(());
         }
         let t0 = std::time::Instant::now();
         let fail = |source| CellStepError { cell: None, source };
         let (ids, all) = self.all_surfaces(comm)?;
         let coefs: Vec<&[f64]> = all.iter().map(|c| c.as_slice()).collect();
-        let out = solver.resolve_with(&coefs, &[], fixed).map_err(|e| {
+        let out = solver.resolve_with(&coefs, &planes, fixed).map_err(|e| {
             fail(TimestepError::Contact(match e {
                 super::super::contact::ContactError::Unresolved {
                     rounds,

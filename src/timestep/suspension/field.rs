@@ -99,14 +99,26 @@ impl Suspension {
             .transpose()
             .map_err(|source| CellStepError { cell: None, source });
         let walls = agree_cells(comm, walls)?;
+        // A plane wall: the images of the last step's tractions (the same on every rank).
+        let plane = self
+            .plane
+            .as_ref()
+            .map(|w| w.field_at(targets))
+            .transpose()
+            .map_err(|source| CellStepError { cell: None, source });
+        let plane = agree_cells(comm, plane)?;
         Ok((0..nt)
             .map(|i| {
                 let u = u_inf(targets[i]);
                 let chi = if lambda[i] > 0.0 { lambda[i] } else { 1.0 };
+                if plane.as_ref().is_some_and(|(_, fluid)| !fluid[i]) {
+                    return [f64::NAN; 3];
+                }
                 match &walls {
                     Some((_, fluid)) if !fluid[i] => [f64::NAN; 3],
                     w => std::array::from_fn(|a| {
-                        let wall = w.as_ref().map_or(0.0, |(v, _)| v[a * nt + i]);
+                        let wall = w.as_ref().map_or(0.0, |(v, _)| v[a * nt + i])
+                            + plane.as_ref().map_or(0.0, |(v, _)| v[a * nt + i]);
                         (u[a] + wall + layers[a * nt + i]) / chi
                     }),
                 }

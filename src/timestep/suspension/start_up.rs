@@ -94,7 +94,9 @@ impl Suspension {
     /// Whether the next step needs the start-up: something couples and no cell on any rank
     /// has been coupled yet (collective).
     pub(super) fn needs_start_up(&self, comm: &dyn Communicator) -> Result<bool, CellStepError> {
-        if self.start_up_passes == 0 || (self.coupling.is_none() && self.walls.is_none()) {
+        if self.start_up_passes == 0
+            || (self.coupling.is_none() && self.walls.is_none() && self.plane.is_none())
+        {
             return Ok(false);
         }
         let coupled = self.cells.iter().any(|c| c.state.velocity.is_some());

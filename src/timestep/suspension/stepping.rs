@@ -95,7 +95,7 @@ impl Suspension {
         // The densities passed to the coupling (the near-implicit step extrapolates them).
         type Densities = (Vec<Vec<f64>>, Vec<Option<Vec<f64>>>);
         let mut densities: Option<Densities> = None;
-        if self.coupling.is_some() || self.walls.is_some() {
+        if self.coupling.is_some() || self.walls.is_some() || self.plane.is_some() {
             let tractions: Result<Vec<Vec<f64>>, CellStepError> = self
                 .cells
                 .par_iter_mut()
@@ -147,6 +147,7 @@ impl Suspension {
                 }
             }
             self.add_wall_velocities(comm, u_inf, &tractions, &scaled)?;
+            self.add_plane_velocities(comm, &tractions)?;
             if let Some(record) = &mut self.coupling_record {
                 *record = self
                     .cells

@@ -4,6 +4,7 @@
 //! velocity (so BDF2 extrapolates it with the rest). Over MPI ranks every rank gathers every
 //! cell's layers at the walls and solves the same wall system.
 
+use super::super::plane_coupling::{PlaneCoupling, PlaneStats};
 use super::super::wall_coupling::{WallCoupling, WallStats};
 use super::super::TimestepError;
 use super::{agree_cells, CellStepError, Suspension};
@@ -19,6 +20,84 @@ impl Suspension {
     /// The walls, if any.
     pub fn walls(&self) -> Option<&WallCoupling> {
         self.walls.as_ref()
+    }
+
+    /// Put the cells beside a plane wall (`None`: none, the default).
+    pub fn set_plane(&mut self, plane: Option<PlaneCoupling>) {
+        self.plane = plane;
+    }
+
+    /// The plane wall, if any.
+    pub fn plane(&self) -> Option<&PlaneCoupling> {
+        self.plane.as_ref()
+    }
+
+    /// What the plane wall did (zeros without one).
+    pub fn plane_stats(&self) -> PlaneStats {
+        self.plane.as_ref().map(|w| w.stats()).unwrap_or_default()
+    }
+
+    /// Add the plane wall's velocity (the images of every cell's single layer) to every cell's
+    /// explicit velocity (nothing without a plane; collective over the ranks of `comm`).
+    pub(super) fn add_plane_velocities(
+        &mut self,
+        comm: &dyn Communicator,
+        tractions: &[Vec<f64>],
+    ) -> Result<(), CellStepError> {
+        let Some(plane) = &mut self.plane else {
+            return Ok(());
+        };
+        // This rank's cells' point forces, each block tagged with its global index and length.
+        let mut local = Vec::new();
+        let mut mine = Ok(());
+        let mut points = Vec::with_capacity(self.cells.len());
+        for (slot, c) in self.cells.iter().enumerate() {
+            let p = c.stepper.order();
+            let got = plane
+                .cell_sources(slot, p, &c.state.coefs, &tractions[slot])
+                .and_then(|s| {
+                    let x = c.stepper.with_geometry(&c.state.coefs, |g| g.x.clone())?;
+                    Ok((s, x))
+                });
+            match got {
+                Ok((s, x)) => {
+                    local.push(c.id as f64);
+                    local.push(s.len() as f64);
+                    local.extend_from_slice(&s);
+                    points.push(x);
+                }
+                Err(source) => {
+                    mine = Err(CellStepError {
+                        cell: Some(c.id),
+                        source,
+                    });
+                    break;
+                }
+            }
+        }
+        agree_cells(comm, mine)?;
+        let fail = |source| CellStepError { cell: None, source };
+        let gathered = comm
+            .all_gather_f64(&local)
+            .map_err(|e| fail(TimestepError::Comm(e)))?;
+        let mut all: Vec<(usize, &[f64])> = vec![];
+        for part in &gathered {
+            let mut at = 0;
+            while at < part.len() {
+                let len = part[at + 1] as usize;
+                all.push((part[at] as usize, &part[at + 2..at + 2 + len]));
+                at += 2 + len;
+            }
+        }
+        all.sort_by_key(|a| a.0);
+        let sources: Vec<f64> = all
+            .into_iter()
+            .flat_map(|(_, s)| s.iter().copied())
+            .collect();
+        // The same sources on every rank; a cell on the plane fails on its rank.
+        let velocities = agree_cells(comm, plane.velocities(&sources, &points).map_err(fail))?;
+        self.add_explicit_velocities(velocities);
+        Ok(())
     }
 
     /// What the walls did (zeros without walls).
@@ -99,6 +178,12 @@ impl Suspension {
         let points: Vec<Vec<[f64; 3]>> = geometries.into_iter().map(|g| g.x).collect();
         // The same data and system on every rank: a failure is every rank's.
         let velocities = walls.velocities(u_inf, &total, &points).map_err(fail)?;
+        self.add_explicit_velocities(velocities);
+        Ok(())
+    }
+
+    /// Add `velocities` (per cell held here, in order) to each cell's explicit velocity.
+    fn add_explicit_velocities(&mut self, velocities: Vec<Vec<f64>>) {
         for (c, v) in self.cells.iter_mut().zip(velocities) {
             match &mut c.state.velocity {
                 Some(u) => {
@@ -109,6 +194,5 @@ impl Suspension {
                 None => c.state.velocity = Some(v),
             }
         }
-        Ok(())
     }
 }
