@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{centroid, tmpdir};
+use common::{centroid, frame_bits, mobo, ok, stop_and_resume, summary, tmpdir, write};
 use mobo::run::assembly::build;
 use mobo::scene::cells::parse;
 
@@ -69,6 +69,16 @@ vtk = false
 
 /// The velocity of the sphere's centre in each of `steps` steps and its height halfway.
 fn speeds(h: f64, force: [f64; 3], steps: usize) -> Vec<([f64; 3], f64)> {
+    speeds_and_field(h, force, steps, &[]).0
+}
+
+/// [`speeds`], and then the velocity at `targets`.
+fn speeds_and_field(
+    h: f64,
+    force: [f64; 3],
+    steps: usize,
+    targets: &[[f64; 3]],
+) -> (Vec<([f64; 3], f64)>, Vec<[f64; 3]>) {
     let dir = tmpdir("plane-wall");
     let scene = parse(&dir.join("plane.toml"), &scene_text(h, force)).unwrap();
     let mut susp = build(&scene).unwrap();
@@ -83,7 +93,10 @@ fn speeds(h: f64, force: [f64; 3], steps: usize) -> Vec<([f64; 3], f64)> {
         ));
         c = d;
     }
-    out
+    let field = susp
+        .velocity_at(&mobo::comm::SerialComm, &|_| [0.0; 3], targets)
+        .unwrap();
+    (out, field)
 }
 
 /// Towards the wall at Brenner's rate, from 4 radii to 1.54 (a gap of half a radius). The
@@ -112,12 +125,29 @@ fn a_sphere_approaches_the_plane_at_brenners_rate() {
 
 /// Along the wall at Faxén's rate (his series' own error grows as the wall comes closer: it
 /// is 0.4 % low at h = 2), without moving towards the wall (a rigid sphere beside a plane
-/// has no normal velocity, by reversibility).
+/// has no normal velocity, by reversibility); and the flow's velocity (`velocity_at`: the
+/// cell's layers and the plane's images) vanishes at the wall, to 5e-4 of its size half a
+/// radius above it (the images are the last step's, the layers the present's).
 #[test]
 fn a_sphere_moves_along_the_plane_at_faxens_rate() {
     let six_pi = 6.0 * std::f64::consts::PI;
+    // Points just above the wall under and around the sphere (height 1e-9), and the same points
+    // 0.5 higher.
+    let wall: Vec<[f64; 3]> = (0..25)
+        .map(|i| [(i % 5) as f64 - 2.0, (i / 5) as f64 - 2.0, 1e-9])
+        .collect();
+    let above: Vec<[f64; 3]> = wall.iter().map(|x| [x[0], x[1], 0.5]).collect();
     for (h, tol) in [(4.0, 1e-4), (3.0, 4e-4)] {
-        let got = speeds(h, [1.0, 0.0, 0.0], 15);
+        let targets: Vec<[f64; 3]> = wall.iter().chain(&above).copied().collect();
+        let (got, field) = speeds_and_field(h, [1.0, 0.0, 0.0], 15, &targets);
+        let size = |v: &[f64; 3]| (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        let at_wall = field[..25].iter().map(size).fold(0.0, f64::max);
+        let higher = field[25..].iter().map(size).fold(0.0, f64::max);
+        println!("h = {h}: largest velocity at the wall {at_wall:.2e}, 0.5 above it {higher:.2e}");
+        assert!(
+            at_wall < 1e-3 * higher,
+            "{at_wall} at the wall, {higher} above it"
+        );
         for (k, (v, z)) in got.into_iter().enumerate() {
             let want = faxen(z) / six_pi;
             let rel = (v[0] - want).abs() / want;
@@ -198,4 +228,67 @@ fn bad_planes_are_refused_with_the_place_and_reason() {
         );
     let scene = parse(&file, &text).unwrap();
     assert_eq!(scene.plane.unwrap().normal, [0.0, 1.0, 0.0]);
+}
+
+/// Two cells beside the plane under `mobo run`, one pressed onto it: the contact projection
+/// keeps it `d_min` above the plane, the summary reports the images, and a run stopped and
+/// resumed writes the uninterrupted run's frames bit for bit.
+#[test]
+fn mobo_run_keeps_a_pressed_cell_off_the_plane_and_resumes_bit_for_bit() {
+    let dir = tmpdir("plane-wall-run");
+    let scene = write(
+        &dir,
+        "pressed.toml",
+        r#"
+[[cells]]
+shape = "sphere"
+radius = 1.0
+center = [0.0, 0.0, 1.3]
+force = [0.0, 0.0, -300.0]
+bending_modulus = 1.0
+
+[[cells]]
+shape = "sphere"
+radius = 1.0
+center = [2.4, 0.0, 1.5]
+bending_modulus = 1.0
+
+[[walls]]
+kind = "body"
+shape = "plane"
+center = [0.0, 0.0, 0.0]
+normal = [0.0, 0.0, 1.0]
+
+[numerics]
+order = 8
+dt = 0.01
+t_end = 0.2
+contact_distance = 0.05
+
+[output]
+every = 5
+vtk = false
+"#,
+    );
+    let whole = dir.join("whole");
+    ok(
+        &mobo(&["run", &scene, "--out", whole.to_str().unwrap(), "--quiet"]),
+        "the whole run",
+    );
+    let s = summary(&whole);
+    let plane = &s["counters"]["plane_wall"];
+    let contacts = &s["counters"]["contacts"];
+    println!("plane {plane}\ncontacts {contacts}");
+    // Twenty steps and the start-up's passes, both cells' images.
+    assert!(plane["evaluations"].as_u64().unwrap() > 20);
+    assert_eq!(plane["sources"].as_u64().unwrap(), 2 * 25 * 48);
+    // The pressed cell reached the contact distance, and no step ended closer.
+    assert!(contacts["moves"].as_u64().unwrap() > 0, "{contacts}");
+    let gap = contacts["smallest_gap"].as_f64().unwrap();
+    assert!((0.05 * (1.0 - 1e-9)..0.06).contains(&gap), "{gap}");
+    let part = dir.join("part");
+    stop_and_resume(&scene, &part, 8);
+    let (a, b) = (frame_bits(&whole, true), frame_bits(&part, true));
+    assert_eq!(a.len(), 5);
+    assert!(a == b, "the resumed run differs");
 }

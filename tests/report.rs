@@ -45,8 +45,11 @@ fn errors(study: &mobo::report::accuracy::Study, knob: Knob) -> Vec<(f64, f64)> 
 #[test]
 fn errors_fall_as_each_knob_is_tightened() {
     let scene = parse(std::path::Path::new("one-rbc"), ONE_RBC).unwrap();
+    // No budget to run out of: what this test checks must not depend on how loaded the
+    // machine is (under a parallel build the estimates passed 600 s and left values out; the
+    // budget itself is the next test's).
     let opts = StudyOptions {
-        budget_s: 600.0,
+        budget_s: 1e9,
         t_end: 0.4,
         progress: false,
         levels: vec![(8, 2, 8)],

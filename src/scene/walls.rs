@@ -5,12 +5,13 @@
 //! [[walls]]
 //! kind = "container"       # "container" (the fluid inside: a cavity, a closed vessel) |
 //! #                        # "body" (a fixed obstacle, the fluid outside)
-//! shape = "sphere"         # "sphere" | "ellipsoid" | "tube" | "grid"
+//! shape = "sphere"         # "sphere" | "ellipsoid" | "tube" | "grid" | "plane"
 //! radius = 4.0             # sphere, tube
 //! # axes = [6.0, 4.0, 3.0] # ellipsoid semi-axes
 //! # length = 24.0          # tube: end to end along x (at least 2 radii), rounded ends
 //! # positions = "vessel.npy"          # grid: the surface's points (below)
 //! # velocity = "vessel_velocity.npy"  # grid: the wall's velocity at the same points
+//! # normal = [0.0, 1.0, 0.0]          # plane: its normal, into the fluid
 //! center = [0.0, 0.0, 0.0]
 //! order = 16               # spherical-harmonic order of the wall (4 to 64; default 16, a
 //!                          # tube 32, a grid wall its file's order)
@@ -30,6 +31,13 @@
 //! writes a stenosed vessel and the velocity that drives Poiseuille's flow through it. A run
 //! copies the files into `DIR/walls/` and names them there in its scene copy, so `--resume`
 //! reads the same wall.
+//!
+//! **A plane wall** (`shape = "plane"`, `kind = "body"`): the infinite plane through `center`
+//! (default the origin) with `normal` pointing into the fluid, at rest, by Blake's images
+//! ([`crate::wall::PlaneWall`]; [`crate::timestep::plane_coupling`]). It stands alone (no other
+//! wall, one plane), beside cells without a viscosity contrast (the image of a double layer is
+//! not built), all above it, in a background flow that vanishes on it (a shear flow
+//! `u = (γ̇y, 0, 0)` beside the plane `y = 0`, or none); each is checked with its place.
 //!
 //! Walls are at rest unless they turn; `[flow]` is the flow the walls disturb (a container at
 //! rest in a shear flow holds its fluid still at the wall). A tube container with
