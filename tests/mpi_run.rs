@@ -483,6 +483,86 @@ fn cells_between_walls_give_the_one_rank_result_on_2_and_3_ranks() {
     }
 }
 
+/// Three vesicles in shear beside the plane wall y = 0 (Blake's images of every cell, gathered
+/// over the ranks in the cells' global order).
+const PLANE: &str = r#"
+[flow]
+kind = "shear"
+rate = 1.0
+
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+radius = 0.8
+center = [-2.2, 1.5, 0.0]
+bending_modulus = 0.5
+
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+radius = 0.8
+center = [0.0, 2.0, 0.3]
+bending_modulus = 0.5
+
+[[cells]]
+shape = "prolate"
+reduced_volume = 0.9
+radius = 0.8
+center = [2.2, 1.4, -0.2]
+bending_modulus = 0.5
+
+[[walls]]
+kind = "body"
+shape = "plane"
+normal = [0.0, 1.0, 0.0]
+
+[numerics]
+order = 6
+dt = 0.02
+t_end = 0.12
+coupling = "explicit"
+rebalance_every = 1
+max_imbalance = 0.0
+
+[output]
+every = 6
+vtk = false
+velocity_plane = { origin = [-3.0, -0.5, 0.0], u = [6.0, 0.0, 0.0], v = [0.0, 4.0, 0.0], points = [9, 9] }
+"#;
+
+#[test]
+fn cells_beside_a_plane_wall_give_the_one_rank_result_on_2_ranks() {
+    let dir = tmpdir("mpi-run-plane");
+    let scene = write(&dir, "plane.toml", PLANE);
+    let scene = scene.to_str().unwrap();
+    let one = dir.join("k0");
+    ok(&run_scene(0, scene, &one, &[]), "one process");
+    let reference = last_coefs(&one);
+    let out = dir.join("k2");
+    ok(&run_scene(2, scene, &out, &[]), "2 ranks");
+    let e = worst_rel(&last_coefs(&out), &reference);
+    eprintln!("cells beside a plane, 2 ranks: largest relative difference {e:.2e}");
+    assert!(e <= 1e-10, "2 ranks differ from one by {e:.2e}");
+    let (s1, s2) = (summary(&one), summary(&out));
+    assert_eq!(
+        s1["counters"]["plane_wall"]["evaluations"],
+        s2["counters"]["plane_wall"]["evaluations"]
+    );
+    // The velocity plane: NaN below the wall, the same field above it.
+    let (a, b) = (last_plane(&out), last_plane(&one));
+    let scale = b
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0_f64, |m, v| m.max(v.abs()));
+    for (x, y) in a.iter().zip(&b) {
+        assert_eq!(x.is_nan(), y.is_nan(), "the plane's fluid differs");
+        if y.is_finite() {
+            assert!((x - y).abs() <= 1e-10 * scale, "plane {x} against {y}");
+        }
+    }
+    assert!(b.iter().any(|v| v.is_nan()) && b.iter().any(|v| v.is_finite()));
+}
+
 #[test]
 fn checkpoints_resume_bit_for_bit_on_as_many_ranks_and_on_other_counts_to_1e10() {
     let dir = tmpdir("mpi-run-resume");
