@@ -68,7 +68,10 @@ vtk = false
 }
 
 /// The velocity of the sphere's centre in each of `steps` steps and its height halfway.
-fn speeds(h: f64, force: [f64; 3], steps: usize) -> Vec<([f64; 3], f64)> {
+/// A step: the centre's velocity and its height halfway.
+type Step = ([f64; 3], f64);
+
+fn speeds(h: f64, force: [f64; 3], steps: usize) -> Vec<Step> {
     speeds_and_field(h, force, steps, &[]).0
 }
 
@@ -78,7 +81,7 @@ fn speeds_and_field(
     force: [f64; 3],
     steps: usize,
     targets: &[[f64; 3]],
-) -> (Vec<([f64; 3], f64)>, Vec<[f64; 3]>) {
+) -> (Vec<Step>, Vec<[f64; 3]>) {
     let dir = tmpdir("plane-wall");
     let scene = parse(&dir.join("plane.toml"), &scene_text(h, force)).unwrap();
     let mut susp = build(&scene).unwrap();
