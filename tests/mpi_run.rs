@@ -483,7 +483,8 @@ fn cells_between_walls_give_the_one_rank_result_on_2_and_3_ranks() {
     }
 }
 
-/// Three vesicles in shear beside the plane wall y = 0 (Blake's images of every cell, gathered
+/// Three vesicles in shear beside the plane wall y = 0, the middle one with a viscosity
+/// contrast (Blake's images of every cell's single layer and of its double layer, gathered
 /// over the ranks in the cells' global order).
 const PLANE: &str = r#"
 [flow]
@@ -503,6 +504,7 @@ reduced_volume = 0.9
 radius = 0.8
 center = [0.0, 2.0, 0.3]
 bending_modulus = 0.5
+viscosity_ratio = 3.0
 
 [[cells]]
 shape = "prolate"

@@ -35,9 +35,9 @@
 //! **A plane wall** (`shape = "plane"`, `kind = "body"`): the infinite plane through `center`
 //! (default the origin) with `normal` pointing into the fluid, at rest, by Blake's images
 //! ([`crate::wall::PlaneWall`]; [`crate::timestep::plane_coupling`]). It stands alone (no other
-//! wall, one plane), beside cells without a viscosity contrast (the image of a double layer is
-//! not built), all above it, in a background flow that vanishes on it (a shear flow
-//! `u = (γ̇y, 0, 0)` beside the plane `y = 0`, or none); each is checked with its place.
+//! wall, one plane), with every cell above it, in a background flow that vanishes on it (a
+//! shear flow `u = (γ̇y, 0, 0)` beside the plane `y = 0`, or none); each is checked with its
+//! place. Cells with a viscosity contrast get the image of their double layer too.
 //!
 //! Walls are at rest unless they turn; `[flow]` is the flow the walls disturb (a container at
 //! rest in a shear flow holds its fluid still at the wall). A tube container with
@@ -454,9 +454,9 @@ fn plane_entry(
     })
 }
 
-/// A plane wall's scene: every cell above it (each of its order-`2p` samples), every cell
-/// without a viscosity contrast (the image of a double layer is not built), and a background
-/// flow that vanishes on the plane (the wall is at rest: a shear flow along it, or none).
+/// A plane wall's scene: every cell above it (each of its order-`2p` samples), and a
+/// background flow that vanishes on the plane (the wall is at rest: a shear flow along it, or
+/// none).
 pub(super) fn check_plane(
     cells: &[CellSpec],
     plane: &PlaneSpec,
@@ -474,19 +474,6 @@ pub(super) fn check_plane(
         .map_err(|e| fail(plane.line, e.to_string()))?;
     let sht = ShTransform::new(2 * p).map_err(|e| fail(0, e.to_string()))?;
     for (i, c) in cells.iter().enumerate() {
-        if c.viscosity_ratio != 1.0 {
-            return Err(fail(
-                c.line,
-                format!(
-                    "cell {i} of {} has viscosity_ratio = {} beside the plane wall (line {}): \
-                     the plane's image of a cell's double layer is not built, so a plane \
-                     takes cells of viscosity_ratio = 1 only",
-                    entry(c.line),
-                    c.viscosity_ratio,
-                    plane.line
-                ),
-            ));
-        }
         let e = |e: VesicleError| fail(c.line, format!("cell {i} of {}: {e}", entry(c.line)));
         let s = c.surface(p).map_err(e)?;
         let samples = SurfaceDistance::new(p, s.coefs(), &sht).map_err(e)?;

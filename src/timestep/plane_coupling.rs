@@ -2,7 +2,7 @@
 //! layers, once per step.
 //!
 //! With a plane wall at rest ([`PlaneWall`]: Blake's image system) the velocity in the fluid is
-//! `u = u_∞ + Σ_cells S^B_j[f_j]`, `S^B` the single layer with Blake's tensor. Its free-space
+//! `u = u_∞ + Σ_cells (S^B_j[f_j] + (1 − λ_j) D^B_j[u_j])`, the layers with Blake's tensor. Its free-space
 //! part is what a suspension computes anyway (each cell's own step and the inter-cell
 //! coupling); [`PlaneCoupling`] adds the rest,
 //!
@@ -18,9 +18,12 @@
 //! the step, extrapolated by BDF2. The background flow `u_∞` must vanish on the plane (a
 //! shear flow along it, or none): the scene checks it.
 //!
-//! **What is not there.** A cell with a viscosity contrast (`λ ≠ 1`) would also need the image
-//! of its double layer, which is not built: the scene refuses the pair. The images are a direct
-//! sum, `O(N_points · N_sources)` over all cells (not through the FMM). Over MPI ranks every
+//! A cell with a viscosity contrast (`λ ≠ 1`) adds the image of its double layer `(1 − λ)
+//! D[u]` ([`PlaneWall::add_double_layer_images`]), with `u` its last membrane velocity, as the
+//! inter-cell coupling takes it. For output ([`PlaneCoupling::add_cell_images`]) the images are those of
+//! each cell's present layers, like the rest of the field.
+//!
+//! **What is not there.** The images are a direct sum, `O(N_points · N_sources)` over all cells (not through the FMM). Over MPI ranks every
 //! rank gathers every cell's point forces (six numbers per node of the upsampled grid) and sums
 //! them in the order of the cells' global indices, so any number of ranks gives one rank's bits.
 
@@ -58,6 +61,9 @@ pub struct PlaneCoupling {
     rules: Vec<SmoothLayer>,
     /// Every cell's point forces of the last evaluation (wall's frame, cells in global order).
     last: Vec<PointForce>,
+    /// Every cell's double-layer sources `[y, g dA, n]` of the last evaluation (none without
+    /// a viscosity contrast).
+    last_double: Vec<[[f64; 3]; 3]>,
     stats: PlaneStats,
 }
 
@@ -76,6 +82,7 @@ impl PlaneCoupling {
             viscosity,
             rules: vec![],
             last: vec![],
+            last_double: vec![],
             stats: PlaneStats::default(),
         })
     }
@@ -98,16 +105,19 @@ impl PlaneCoupling {
         self.stats
     }
 
-    /// Cell `slot`'s point forces for the images: the nodes of its surface `coefs` (order `p`)
-    /// upsampled to order `3p` and its traction `traction` there times the weights, in the
-    /// wall's frame, flattened as `[y₁, y₂, y₃, F₁, F₂, F₃]` per node.
+    /// Cell `slot`'s sources for the images: the nodes of its surface `coefs` (order `p`)
+    /// upsampled to order `3p`, in the wall's frame. First its traction `traction` there times
+    /// the weights, flattened as `[y₁, y₂, y₃, F₁, F₂, F₃]` per node; then, for a cell with a
+    /// viscosity contrast, its double-layer density `g = (1 − λ) u` times the weights and the
+    /// normal, `[y, g dA, n]` per node (empty without).
     pub fn cell_sources(
         &mut self,
         slot: usize,
         p: usize,
         coefs: &[f64],
         traction: &[f64],
-    ) -> Result<Vec<f64>, TimestepError> {
+        double_layer: Option<&[f64]>,
+    ) -> Result<(Vec<f64>, Vec<f64>), TimestepError> {
         let t0 = Instant::now();
         while self.rules.len() <= slot {
             self.rules
@@ -119,35 +129,43 @@ impl PlaneCoupling {
         let rule = &mut self.rules[slot];
         rule.set_surface(coefs)?;
         rule.set_density(traction)?;
-        let mut out = Vec::new();
+        let mut single = Vec::new();
         for (y, f) in rule.weighted_points()? {
-            out.extend(self.wall.to_local(y));
-            out.extend(self.wall.vector_to_local(f));
+            single.extend(self.wall.to_local(y));
+            single.extend(self.wall.vector_to_local(f));
+        }
+        let mut double = Vec::new();
+        if let Some(g) = double_layer {
+            rule.set_density(g)?;
+            for ((y, g), n) in rule.weighted_points()?.into_iter().zip(rule.normals()) {
+                double.extend(self.wall.to_local(y));
+                double.extend(self.wall.vector_to_local(g));
+                double.extend(self.wall.vector_to_local(*n));
+            }
         }
         self.stats.seconds += t0.elapsed().as_secs_f64();
-        Ok(out)
+        Ok((single, double))
     }
 
-    /// The images of the point forces `sources` (every cell's [`Self::cell_sources`],
-    /// concatenated in the cells' global order) at the grid points `points` of each cell held
-    /// here (`3n` each, component-major). A grid point on or below the plane is an error.
+    /// The images of the sources `single` and `double` (every cell's [`Self::cell_sources`],
+    /// each concatenated in the cells' global order) at the grid points `points` of each cell
+    /// held here (`3n` each, component-major). A grid point on or below the plane is an error.
     pub fn velocities(
         &mut self,
-        sources: &[f64],
+        single: &[f64],
+        double: &[f64],
         points: &[Vec<[f64; 3]>],
     ) -> Result<Vec<Vec<f64>>, TimestepError> {
         let t0 = Instant::now();
-        if !sources.len().is_multiple_of(6) {
-            return Err(TimestepError::DimensionMismatch {
-                what: "plane wall's point forces",
-                expected: 6 * (sources.len() / 6),
-                got: sources.len(),
-            });
+        for (what, v, k) in [("single-layer", single, 6), ("double-layer", double, 9)] {
+            if !v.len().is_multiple_of(k) {
+                return Err(TimestepError::Wall(format!(
+                    "the plane wall's {what} sources have {} values, not a multiple of {k}",
+                    v.len()
+                )));
+            }
         }
-        self.last = sources
-            .chunks_exact(6)
-            .map(|c| ([c[0], c[1], c[2]], [c[3], c[4], c[5]]))
-            .collect();
+        (self.last, self.last_double) = unflatten(single, double);
         let mut gap = f64::INFINITY;
         for x in points.iter().flatten() {
             gap = gap.min(self.wall.height(*x));
@@ -160,11 +178,7 @@ impl PlaneCoupling {
         }
         let mut out = Vec::with_capacity(points.len());
         for x in points {
-            let mut u = vec![0.0; 3 * x.len()];
-            self.wall
-                .add_images(self.viscosity, &self.last, x, &mut u)
-                .map_err(|e| TimestepError::Wall(e.to_string()))?;
-            out.push(u);
+            out.push(self.images_at(x)?);
         }
         let s = &mut self.stats;
         s.evaluations += 1;
@@ -177,24 +191,68 @@ impl PlaneCoupling {
         Ok(out)
     }
 
-    /// The wall's velocity (the images of the last evaluation's point forces; zero before the
-    /// first) at `targets` (component-major, zero below the plane) and whether each target
-    /// is in the fluid, for output. The statistics are not touched.
-    pub fn field_at(&self, targets: &[[f64; 3]]) -> Result<(Vec<f64>, Vec<bool>), TimestepError> {
-        let fluid: Vec<bool> = targets.iter().map(|&x| self.wall.height(x) > 0.0).collect();
-        let inner: Vec<[f64; 3]> = targets
-            .iter()
-            .zip(&fluid)
-            .filter(|(_, &f)| f)
-            .map(|(&x, _)| x)
+    /// The images of the last evaluation's sources at `targets` (component-major).
+    fn images_at(&self, targets: &[[f64; 3]]) -> Result<Vec<f64>, TimestepError> {
+        let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
+        let mut u = vec![0.0; 3 * targets.len()];
+        self.wall
+            .add_images(self.viscosity, &self.last, targets, &mut u)
+            .map_err(fail)?;
+        if !self.last_double.is_empty() {
+            self.wall
+                .add_double_layer_images(&self.last_double, targets, &mut u)
+                .map_err(fail)?;
+        }
+        Ok(u)
+    }
+
+    /// Add the images of one cell's layers, from its present surface `coefs`, traction and
+    /// double-layer density (as [`Self::cell_sources`] takes them), at the `targets` above the
+    /// plane to `out` (component-major over all targets; those on or below the plane are left
+    /// alone), for output. `slot` picks the rule kept for that cell; the statistics are not
+    /// touched.
+    #[allow(clippy::too_many_arguments)]
+    pub fn add_cell_images(
+        &mut self,
+        slot: usize,
+        p: usize,
+        coefs: &[f64],
+        traction: &[f64],
+        double_layer: Option<&[f64]>,
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+    ) -> Result<(), TimestepError> {
+        let seconds = self.stats.seconds;
+        let (single, double) = self.cell_sources(slot, p, coefs, traction, double_layer)?;
+        self.stats.seconds = seconds;
+        let (single, double) = unflatten(&single, &double);
+        let index: Vec<usize> = (0..targets.len())
+            .filter(|&i| self.wall.height(targets[i]) > 0.0)
             .collect();
+        let inner: Vec<[f64; 3]> = index.iter().map(|&i| targets[i]).collect();
+        let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
         let mut v = vec![0.0; 3 * inner.len()];
         self.wall
-            .add_images(self.viscosity, &self.last, &inner, &mut v)
-            .map_err(|e| TimestepError::Wall(e.to_string()))?;
-        let index: Vec<usize> = (0..targets.len()).filter(|&i| fluid[i]).collect();
-        let mut out = vec![0.0; 3 * targets.len()];
-        crate::wall::scatter_add(&v, &index, &mut out, targets.len());
-        Ok((out, fluid))
+            .add_images(self.viscosity, &single, &inner, &mut v)
+            .map_err(fail)?;
+        if !double.is_empty() {
+            self.wall
+                .add_double_layer_images(&double, &inner, &mut v)
+                .map_err(fail)?;
+        }
+        crate::wall::scatter_add(&v, &index, out, targets.len());
+        Ok(())
     }
+}
+
+/// The sources of [`PlaneCoupling::cell_sources`] as point forces and double-layer triples.
+fn unflatten(single: &[f64], double: &[f64]) -> (Vec<PointForce>, Vec<[[f64; 3]; 3]>) {
+    let v = |c: &[f64]| [c[0], c[1], c[2]];
+    (
+        single.chunks_exact(6).map(|c| (v(c), v(&c[3..]))).collect(),
+        double
+            .chunks_exact(9)
+            .map(|c| [v(c), v(&c[3..]), v(&c[6..])])
+            .collect(),
+    )
 }

@@ -220,6 +220,12 @@ impl SmoothLayer {
             .collect())
     }
 
+    /// The outward unit normals at the rule's nodes (in the order of
+    /// [`Self::weighted_points`]; those of the last surface set).
+    pub fn normals(&self) -> &[[f64; 3]] {
+        &self.geom.normal
+    }
+
     /// The surface order `p`.
     pub fn order(&self) -> usize {
         self.p

@@ -128,11 +128,156 @@ impl PlaneWall {
     /// too (without the `1/(8πμ)`).
     #[inline]
     pub fn image_local(x: [f64; 3], y: [f64; 3], f: [f64; 3]) -> [f64; 3] {
+        image_generic(x, y, f)
+    }
+
+    /// The image part of the double layer's kernel in the wall's frame, without the
+    /// `−1/(8π)`: `T^B_ijk g_j n_k − T_ijk g_j n_k` for a source at `y` with density `g` and
+    /// normal `n` (module docs), all in local components.
+    pub fn image_double_layer_local(
+        x: [f64; 3],
+        y: [f64; 3],
+        g: [f64; 3],
+        n: [f64; 3],
+    ) -> [f64; 3] {
+        // The force dipoles: −∂/∂y_k of the Stokeslet's image, by forward differentiation.
+        let mut u = [0.0; 3];
+        for k in 0..3 {
+            let mut yd = y.map(Dual::constant);
+            yd[k].d = 1.0;
+            let xd = x.map(Dual::constant);
+            let a = image_generic(xd, yd, g.map(Dual::constant));
+            let b = image_generic(xd, yd, n.map(Dual::constant));
+            for i in 0..3 {
+                u[i] -= a[i].d * n[k] + b[i].d * g[k];
+            }
+        }
+        // The source −2 (g·n) s(x − y), and its image.
+        let h = y[2];
+        let xx = [x[0] - y[0], x[1] - y[1], x[2] + h];
+        let r2 = dot(xx, xx);
+        let inv3 = 1.0 / (r2 * r2.sqrt());
+        let inv5 = inv3 / r2;
+        let gn = dot(g, n);
+        for i in 0..3 {
+            let d3 = if i == 2 { 2.0 * h * inv3 } else { 0.0 };
+            let image = -xx[i] * inv3 + 6.0 * xx[i] * xx[2] * xx[2] * inv5 + d3
+                - 6.0 * h * xx[i] * xx[2] * inv5;
+            u[i] -= 2.0 * gn * image;
+        }
+        u
+    }
+}
+
+/// The arithmetic [`image_generic`] needs: `f64`, or a number carrying one derivative.
+trait Scalar:
+    Copy
+    + std::ops::Add<Output = Self>
+    + std::ops::Sub<Output = Self>
+    + std::ops::Mul<Output = Self>
+    + std::ops::Div<Output = Self>
+    + std::ops::Neg<Output = Self>
+{
+    fn constant(v: f64) -> Self;
+    fn sqrt(self) -> Self;
+}
+
+impl Scalar for f64 {
+    fn constant(v: f64) -> Self {
+        v
+    }
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
+}
+
+/// A value and its derivative along one direction (forward differentiation).
+#[derive(Clone, Copy, Debug)]
+struct Dual {
+    v: f64,
+    d: f64,
+}
+
+impl Dual {
+    fn constant(v: f64) -> Self {
+        Dual { v, d: 0.0 }
+    }
+}
+
+impl std::ops::Add for Dual {
+    type Output = Dual;
+    fn add(self, o: Dual) -> Dual {
+        Dual {
+            v: self.v + o.v,
+            d: self.d + o.d,
+        }
+    }
+}
+
+impl std::ops::Sub for Dual {
+    type Output = Dual;
+    fn sub(self, o: Dual) -> Dual {
+        Dual {
+            v: self.v - o.v,
+            d: self.d - o.d,
+        }
+    }
+}
+
+impl std::ops::Mul for Dual {
+    type Output = Dual;
+    fn mul(self, o: Dual) -> Dual {
+        Dual {
+            v: self.v * o.v,
+            d: self.d * o.v + self.v * o.d,
+        }
+    }
+}
+
+impl std::ops::Div for Dual {
+    type Output = Dual;
+    fn div(self, o: Dual) -> Dual {
+        Dual {
+            v: self.v / o.v,
+            d: (self.d * o.v - self.v * o.d) / (o.v * o.v),
+        }
+    }
+}
+
+impl std::ops::Neg for Dual {
+    type Output = Dual;
+    fn neg(self) -> Dual {
+        Dual {
+            v: -self.v,
+            d: -self.d,
+        }
+    }
+}
+
+impl Scalar for Dual {
+    fn constant(v: f64) -> Self {
+        Dual::constant(v)
+    }
+    fn sqrt(self) -> Self {
+        let r = self.v.sqrt();
+        Dual {
+            v: r,
+            d: self.d / (2.0 * r),
+        }
+    }
+}
+
+/// [`PlaneWall::image_local`] in any [`Scalar`] arithmetic.
+#[inline]
+fn image_generic<T: Scalar>(x: [T; 3], y: [T; 3], f: [T; 3]) -> [T; 3] {
+    let c = T::constant;
+    let dot = |a: [T; 3], b: [T; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    {
         let h = y[2];
         let xx = [x[0] - y[0], x[1] - y[1], x[2] + h];
         let r2 = dot(xx, xx);
         let r1 = r2.sqrt();
-        let inv = 1.0 / r1;
+        let inv = c(1.0) / r1;
         let inv3 = inv / r2;
         let inv5 = inv3 / r2;
         // −S(X) f
@@ -141,19 +286,21 @@ impl PlaneWall {
         let g = [f[0], f[1], -f[2]];
         let xg = dot(xx, g);
         let x3 = xx[2];
-        let mut u = [0.0; 3];
+        let mut u = [c(0.0); 3];
         for i in 0..3 {
             let stokeslet = -(f[i] * inv + xx[i] * xf * inv3);
             // Σ_l g_l ∂Φ_i/∂X_l with Φ_i = h X_i/ρ³ − S_i3(X).
-            let d_i3 = if i == 2 { xg * inv3 } else { 0.0 };
-            let dphi = h * (g[i] * inv3 - 3.0 * xx[i] * xg * inv5) + d_i3
+            let d_i3 = if i == 2 { xg * inv3 } else { c(0.0) };
+            let dphi = h * (g[i] * inv3 - c(3.0) * xx[i] * xg * inv5) + d_i3
                 - (g[i] * x3 + xx[i] * g[2]) * inv3
-                + 3.0 * xx[i] * x3 * xg * inv5;
-            u[i] = stokeslet + 2.0 * h * dphi;
+                + c(3.0) * xx[i] * x3 * xg * inv5;
+            u[i] = stokeslet + c(2.0) * h * dphi;
         }
         u
     }
+}
 
+impl PlaneWall {
     /// The image velocity at `x` of a point force `f` at `y` (global frame), without the
     /// `1/(8πμ)`: [`Self::image_local`] in the wall's frame.
     pub fn image(&self, x: [f64; 3], y: [f64; 3], f: [f64; 3]) -> [f64; 3] {
@@ -171,11 +318,8 @@ impl PlaneWall {
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), WallError> {
-        let nt = targets.len();
-        super::check_len("image velocity", out.len(), 3 * nt)?;
         let c = 1.0 / (8.0 * std::f64::consts::PI * viscosity);
-        for (t, &x) in targets.iter().enumerate() {
-            let xl = self.to_local(x);
+        self.add_at(targets, out, c, |xl| {
             let mut u = [0.0; 3];
             for &(y, f) in sources {
                 let v = Self::image_local(xl, y, f);
@@ -183,12 +327,57 @@ impl PlaneWall {
                 u[1] += v[1];
                 u[2] += v[2];
             }
-            let u = self.vector_to_global(u);
+            u
+        })
+    }
+
+    /// Add `c · field(x_t)` (the field in the wall's frame, of the local target) at every target
+    /// to `out` (component-major).
+    fn add_at(
+        &self,
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+        c: f64,
+        field: impl Fn([f64; 3]) -> [f64; 3],
+    ) -> Result<(), WallError> {
+        let nt = targets.len();
+        super::check_len("image velocity", out.len(), 3 * nt)?;
+        for (t, &x) in targets.iter().enumerate() {
+            let u = self.vector_to_global(field(self.to_local(x)));
             for a in 0..3 {
                 out[a * nt + t] += c * u[a];
             }
         }
         Ok(())
+    }
+}
+
+impl PlaneWall {
+    /// Add the images of double layers `D[g](x) = (3/4π) ∫ r (r·g)(r·n)/r⁵ dA` at every target
+    /// to `out` (component-major, `3 · targets.len()`), the sources given as `(y_s, g_s dA_s,
+    /// n_s)` in the wall's frame, summed in their order. With
+    /// `T_ijk g_j n_k = ∂_k S_ij (g_j n_k + n_j g_k) − 2 (g·n) r_i/r³` (a force dipole and a
+    /// point source; `D = −T g n/(8π)`), the image is that of each part: `−∂/∂y_k` of the
+    /// Stokeslet's image for the dipoles (forward differentiation of [`Self::image_local`]),
+    /// and for the source `s(X) − 2 ∂_{X₃} S_i3(X) + 2h ∂_{X₃} s(X)` at the mirror point
+    /// (checked: the whole kernel vanishes on the plane).
+    pub fn add_double_layer_images(
+        &self,
+        sources: &[[[f64; 3]; 3]],
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+    ) -> Result<(), WallError> {
+        let c = -1.0 / (8.0 * std::f64::consts::PI);
+        self.add_at(targets, out, c, |xl| {
+            let mut u = [0.0; 3];
+            for &[y, g, n] in sources {
+                let v = Self::image_double_layer_local(xl, y, g, n);
+                u[0] += v[0];
+                u[1] += v[1];
+                u[2] += v[2];
+            }
+            u
+        })
     }
 }
 
@@ -293,6 +482,50 @@ mod tests {
             }
             assert!(size > 1e-2, "a test that sees the field ({size})");
             assert!(div.abs() < 1e-7 * size.max(1.0), "∇·u = {div} at {x:?}");
+        }
+    }
+
+    /// The free double layer's kernel, `(3/4π) r (r·g)(r·n)/r⁵`, as `−T g n/(8π)`.
+    fn free_double_layer(r: [f64; 3], g: [f64; 3], n: [f64; 3]) -> [f64; 3] {
+        let d2 = dot(r, r);
+        let c = 3.0 / (4.0 * std::f64::consts::PI) * dot(r, g) * dot(r, n) / (d2 * d2 * d2.sqrt());
+        r.map(|v| c * v)
+    }
+
+    /// The double layer's kernel with its image vanishes on the plane (the wall's frame), for
+    /// densities along and across the normal; and the image alone is divergence-free.
+    #[test]
+    fn the_double_layers_image_vanishes_on_the_plane_with_it() {
+        let c = -1.0 / (8.0 * std::f64::consts::PI);
+        for (y, g, n) in [
+            ([0.1, 0.2, 0.3], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]),
+            ([0.3, -0.2, 1.1], [0.2, -0.5, 0.7], [0.6, 0.0, -0.8]),
+            ([-1.0, 0.4, 0.05], [0.0, 0.0, 1.0], [0.0, 0.8, 0.6]),
+        ] {
+            for x in [[0.0, 0.0, 0.0], [0.7, -1.2, 0.0], [4.0, 3.0, 0.0]] {
+                let free = free_double_layer([x[0] - y[0], x[1] - y[1], x[2] - y[2]], g, n);
+                let image = PlaneWall::image_double_layer_local(x, y, g, n).map(|v| c * v);
+                let total: [f64; 3] = std::array::from_fn(|a| free[a] + image[a]);
+                let size = dot(free, free).sqrt();
+                assert!(size > 1e-6, "a test that sees the field ({size})");
+                assert!(
+                    dot(total, total).sqrt() < 1e-13 * size,
+                    "{x:?}: {total:?} of {size}"
+                );
+            }
+            let x = [0.4, 0.9, 0.6];
+            let step = 1e-4;
+            let mut div = 0.0;
+            for a in 0..3 {
+                let (mut xp, mut xm) = (x, x);
+                xp[a] += step;
+                xm[a] -= step;
+                let up = PlaneWall::image_double_layer_local(xp, y, g, n);
+                let um = PlaneWall::image_double_layer_local(xm, y, g, n);
+                div += (up[a] - um[a]) / (2.0 * step);
+            }
+            let size = dot(PlaneWall::image_double_layer_local(x, y, g, n), [1.0; 3]).abs();
+            assert!(div.abs() < 1e-6 * size.max(1.0), "∇·u = {div}");
         }
     }
 

@@ -99,26 +99,22 @@ impl Suspension {
             .transpose()
             .map_err(|source| CellStepError { cell: None, source });
         let walls = agree_cells(comm, walls)?;
-        // A plane wall: the images of the last step's tractions (the same on every rank).
-        let plane = self
+        // A plane wall: the fluid is above it (the images are in the cells' layers).
+        let below: Option<Vec<bool>> = self
             .plane
             .as_ref()
-            .map(|w| w.field_at(targets))
-            .transpose()
-            .map_err(|source| CellStepError { cell: None, source });
-        let plane = agree_cells(comm, plane)?;
+            .map(|w| targets.iter().map(|&x| w.wall().height(x) <= 0.0).collect());
         Ok((0..nt)
             .map(|i| {
                 let u = u_inf(targets[i]);
                 let chi = if lambda[i] > 0.0 { lambda[i] } else { 1.0 };
-                if plane.as_ref().is_some_and(|(_, fluid)| !fluid[i]) {
+                if below.as_ref().is_some_and(|b| b[i]) {
                     return [f64::NAN; 3];
                 }
                 match &walls {
                     Some((_, fluid)) if !fluid[i] => [f64::NAN; 3],
                     w => std::array::from_fn(|a| {
-                        let wall = w.as_ref().map_or(0.0, |(v, _)| v[a * nt + i])
-                            + plane.as_ref().map_or(0.0, |(v, _)| v[a * nt + i]);
+                        let wall = w.as_ref().map_or(0.0, |(v, _)| v[a * nt + i]);
                         (u[a] + wall + layers[a * nt + i]) / chi
                     }),
                 }
@@ -167,11 +163,16 @@ impl Suspension {
             });
         }
         let walls = self.walls.is_some();
-        let Suspension { cells, field, .. } = self;
+        let Suspension {
+            cells,
+            field,
+            plane,
+            ..
+        } = self;
         let FieldEvaluators { near, coarse, .. } = field.as_mut().expect("built above");
         let sl = LayerKernel::SingleLayer { viscosity };
         let (layers, inside_of) = out.split_at_mut(3 * nt);
-        for c in cells.iter() {
+        for (slot, c) in cells.iter().enumerate() {
             let id = c.id;
             let lambda = c.stepper.params().viscosity_ratio;
             let mut f = vec![0.0; 3 * c.stepper.n_points()];
@@ -217,6 +218,11 @@ impl Suspension {
                 if info.inside {
                     inside_of[i] = lambda;
                 }
+            }
+            // A plane wall: the images of this cell's layers, from its present state.
+            if let Some(w) = plane {
+                w.add_cell_images(slot, p, &c.state.coefs, &f, g.as_deref(), targets, layers)
+                    .map_err(|e| fail(id, e))?;
             }
         }
         Ok(())

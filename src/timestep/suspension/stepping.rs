@@ -147,7 +147,7 @@ impl Suspension {
                 }
             }
             self.add_wall_velocities(comm, u_inf, &tractions, &scaled)?;
-            self.add_plane_velocities(comm, &tractions)?;
+            self.add_plane_velocities(comm, &tractions, &scaled)?;
             if let Some(record) = &mut self.coupling_record {
                 *record = self
                     .cells

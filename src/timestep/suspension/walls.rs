@@ -43,6 +43,7 @@ impl Suspension {
         &mut self,
         comm: &dyn Communicator,
         tractions: &[Vec<f64>],
+        double_layers: &[Option<Vec<f64>>],
     ) -> Result<(), CellStepError> {
         let Some(plane) = &mut self.plane else {
             return Ok(());
@@ -54,16 +55,24 @@ impl Suspension {
         for (slot, c) in self.cells.iter().enumerate() {
             let p = c.stepper.order();
             let got = plane
-                .cell_sources(slot, p, &c.state.coefs, &tractions[slot])
+                .cell_sources(
+                    slot,
+                    p,
+                    &c.state.coefs,
+                    &tractions[slot],
+                    double_layers[slot].as_deref(),
+                )
                 .and_then(|s| {
                     let x = c.stepper.with_geometry(&c.state.coefs, |g| g.x.clone())?;
                     Ok((s, x))
                 });
             match got {
-                Ok((s, x)) => {
+                Ok(((single, double), x)) => {
                     local.push(c.id as f64);
-                    local.push(s.len() as f64);
-                    local.extend_from_slice(&s);
+                    local.push(single.len() as f64);
+                    local.push(double.len() as f64);
+                    local.extend_from_slice(&single);
+                    local.extend_from_slice(&double);
                     points.push(x);
                 }
                 Err(source) => {
@@ -80,22 +89,29 @@ impl Suspension {
         let gathered = comm
             .all_gather_f64(&local)
             .map_err(|e| fail(TimestepError::Comm(e)))?;
-        let mut all: Vec<(usize, &[f64])> = vec![];
+        // Each cell's block: its index, its lengths, its single- and double-layer sources.
+        let mut all: Vec<(usize, &[f64], &[f64])> = vec![];
         for part in &gathered {
             let mut at = 0;
             while at < part.len() {
-                let len = part[at + 1] as usize;
-                all.push((part[at] as usize, &part[at + 2..at + 2 + len]));
-                at += 2 + len;
+                let (ls, ld) = (part[at + 1] as usize, part[at + 2] as usize);
+                let single = &part[at + 3..at + 3 + ls];
+                all.push((
+                    part[at] as usize,
+                    single,
+                    &part[at + 3 + ls..at + 3 + ls + ld],
+                ));
+                at += 3 + ls + ld;
             }
         }
         all.sort_by_key(|a| a.0);
-        let sources: Vec<f64> = all
-            .into_iter()
-            .flat_map(|(_, s)| s.iter().copied())
-            .collect();
+        let single: Vec<f64> = all.iter().flat_map(|a| a.1.iter().copied()).collect();
+        let double: Vec<f64> = all.iter().flat_map(|a| a.2.iter().copied()).collect();
         // The same sources on every rank; a cell on the plane fails on its rank.
-        let velocities = agree_cells(comm, plane.velocities(&sources, &points).map_err(fail))?;
+        let velocities = agree_cells(
+            comm,
+            plane.velocities(&single, &double, &points).map_err(fail),
+        )?;
         self.add_explicit_velocities(velocities);
         Ok(())
     }
