@@ -409,6 +409,9 @@ fn specs_and_files_describe_the_same_scenes() {
             // Where a grid wall's file names were in the text.
             w.files.clear();
         }
+        if let Some(p) = &mut s.plane {
+            p.line = 0;
+        }
         s
     };
     let mut texts = vec![("full".to_string(), FULL.to_string())];

@@ -717,7 +717,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             enabled: true,
             reason: format!(
                 "a plane wall through {:?} with normal {:?}: Blake's images of every cell's \
-                 single layer, added every step",
+                 layers, added every step",
                 w.point, w.normal
             ),
         });

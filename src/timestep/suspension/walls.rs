@@ -37,7 +37,7 @@ impl Suspension {
         self.plane.as_ref().map(|w| w.stats()).unwrap_or_default()
     }
 
-    /// Add the plane wall's velocity (the images of every cell's single layer) to every cell's
+    /// Add the plane wall's velocity (the images of every cell's single and double layers) to every cell's
     /// explicit velocity (nothing without a plane; collective over the ranks of `comm`).
     pub(super) fn add_plane_velocities(
         &mut self,
