@@ -37,8 +37,9 @@ impl Suspension {
         self.plane.as_ref().map(|w| w.stats()).unwrap_or_default()
     }
 
-    /// Add the plane wall's velocity (the images of every cell's single and double layers) to every cell's
-    /// explicit velocity (nothing without a plane; collective over the ranks of `comm`).
+    /// Add the plane wall's velocity (the images of every cell's single and double layers) to
+    /// every cell's explicit velocity (nothing without a plane; collective over the ranks of
+    /// `comm`).
     pub(super) fn add_plane_velocities(
         &mut self,
         comm: &dyn Communicator,
