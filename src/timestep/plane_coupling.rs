@@ -1,19 +1,19 @@
-//! Cells beside a plane wall: the wall's velocity at the cells, by the images of their single
-//! layers, once per step.
+//! Cells beside a plane wall: the wall's velocity at the cells, by the images of their layers,
+//! once per step.
 //!
 //! With a plane wall at rest ([`PlaneWall`]: Blake's image system) the velocity in the fluid is
-//! `u = u_∞ + Σ_cells (S^B_j[f_j] + (1 − λ_j) D^B_j[u_j])`, the layers with Blake's tensor. Its free-space
-//! part is what a suspension computes anyway (each cell's own step and the inter-cell
-//! coupling); [`PlaneCoupling`] adds the rest,
+//! `u = u_∞ + Σ_cells (S^B_j[f_j] + (1 − λ_j) D^B_j[u_j])`, the layers with Blake's tensor.
+//! Its free-space part is what a suspension computes anyway (each cell's own step and the
+//! inter-cell coupling); [`PlaneCoupling`] adds the rest, the images,
 //!
 //! ```text
-//! u_wall(x) = (1/8πμ) Σ_j ∫_{Γ_j} G^img(x, y) f_j(y) dA(y),
+//! u_wall(x) = (1/8πμ) Σ_j ∫_{Γ_j} G^img(x, y) f_j(y) dA(y) + (1 − λ_j) D^img_j[u_j](x),
 //! ```
 //!
 //! at every cell's grid points, by each cell's smooth quadrature upsampled to order
 //! [`IMAGE_ORDER_FACTOR`]`·p` ([`SmoothLayer`]). The image of a cell at height `h` lies `2h`
 //! from it, so the rule resolves it while `2h` exceeds a few spacings of that grid
-//! (`tests/plane_wall.rs` measures the error against Brenner's drag down to `h = 0.1` radii).
+//! (`tests/plane_wall.rs` checks Brenner's drag down to a gap of half a radius).
 //! It enters a step as the walls' velocity does: explicitly, from the tractions at the start of
 //! the step, extrapolated by BDF2. The background flow `u_∞` must vanish on the plane (a
 //! shear flow along it, or none): the scene checks it.
@@ -23,9 +23,10 @@
 //! inter-cell coupling takes it. For output ([`PlaneCoupling::add_cell_images`]) the images are those of
 //! each cell's present layers, like the rest of the field.
 //!
-//! **What is not there.** The images are a direct sum, `O(N_points · N_sources)` over all cells (not through the FMM). Over MPI ranks every
-//! rank gathers every cell's point forces (six numbers per node of the upsampled grid) and sums
-//! them in the order of the cells' global indices, so any number of ranks gives one rank's bits.
+//! **What is not there.** The images are a direct sum, `O(N_points · N_sources)` over all
+//! cells (not through the FMM). Over MPI ranks every rank gathers every cell's sources (six
+//! numbers per node of the upsampled grid, nine more with a double layer) and sums them in the
+//! order of the cells' global indices, so any number of ranks gives one rank's bits.
 
 use std::time::Instant;
 
@@ -59,11 +60,6 @@ pub struct PlaneCoupling {
     viscosity: f64,
     /// One smooth rule per cell slot, built on first use.
     rules: Vec<SmoothLayer>,
-    /// Every cell's point forces of the last evaluation (wall's frame, cells in global order).
-    last: Vec<PointForce>,
-    /// Every cell's double-layer sources `[y, g dA, n]` of the last evaluation (none without
-    /// a viscosity contrast).
-    last_double: Vec<[[f64; 3]; 3]>,
     stats: PlaneStats,
 }
 
@@ -81,8 +77,6 @@ impl PlaneCoupling {
             wall,
             viscosity,
             rules: vec![],
-            last: vec![],
-            last_double: vec![],
             stats: PlaneStats::default(),
         })
     }
@@ -119,6 +113,20 @@ impl PlaneCoupling {
         double_layer: Option<&[f64]>,
     ) -> Result<(Vec<f64>, Vec<f64>), TimestepError> {
         let t0 = Instant::now();
+        let sources = self.sources(slot, p, coefs, traction, double_layer);
+        self.stats.seconds += t0.elapsed().as_secs_f64();
+        sources
+    }
+
+    /// [`Self::cell_sources`] without the timing.
+    fn sources(
+        &mut self,
+        slot: usize,
+        p: usize,
+        coefs: &[f64],
+        traction: &[f64],
+        double_layer: Option<&[f64]>,
+    ) -> Result<(Vec<f64>, Vec<f64>), TimestepError> {
         while self.rules.len() <= slot {
             self.rules
                 .push(SmoothLayer::new(p, IMAGE_ORDER_FACTOR * p, 3.0)?);
@@ -143,7 +151,6 @@ impl PlaneCoupling {
                 double.extend(self.wall.vector_to_local(*n));
             }
         }
-        self.stats.seconds += t0.elapsed().as_secs_f64();
         Ok((single, double))
     }
 
@@ -165,12 +172,13 @@ impl PlaneCoupling {
                 )));
             }
         }
-        (self.last, self.last_double) = unflatten(single, double);
+        let (single, double) = unflatten(single, double);
         let mut gap = f64::INFINITY;
         for x in points.iter().flatten() {
             gap = gap.min(self.wall.height(*x));
         }
-        if points.iter().any(|x| !x.is_empty()) && (gap <= 0.0 || gap.is_nan()) {
+        // (No points: the gap stays infinite.)
+        if gap <= 0.0 || gap.is_nan() {
             return Err(TimestepError::Wall(format!(
                 "a cell reached the plane wall (a grid point {gap:.3e} above it); keep cells \
                  off it with [numerics] contact_distance"
@@ -178,11 +186,13 @@ impl PlaneCoupling {
         }
         let mut out = Vec::with_capacity(points.len());
         for x in points {
-            out.push(self.images_at(x)?);
+            let mut u = vec![0.0; 3 * x.len()];
+            self.add_images(&single, &double, x, &mut u)?;
+            out.push(u);
         }
         let s = &mut self.stats;
         s.evaluations += 1;
-        s.sources = self.last.len();
+        s.sources = single.len();
         s.seconds += t0.elapsed().as_secs_f64();
         if gap.is_finite() {
             s.last_gap = Some(gap);
@@ -191,19 +201,25 @@ impl PlaneCoupling {
         Ok(out)
     }
 
-    /// The images of the last evaluation's sources at `targets` (component-major).
-    fn images_at(&self, targets: &[[f64; 3]]) -> Result<Vec<f64>, TimestepError> {
+    /// Add the images of the point forces `single` and the double-layer sources `double` at
+    /// `targets` to `out` (component-major).
+    fn add_images(
+        &self,
+        single: &[PointForce],
+        double: &[[[f64; 3]; 3]],
+        targets: &[[f64; 3]],
+        out: &mut [f64],
+    ) -> Result<(), TimestepError> {
         let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
-        let mut u = vec![0.0; 3 * targets.len()];
         self.wall
-            .add_images(self.viscosity, &self.last, targets, &mut u)
+            .add_images(self.viscosity, single, targets, out)
             .map_err(fail)?;
-        if !self.last_double.is_empty() {
+        if !double.is_empty() {
             self.wall
-                .add_double_layer_images(&self.last_double, targets, &mut u)
+                .add_double_layer_images(double, targets, out)
                 .map_err(fail)?;
         }
-        Ok(u)
+        Ok(())
     }
 
     /// Add the images of one cell's layers, from its present surface `coefs`, traction and
@@ -222,24 +238,14 @@ impl PlaneCoupling {
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), TimestepError> {
-        let seconds = self.stats.seconds;
-        let (single, double) = self.cell_sources(slot, p, coefs, traction, double_layer)?;
-        self.stats.seconds = seconds;
+        let (single, double) = self.sources(slot, p, coefs, traction, double_layer)?;
         let (single, double) = unflatten(&single, &double);
         let index: Vec<usize> = (0..targets.len())
             .filter(|&i| self.wall.height(targets[i]) > 0.0)
             .collect();
         let inner: Vec<[f64; 3]> = index.iter().map(|&i| targets[i]).collect();
-        let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
         let mut v = vec![0.0; 3 * inner.len()];
-        self.wall
-            .add_images(self.viscosity, &single, &inner, &mut v)
-            .map_err(fail)?;
-        if !double.is_empty() {
-            self.wall
-                .add_double_layer_images(&double, &inner, &mut v)
-                .map_err(fail)?;
-        }
+        self.add_images(&single, &double, &inner, &mut v)?;
         crate::wall::scatter_add(&v, &index, out, targets.len());
         Ok(())
     }
