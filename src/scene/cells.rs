@@ -648,12 +648,16 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             ),
         ));
     }
-    numerics.coupling =
-        coupling_given.unwrap_or_else(|| super::dense_defaults::auto_coupling(&cells));
+    numerics.coupling = coupling_given
+        .unwrap_or_else(|| super::dense_defaults::auto_coupling(&cells, plane.is_some()));
     let contact_given = n.and_then(|n| n.contact_distance.as_ref()).is_some();
     if !contact_given {
-        numerics.contact_distance =
-            super::dense_defaults::auto_contact_distance(&cells, &walls, numerics.order);
+        numerics.contact_distance = super::dense_defaults::auto_contact_distance(
+            &cells,
+            &walls,
+            plane.is_some(),
+            numerics.order,
+        );
     }
     let mut effects = effects(&cells, &flow);
     effects.push(grid_effect(&cells, numerics.grid));
@@ -663,6 +667,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
         numerics.contact_distance,
         contact_given,
         cells.len(),
+        plane.is_some(),
     ));
     if let Some(u) = &units {
         effects.push(Effect {

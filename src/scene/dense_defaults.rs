@@ -2,7 +2,10 @@
 //! settings that keep a suspension of red cells at blood's viscosity ratio running.
 //!
 //! * **Coupling** (`coupling = "auto"`, the default). With two or more cells the near cells are
-//!   solved as one system ([`CouplingMode::NearImplicit`]); a lone cell has nothing to couple
+//!   solved as one system ([`CouplingMode::NearImplicit`]); so is a lone cell beside a plane
+//!   wall, with its own image (`timestep::near_images`: explicit, the image of a sphere an
+//!   eighth of a radius from the plane lags its traction by a step and the sphere's speed
+//!   settles over tens of steps); a lone cell elsewhere has nothing to couple
 //!   ([`CouplingMode::Explicit`]). The explicit coupling of a neighbour's double layer
 //!   `(1 − λ) D[u]` has the gain `|1 − λ|/(1 + λ)` per step on a close pair, tripled on an
 //!   alternating mode by BDF2's extrapolation: 27 RBCs at 17 % with `λ = 5` fail at step 35
@@ -13,7 +16,7 @@
 //!   implicit zone the near-implicit step is the explicit one, so the default costs more only
 //!   where the cells are close.
 //! * **Contacts** (`contact_distance` absent). With two or more cells, or a cell and a rigid
-//!   wall, the contact projection ([`crate::timestep::contact`]) keeps every surface gap at
+//!   wall or a plane, the contact projection ([`crate::timestep::contact`]) keeps every surface gap at
 //!   least
 //!
 //!   ```text
@@ -39,9 +42,10 @@ use crate::timestep::near_implicit::CouplingMode;
 /// The factor `c` of the default contact distance `d_min = c · R_min / p`.
 pub const CONTACT_DISTANCE_PER_ORDER: f64 = 0.4;
 
-/// The coupling a scene gets when it does not name one (module docs).
-pub fn auto_coupling(cells: &[CellSpec]) -> CouplingMode {
-    if cells.len() >= 2 {
+/// The coupling a scene gets when it does not name one (module docs); `plane`: the cells are
+/// beside a plane wall.
+pub fn auto_coupling(cells: &[CellSpec], plane: bool) -> CouplingMode {
+    if cells.len() >= 2 || (plane && !cells.is_empty()) {
         CouplingMode::NearImplicit
     } else {
         CouplingMode::Explicit
@@ -49,9 +53,15 @@ pub fn auto_coupling(cells: &[CellSpec]) -> CouplingMode {
 }
 
 /// The contact distance a scene gets when it does not give one: `0.4 · R_min / p` where a cell
-/// has another surface to meet (another cell, a wall), `None` (no projection) for a lone cell.
-pub fn auto_contact_distance(cells: &[CellSpec], walls: &[WallSpec], order: usize) -> Option<f64> {
-    if cells.len() < 2 && (cells.is_empty() || walls.is_empty()) {
+/// has another surface to meet (another cell, a wall, the plane wall when `plane`), `None` (no
+/// projection) for a lone cell.
+pub fn auto_contact_distance(
+    cells: &[CellSpec],
+    walls: &[WallSpec],
+    plane: bool,
+    order: usize,
+) -> Option<f64> {
+    if cells.len() < 2 && (cells.is_empty() || (walls.is_empty() && !plane)) {
         return None;
     }
     let r_min = cells.iter().map(|c| c.radius).fold(f64::INFINITY, f64::min);
@@ -65,9 +75,14 @@ pub fn effects(
     contact_distance: Option<f64>,
     contact_given: bool,
     cells: usize,
+    plane: bool,
 ) -> [Effect; 2] {
     let coupling_reason = if coupling_given {
         format!("[numerics] coupling = \"{}\"", coupling.name())
+    } else if coupling == CouplingMode::NearImplicit && cells < 2 {
+        "near_implicit ([numerics] coupling = \"auto\" beside a plane wall: the cell's own \
+         image is solved with its step)"
+            .to_string()
     } else if coupling == CouplingMode::NearImplicit {
         "near_implicit ([numerics] coupling = \"auto\" with two or more cells: cells in each \
          other's near zone are solved as one system)"
@@ -82,6 +97,7 @@ pub fn effects(
              contact_distance = 0 turns it off)"
         ),
         (None, true) => "[numerics] contact_distance = 0: no contact projection".to_string(),
+        (None, false) if plane => "no cell: nothing to meet".to_string(),
         (None, false) => "one cell and no wall: nothing to meet".to_string(),
     };
     [

@@ -13,8 +13,12 @@
 //! ```
 //!
 //! evaluated by [`OffSurface`] (smooth quadrature at order `6p` beyond `R_j/√p`, check points
-//! and the on-surface value within it). Cells linked by a pair in either direction form a
-//! *cluster* ([`NearZones::clusters`]), the unit of one joint solve.
+//! and the on-surface value within it). Beside a plane wall ([`NearPairs::with_plane`]) the
+//! images of cell `j`'s layers ([`super::near_images`]) act at the targets `x` of every cell
+//! `i`, `j` itself included, within `r_j + δ_j` of the mirror of `j`'s centroid (`r_j` the
+//! largest distance of its grid points from the centroid). Cells linked by a pair in either
+//! direction form a *cluster* ([`NearZones::clusters`]), the unit of one joint solve; a cell
+//! within the zone of its own image is a cluster of its own.
 //!
 //! The refined smooth quadratures of [`OffSurface`] (orders up to 256, built per surface) are
 //! left out, and its quadratures are coarser than the coupling's (`FAR_ORDER`): the
@@ -27,6 +31,7 @@ use std::sync::Mutex;
 
 use rayon::prelude::*;
 
+use super::near_images::NearImages;
 use super::TimestepError;
 use crate::vesicle::layer::LayerKernel;
 use crate::vesicle::near::{NearParams, OffSurface};
@@ -70,19 +75,25 @@ pub struct SourceZone {
 pub struct NearZones {
     /// One entry per source cell whose zone holds targets, in ascending source order.
     pub sources: Vec<SourceZone>,
+    /// Beside a plane wall: one entry per source cell whose image's zone holds targets (the
+    /// cell's own points included), in ascending source order.
+    pub images: Vec<SourceZone>,
 }
 
 impl NearZones {
-    /// The pairs `(i, j)`, `i ≠ j`, with a target of `i` in the zone of `j`.
+    /// The pairs `(i, j)`, `i ≠ j`, with a target of `i` in the zone of `j` (or of its image).
     pub fn pairs(&self) -> BTreeSet<(usize, usize)> {
         self.sources
             .iter()
+            .chain(&self.images)
             .flat_map(|z| z.targets.iter().map(move |&(i, _)| (i, z.source)))
+            .filter(|(i, j)| i != j)
             .collect()
     }
 
-    /// The clusters of `n` cells: the connected components (two or more cells) of the pairs,
-    /// each ascending, ordered by their first cell.
+    /// The clusters of `n` cells: the connected components of the pairs with two or more
+    /// cells, and the cells alone in the zone of their own image, each ascending, ordered by
+    /// their first cell.
     pub fn clusters(&self, n: usize) -> Vec<Vec<usize>> {
         let mut parent: Vec<usize> = (0..n).collect();
         fn root(parent: &mut [usize], mut a: usize) -> usize {
@@ -103,31 +114,59 @@ impl NearZones {
             let r = root(&mut parent, i);
             groups[r].push(i);
         }
-        groups.into_iter().filter(|g| g.len() > 1).collect()
+        let mut own_image = vec![false; n];
+        for z in &self.images {
+            if z.targets.iter().any(|&(i, _)| i == z.source) {
+                own_image[z.source] = true;
+            }
+        }
+        groups
+            .into_iter()
+            .filter(|g| g.len() > 1 || g.first().is_some_and(|&i| own_image[i]))
+            .collect()
     }
 
     /// The zones restricted to the cells `cells` (ascending), renumbered `0..cells.len()`.
     pub fn restricted(&self, cells: &[usize]) -> NearZones {
         let local = |c: usize| cells.binary_search(&c).ok();
-        let sources = self
-            .sources
-            .iter()
-            .filter_map(|z| {
-                let source = local(z.source)?;
-                let (targets, points): (Vec<_>, Vec<_>) = z
-                    .targets
-                    .iter()
-                    .zip(&z.points)
-                    .filter_map(|(&(i, k), &x)| Some(((local(i)?, k), x)))
-                    .unzip();
-                (!targets.is_empty()).then_some(SourceZone {
-                    source,
-                    targets,
-                    points,
+        self.renumbered(local, local)
+    }
+
+    /// The zones with only the targets on the cells `keep(i)` (numbering unchanged).
+    pub fn targets_on(&self, keep: impl Fn(usize) -> bool) -> NearZones {
+        self.renumbered(Some, |i| keep(i).then_some(i))
+    }
+
+    /// The zones with each source cell `j` renamed `source(j)` and each target cell `i`
+    /// `target(i)` (`None`: left out; a zone left without targets goes).
+    fn renumbered(
+        &self,
+        source: impl Fn(usize) -> Option<usize>,
+        target: impl Fn(usize) -> Option<usize>,
+    ) -> NearZones {
+        let map = |zones: &[SourceZone]| {
+            zones
+                .iter()
+                .filter_map(|z| {
+                    let source = source(z.source)?;
+                    let (targets, points): (Vec<_>, Vec<_>) = z
+                        .targets
+                        .iter()
+                        .zip(&z.points)
+                        .filter_map(|(&(i, k), &x)| Some(((target(i)?, k), x)))
+                        .unzip();
+                    (!targets.is_empty()).then_some(SourceZone {
+                        source,
+                        targets,
+                        points,
+                    })
                 })
-            })
-            .collect();
-        NearZones { sources }
+                .collect()
+        };
+        NearZones {
+            sources: map(&self.sources),
+            images: map(&self.images),
+        }
     }
 }
 
@@ -153,6 +192,8 @@ pub struct NearPairs {
     near_factor: f64,
     /// Evaluators, one per thread at work.
     pool: Mutex<Vec<OffSurface>>,
+    /// The images in a plane wall (`None`: no plane).
+    images: Option<NearImages>,
 }
 
 fn vesicle(e: crate::vesicle::VesicleError) -> TimestepError {
@@ -168,7 +209,18 @@ impl NearPairs {
             viscosity,
             near_factor,
             pool: Mutex::new(Vec::new()),
+            images: None,
         }
+    }
+
+    /// The images in the plane wall `wall` join the operator (module docs); `None`: no plane.
+    pub fn set_plane(&mut self, wall: Option<crate::wall::PlaneWall>) {
+        self.images = wall.map(|w| NearImages::new(w, self.viscosity, self.p));
+    }
+
+    /// Whether the images in a plane wall are part of the operator.
+    pub fn has_plane(&self) -> bool {
+        self.images.is_some()
     }
 
     /// The cells' order `p`.
@@ -197,12 +249,13 @@ impl NearPairs {
 
     /// The near zones of `cells` (see the module docs).
     pub fn zones(&self, cells: &[ZoneCell<'_>]) -> Result<NearZones, TimestepError> {
-        let sources: Result<Vec<Option<SourceZone>>, TimestepError> = (0..cells.len())
+        type Found = (Option<SourceZone>, Option<SourceZone>);
+        let found: Result<Vec<Found>, TimestepError> = (0..cells.len())
             .into_par_iter()
             .map(|j| {
                 let cj = &cells[j];
                 if !cj.joins {
-                    return Ok(None);
+                    return Ok((None, None));
                 }
                 let mut off = self.take()?;
                 let found = (|| {
@@ -228,18 +281,50 @@ impl NearPairs {
                             }
                         }
                     }
-                    Ok((!targets.is_empty()).then_some(SourceZone {
+                    let near = (!targets.is_empty()).then_some(SourceZone {
                         source: j,
                         targets,
                         points,
-                    }))
+                    });
+                    Ok((near, self.image_zone(j, cells, delta)))
                 })();
                 self.give(off);
                 found
             })
             .collect();
+        let (sources, images): (Vec<_>, Vec<_>) = found?.into_iter().unzip();
         Ok(NearZones {
-            sources: sources?.into_iter().flatten().collect(),
+            sources: sources.into_iter().flatten().collect(),
+            images: images.into_iter().flatten().collect(),
+        })
+    }
+
+    /// The zone of cell `j`'s image in the plane (`δ` its near zone's width): the grid points
+    /// of the cells, `j`'s own included, within `r_j + δ` of the mirror of its centroid.
+    fn image_zone(&self, j: usize, cells: &[ZoneCell<'_>], delta: f64) -> Option<SourceZone> {
+        let images = self.images.as_ref()?;
+        let cj = &cells[j];
+        let centre = images.mirror(cj.centroid);
+        let reach = cj.radius + delta;
+        let mut targets = Vec::new();
+        let mut points = Vec::new();
+        for (i, ci) in cells.iter().enumerate() {
+            if !ci.joins || dist(ci.centroid, centre) > ci.radius + reach {
+                continue;
+            }
+            // A cell the zone reaches takes the images at all its points: the images are
+            // smooth over it, and a correction on part of a surface is a jump in its velocity
+            // (measured: a sphere 1.54 radii above the plane, half inside the zone at p = 8,
+            // stagnates GMRES at a residual of 0.03–0.4).
+            if ci.points.iter().any(|&x| dist(x, centre) <= reach) {
+                targets.extend((0..ci.points.len()).map(|k| (i, k)));
+                points.extend_from_slice(ci.points);
+            }
+        }
+        (!targets.is_empty()).then_some(SourceZone {
+            source: j,
+            targets,
+            points,
         })
     }
 
@@ -280,16 +365,41 @@ impl NearPairs {
                 Ok(u)
             })
             .collect();
-        for (z, u) in zones.sources.iter().zip(values?) {
-            let m = z.points.len();
-            for (t, &(i, k)) in z.targets.iter().enumerate() {
-                let n = out[i].len() / 3;
-                for c in 0..3 {
-                    out[i][c * n + k] += u[c * m + t];
-                }
+        scatter(&zones.sources, values?, out);
+        if zones.images.is_empty() {
+            return Ok(());
+        }
+        let Some(images) = &self.images else {
+            return Err(TimestepError::Wall(
+                "near zones hold a plane's images, and the operator has no plane".into(),
+            ));
+        };
+        let values: Result<Vec<Vec<f64>>, TimestepError> = zones
+            .images
+            .par_iter()
+            .map(|z| {
+                let j = z.source;
+                let mut u = vec![0.0; 3 * z.points.len()];
+                images.add(surfaces[j], f[j], g[j], &z.points, &mut u)?;
+                Ok(u)
+            })
+            .collect();
+        scatter(&zones.images, values?, out);
+        Ok(())
+    }
+}
+
+/// `out_i += u` at the targets of `zones` (`values`: one component-major vector per zone), in
+/// the zones' order.
+fn scatter(zones: &[SourceZone], values: Vec<Vec<f64>>, out: &mut [Vec<f64>]) {
+    for (z, u) in zones.iter().zip(values) {
+        let m = z.points.len();
+        for (t, &(i, k)) in z.targets.iter().enumerate() {
+            let n = out[i].len() / 3;
+            for c in 0..3 {
+                out[i][c * n + k] += u[c * m + t];
             }
         }
-        Ok(())
     }
 }
 
@@ -321,8 +431,20 @@ mod tests {
                 zone(3, &[(1, 7)]),
                 zone(4, &[(2, 1)]),
             ],
+            images: vec![],
         };
         assert_eq!(zones.clusters(6), vec![vec![0, 2, 4], vec![1, 3]]);
+        // Beside a plane: cell 5 in the zone of its own image is a cluster alone; cell 4's
+        // image reaching cell 1 joins the two clusters.
+        let with_images = NearZones {
+            images: vec![zone(4, &[(1, 0), (4, 2)]), zone(5, &[(5, 0)])],
+            ..zones.clone()
+        };
+        assert_eq!(with_images.clusters(6), vec![vec![0, 1, 2, 3, 4], vec![5]]);
+        // Restricted to cells 1 and 4 (renumbered 0 and 1): the image's targets follow.
+        let r = with_images.restricted(&[1, 4]);
+        assert_eq!(r.images, vec![zone(1, &[(0, 0), (1, 2)])]);
+        assert_eq!(r.targets_on(|i| i == 1).images, vec![zone(1, &[(1, 2)])]);
         let r = zones.restricted(&[0, 2, 4]);
         assert_eq!(r.sources.len(), 2);
         assert_eq!(

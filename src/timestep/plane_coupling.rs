@@ -128,30 +128,26 @@ impl PlaneCoupling {
         double_layer: Option<&[f64]>,
     ) -> Result<(Vec<f64>, Vec<f64>), TimestepError> {
         while self.rules.len() <= slot {
-            self.rules
-                .push(SmoothLayer::new(p, IMAGE_ORDER_FACTOR * p, 3.0)?);
+            self.rules.push(image_rule(p)?);
         }
         if self.rules[slot].order() != p {
-            self.rules[slot] = SmoothLayer::new(p, IMAGE_ORDER_FACTOR * p, 3.0)?;
+            self.rules[slot] = image_rule(p)?;
         }
-        let rule = &mut self.rules[slot];
-        rule.set_surface(coefs)?;
-        rule.set_density(traction)?;
-        let mut single = Vec::new();
-        for (y, f) in rule.weighted_points()? {
-            single.extend(self.wall.to_local(y));
-            single.extend(self.wall.vector_to_local(f));
-        }
-        let mut double = Vec::new();
-        if let Some(g) = double_layer {
-            rule.set_density(g)?;
-            for ((y, g), n) in rule.weighted_points()?.into_iter().zip(rule.normals()) {
-                double.extend(self.wall.to_local(y));
-                double.extend(self.wall.vector_to_local(g));
-                double.extend(self.wall.vector_to_local(*n));
-            }
-        }
-        Ok((single, double))
+        let (single, double) = layer_sources(
+            &self.wall,
+            &mut self.rules[slot],
+            coefs,
+            traction,
+            double_layer,
+        )?;
+        Ok((
+            single
+                .iter()
+                .flat_map(|(y, f)| y.iter().chain(f))
+                .copied()
+                .collect(),
+            double.iter().flatten().flatten().copied().collect(),
+        ))
     }
 
     /// The images of the sources `single` and `double` (every cell's [`Self::cell_sources`],
@@ -210,16 +206,7 @@ impl PlaneCoupling {
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), TimestepError> {
-        let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
-        self.wall
-            .add_images(self.viscosity, single, targets, out)
-            .map_err(fail)?;
-        if !double.is_empty() {
-            self.wall
-                .add_double_layer_images(double, targets, out)
-                .map_err(fail)?;
-        }
-        Ok(())
+        add_layer_images(&self.wall, self.viscosity, single, double, targets, out)
     }
 
     /// Add the images of one cell's layers, from its present surface `coefs`, traction and
@@ -249,6 +236,66 @@ impl PlaneCoupling {
         crate::wall::scatter_add(&v, &index, out, targets.len());
         Ok(())
     }
+}
+
+/// A double-layer source of the images: `(y, g dA, n)` in the wall's frame.
+pub(super) type DoubleLayerSource = [[f64; 3]; 3];
+
+/// The smooth rule of the images of cells of order `p`: order [`IMAGE_ORDER_FACTOR`]`·p`.
+pub(super) fn image_rule(p: usize) -> Result<SmoothLayer, TimestepError> {
+    Ok(SmoothLayer::new(p, IMAGE_ORDER_FACTOR * p, 3.0)?)
+}
+
+/// One cell's sources for the images, in the wall's frame: the nodes of its surface `coefs`
+/// on `rule`'s upsampled grid with its `traction` times the weights (point forces), and, where
+/// `double_layer` is given, `(y, g dA, n)` per node (empty without).
+pub(super) fn layer_sources(
+    wall: &PlaneWall,
+    rule: &mut SmoothLayer,
+    coefs: &[f64],
+    traction: &[f64],
+    double_layer: Option<&[f64]>,
+) -> Result<(Vec<PointForce>, Vec<DoubleLayerSource>), TimestepError> {
+    rule.set_surface(coefs)?;
+    rule.set_density(traction)?;
+    let single = rule
+        .weighted_points()?
+        .into_iter()
+        .map(|(y, f)| (wall.to_local(y), wall.vector_to_local(f)))
+        .collect();
+    let mut double = Vec::new();
+    if let Some(g) = double_layer {
+        rule.set_density(g)?;
+        for ((y, g), n) in rule.weighted_points()?.into_iter().zip(rule.normals()) {
+            double.push([
+                wall.to_local(y),
+                wall.vector_to_local(g),
+                wall.vector_to_local(*n),
+            ]);
+        }
+    }
+    Ok((single, double))
+}
+
+/// Add the images in `wall` (fluid of viscosity `viscosity`) of the point forces `single` and
+/// the double-layer sources `double` ([`layer_sources`]) at `targets` to `out`
+/// (component-major).
+pub(super) fn add_layer_images(
+    wall: &PlaneWall,
+    viscosity: f64,
+    single: &[PointForce],
+    double: &[[[f64; 3]; 3]],
+    targets: &[[f64; 3]],
+    out: &mut [f64],
+) -> Result<(), TimestepError> {
+    let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
+    wall.add_images(viscosity, single, targets, out)
+        .map_err(fail)?;
+    if !double.is_empty() {
+        wall.add_double_layer_images(double, targets, out)
+            .map_err(fail)?;
+    }
+    Ok(())
 }
 
 /// The sources of [`PlaneCoupling::cell_sources`] as point forces and double-layer triples.

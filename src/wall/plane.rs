@@ -140,16 +140,18 @@ impl PlaneWall {
         g: [f64; 3],
         n: [f64; 3],
     ) -> [f64; 3] {
-        // The force dipoles: −∂/∂y_k of the Stokeslet's image, by forward differentiation.
+        // The force dipoles: −∂/∂y_k of the Stokeslet's image contracted with `n_k` (on `g`)
+        // and with `g_k` (on `n`): two directional derivatives, by forward differentiation.
         let mut u = [0.0; 3];
-        for k in 0..3 {
-            let mut yd = y.map(Dual::constant);
-            yd[k].d = 1.0;
-            let xd = x.map(Dual::constant);
-            let a = image_generic(xd, yd, g.map(Dual::constant));
-            let b = image_generic(xd, yd, n.map(Dual::constant));
+        let xd = x.map(Dual::constant);
+        for (f, along) in [(g, n), (n, g)] {
+            let yd: [Dual; 3] = std::array::from_fn(|k| Dual {
+                v: y[k],
+                d: along[k],
+            });
+            let a = image_generic(xd, yd, f.map(Dual::constant));
             for i in 0..3 {
-                u[i] -= a[i].d * n[k] + b[i].d * g[k];
+                u[i] -= a[i].d;
             }
         }
         // The source −2 (g·n) s(x − y), and its image.
@@ -399,6 +401,45 @@ mod tests {
 
     fn tilted() -> PlaneWall {
         PlaneWall::new([0.3, -0.2, 0.5], [0.4, -1.0, 2.0]).unwrap()
+    }
+
+    /// The force dipoles' image is minus the derivative of the Stokeslet's image along the
+    /// source point (by central differences here, against the forward differentiation of
+    /// [`PlaneWall::image_double_layer_local`]): with `g ⟂ n` the source part vanishes and
+    /// `u = −(∂_n image(g) + ∂_g image(n))`.
+    #[test]
+    fn the_dipoles_image_is_the_derivative_of_the_stokeslets_image() {
+        let eps = 1e-5;
+        for (x, y, g) in [
+            ([0.3, -0.4, 0.8], [0.1, 0.2, 0.15], [1.0, 0.5, 0.0]),
+            ([-1.0, 2.0, 3.0], [0.5, -0.5, 1.2], [0.2, -1.0, 0.7]),
+        ] {
+            let n = {
+                // A unit normal orthogonal to g.
+                let t = cross(g, [0.3, 0.9, -0.2]);
+                let l = dot(t, t).sqrt();
+                t.map(|v| v / l)
+            };
+            let d = |f: [f64; 3], along: [f64; 3]| -> [f64; 3] {
+                let yp = std::array::from_fn(|k| y[k] + eps * along[k]);
+                let ym = std::array::from_fn(|k| y[k] - eps * along[k]);
+                let (a, b) = (
+                    PlaneWall::image_local(x, yp, f),
+                    PlaneWall::image_local(x, ym, f),
+                );
+                std::array::from_fn(|i| (a[i] - b[i]) / (2.0 * eps))
+            };
+            let (a, b) = (d(g, n), d(n, g));
+            let want: [f64; 3] = std::array::from_fn(|i| -(a[i] + b[i]));
+            let got = PlaneWall::image_double_layer_local(x, y, g, n);
+            let size = dot(want, want).sqrt();
+            for i in 0..3 {
+                assert!(
+                    (got[i] - want[i]).abs() < 1e-8 * size,
+                    "{x:?} {y:?}: {got:?} against {want:?}"
+                );
+            }
+        }
     }
 
     /// A point above the tilted plane: local coordinates turned to global ones.

@@ -21,7 +21,6 @@
 use super::*;
 use crate::comm::{CommError, Communicator};
 use crate::timestep::gmres::{dot, gmres_with, GmresOperator, GmresParams, InnerProducts};
-use crate::timestep::near_pairs::SourceZone;
 
 /// What the step over ranks came to on this rank.
 pub(in crate::timestep) enum RanksStep {
@@ -364,25 +363,7 @@ fn sum_stats(comm: &dyn Communicator, here: JointStats) -> Result<JointStats, Ra
 
 /// `zones` with only the targets on cells marked `local`.
 fn local_targets(zones: &NearZones, local: &[bool]) -> NearZones {
-    let sources = zones
-        .sources
-        .iter()
-        .filter_map(|z| {
-            let (targets, points): (Vec<_>, Vec<_>) = z
-                .targets
-                .iter()
-                .zip(&z.points)
-                .filter(|(&(i, _), _)| local[i])
-                .map(|(&t, &x)| (t, x))
-                .unzip();
-            (!targets.is_empty()).then_some(SourceZone {
-                source: z.source,
-                targets,
-                points,
-            })
-        })
-        .collect();
-    NearZones { sources }
+    zones.targets_on(|i| local[i])
 }
 
 /// One cluster across ranks, as this rank takes part in its joint step.

@@ -155,7 +155,7 @@ impl Suspension {
                     .map(|c| c.state.velocity.clone().unwrap_or_default())
                     .collect();
             }
-            if self.coupling.is_some() {
+            if self.coupling.is_some() || self.plane.is_some() {
                 densities = Some((tractions, scaled));
             }
         }

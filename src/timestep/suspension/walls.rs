@@ -24,6 +24,7 @@ impl Suspension {
 
     /// Put the cells beside a plane wall (`None`: none, the default).
     pub fn set_plane(&mut self, plane: Option<PlaneCoupling>) {
+        self.near_pairs.set_plane(plane.as_ref().map(|p| *p.wall()));
         self.plane = plane;
     }
 
