@@ -485,7 +485,8 @@ fn cells_between_walls_give_the_one_rank_result_on_2_and_3_ranks() {
 
 /// Three vesicles in shear beside the plane wall y = 0, the middle one with a viscosity
 /// contrast (Blake's images of every cell's single layer and of its double layer, gathered
-/// over the ranks in the cells' global order).
+/// over the ranks in the cells' global order), near-implicit: the three cells and their
+/// images are one cluster, split over the ranks (its GMRES sums over them).
 const PLANE: &str = r#"
 [flow]
 kind = "shear"
@@ -522,7 +523,7 @@ normal = [0.0, 1.0, 0.0]
 order = 6
 dt = 0.02
 t_end = 0.12
-coupling = "explicit"
+coupling = "near_implicit"
 rebalance_every = 1
 max_imbalance = 0.0
 
@@ -550,7 +551,11 @@ fn cells_beside_a_plane_wall_give_the_one_rank_result_on_2_ranks() {
         s1["counters"]["plane_wall"]["evaluations"],
         s2["counters"]["plane_wall"]["evaluations"]
     );
-    // The velocity plane: NaN below the wall, the same field above it.
+    // One cluster of all three cells (their images link them), so split over the two ranks.
+    assert_eq!(s2["counters"]["near_implicit"]["largest"].as_u64(), Some(3));
+    // The velocity plane: NaN below the wall, the same field above it. It takes the tension,
+    // which a GMRES over the ranks (its inner products summed rank by rank) leaves within its
+    // tolerance 1e-8 of one rank's: measured 2.8e-9 of the field's largest value.
     let (a, b) = (last_plane(&out), last_plane(&one));
     let scale = b
         .iter()
@@ -559,7 +564,7 @@ fn cells_beside_a_plane_wall_give_the_one_rank_result_on_2_ranks() {
     for (x, y) in a.iter().zip(&b) {
         assert_eq!(x.is_nan(), y.is_nan(), "the plane's fluid differs");
         if y.is_finite() {
-            assert!((x - y).abs() <= 1e-10 * scale, "plane {x} against {y}");
+            assert!((x - y).abs() <= 1e-8 * scale, "plane {x} against {y}");
         }
     }
     assert!(b.iter().any(|v| v.is_nan()) && b.iter().any(|v| v.is_finite()));
