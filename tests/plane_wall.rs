@@ -326,7 +326,7 @@ contact_distance = 0.05
 
 [output]
 every = 5
-vtk = false
+vtk = true
 "#,
     );
     let whole = dir.join("whole");
@@ -350,6 +350,44 @@ vtk = false
     let (a, b) = (frame_bits(&whole, true), frame_bits(&part, true));
     assert_eq!(a.len(), 5);
     assert!(a == b, "the resumed run differs");
+    // The plane in ParaView: a 21 × 21 grid of it under the cells, from 4 radii before the
+    // first centre (x = 0) to 4 radii past the farthest (x = 2.4), with normals (the
+    // triangles' turn) into the fluid.
+    let vtp = std::fs::read_to_string(whole.join("vtk/walls.vtp")).unwrap();
+    assert!(
+        vtp.contains("NumberOfPoints=\"441\"") && vtp.contains("NumberOfPolys=\"800\""),
+        "{}",
+        &vtp[..400.min(vtp.len())]
+    );
+    let section = |tag: &str| {
+        let s = &vtp[vtp.find(&format!("<{tag}>")).unwrap()..];
+        let s = &s[s.find("ascii\">").unwrap() + 7..];
+        s[..s.find("</DataArray>").unwrap()]
+            .split_whitespace()
+            .map(|v| v.parse::<f64>().unwrap())
+            .collect::<Vec<f64>>()
+    };
+    let xs = section("Points");
+    let pts: Vec<&[f64]> = xs.chunks_exact(3).collect();
+    assert_eq!(pts.len(), 441);
+    assert!(pts.iter().all(|x| x[2].abs() < 1e-12), "off the plane");
+    let (lo, hi) = pts
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), x| (a.min(x[0]), b.max(x[0])));
+    assert!(
+        (lo - (1.2 - 5.2)).abs() < 1e-9 && (hi - (1.2 + 5.2)).abs() < 1e-9,
+        "{lo} {hi}"
+    );
+    let tri = section("Polys");
+    let (a, b, c) = (tri[0] as usize, tri[1] as usize, tri[2] as usize);
+    let (u, v) = (
+        [pts[b][0] - pts[a][0], pts[b][1] - pts[a][1]],
+        [pts[c][0] - pts[a][0], pts[c][1] - pts[a][1]],
+    );
+    assert!(
+        u[0] * v[1] - u[1] * v[0] > 0.0,
+        "the first triangle faces down"
+    );
 }
 
 /// A vesicle with a viscosity contrast (`λ = 5`) tank-treading in shear beside the plane

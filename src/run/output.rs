@@ -6,7 +6,7 @@ use crate::io::frames::{CellFrame, FrameWriter};
 use crate::io::surface_mesh::surface_mesh;
 use crate::io::vtk::{write_polydata, DataArray, PolyMesh};
 use crate::io::IoError;
-use crate::scene::cells::CellScene;
+use crate::scene::cells::{CellScene, CellSpec, PlaneSpec};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::cell_state::CellState;
 use crate::timestep::suspension::Suspension;
@@ -134,14 +134,15 @@ pub(super) fn gathered_frame(
 }
 
 /// `DIR/vtk/walls.vtp`: every wall of `scene` as a triangle mesh in its own angles
-/// ([`surface_mesh`], `2p` latitudes of `4p` points for a wall of order `p`), with the point
-/// and cell data `wall` (its index in the scene) and `kind` (0 a container, 1 a body). Nothing
-/// without walls or without VTK output.
+/// ([`surface_mesh`], `2p` latitudes of `4p` points for a wall of order `p`), and a plane wall
+/// as a square of it under the cells ([`plane_patch`]), with the point and cell data `wall`
+/// (its index in the scene; the plane's is the number of other walls) and `kind` (0 a
+/// container, 1 a body). Nothing without walls or without VTK output.
 pub(super) fn write_walls_vtp(
     scene: &CellScene,
     out: &std::path::Path,
 ) -> Result<(), CellRunError> {
-    if scene.walls.is_empty() || scene.output.vtk.is_none() {
+    if (scene.walls.is_empty() && scene.plane.is_none()) || scene.output.vtk.is_none() {
         return Ok(());
     }
     let path = out.join("vtk").join("walls.vtp");
@@ -168,6 +169,17 @@ pub(super) fn write_walls_vtp(
         all.triangles
             .extend(m.triangles.iter().map(|t| t.map(|v| v + off)));
     }
+    if let Some(plane) = &scene.plane {
+        let m = plane_patch(plane, &scene.cells);
+        let (k, off) = (scene.walls.len() as i32, all.points.len());
+        wall.extend(std::iter::repeat_n(k, m.points.len()));
+        kind.extend(std::iter::repeat_n(1, m.points.len()));
+        wall_t.extend(std::iter::repeat_n(k, m.triangles.len()));
+        kind_t.extend(std::iter::repeat_n(1, m.triangles.len()));
+        all.points.extend(m.points);
+        all.triangles
+            .extend(m.triangles.iter().map(|t| t.map(|v| v + off)));
+    }
     all.point_data = vec![DataArray::ints("wall", wall), DataArray::ints("kind", kind)];
     all.cell_data = vec![
         DataArray::ints("wall", wall_t),
@@ -179,4 +191,85 @@ pub(super) fn write_walls_vtp(
     })?;
     write_polydata(&path, &all)?;
     Ok(())
+}
+
+/// The points on a side of [`plane_patch`]'s square.
+pub const PLANE_PATCH_POINTS: usize = 21;
+
+/// A square of the plane wall `plane` for ParaView, centred under the cells' centres (their
+/// mean projected onto the plane; the plane's point without cells) and reaching 4 radii past
+/// the farthest centre (at least 4 of the largest radius; 10 without cells), as a grid of
+/// [`PLANE_PATCH_POINTS`]² points, its triangles turned to the plane's normal (into the
+/// fluid).
+pub fn plane_patch(plane: &PlaneSpec, cells: &[CellSpec]) -> PolyMesh {
+    let n = plane.normal;
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let project = |x: [f64; 3]| {
+        let h = dot(n, x) - dot(n, plane.point);
+        std::array::from_fn::<f64, 3, _>(|a| x[a] - h * n[a])
+    };
+    let centre = if cells.is_empty() {
+        plane.point
+    } else {
+        let m = cells.len() as f64;
+        project(std::array::from_fn(|a| {
+            cells.iter().map(|c| c.center[a]).sum::<f64>() / m
+        }))
+    };
+    let half = if cells.is_empty() {
+        10.0
+    } else {
+        cells
+            .iter()
+            .map(|c| {
+                let d = project(c.center);
+                let r = dot(
+                    std::array::from_fn(|a| d[a] - centre[a]),
+                    std::array::from_fn(|a| d[a] - centre[a]),
+                )
+                .sqrt();
+                r + 4.0 * c.radius
+            })
+            .fold(0.0, f64::max)
+    };
+    // Two unit tangents with (t1, t2, n) right-handed.
+    let axis = (0..3)
+        .min_by(|&i, &j| n[i].abs().total_cmp(&n[j].abs()))
+        .unwrap_or(0);
+    let mut e = [0.0; 3];
+    e[axis] = 1.0;
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let t1 = cross(e, n);
+    let l = dot(t1, t1).sqrt();
+    let t1 = t1.map(|v| v / l);
+    let t2 = cross(n, t1);
+    let k = PLANE_PATCH_POINTS;
+    let at = |i: usize| -half + 2.0 * half * i as f64 / (k - 1) as f64;
+    let mut mesh = PolyMesh::default();
+    for j in 0..k {
+        for i in 0..k {
+            let (u, v) = (at(i), at(j));
+            mesh.points
+                .push(std::array::from_fn(|a| centre[a] + u * t1[a] + v * t2[a]));
+        }
+    }
+    for j in 0..k - 1 {
+        for i in 0..k - 1 {
+            let (a, b, c, d) = (
+                j * k + i,
+                j * k + i + 1,
+                (j + 1) * k + i + 1,
+                (j + 1) * k + i,
+            );
+            mesh.triangles.push([a, b, c]);
+            mesh.triangles.push([a, c, d]);
+        }
+    }
+    mesh
 }

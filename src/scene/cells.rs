@@ -119,8 +119,8 @@ use toml::Spanned;
 use super::cell_groups::{cell_specs, check_overlaps};
 pub(crate) use super::cell_scene::rotation;
 pub use super::cell_scene::{
-    CellScene, CellSpec, Effect, Flow, GridMotion, Numerics, OutputSettings, Scheme, Shape,
-    TubeWindow, MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY, TUBE_WINDOW_TOLERANCE,
+    CellScene, CellSpec, Effect, Flow, GridMotion, Numerics, OutputSettings, PlaneSpec, Scheme,
+    Shape, TubeWindow, MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY, TUBE_WINDOW_TOLERANCE,
 };
 pub(crate) use super::cells_schema::Origin;
 use super::cells_schema::{File, NumericsSection};

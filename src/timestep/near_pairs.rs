@@ -13,7 +13,7 @@
 //! ```
 //!
 //! evaluated by [`OffSurface`] (smooth quadrature at order `6p` beyond `R_j/√p`, check points
-//! and the on-surface value within it). Beside a plane wall ([`NearPairs::with_plane`]) the
+//! and the on-surface value within it). Beside a plane wall ([`NearPairs::set_plane`]) the
 //! images of cell `j`'s layers ([`super::near_images`]) act at the targets `x` of every cell
 //! `i`, `j` itself included, within `r_j + δ_j` of the mirror of `j`'s centroid (`r_j` the
 //! largest distance of its grid points from the centroid). Cells linked by a pair in either
