@@ -39,6 +39,7 @@ use rayon::prelude::*;
 mod contacts;
 mod dissipation;
 mod field;
+mod gather;
 mod recycle;
 mod start_up;
 mod stepping;

@@ -42,27 +42,13 @@ impl Suspension {
         &self,
         comm: &dyn Communicator,
     ) -> Result<(Vec<usize>, Vec<Vec<f64>>), CellStepError> {
-        let mut local = Vec::new();
-        for c in &self.cells {
-            local.push(c.id as f64);
-            local.push(c.state.coefs.len() as f64);
-            local.extend_from_slice(&c.state.coefs);
-        }
-        let gathered = comm.all_gather_f64(&local).map_err(|e| CellStepError {
-            cell: None,
-            source: TimestepError::Comm(e),
-        })?;
-        let mut all: Vec<(usize, &[f64])> = Vec::with_capacity(self.n_global);
-        for part in &gathered {
-            let mut at = 0;
-            while at < part.len() {
-                let (id, len) = (part[at] as usize, part[at + 1] as usize);
-                all.push((id, &part[at + 2..at + 2 + len]));
-                at += 2 + len;
-            }
-        }
-        all.sort_by_key(|a| a.0);
-        Ok(all.into_iter().map(|(id, c)| (id, c.to_vec())).unzip())
+        let blocks: Vec<(usize, [&[f64]; 1])> = self
+            .cells
+            .iter()
+            .map(|c| (c.id, [c.state.coefs.as_slice()]))
+            .collect();
+        let all = super::gather::gather_by_cell(comm, &blocks)?;
+        Ok(all.into_iter().map(|(id, [c])| (id, c)).unzip())
     }
 
     /// The projection after a step (collective; nothing without contacts, or with one cell

@@ -50,7 +50,7 @@ impl Suspension {
         let Some(plane) = &mut self.plane else {
             return Ok(());
         };
-        // This rank's cells' point forces, each block tagged with its global index and length.
+        // This rank's cells' point forces and double-layer sources, by global index.
         let mut local = Vec::new();
         let mut mine = Ok(());
         let mut points = Vec::with_capacity(self.cells.len());
@@ -69,12 +69,8 @@ impl Suspension {
                     Ok((s, x))
                 });
             match got {
-                Ok(((single, double), x)) => {
-                    local.push(c.id as f64);
-                    local.push(single.len() as f64);
-                    local.push(double.len() as f64);
-                    local.extend_from_slice(&single);
-                    local.extend_from_slice(&double);
+                Ok((sources, x)) => {
+                    local.push((c.id, sources));
                     points.push(x);
                 }
                 Err(source) => {
@@ -88,27 +84,13 @@ impl Suspension {
         }
         agree_cells(comm, mine)?;
         let fail = |source| CellStepError { cell: None, source };
-        let gathered = comm
-            .all_gather_f64(&local)
-            .map_err(|e| fail(TimestepError::Comm(e)))?;
-        // Each cell's block: its index, its lengths, its single- and double-layer sources.
-        let mut all: Vec<(usize, &[f64], &[f64])> = vec![];
-        for part in &gathered {
-            let mut at = 0;
-            while at < part.len() {
-                let (ls, ld) = (part[at + 1] as usize, part[at + 2] as usize);
-                let single = &part[at + 3..at + 3 + ls];
-                all.push((
-                    part[at] as usize,
-                    single,
-                    &part[at + 3 + ls..at + 3 + ls + ld],
-                ));
-                at += 3 + ls + ld;
-            }
-        }
-        all.sort_by_key(|a| a.0);
-        let single: Vec<f64> = all.iter().flat_map(|a| a.1.iter().copied()).collect();
-        let double: Vec<f64> = all.iter().flat_map(|a| a.2.iter().copied()).collect();
+        let blocks: Vec<(usize, [&[f64]; 2])> = local
+            .iter()
+            .map(|(id, (single, double))| (*id, [single.as_slice(), double.as_slice()]))
+            .collect();
+        let all = super::gather::gather_by_cell(comm, &blocks)?;
+        let single: Vec<f64> = all.iter().flat_map(|a| a.1[0].iter().copied()).collect();
+        let double: Vec<f64> = all.iter().flat_map(|a| a.1[1].iter().copied()).collect();
         // The same sources on every rank; a cell on the plane fails on its rank.
         let velocities = agree_cells(
             comm,
