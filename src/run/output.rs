@@ -6,7 +6,7 @@ use crate::io::frames::{CellFrame, FrameWriter};
 use crate::io::surface_mesh::surface_mesh;
 use crate::io::vtk::{write_polydata, DataArray, PolyMesh};
 use crate::io::IoError;
-use crate::scene::cells::{CellScene, CellSpec, PlaneSpec};
+use crate::scene::cells::{CellScene, CellSpec};
 use crate::sph_harmonics::{ShTransform, ShWorkspace};
 use crate::timestep::cell_state::CellState;
 use crate::timestep::suspension::Suspension;
@@ -170,7 +170,12 @@ pub(super) fn write_walls_vtp(
             .extend(m.triangles.iter().map(|t| t.map(|v| v + off)));
     }
     if let Some(plane) = &scene.plane {
-        let m = plane_patch(plane, &scene.cells);
+        let plane =
+            crate::wall::PlaneWall::new(plane.point, plane.normal).map_err(|e| IoError::Frame {
+                dir: path.clone(),
+                message: format!("the plane wall: {e}"),
+            })?;
+        let m = plane_patch(&plane, &scene.cells);
         let (k, off) = (scene.walls.len() as i32, all.points.len());
         wall.extend(std::iter::repeat_n(k, m.points.len()));
         kind.extend(std::iter::repeat_n(1, m.points.len()));
@@ -196,20 +201,19 @@ pub(super) fn write_walls_vtp(
 /// The points on a side of [`plane_patch`]'s square.
 pub const PLANE_PATCH_POINTS: usize = 21;
 
-/// A square of the plane wall `plane` for ParaView, centred under the cells' centres (their
+/// A square of the plane wall `wall` for ParaView, centred under the cells' centres (their
 /// mean projected onto the plane; the plane's point without cells) and reaching 4 radii past
 /// the farthest centre (at least 4 of the largest radius; 10 without cells), as a grid of
-/// [`PLANE_PATCH_POINTS`]² points, its triangles turned to the plane's normal (into the
-/// fluid).
-pub fn plane_patch(plane: &PlaneSpec, cells: &[CellSpec]) -> PolyMesh {
-    let n = plane.normal;
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+/// [`PLANE_PATCH_POINTS`]² points along the wall's tangents, its triangles turned to the
+/// plane's normal (into the fluid).
+pub fn plane_patch(wall: &crate::wall::PlaneWall, cells: &[CellSpec]) -> PolyMesh {
+    let n = wall.normal();
     let project = |x: [f64; 3]| {
-        let h = dot(n, x) - dot(n, plane.point);
+        let h = wall.height(x);
         std::array::from_fn::<f64, 3, _>(|a| x[a] - h * n[a])
     };
     let centre = if cells.is_empty() {
-        plane.point
+        wall.point()
     } else {
         let m = cells.len() as f64;
         project(std::array::from_fn(|a| {
@@ -223,32 +227,17 @@ pub fn plane_patch(plane: &PlaneSpec, cells: &[CellSpec]) -> PolyMesh {
             .iter()
             .map(|c| {
                 let d = project(c.center);
-                let r = dot(
-                    std::array::from_fn(|a| d[a] - centre[a]),
-                    std::array::from_fn(|a| d[a] - centre[a]),
-                )
-                .sqrt();
+                let r = (0..3)
+                    .map(|a| (d[a] - centre[a]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
                 r + 4.0 * c.radius
             })
             .fold(0.0, f64::max)
     };
-    // Two unit tangents with (t1, t2, n) right-handed.
-    let axis = (0..3)
-        .min_by(|&i, &j| n[i].abs().total_cmp(&n[j].abs()))
-        .unwrap_or(0);
-    let mut e = [0.0; 3];
-    e[axis] = 1.0;
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let t1 = cross(e, n);
-    let l = dot(t1, t1).sqrt();
-    let t1 = t1.map(|v| v / l);
-    let t2 = cross(n, t1);
+    // The wall's tangents ((t1, t2, n) right-handed).
+    let t1 = wall.vector_to_global([1.0, 0.0, 0.0]);
+    let t2 = wall.vector_to_global([0.0, 1.0, 0.0]);
     let k = PLANE_PATCH_POINTS;
     let at = |i: usize| -half + 2.0 * half * i as f64 / (k - 1) as f64;
     let mut mesh = PolyMesh::default();

@@ -127,19 +127,7 @@ impl PlaneCoupling {
         traction: &[f64],
         double_layer: Option<&[f64]>,
     ) -> Result<(Vec<f64>, Vec<f64>), TimestepError> {
-        while self.rules.len() <= slot {
-            self.rules.push(image_rule(p)?);
-        }
-        if self.rules[slot].order() != p {
-            self.rules[slot] = image_rule(p)?;
-        }
-        let (single, double) = layer_sources(
-            &self.wall,
-            &mut self.rules[slot],
-            coefs,
-            traction,
-            double_layer,
-        )?;
+        let (single, double) = self.slot_sources(slot, p, coefs, traction, double_layer)?;
         Ok((
             single
                 .iter()
@@ -148,6 +136,30 @@ impl PlaneCoupling {
                 .collect(),
             double.iter().flatten().flatten().copied().collect(),
         ))
+    }
+
+    /// [`layer_sources`] on the rule kept for cell `slot` (built for order `p` on first use).
+    fn slot_sources(
+        &mut self,
+        slot: usize,
+        p: usize,
+        coefs: &[f64],
+        traction: &[f64],
+        double_layer: Option<&[f64]>,
+    ) -> Result<(Vec<PointForce>, Vec<DoubleLayerSource>), TimestepError> {
+        while self.rules.len() <= slot {
+            self.rules.push(image_rule(p)?);
+        }
+        if self.rules[slot].order() != p {
+            self.rules[slot] = image_rule(p)?;
+        }
+        layer_sources(
+            &self.wall,
+            &mut self.rules[slot],
+            coefs,
+            traction,
+            double_layer,
+        )
     }
 
     /// The images of the sources `single` and `double` (every cell's [`Self::cell_sources`],
@@ -183,7 +195,7 @@ impl PlaneCoupling {
         let mut out = Vec::with_capacity(points.len());
         for x in points {
             let mut u = vec![0.0; 3 * x.len()];
-            self.add_images(&single, &double, x, &mut u)?;
+            add_layer_images(&self.wall, self.viscosity, &single, &double, x, &mut u)?;
             out.push(u);
         }
         let s = &mut self.stats;
@@ -195,18 +207,6 @@ impl PlaneCoupling {
             s.smallest_gap = Some(s.smallest_gap.map_or(gap, |g| g.min(gap)));
         }
         Ok(out)
-    }
-
-    /// Add the images of the point forces `single` and the double-layer sources `double` at
-    /// `targets` to `out` (component-major).
-    fn add_images(
-        &self,
-        single: &[PointForce],
-        double: &[[[f64; 3]; 3]],
-        targets: &[[f64; 3]],
-        out: &mut [f64],
-    ) -> Result<(), TimestepError> {
-        add_layer_images(&self.wall, self.viscosity, single, double, targets, out)
     }
 
     /// Add the images of one cell's layers, from its present surface `coefs`, traction and
@@ -225,14 +225,13 @@ impl PlaneCoupling {
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), TimestepError> {
-        let (single, double) = self.sources(slot, p, coefs, traction, double_layer)?;
-        let (single, double) = unflatten(&single, &double);
+        let (single, double) = self.slot_sources(slot, p, coefs, traction, double_layer)?;
         let index: Vec<usize> = (0..targets.len())
             .filter(|&i| self.wall.height(targets[i]) > 0.0)
             .collect();
         let inner: Vec<[f64; 3]> = index.iter().map(|&i| targets[i]).collect();
         let mut v = vec![0.0; 3 * inner.len()];
-        self.add_images(&single, &double, &inner, &mut v)?;
+        add_layer_images(&self.wall, self.viscosity, &single, &double, &inner, &mut v)?;
         crate::wall::scatter_add(&v, &index, out, targets.len());
         Ok(())
     }
@@ -284,7 +283,7 @@ pub(super) fn add_layer_images(
     wall: &PlaneWall,
     viscosity: f64,
     single: &[PointForce],
-    double: &[[[f64; 3]; 3]],
+    double: &[DoubleLayerSource],
     targets: &[[f64; 3]],
     out: &mut [f64],
 ) -> Result<(), TimestepError> {
@@ -299,7 +298,7 @@ pub(super) fn add_layer_images(
 }
 
 /// The sources of [`PlaneCoupling::cell_sources`] as point forces and double-layer triples.
-fn unflatten(single: &[f64], double: &[f64]) -> (Vec<PointForce>, Vec<[[f64; 3]; 3]>) {
+fn unflatten(single: &[f64], double: &[f64]) -> (Vec<PointForce>, Vec<DoubleLayerSource>) {
     let v = |c: &[f64]| [c[0], c[1], c[2]];
     (
         single.chunks_exact(6).map(|c| (v(c), v(&c[3..]))).collect(),

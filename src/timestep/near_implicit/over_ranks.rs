@@ -215,7 +215,7 @@ fn step_over_ranks(
             .collect();
         let surfaces: Vec<&[f64]> = cl.iter().map(|&g| global[g].surface.as_slice()).collect();
         let is_local: Vec<bool> = cl.iter().map(|&g| local_of[g].is_some()).collect();
-        let zones_here = local_targets(&zones.restricted(cl), &is_local);
+        let zones_here = zones.restricted(cl).targets_on(|i| is_local[i]);
         let solve = ClusterOverRanks {
             comm,
             near,
@@ -359,11 +359,6 @@ fn sum_stats(comm: &dyn Communicator, here: JointStats) -> Result<JointStats, Ra
         });
     }
     Ok(s)
-}
-
-/// `zones` with only the targets on cells marked `local`.
-fn local_targets(zones: &NearZones, local: &[bool]) -> NearZones {
-    zones.targets_on(|i| local[i])
 }
 
 /// One cluster across ranks, as this rank takes part in its joint step.
