@@ -90,7 +90,8 @@ fn block_loops_match_pairwise_kernels() {
     }
 }
 
-/// Every instruction set this CPU has (portable, AVX2, AVX-512) against the pair-by-pair sum,
+/// Every instruction set this CPU has (portable, AVX2, AVX-512) against the pair-by-pair sum
+/// (Laplace, Stokeslet, stresslet),
 /// for every source count from 0 to 19 (all remainders of four- and eight-wide steps) and at
 /// scales outside single precision's range; the ones the CPU lacks say so.
 #[test]
@@ -107,17 +108,19 @@ fn every_instruction_set_matches_the_pairwise_sum() {
             let s = &s_all[..ns];
             let n = &n_all[..ns];
             let order: Vec<usize> = (0..ns).collect();
-            for (k, dd) in [(&Laplace as &dyn Kernel, 1), (&Stokeslet as &dyn Kernel, 3)] {
+            for k in [&Laplace as &dyn Kernel, &Stokeslet, &Stresslet] {
+                let dd = k.density_dim();
                 let q = Cloud::densities(ns * dd, 7);
-                let mut blk = SourceBlock::new(s, None, &order);
+                let normals = k.needs_normals().then_some(n);
+                let mut blk = SourceBlock::new(s, normals, &order);
                 blk.set_density(&q, dd, &order);
                 let want = pairwise(k, &t, s, n, &q);
                 for simd in sets {
                     let mut got = vec![0.0; want.len()];
-                    let ran = if dd == 1 {
-                        p2p::laplace_on(simd, &t, &blk.all(), &mut got)
-                    } else {
-                        p2p::stokeslet_on(simd, &t, &blk.all(), &mut got)
+                    let ran = match k.name() {
+                        "laplace" => p2p::laplace_on(simd, &t, &blk.all(), &mut got),
+                        "stokeslet" => p2p::stokeslet_on(simd, &t, &blk.all(), &mut got),
+                        _ => p2p::stresslet_on(simd, &t, &blk.all(), &mut got),
                     };
                     assert_eq!(ran, simd.available(), "{simd:?}");
                     if ran {

@@ -406,9 +406,22 @@ fn stresslet_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
     })
 }
 dispatched!(
-    /// Stresslet `Σ (3/4π)(r·f)(r·n) r/|r|⁵`.
-    stresslet, stresslet_body, ()
+    /// Stresslet `Σ (3/4π)(r·f)(r·n) r/|r|⁵` (portable loop).
+    stresslet_portable, stresslet_body, ()
 );
+
+/// Stresslet `Σ (3/4π)(r·f)(r·n) r/|r|⁵` (the Stokes double layer's kernel with `f` the
+/// density times the area and `n` the normal): AVX-512 or AVX2 intrinsics where available,
+/// `1/|r|` to round-off.
+pub fn stresslet(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+    stresslet_on(Simd::best(), t, s, out);
+}
+
+/// [`stresslet`] on the instruction set `simd`; `false` (and nothing added) where the CPU
+/// does not have it.
+pub fn stresslet_on(simd: Simd, t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) -> bool {
+    variants!(stresslet_portable, stresslet, 2).run(simd, t, s, out)
+}
 
 #[inline(always)]
 fn rpy_body(t: &[[f64; 3]], s: &SourceView, out: &mut [f64], a: f64) {

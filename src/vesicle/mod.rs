@@ -88,6 +88,7 @@ pub mod shapes;
 pub mod skalak;
 mod skalak_reference;
 pub mod smooth_layer;
+pub mod smooth_sources;
 pub mod surface_distance;
 pub mod tank_treading;
 pub mod tension;

@@ -38,7 +38,8 @@ use std::f64::consts::PI;
 use super::geometry::{Geometry, SurfaceCalculus};
 use super::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use super::point::{closest_point, PointEval};
-use super::{check_len, dot, get3, VesicleError};
+use super::smooth_sources::SmoothSources;
+use super::{check_len, dot, VesicleError};
 use crate::sph_harmonics::basis::{eval_basis, BasisScratch};
 use crate::sph_harmonics::{resample_coefs, CoefLayout, Grid, ShTransform, ShWorkspace};
 
@@ -100,6 +101,8 @@ pub struct OffSurface {
     calc_far: SurfaceCalculus,
     geom_far: Geometry,
     far_grid: Grid,
+    /// The far rule's nodes and density as a block of sources (summed many targets at once).
+    far_src: SmoothSources,
     self_layer: SelfInteraction,
     coefs: Vec<f64>,
     has_surface: bool,
@@ -119,6 +122,10 @@ pub struct OffSurface {
     vals: Vec<[f64; 3]>,
     /// Refined smooth quadratures (orders `2q_far, 4q_far, …`), built when first needed.
     levels: Vec<Level>,
+    /// Points summed on the far rule in one batch (far targets, check points) and the sums
+    /// there (three per point).
+    batch: Vec<[f64; 3]>,
+    batch_vals: Vec<f64>,
     /// Largest distance of the surface from its centroid.
     rmax: f64,
 }
@@ -135,6 +142,22 @@ struct Level {
     density_set: bool,
     dens_coef: Vec<f64>,
     dens: Vec<f64>,
+    /// The rule's nodes and the density as a block of sources.
+    src: SmoothSources,
+    /// Targets given this rule in the current call, and the sums there.
+    batch: Vec<[f64; 3]>,
+    batch_vals: Vec<f64>,
+}
+
+/// How [`OffSurface`] evaluates one target.
+enum Route {
+    /// The far rule at the batch point with this index.
+    Far(usize),
+    /// The refined level with this index, at its batch point with this index.
+    Refined(usize, usize),
+    /// Extrapolation from the on-surface value (given) and the `m` check points at the far
+    /// rule's batch points from this index on.
+    Check([f64; 3], usize),
 }
 
 /// A near target at distance `d` is given the smooth quadrature of order `q` when
@@ -188,6 +211,7 @@ impl OffSurface {
             calc_far: SurfaceCalculus::new(q_far)?,
             geom_far: Geometry::zeros(q_far),
             far_grid: Grid::new(q_far),
+            far_src: SmoothSources::new(),
             self_layer: SelfInteraction::new(p, q_self, RotationAlgorithm::ViaSh)?,
             coefs: vec![0.0; 3 * sht_p.n_coefs()],
             has_surface: false,
@@ -204,6 +228,8 @@ impl OffSurface {
             nodes: Vec::with_capacity(params.check_points + 1),
             vals: Vec::with_capacity(params.check_points + 1),
             levels: Vec::new(),
+            batch: Vec::new(),
+            batch_vals: Vec::new(),
             rmax: 0.0,
             sht_p,
             sht_far,
@@ -223,6 +249,7 @@ impl OffSurface {
         let mut cf = vec![0.0; 3 * lay_far.len()];
         resample_coefs(&self.lay_p, &lay_far, coefs, &mut cf)?;
         self.calc_far.update_geometry(&cf, &mut self.geom_far)?;
+        self.far_src.set_geometry(&self.geom_far);
         self.coefs.copy_from_slice(coefs);
         self.delta = self
             .params
@@ -320,12 +347,6 @@ impl OffSurface {
         })
     }
 
-    /// Smooth quadrature of the layer potential at `x` with the upsampled density in
-    /// `dens_far`.
-    fn smooth(&self, kernel: LayerKernel, x: [f64; 3]) -> [f64; 3] {
-        smooth_sum(&self.geom_far, &self.dens_far, kernel, x)
-    }
-
     /// The order of the refined smooth quadrature that resolves a target at distance `d`
     /// (`None`: none up to `max_order`; the check points are used).
     fn resolving_order(&self, d: f64) -> Option<usize> {
@@ -358,6 +379,9 @@ impl OffSurface {
                     density_set: false,
                     dens_coef: vec![0.0; 3 * nc],
                     dens: vec![0.0; 3 * n],
+                    src: SmoothSources::new(),
+                    batch: Vec::new(),
+                    batch_vals: Vec::new(),
                     sht,
                 });
                 self.levels.len() - 1
@@ -368,7 +392,9 @@ impl OffSurface {
             let mut cf = vec![0.0; 3 * l.sht.n_coefs()];
             resample_coefs(&self.lay_p, l.sht.layout(), &self.coefs, &mut cf)?;
             l.calc.update_geometry(&cf, &mut l.geom)?;
+            l.src.set_geometry(&l.geom);
             l.geometry_set = true;
+            l.density_set = false;
         }
         if !l.density_set {
             resample_coefs(
@@ -378,42 +404,10 @@ impl OffSurface {
                 &mut l.dens_coef,
             )?;
             l.sht.inverse(&l.dens_coef, &mut l.dens, &mut l.ws)?;
+            l.src.set_density(&l.dens)?;
             l.density_set = true;
         }
         Ok(i)
-    }
-}
-
-/// `Σ_j K(x, y_j) f_j dA_j` over the grid of `g` with the density `dens` (component-major).
-fn smooth_sum(g: &Geometry, dens: &[f64], kernel: LayerKernel, x: [f64; 3]) -> [f64; 3] {
-    {
-        let nq = g.n_points();
-        let mut u = [0.0; 3];
-        for j in 0..nq {
-            let r = [x[0] - g.x[j][0], x[1] - g.x[j][1], x[2] - g.x[j][2]];
-            let r2 = dot(r, r);
-            let f = get3(dens, nq, j);
-            let rinv = 1.0 / r2.sqrt();
-            match kernel {
-                LayerKernel::SingleLayer { .. } => {
-                    let rf = dot(r, f) * rinv * rinv;
-                    for c in 0..3 {
-                        u[c] += (f[c] + rf * r[c]) * rinv * g.da[j];
-                    }
-                }
-                LayerKernel::DoubleLayer => {
-                    let s = dot(r, g.normal[j]) * dot(r, f) * rinv.powi(5) * g.da[j];
-                    for c in 0..3 {
-                        u[c] += s * r[c];
-                    }
-                }
-            }
-        }
-        let pre = match kernel {
-            LayerKernel::SingleLayer { viscosity } => 1.0 / (8.0 * PI * viscosity),
-            LayerKernel::DoubleLayer => 3.0 / (4.0 * PI),
-        };
-        u.map(|v| v * pre)
     }
 }
 
@@ -497,21 +491,30 @@ impl OffSurface {
             self.sht_p
                 .forward(&self.on_surface, &mut self.on_surface_coef, &mut self.ws_p)?;
         }
+        self.far_src.set_density(&self.dens_far)?;
         let nt = targets.len();
         let m = self.params.check_points;
         let h = self.delta * self.params.check_spacing;
-        for (ti, (&x, info)) in targets.iter().zip(&infos).enumerate() {
+        // Route every target, and gather the points each smooth rule sums at.
+        self.batch.clear();
+        for l in &mut self.levels {
+            l.batch.clear();
+        }
+        let mut routes = Vec::with_capacity(nt);
+        for (&x, info) in targets.iter().zip(&infos) {
             let refined = if info.near {
                 self.resolving_order(info.distance)
             } else {
                 None
             };
-            let u = if !info.near {
-                self.smooth(kernel, x)
+            let route = if !info.near {
+                self.batch.push(x);
+                Route::Far(self.batch.len() - 1)
             } else if let Some(q) = refined {
                 let i = self.level(q)?;
-                let l = &self.levels[i];
-                smooth_sum(&l.geom, &l.dens, kernel, x)
+                let l = &mut self.levels[i];
+                l.batch.push(x);
+                Route::Refined(i, l.batch.len() - 1)
             } else {
                 let pd = self
                     .point
@@ -542,18 +545,45 @@ impl OffSurface {
                         v0[c] += side * 0.5 * dens[c];
                     }
                 }
-                self.nodes.clear();
-                self.vals.clear();
-                self.nodes.push(0.0);
-                self.vals.push(v0);
+                let first = self.batch.len();
                 for k in 0..m {
                     let t = self.delta + k as f64 * h;
-                    let xc = std::array::from_fn(|c| pd.x[c] + t * n[c]);
-                    let v = self.smooth(kernel, xc);
-                    self.nodes.push(t);
-                    self.vals.push(v);
+                    self.batch.push(std::array::from_fn(|c| pd.x[c] + t * n[c]));
                 }
-                lagrange(&self.nodes, &self.vals, info.distance)
+                Route::Check(v0, first)
+            };
+            routes.push(route);
+        }
+        // The sums, each rule's points in one batch.
+        self.batch_vals.clear();
+        self.batch_vals.resize(3 * self.batch.len(), 0.0);
+        self.far_src
+            .add_to(kernel, &self.batch, &mut self.batch_vals)?;
+        for l in &mut self.levels {
+            l.batch_vals.clear();
+            l.batch_vals.resize(3 * l.batch.len(), 0.0);
+            if !l.batch.is_empty() {
+                l.src.add_to(kernel, &l.batch, &mut l.batch_vals)?;
+            }
+        }
+        let at = |vals: &[f64], k: usize| -> [f64; 3] {
+            [vals[3 * k], vals[3 * k + 1], vals[3 * k + 2]]
+        };
+        for (ti, (route, info)) in routes.iter().zip(&infos).enumerate() {
+            let u = match *route {
+                Route::Far(k) => at(&self.batch_vals, k),
+                Route::Refined(i, k) => at(&self.levels[i].batch_vals, k),
+                Route::Check(v0, first) => {
+                    self.nodes.clear();
+                    self.vals.clear();
+                    self.nodes.push(0.0);
+                    self.vals.push(v0);
+                    for k in 0..m {
+                        self.nodes.push(self.delta + k as f64 * h);
+                        self.vals.push(at(&self.batch_vals, first + k));
+                    }
+                    lagrange(&self.nodes, &self.vals, info.distance)
+                }
             };
             for c in 0..3 {
                 out[c * nt + ti] = u[c];

@@ -13,7 +13,7 @@
 
 use std::f64::consts::PI;
 
-use super::layer_kernel::kernel_entries;
+use super::smooth_sources::SmoothSources;
 use super::{check_len, Geometry, LayerKernel, SurfaceCalculus, VesicleError};
 use crate::sph_harmonics::{resample_coefs, ShTransform, ShWorkspace};
 
@@ -44,6 +44,8 @@ pub struct SmoothLayer {
     dens_coef: Vec<f64>,
     dens_coef_q: Vec<f64>,
     dens: Vec<f64>,
+    /// The nodes and the density as a block of sources.
+    src: SmoothSources,
     centre: [f64; 3],
     r_min: f64,
     r_max: f64,
@@ -83,6 +85,7 @@ impl SmoothLayer {
             dens_coef: vec![0.0; 3 * sht_p.n_coefs()],
             dens_coef_q: vec![0.0; 3 * sht_q.n_coefs()],
             dens: vec![0.0; 3 * sht_q.n_points()],
+            src: SmoothSources::new(),
             sht_p,
             sht_q,
             centre: [0.0; 3],
@@ -109,6 +112,7 @@ impl SmoothLayer {
             &mut self.coefs_q,
         )?;
         self.calc_q.update_geometry(&self.coefs_q, &mut self.geom)?;
+        self.src.set_geometry(&self.geom);
         let c = self.geom.centroid();
         let (mut lo, mut hi) = (f64::INFINITY, 0.0_f64);
         for x in &self.geom.x {
@@ -153,6 +157,7 @@ impl SmoothLayer {
         )?;
         self.sht_q
             .inverse(&self.dens_coef_q, &mut self.dens, &mut self.ws_q)?;
+        self.src.set_density(&self.dens)?;
         Ok(())
     }
 
@@ -174,20 +179,11 @@ impl SmoothLayer {
         kernel.check()?;
         let nt = targets.len();
         check_len("output", out.len(), 3 * nt)?;
-        let nq = self.geom.n_points();
-        for (t, &x) in targets.iter().enumerate() {
-            let mut u = [0.0; 3];
-            for i in 0..nq {
-                let y = self.geom.x[i];
-                let r = [x[0] - y[0], x[1] - y[1], x[2] - y[2]];
-                let k = kernel_entries(kernel, r, self.geom.normal[i], self.geom.da[i]);
-                let f = [self.dens[i], self.dens[nq + i], self.dens[2 * nq + i]];
-                for (a, ua) in u.iter_mut().enumerate() {
-                    *ua += k[3 * a] * f[0] + k[3 * a + 1] * f[1] + k[3 * a + 2] * f[2];
-                }
-            }
+        let mut u = vec![0.0; 3 * nt];
+        self.src.add_to(kernel, targets, &mut u)?;
+        for t in 0..nt {
             for a in 0..3 {
-                out[a * nt + t] += u[a];
+                out[a * nt + t] += u[3 * t + a];
             }
         }
         Ok(())

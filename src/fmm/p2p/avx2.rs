@@ -33,6 +33,24 @@ unsafe fn hsum(v: __m256d) -> f64 {
     _mm_cvtsd_f64(_mm_add_sd(s, _mm_unpackhi_pd(s, s)))
 }
 
+/// The separations `x − y_j` from a target (broadcast) to the sources `j..j + 4`, and their
+/// `1/|r|`.
+#[inline(always)]
+unsafe fn separations<const N: usize>(
+    x: [__m256d; 3],
+    s: [&[f64]; 3],
+    j: usize,
+) -> ([__m256d; 3], __m256d) {
+    let d: [__m256d; 3] =
+        std::array::from_fn(|c| _mm256_sub_pd(x[c], _mm256_loadu_pd(s[c].as_ptr().add(j))));
+    let d2 = _mm256_fmadd_pd(
+        d[0],
+        d[0],
+        _mm256_fmadd_pd(d[1], d[1], _mm256_mul_pd(d[2], d[2])),
+    );
+    (d, inv_norm::<N>(d2))
+}
+
 /// The separations `x − y` from a target to the sources of a tail (from `nb`, padded with
 /// `x` itself), and their `1/|r|`.
 #[inline(always)]
@@ -158,11 +176,7 @@ pub unsafe fn stokeslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mu
         );
         let mut j = 0;
         while j < nb {
-            let dx = _mm256_sub_pd(x0, _mm256_loadu_pd(sx.as_ptr().add(j)));
-            let dy = _mm256_sub_pd(x1, _mm256_loadu_pd(sy.as_ptr().add(j)));
-            let dz = _mm256_sub_pd(x2, _mm256_loadu_pd(sz.as_ptr().add(j)));
-            let d2 = _mm256_fmadd_pd(dx, dx, _mm256_fmadd_pd(dy, dy, _mm256_mul_pd(dz, dz)));
-            let inv = inv_norm::<N>(d2);
+            let ([dx, dy, dz], inv) = separations::<N>([x0, x1, x2], [sx, sy, sz], j);
             let (gx, gy, gz) = (
                 _mm256_loadu_pd(fx.as_ptr().add(j)),
                 _mm256_loadu_pd(fy.as_ptr().add(j)),
@@ -187,6 +201,60 @@ pub unsafe fn stokeslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mu
         let v = [hsum(ax), hsum(ay), hsum(az)];
         for c in 0..3 {
             o[c] += v[c] / EIGHT_PI;
+        }
+    }
+}
+
+#[target_feature(enable = "avx2,fma")]
+pub unsafe fn stresslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+    let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
+    let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
+    let (nx, ny, nz) = (&s.n[0][..n], &s.n[1][..n], &s.n[2][..n]);
+    let nb = n - n % 4;
+    #[inline(always)]
+    unsafe fn pair(
+        [dx, dy, dz]: [__m256d; 3],
+        inv: __m256d,
+        g: [__m256d; 3],
+        m: [__m256d; 3],
+        acc: &mut [__m256d; 3],
+    ) {
+        let rf = _mm256_fmadd_pd(dx, g[0], _mm256_fmadd_pd(dy, g[1], _mm256_mul_pd(dz, g[2])));
+        let rn = _mm256_fmadd_pd(dx, m[0], _mm256_fmadd_pd(dy, m[1], _mm256_mul_pd(dz, m[2])));
+        let inv2 = _mm256_mul_pd(inv, inv);
+        let c = _mm256_mul_pd(
+            _mm256_mul_pd(rf, rn),
+            _mm256_mul_pd(_mm256_mul_pd(inv2, inv2), inv),
+        );
+        acc[0] = _mm256_fmadd_pd(c, dx, acc[0]);
+        acc[1] = _mm256_fmadd_pd(c, dy, acc[1]);
+        acc[2] = _mm256_fmadd_pd(c, dz, acc[2]);
+    }
+    for (x, o) in t.iter().zip(out.chunks_exact_mut(3)) {
+        let (x0, x1, x2) = (
+            _mm256_set1_pd(x[0]),
+            _mm256_set1_pd(x[1]),
+            _mm256_set1_pd(x[2]),
+        );
+        let mut acc = [_mm256_setzero_pd(); 3];
+        let mut j = 0;
+        while j < nb {
+            let (d, inv) = separations::<N>([x0, x1, x2], [sx, sy, sz], j);
+            let g = [fx, fy, fz].map(|v| _mm256_loadu_pd(v.as_ptr().add(j)));
+            let m = [nx, ny, nz].map(|v| _mm256_loadu_pd(v.as_ptr().add(j)));
+            pair(d, inv, g, m, &mut acc);
+            j += 4;
+        }
+        if nb < n {
+            let (d, inv) = tail_separations::<N>(*x, [sx, sy, sz], nb);
+            let g = [fx, fy, fz].map(|v| tail(v, nb, 0.0));
+            let m = [nx, ny, nz].map(|v| tail(v, nb, 0.0));
+            pair(d, inv, g, m, &mut acc);
+        }
+        let k = 3.0 / FOUR_PI;
+        for c in 0..3 {
+            o[c] += k * hsum(acc[c]);
         }
     }
 }

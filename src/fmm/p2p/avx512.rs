@@ -44,6 +44,25 @@ unsafe fn store(m: __mmask8, p: *mut f64, v: __m512d) {
     }
 }
 
+/// The separations `x − y_j` from a target (broadcast) to the sources `j..j + 8` (lanes in
+/// `m`), and their `1/|r|`.
+#[inline(always)]
+unsafe fn separations<const N: usize>(
+    x: [__m512d; 3],
+    s: [&[f64]; 3],
+    m: __mmask8,
+    j: usize,
+) -> ([__m512d; 3], __m512d) {
+    let d: [__m512d; 3] =
+        std::array::from_fn(|c| _mm512_sub_pd(x[c], load(m, s[c].as_ptr().add(j))));
+    let d2 = _mm512_fmadd_pd(
+        d[0],
+        d[0],
+        _mm512_fmadd_pd(d[1], d[1], _mm512_mul_pd(d[2], d[2])),
+    );
+    (d, inv_norm::<N>(d2))
+}
+
 #[target_feature(enable = "avx512f")]
 pub unsafe fn laplace<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
     let n = s.len();
@@ -125,11 +144,7 @@ pub unsafe fn stokeslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mu
         let mut j = 0;
         while j < n {
             let m = mask(j, n);
-            let dx = _mm512_sub_pd(x0, load(m, sx.as_ptr().add(j)));
-            let dy = _mm512_sub_pd(x1, load(m, sy.as_ptr().add(j)));
-            let dz = _mm512_sub_pd(x2, load(m, sz.as_ptr().add(j)));
-            let d2 = _mm512_fmadd_pd(dx, dx, _mm512_fmadd_pd(dy, dy, _mm512_mul_pd(dz, dz)));
-            let inv = inv_norm::<N>(d2);
+            let ([dx, dy, dz], inv) = separations::<N>([x0, x1, x2], [sx, sy, sz], m, j);
             let (gx, gy, gz) = (
                 load(m, fx.as_ptr().add(j)),
                 load(m, fy.as_ptr().add(j)),
@@ -145,5 +160,61 @@ pub unsafe fn stokeslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mu
         o[0] += _mm512_reduce_add_pd(ax) / EIGHT_PI;
         o[1] += _mm512_reduce_add_pd(ay) / EIGHT_PI;
         o[2] += _mm512_reduce_add_pd(az) / EIGHT_PI;
+    }
+}
+
+#[target_feature(enable = "avx512f")]
+pub unsafe fn stresslet<const N: usize>(t: &[[f64; 3]], s: &SourceView, out: &mut [f64]) {
+    let n = s.len();
+    let (sx, sy, sz) = (&s.x[..n], &s.y[..n], &s.z[..n]);
+    let (fx, fy, fz) = (&s.q[0][..n], &s.q[1][..n], &s.q[2][..n]);
+    let (nx, ny, nz) = (&s.n[0][..n], &s.n[1][..n], &s.n[2][..n]);
+    for (x, o) in t.iter().zip(out.chunks_exact_mut(3)) {
+        let (x0, x1, x2) = (
+            _mm512_set1_pd(x[0]),
+            _mm512_set1_pd(x[1]),
+            _mm512_set1_pd(x[2]),
+        );
+        let (mut ax, mut ay, mut az) = (
+            _mm512_setzero_pd(),
+            _mm512_setzero_pd(),
+            _mm512_setzero_pd(),
+        );
+        let mut j = 0;
+        while j < n {
+            let m = mask(j, n);
+            let ([dx, dy, dz], inv) = separations::<N>([x0, x1, x2], [sx, sy, sz], m, j);
+            let rf = _mm512_fmadd_pd(
+                dx,
+                load(m, fx.as_ptr().add(j)),
+                _mm512_fmadd_pd(
+                    dy,
+                    load(m, fy.as_ptr().add(j)),
+                    _mm512_mul_pd(dz, load(m, fz.as_ptr().add(j))),
+                ),
+            );
+            let rn = _mm512_fmadd_pd(
+                dx,
+                load(m, nx.as_ptr().add(j)),
+                _mm512_fmadd_pd(
+                    dy,
+                    load(m, ny.as_ptr().add(j)),
+                    _mm512_mul_pd(dz, load(m, nz.as_ptr().add(j))),
+                ),
+            );
+            let inv2 = _mm512_mul_pd(inv, inv);
+            let c = _mm512_mul_pd(
+                _mm512_mul_pd(rf, rn),
+                _mm512_mul_pd(_mm512_mul_pd(inv2, inv2), inv),
+            );
+            ax = _mm512_fmadd_pd(c, dx, ax);
+            ay = _mm512_fmadd_pd(c, dy, ay);
+            az = _mm512_fmadd_pd(c, dz, az);
+            j += 8;
+        }
+        let k = 3.0 / FOUR_PI;
+        o[0] += k * _mm512_reduce_add_pd(ax);
+        o[1] += k * _mm512_reduce_add_pd(ay);
+        o[2] += k * _mm512_reduce_add_pd(az);
     }
 }
