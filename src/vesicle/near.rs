@@ -305,17 +305,7 @@ impl OffSurface {
     pub fn classify(&mut self, x: [f64; 3]) -> Result<TargetInfo, VesicleError> {
         self.require_surface()?;
         let g = &self.geom_far;
-        let (mut best, mut jbest) = (f64::INFINITY, 0);
-        let mut solid = 0.0;
-        for j in 0..g.n_points() {
-            let r = [g.x[j][0] - x[0], g.x[j][1] - x[1], g.x[j][2] - x[2]];
-            let r2 = dot(r, r);
-            if r2 < best {
-                best = r2;
-                jbest = j;
-            }
-            solid += dot(r, g.normal[j]) / (r2 * r2.sqrt()) * g.da[j];
-        }
+        let (best, jbest) = self.far_src.nearest(x);
         let start = self.far_grid.angles(jbest);
         let best = best.sqrt();
         // The nearest grid point can be farther than the surface by about one grid spacing.
@@ -329,7 +319,7 @@ impl OffSurface {
                 x[2] - g.x[jbest][2],
             ];
             return Ok(TargetInfo {
-                inside: solid / (4.0 * PI) > 0.5 && dot(r, g.normal[jbest]) < 0.0,
+                inside: self.far_src.solid_angle(x) > 0.5 && dot(r, g.normal[jbest]) < 0.0,
                 near: false,
                 distance: best,
                 closest: start,

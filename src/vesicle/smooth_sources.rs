@@ -122,6 +122,71 @@ impl SmoothSources {
         Ok(())
     }
 
+    /// The node nearest `x`: its squared distance and index (the first of equals).
+    pub fn nearest(&self, x: [f64; 3]) -> (f64, usize) {
+        const L: usize = 8;
+        let n = self.len();
+        let (sx, sy, sz) = (&self.x[0][..n], &self.x[1][..n], &self.x[2][..n]);
+        let mut best = [f64::INFINITY; L];
+        let mut at = [0usize; L];
+        let nb = n - n % L;
+        let mut j = 0;
+        while j < nb {
+            for l in 0..L {
+                let k = j + l;
+                let d2 = (sx[k] - x[0]).powi(2) + (sy[k] - x[1]).powi(2) + (sz[k] - x[2]).powi(2);
+                if d2 < best[l] {
+                    best[l] = d2;
+                    at[l] = k;
+                }
+            }
+            j += L;
+        }
+        let (mut b, mut a) = (f64::INFINITY, 0);
+        for k in nb..n {
+            let d2 = (sx[k] - x[0]).powi(2) + (sy[k] - x[1]).powi(2) + (sz[k] - x[2]).powi(2);
+            if d2 < b {
+                b = d2;
+                a = k;
+            }
+        }
+        for l in 0..L {
+            if best[l] < b || (best[l] == b && at[l] < a) {
+                b = best[l];
+                a = at[l];
+            }
+        }
+        (b, a)
+    }
+
+    /// The solid angle the surface subtends at `x` over 4π, `(1/4π) Σ_j (y_j − x)·n_j dA_j /
+    /// |y_j − x|³` (Gauss: 1 inside a closed surface, 0 outside, up to the rule's error).
+    pub fn solid_angle(&self, x: [f64; 3]) -> f64 {
+        let n = self.len();
+        let mut sum = 0.0;
+        let mut start = 0;
+        while start < n {
+            let end = (start + SOURCE_BLOCK).min(n);
+            let view = SourceView {
+                x: &self.x[0][start..end],
+                y: &self.x[1][start..end],
+                z: &self.x[2][start..end],
+                q: [&self.da[start..end], &[], &[], &[]],
+                n: [
+                    &self.n[0][start..end],
+                    &self.n[1][start..end],
+                    &self.n[2][start..end],
+                ],
+            };
+            let mut out = [0.0];
+            p2p::laplace_dl(&[x], &view, &mut out);
+            sum += out[0];
+            start = end;
+        }
+        // The Laplace double layer takes r = x − y.
+        -sum
+    }
+
     /// `Σ_j K(t − y_j) f_j dA_j` into `acc` (zeroed), over the nodes in blocks.
     fn sum_chunk(&self, kernel: LayerKernel, t: &[[f64; 3]], acc: &mut [f64]) {
         let n = self.len();
@@ -232,6 +297,32 @@ mod tests {
                     assert!(e < 1e-12, "{kernel:?}: target {t} component {c}: {e:e}");
                 }
             }
+        }
+        // The nearest node and the solid angle against direct loops.
+        for &x in &targets {
+            let d2: Vec<f64> =
+                g.x.iter()
+                    .map(|y| (0..3).map(|c| (y[c] - x[c]).powi(2)).sum())
+                    .collect();
+            let (b, j) = src.nearest(x);
+            let first = d2.iter().position(|v| *v == b).unwrap();
+            assert_eq!((b, j), (d2[j], first));
+            assert!(d2.iter().all(|v| *v >= b));
+            let solid: f64 = (0..g.n_points())
+                .map(|k| {
+                    let r: [f64; 3] = std::array::from_fn(|c| g.x[k][c] - x[c]);
+                    let rr: f64 = r.iter().map(|v| v * v).sum();
+                    (0..3).map(|c| r[c] * g.normal[k][c]).sum::<f64>() * g.da[k] / (rr * rr.sqrt())
+                })
+                .sum::<f64>()
+                / (4.0 * std::f64::consts::PI);
+            assert!((src.solid_angle(x) - solid).abs() < 1e-12, "{x:?}");
+            // Gauss: the points at radius 0.3 are inside the ellipsoid, those at 1.6 outside.
+            let inside = x[0].hypot(x[1]) < 1.0;
+            assert!(
+                (solid - if inside { 1.0 } else { 0.0 }).abs() < 1e-6,
+                "{x:?}: {solid}"
+            );
         }
         // Without a density: an error, not a sum of zeros.
         let mut bare = SmoothSources::new();
