@@ -46,7 +46,7 @@ use rayon::prelude::*;
 use super::near_images::NearImages;
 use super::TimestepError;
 use crate::vesicle::layer::LayerKernel;
-use crate::vesicle::near::{NearParams, OffSurface};
+use crate::vesicle::near::{NearParams, OffSurface, TargetInfo};
 
 /// The smooth quadrature's order beyond the check points, `3p` (the evaluator's default is
 /// `6p`), and the on-surface values' order, `p` (default `2p`). Measured on the 17 % RBC
@@ -84,6 +84,10 @@ pub struct SourceZone {
     pub targets: Vec<(usize, usize)>,
     /// Their positions.
     pub points: Vec<[f64; 3]>,
+    /// Where each target lies relative to the source cell at the zones' geometry
+    /// ([`OffSurface::classify`]), kept for the products (every GMRES iteration evaluates at
+    /// the same targets on the same surface); empty for an image zone.
+    pub infos: Vec<TargetInfo>,
 }
 
 /// The near zones of a set of cells at one geometry.
@@ -165,16 +169,21 @@ impl NearZones {
                 .iter()
                 .filter_map(|z| {
                     let source = source(z.source)?;
-                    let (targets, points): (Vec<_>, Vec<_>) = z
+                    let keep: Vec<(usize, (usize, usize))> = z
                         .targets
                         .iter()
-                        .zip(&z.points)
-                        .filter_map(|(&(i, k), &x)| Some(((target(i)?, k), x)))
-                        .unzip();
-                    (!targets.is_empty()).then_some(SourceZone {
+                        .enumerate()
+                        .filter_map(|(m, &(i, k))| Some((m, (target(i)?, k))))
+                        .collect();
+                    (!keep.is_empty()).then(|| SourceZone {
                         source,
-                        targets,
-                        points,
+                        targets: keep.iter().map(|&(_, t)| t).collect(),
+                        points: keep.iter().map(|&(m, _)| z.points[m]).collect(),
+                        infos: if z.infos.is_empty() {
+                            Vec::new()
+                        } else {
+                            keep.iter().map(|&(m, _)| z.infos[m]).collect()
+                        },
                     })
                 })
                 .collect()
@@ -282,6 +291,7 @@ impl NearPairs {
                     let reach = cj.radius + delta;
                     let mut targets = Vec::new();
                     let mut points = Vec::new();
+                    let mut infos = Vec::new();
                     for (i, ci) in cells.iter().enumerate() {
                         if i == j || !ci.joins || dist(ci.centroid, cj.centroid) > ci.radius + reach
                         {
@@ -296,19 +306,25 @@ impl NearPairs {
                             if info.inside || info.distance < delta {
                                 targets.push((i, k));
                                 points.push(x);
+                                infos.push(info);
                             }
                         }
                         if round[i] && targets.len() > before {
                             targets.truncate(before);
                             points.truncate(before);
-                            targets.extend((0..ci.points.len()).map(|k| (i, k)));
-                            points.extend_from_slice(ci.points);
+                            infos.truncate(before);
+                            for (k, &x) in ci.points.iter().enumerate() {
+                                targets.push((i, k));
+                                points.push(x);
+                                infos.push(off.classify(x).map_err(vesicle)?);
+                            }
                         }
                     }
                     let near = (!targets.is_empty()).then_some(SourceZone {
                         source: j,
                         targets,
                         points,
+                        infos,
                     });
                     Ok((near, self.image_zone(j, cells, delta)))
                 })();
@@ -349,6 +365,7 @@ impl NearPairs {
             source: j,
             targets,
             points,
+            infos: Vec::new(),
         })
     }
 
@@ -374,12 +391,21 @@ impl NearPairs {
                 let single = LayerKernel::SingleLayer {
                     viscosity: self.viscosity,
                 };
+                // The zone's classification was made on this surface when the zones were
+                // found; a zone built by hand (no classification) is classified here.
+                let eval = |off: &mut OffSurface, kernel, density: &[f64], out: &mut [f64]| {
+                    if z.infos.len() == z.points.len() {
+                        off.evaluate_classified(kernel, density, &z.points, &z.infos, out)
+                    } else {
+                        off.evaluate(kernel, density, &z.points, out)
+                    }
+                };
                 let mut r = off
                     .set_surface(surfaces[j])
-                    .and_then(|_| off.evaluate(single, f[j], &z.points, &mut u));
+                    .and_then(|_| eval(&mut off, single, f[j], &mut u));
                 if let (Ok(_), Some(gj)) = (&r, g[j]) {
                     let mut d = vec![0.0; 3 * m];
-                    r = off.evaluate(LayerKernel::DoubleLayer, gj, &z.points, &mut d);
+                    r = eval(&mut off, LayerKernel::DoubleLayer, gj, &mut d);
                     for (a, b) in u.iter_mut().zip(&d) {
                         *a += b;
                     }
@@ -451,6 +477,7 @@ mod tests {
             source,
             targets: targets.to_vec(),
             points: vec![[0.0; 3]; targets.len()],
+            infos: Vec::new(),
         }
     }
 

@@ -319,7 +319,7 @@ impl OffSurface {
                 x[2] - g.x[jbest][2],
             ];
             return Ok(TargetInfo {
-                inside: self.far_src.solid_angle(x) > 0.5 && dot(r, g.normal[jbest]) < 0.0,
+                inside: dot(r, g.normal[jbest]) < 0.0 && self.far_src.solid_angle(x) > 0.5,
                 near: false,
                 distance: best,
                 closest: start,
@@ -412,7 +412,23 @@ impl OffSurface {
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<Vec<TargetInfo>, VesicleError> {
-        self.evaluate_inner(kernel, density, None, targets, out)
+        self.evaluate_inner(kernel, density, None, None, targets, out)
+    }
+
+    /// [`Self::evaluate`] with each target's classification given (`infos`, as
+    /// [`Self::classify`] returned them on this surface), where a caller evaluates several
+    /// densities at the same targets on the same surface (the near zones' products, once per
+    /// GMRES iteration). Returns the classifications.
+    pub fn evaluate_classified(
+        &mut self,
+        kernel: LayerKernel,
+        density: &[f64],
+        targets: &[[f64; 3]],
+        infos: &[TargetInfo],
+        out: &mut [f64],
+    ) -> Result<Vec<TargetInfo>, VesicleError> {
+        check_len("target classifications", infos.len(), targets.len())?;
+        self.evaluate_inner(kernel, density, None, Some(infos), targets, out)
     }
 
     /// [`Self::evaluate`] with the layer's on-surface (principal) values at the grid points
@@ -432,7 +448,7 @@ impl OffSurface {
             on_surface.len(),
             3 * self.sht_p.n_points(),
         )?;
-        self.evaluate_inner(kernel, density, Some(on_surface), targets, out)
+        self.evaluate_inner(kernel, density, Some(on_surface), None, targets, out)
     }
 
     fn evaluate_inner(
@@ -440,6 +456,7 @@ impl OffSurface {
         kernel: LayerKernel,
         density: &[f64],
         given: Option<&[f64]>,
+        classified: Option<&[TargetInfo]>,
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<Vec<TargetInfo>, VesicleError> {
@@ -462,10 +479,13 @@ impl OffSurface {
         for l in &mut self.levels {
             l.density_set = false;
         }
-        let infos: Vec<TargetInfo> = targets
-            .iter()
-            .map(|&x| self.classify(x))
-            .collect::<Result<_, _>>()?;
+        let infos: Vec<TargetInfo> = match classified {
+            Some(infos) => infos.to_vec(),
+            None => targets
+                .iter()
+                .map(|&x| self.classify(x))
+                .collect::<Result<_, _>>()?,
+        };
         // On-surface values (only if some near target is left to the check points).
         if infos
             .iter()

@@ -122,41 +122,32 @@ impl SmoothSources {
         Ok(())
     }
 
-    /// The node nearest `x`: its squared distance and index (the first of equals).
+    /// The node nearest `x`: its squared distance and index (the first of equals). A
+    /// vectorised pass finds the smallest squared distance, a second the first node at it.
     pub fn nearest(&self, x: [f64; 3]) -> (f64, usize) {
         const L: usize = 8;
         let n = self.len();
         let (sx, sy, sz) = (&self.x[0][..n], &self.x[1][..n], &self.x[2][..n]);
-        let mut best = [f64::INFINITY; L];
-        let mut at = [0usize; L];
+        let d2 =
+            |k: usize| (sx[k] - x[0]).powi(2) + (sy[k] - x[1]).powi(2) + (sz[k] - x[2]).powi(2);
+        let mut lanes = [f64::INFINITY; L];
         let nb = n - n % L;
         let mut j = 0;
         while j < nb {
-            for l in 0..L {
-                let k = j + l;
-                let d2 = (sx[k] - x[0]).powi(2) + (sy[k] - x[1]).powi(2) + (sz[k] - x[2]).powi(2);
-                if d2 < best[l] {
-                    best[l] = d2;
-                    at[l] = k;
-                }
+            for (l, b) in lanes.iter_mut().enumerate() {
+                let v = d2(j + l);
+                *b = if v < *b { v } else { *b };
             }
             j += L;
         }
-        let (mut b, mut a) = (f64::INFINITY, 0);
-        for k in nb..n {
-            let d2 = (sx[k] - x[0]).powi(2) + (sy[k] - x[1]).powi(2) + (sz[k] - x[2]).powi(2);
-            if d2 < b {
-                b = d2;
-                a = k;
-            }
+        let mut best = (nb..n)
+            .map(d2)
+            .fold(f64::INFINITY, |b, v| if v < b { v } else { b });
+        for b in lanes {
+            best = if b < best { b } else { best };
         }
-        for l in 0..L {
-            if best[l] < b || (best[l] == b && at[l] < a) {
-                b = best[l];
-                a = at[l];
-            }
-        }
-        (b, a)
+        let at = (0..n).position(|k| d2(k) == best).unwrap_or(0);
+        (best, at)
     }
 
     /// The solid angle the surface subtends at `x` over 4π, `(1/4π) Σ_j (y_j − x)·n_j dA_j /

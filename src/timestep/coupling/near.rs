@@ -61,6 +61,7 @@ impl Coupling {
                 let e = &mut *guard;
                 e.near.set_surface(s.coefs).map_err(vesicle)?;
                 let mut near: Vec<(usize, usize, f64)> = Vec::new();
+                let mut near_infos = Vec::new();
                 let mut push: Vec<Push> = Vec::new();
                 let (range, strength) = (
                     (self.params.repulsion_range * cj.r_eq).min(cj.delta),
@@ -76,6 +77,7 @@ impl Coupling {
                     };
                     if info.distance < cj.delta || info.inside {
                         near.push((i, k, signed));
+                        near_infos.push(info);
                     }
                     if strength > 0.0 && signed < range {
                         // Along the outward normal of cell j at its nearest quadrature point.
@@ -111,10 +113,11 @@ impl Coupling {
                     .collect();
                 let mut u_near = vec![0.0; 3 * pts.len()];
                 e.near
-                    .evaluate(
+                    .evaluate_classified(
                         LayerKernel::SingleLayer { viscosity: mu },
                         s.traction,
                         &pts,
+                        &near_infos,
                         &mut u_near,
                     )
                     .map_err(vesicle)?;
