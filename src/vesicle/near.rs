@@ -19,7 +19,14 @@
 //!   RBCs at p = 8, 4 % apart, the check points gave 1.1e-2 relative error, the order-192
 //!   quadrature 2e-7 (against a direct quadrature at order 256).
 //! * Classification: far targets are inside when the solid-angle (Gauss) integral
-//!   `(1/4π) ∫ (y − x)·n / |y − x|³ dA` exceeds ½; near targets by the side of the normal at `X*`.
+//!   `(1/4π) ∫ (y − x)·n / |y − x|³ dA` exceeds ½ (taken only where the nearest grid point's
+//!   normal does not already say outside); near targets by the side of the normal at `X*`.
+//!   A caller evaluating several densities at the same targets on the same surface classifies
+//!   once ([`OffSurface::evaluate_classified`]).
+//! * Cost: a call first routes every target (far rule, refined rule, or check points), then
+//!   sums each rule at all its points in one batch of cache-sized blocks with vectorised
+//!   kernels ([`super::smooth_sources`]); a wall's order-6p rule has 10⁵ nodes, and summing it
+//!   one target at a time was 5× slower (`cargo bench --bench off_surface`).
 //!
 //! Defaults: `δ = R_eq / √p` (a wider `~2R/√p`, which at `p = 16` would put inner
 //! check points of a sphere beyond its centre), 12 check points spaced `δ/10` (the nodes span
