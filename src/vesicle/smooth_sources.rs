@@ -15,6 +15,32 @@
 //! point-to-point loops ([`crate::fmm::p2p`]); the chunks run on rayon's threads. Each target's
 //! sum is taken by one thread in a fixed order, so the result does not depend on the number of
 //! threads.
+//!
+//! ```
+//! use mobo::vesicle::smooth_sources::SmoothSources;
+//! use mobo::vesicle::{shapes, Geometry, LayerKernel, SurfaceCalculus};
+//!
+//! // The unit sphere at order 24 and a unit density along x.
+//! let q = 24;
+//! let mut g = Geometry::zeros(q);
+//! SurfaceCalculus::new(q)?.update_geometry(shapes::sphere(q, 1.0)?.coefs(), &mut g)?;
+//! let n = g.n_points();
+//! let mut f = vec![0.0; 3 * n];
+//! f[..n].fill(1.0);
+//! let mut src = SmoothSources::new();
+//! src.set_geometry(&g);
+//! src.set_density(&f)?;
+//! // Far away the single layer is a Stokeslet of the total force 4π e_x (μ = 1).
+//! let x = [0.0, 0.0, 30.0];
+//! let mut u = [0.0; 3];
+//! src.add_to(LayerKernel::SingleLayer { viscosity: 1.0 }, &[x], &mut u)?;
+//! let stokeslet = 4.0 * std::f64::consts::PI / (8.0 * std::f64::consts::PI * 30.0);
+//! assert!((u[0] / stokeslet - 1.0).abs() < 1e-3);
+//! // Outside a closed surface the solid angle is zero, inside one.
+//! assert!(src.solid_angle(x).abs() < 1e-10);
+//! assert!((src.solid_angle([0.1, 0.2, 0.0]) - 1.0).abs() < 1e-10);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 use rayon::prelude::*;
 
