@@ -11,41 +11,18 @@
 //! the targets the 144 grid points of a unit sphere on its axis (a/R = 0.9). A stresslet pair
 //! is counted as 30 flops (the GEMM-equivalent column: pairs × 30 / GEMM rate).
 
-use std::hint::black_box;
-use std::time::Instant;
+mod common;
 
-use faer::linalg::matmul::matmul;
-use faer::{Accum, Mat, Par};
+use std::hint::black_box;
+
+use common::{best_of, gemm_rate};
+use faer::Par;
 use mobo::sph_harmonics::{resample_coefs, CoefLayout, ShTransform};
 use mobo::vesicle::smooth_sources::SmoothSources;
 use mobo::vesicle::{shapes, Geometry, LayerKernel, NearParams, OffSurface, SurfaceCalculus};
 use mobo::wall::tube_surface;
 
 const FLOPS_PER_PAIR: f64 = 30.0;
-
-fn gemm_rate(n: usize) -> f64 {
-    let a = Mat::<f64>::from_fn(n, n, |i, j| ((i * 7 + j * 3) % 11) as f64 - 5.0);
-    let b = Mat::<f64>::from_fn(n, n, |i, j| ((i * 5 + j) % 13) as f64 - 6.0);
-    let mut c = Mat::<f64>::zeros(n, n);
-    let flops = 2.0 * (n * n * n) as f64;
-    let mut run = || {
-        matmul(
-            c.as_mut(),
-            Accum::Replace,
-            a.as_ref(),
-            b.as_ref(),
-            1.0,
-            Par::Seq,
-        )
-    };
-    run();
-    let t = Instant::now();
-    let reps = 10;
-    for _ in 0..reps {
-        run();
-    }
-    flops * reps as f64 / t.elapsed().as_secs_f64() / 1e9
-}
 
 /// The per-target loop over an array of structures (the reference).
 fn one_at_a_time(g: &Geometry, dens: &[f64], x: [f64; 3]) -> [f64; 3] {
@@ -68,17 +45,6 @@ fn one_at_a_time(g: &Geometry, dens: &[f64], x: [f64; 3]) -> [f64; 3] {
     u.map(|v| v * 3.0 / (4.0 * std::f64::consts::PI))
 }
 
-fn seconds(mut f: impl FnMut()) -> f64 {
-    f();
-    let mut best = f64::INFINITY;
-    for _ in 0..3 {
-        let t = Instant::now();
-        f();
-        best = best.min(t.elapsed().as_secs_f64());
-    }
-    best
-}
-
 fn main() {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
@@ -88,7 +54,7 @@ fn main() {
 }
 
 fn run() {
-    let gemm = gemm_rate(512);
+    let gemm = gemm_rate(512, Par::Seq);
     println!("faer GEMM 512² (1 thread): {gemm:.1} GFLOP/s\n");
     let (pw, radius, length) = (44, 1.0 / 0.9, 12.0);
     let tube = tube_surface(pw, radius, length).expect("tube");
@@ -134,7 +100,7 @@ fn run() {
     let pairs = (many.len() * nq) as f64;
 
     let mut want = vec![[0.0; 3]; many.len()];
-    let t_ref = seconds(|| {
+    let t_ref = best_of(3, 0.0, || {
         for (w, &x) in want.iter_mut().zip(&many) {
             *w = one_at_a_time(&g, &dens, x);
         }
@@ -144,7 +110,7 @@ fn run() {
     src.set_geometry(&g);
     src.set_density(&dens).expect("density");
     let mut got = vec![0.0; 3 * many.len()];
-    let t_blk = seconds(|| {
+    let t_blk = best_of(3, 0.0, || {
         got.fill(0.0);
         src.add_to(LayerKernel::DoubleLayer, &many, &mut got)
             .expect("block sums");
@@ -201,7 +167,7 @@ fn run() {
     let on_surface = vec![0.0; 3 * nw];
     let mut out = vec![0.0; 3 * targets.len()];
     let mut infos = vec![];
-    let t_eval = seconds(|| {
+    let t_eval = best_of(3, 0.0, || {
         infos = near
             .evaluate_given_on_surface(
                 LayerKernel::DoubleLayer,

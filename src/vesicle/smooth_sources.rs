@@ -184,17 +184,7 @@ impl SmoothSources {
         let mut start = 0;
         while start < n {
             let end = (start + SOURCE_BLOCK).min(n);
-            let view = SourceView {
-                x: &self.x[0][start..end],
-                y: &self.x[1][start..end],
-                z: &self.x[2][start..end],
-                q: [&self.da[start..end], &[], &[], &[]],
-                n: [
-                    &self.n[0][start..end],
-                    &self.n[1][start..end],
-                    &self.n[2][start..end],
-                ],
-            };
+            let view = self.block(start..end, [&self.da[start..end], &[], &[], &[]]);
             let mut out = [0.0];
             p2p::laplace_dl(&[x], &view, &mut out);
             sum += out[0];
@@ -204,28 +194,32 @@ impl SmoothSources {
         -sum
     }
 
+    /// The nodes `range` with their normals, carrying the densities `q`.
+    fn block<'a>(&'a self, range: std::ops::Range<usize>, q: [&'a [f64]; 4]) -> SourceView<'a> {
+        SourceView {
+            x: &self.x[0][range.clone()],
+            y: &self.x[1][range.clone()],
+            z: &self.x[2][range.clone()],
+            q,
+            n: [
+                &self.n[0][range.clone()],
+                &self.n[1][range.clone()],
+                &self.n[2][range],
+            ],
+        }
+    }
+
     /// `Σ_j K(t − y_j) f_j dA_j` into `acc` (zeroed), over the nodes in blocks.
     fn sum_chunk(&self, kernel: LayerKernel, t: &[[f64; 3]], acc: &mut [f64]) {
         let n = self.len();
         let mut start = 0;
         while start < n {
             let end = (start + SOURCE_BLOCK).min(n);
-            let view = SourceView {
-                x: &self.x[0][start..end],
-                y: &self.x[1][start..end],
-                z: &self.x[2][start..end],
-                q: [
-                    &self.f[0][start..end],
-                    &self.f[1][start..end],
-                    &self.f[2][start..end],
-                    &[],
-                ],
-                n: [
-                    &self.n[0][start..end],
-                    &self.n[1][start..end],
-                    &self.n[2][start..end],
-                ],
-            };
+            let f = &self.f;
+            let view = self.block(
+                start..end,
+                [&f[0][start..end], &f[1][start..end], &f[2][start..end], &[]],
+            );
             match kernel {
                 LayerKernel::SingleLayer { .. } => p2p::stokeslet(t, &view, acc),
                 LayerKernel::DoubleLayer => p2p::stresslet(t, &view, acc),
