@@ -214,7 +214,8 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
         source: TimestepError::Wall(e),
     };
     let mut walls = vec![];
-    // A tube container carrying a tube flow moves with it (in at one end, out at the other);
+    // A tube container carrying a tube flow, or a channel carrying a channel flow, moves with
+    // it (in at one end, out at the other);
     // a wall with an angular velocity turns in place; a grid wall moves as its velocity file
     // says; every other wall is at rest.
     let mut velocity = vec![];
@@ -223,7 +224,8 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
         let wall = Wall::new(w.kind, surface).map_err(|e| fail(format!("wall {k}: {e}")))?;
         let n = wall.n_points();
         let mut u = vec![0.0; 3 * n];
-        if let (Flow::Tube { .. }, WallShape::Tube { .. }, WallKind::Container) =
+        if let (Flow::Tube { .. }, WallShape::Tube { .. }, WallKind::Container)
+        | (Flow::Channel { .. }, WallShape::Channel { .. }, WallKind::Container) =
             (scene.flow, &w.shape, w.kind)
         {
             for (j, &x) in wall.geometry().x.iter().enumerate() {

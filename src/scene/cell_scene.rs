@@ -8,7 +8,7 @@ use crate::timestep::near_implicit::CouplingMode;
 use crate::timestep::semi_implicit::{ElasticStepping, OperatorStorage, Preconditioning};
 use crate::vesicle::shapes::{self, Spheroid, Surface};
 use crate::vesicle::skalak::ElasticLaw;
-use crate::wall::{tube_surface, WallError, WallKind};
+use crate::wall::{channel_surface, tube_surface, WallError, WallKind};
 
 /// The lowest SH order that holds the red blood cell's shape ([`shapes::rbc`]: its height is
 /// `sin⁴θ cosθ` at most, a polynomial of degree 5).
@@ -80,6 +80,17 @@ pub enum Flow {
         /// The tube's radius `R`.
         radius: f64,
     },
+    /// Plane Poiseuille flow through the scene's channel wall (`[flow] kind = "channel"`):
+    /// `u = (U (1 − z²/H²), 0, 0)` with `2H` the channel's height (plate to plate, the plates
+    /// at `z = ±H`); the channel's wall takes this velocity (zero on the plates, the undisturbed
+    /// flow across its sides and ends).
+    Channel {
+        /// Centreline speed `U` (from `mean_speed` `2U/3`, `speed`, or `pressure_gradient`
+        /// `G = 2μU/H²`).
+        speed: f64,
+        /// Half the channel's height, `H`.
+        half_height: f64,
+    },
 }
 
 /// The straight middle section of a tube, through which cells are recycled (`[flow] recycle =
@@ -124,7 +135,7 @@ impl Flow {
     }
 
     /// The flow's rate scale `γ̇`: the shear or strain rate, `|U|/R` of a Poiseuille or tube
-    /// flow, 0 without a flow.
+    /// flow, `|U|/H` of a channel flow, 0 without a flow.
     pub fn rate_scale(&self) -> f64 {
         match *self {
             Flow::None => 0.0,
@@ -132,12 +143,14 @@ impl Flow {
             Flow::Poiseuille { speed, radius } | Flow::Tube { speed, radius } => {
                 (speed / radius).abs()
             }
+            Flow::Channel { speed, half_height } => (speed / half_height).abs(),
         }
     }
 
     /// The background flow's stress `σ₀ = −p₀ I + μ (∇u₀ + ∇u₀ᵀ)` at `x` (lab frame) in a
     /// fluid of viscosity `mu`, up to a constant pressure: the pressure gradient
-    /// `∇p₀ = −(4μU/R²) e_x` of a Poiseuille or tube flow (taken zero at `x = 0`), and the rate of
+    /// `∇p₀ = −(4μU/R²) e_x` of a Poiseuille or tube flow and `−(2μU/H²) e_x` of a channel
+    /// flow (taken zero at `x = 0`), and the rate of
     /// strain of every flow (an extensional flow's is the same about any origin).
     pub fn stress(&self, x: [f64; 3], mu: f64) -> [[f64; 3]; 3] {
         match *self {
@@ -158,6 +171,12 @@ impl Flow {
                 let (sy, sz) = (-2.0 * mu * speed * x[1] / r2, -2.0 * mu * speed * x[2] / r2);
                 [[minus_p, sy, sz], [sy, minus_p, 0.0], [sz, 0.0, minus_p]]
             }
+            Flow::Channel { speed, half_height } => {
+                let h2 = half_height * half_height;
+                let minus_p = 2.0 * mu * speed / h2 * x[0];
+                let sz = -2.0 * mu * speed * x[2] / h2;
+                [[minus_p, 0.0, sz], [0.0, minus_p, 0.0], [sz, 0.0, minus_p]]
+            }
         }
     }
 
@@ -169,6 +188,11 @@ impl Flow {
             Flow::Extensional { rate, .. } => [rate * x[0], -rate * x[1], 0.0],
             Flow::Poiseuille { speed, radius } | Flow::Tube { speed, radius } => [
                 speed * (1.0 - (x[1] * x[1] + x[2] * x[2]) / (radius * radius)),
+                0.0,
+                0.0,
+            ],
+            Flow::Channel { speed, half_height } => [
+                speed * (1.0 - x[2] * x[2] / (half_height * half_height)),
                 0.0,
                 0.0,
             ],
@@ -462,6 +486,16 @@ pub enum WallShape {
         /// Its length end to end.
         length: f64,
     },
+    /// A planar channel along x, its plates normal to z, closed into a rounded box
+    /// ([`crate::wall::channel_surface`]).
+    Channel {
+        /// Its length end to end (along x).
+        length: f64,
+        /// Its width side to side (along y).
+        width: f64,
+        /// Its height plate to plate (along z).
+        height: f64,
+    },
     /// A surface given by the user as points on the spherical grid (`shape = "grid"`,
     /// [`super::walls`]): its order-`p` coefficients, and those of the velocity given at
     /// the same points (none: at rest).
@@ -524,6 +558,10 @@ pub struct PlaneSpec {
 /// Default order of a wall.
 pub const DEFAULT_WALL_ORDER: usize = 16;
 
+/// Default order of a channel wall (plane Poiseuille flow to 2·10⁻⁵ in the middle of a
+/// channel 5 heights long and wide: `docs/walls.md`).
+pub const DEFAULT_CHANNEL_ORDER: usize = 32;
+
 /// Default order of a tube wall (Poiseuille's flow to 2·10⁻⁵ through a tube 6 radii long;
 /// longer tubes need more: `docs/walls.md`).
 pub const DEFAULT_TUBE_ORDER: usize = 32;
@@ -535,6 +573,11 @@ impl WallSpec {
             WallShape::Sphere { radius } => shapes::sphere(self.order, radius)?,
             WallShape::Ellipsoid { axes } => shapes::ellipsoid(self.order, axes)?,
             WallShape::Tube { radius, length } => tube_surface(self.order, radius, length)?,
+            WallShape::Channel {
+                length,
+                width,
+                height,
+            } => channel_surface(self.order, length, width, height)?,
             WallShape::Grid { p, ref coefs, .. } => {
                 Surface::from_coefs(p, coefs.to_vec())?.resampled(self.order)?
             }
@@ -613,6 +656,10 @@ mod tests {
             Flow::Tube {
                 speed: 2.0,
                 radius: 1.8,
+            },
+            Flow::Channel {
+                speed: -1.2,
+                half_height: 1.5,
             },
         ];
         let h = 1e-4;

@@ -11,6 +11,7 @@
 //!
 //! [flow]
 //! kind = "shear"                  # "none" | "shear" | "extensional" | "poiseuille" | "tube"
+//!                                 # | "channel"
 //! rate = 1.0                      # shear: u = (γ̇ y, 0, 0); extensional: u = ε̇ (x, −y, 0)
 //! # speed = 1.0, radius = 5.0     # poiseuille along x: u = U (1 − (y² + z²)/R²), free space
 //! # flow_rate = 2.0               # tube: Poiseuille's flow through the tube wall, driven by
@@ -229,13 +230,15 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
                     }
                     Flow::Poiseuille { speed, radius }
                 }
-                // Set once the walls are read (the tube's radius drives it).
-                "tube" => Flow::None,
+                // Set once the walls are read (the tube's radius or the channel's height
+                // drives it).
+                "tube" | "channel" => Flow::None,
                 other => {
                     return Err(at(
                         fl.kind.span(),
                         format!(
-                            "[flow] kind: unknown flow \"{other}\" (none, shear, extensional, poiseuille, tube)"
+                            "[flow] kind: unknown flow \"{other}\" (none, shear, extensional, poiseuille, \
+                             tube, channel)"
                         ),
                     ))
                 }

@@ -140,6 +140,8 @@ pub(crate) struct WallSection {
     pub(super) radius: Option<Spanned<f64>>,
     pub(super) axes: Option<Spanned<[f64; 3]>>,
     pub(super) length: Option<Spanned<f64>>,
+    pub(super) width: Option<Spanned<f64>>,
+    pub(super) height: Option<Spanned<f64>>,
     pub(super) center: Option<Spanned<[f64; 3]>>,
     pub(super) order: Option<Spanned<usize>>,
     pub(super) angular_velocity: Option<Spanned<[f64; 3]>>,

@@ -145,6 +145,11 @@ impl PackingWalls {
             WallShape::Sphere { radius } => [radius; 3],
             WallShape::Ellipsoid { axes } => axes,
             WallShape::Tube { radius, length } => [length / 2.0, radius, radius],
+            WallShape::Channel {
+                length,
+                width,
+                height,
+            } => [length / 2.0, width / 2.0, height / 2.0],
             WallShape::Grid { .. } => {
                 // The bounding box of the surface's grid points.
                 let s = container

@@ -106,6 +106,8 @@ pub enum WallShapeKind {
     Ellipsoid,
     /// Needs `radius` and `length` (axis along x).
     Tube,
+    /// Needs `length` (along x), `width` (along y) and `height` (along z, plate to plate).
+    Channel,
     /// Needs `positions`: a `.npy` file of the surface's points on the spherical grid.
     Grid,
     /// Needs `normal` (into the fluid); `center` is a point of it. `kind` is `body`.
@@ -126,13 +128,19 @@ pub struct WallEntrySpec {
     /// `axes` of an ellipsoid.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub axes: Option<[f64; 3]>,
-    /// `length` of a tube (end to end).
+    /// `length` of a tube or a channel (end to end).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub length: Option<f64>,
+    /// `width` of a channel (side to side).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub width: Option<f64>,
+    /// `height` of a channel (plate to plate).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub height: Option<f64>,
     /// `center` (default the origin).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub center: Option<[f64; 3]>,
-    /// `order` (default 16, a tube 32).
+    /// `order` (default 16, a tube or a channel 32).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub order: Option<usize>,
     /// `angular_velocity`: the wall turns about its centre (about an axis of symmetry).
@@ -175,6 +183,9 @@ pub enum FlowKind {
     /// Poiseuille's flow through the scene's tube wall; needs one of `flow_rate`,
     /// `mean_speed`, `speed`, `pressure_gradient`.
     Tube,
+    /// Plane Poiseuille flow between the plates of the scene's channel wall; needs one of
+    /// `mean_speed`, `speed`, `pressure_gradient`.
+    Channel,
 }
 
 /// `[flow] frame` of an extensional flow.
@@ -205,10 +216,10 @@ pub struct FlowSpec {
     /// `flow_rate` through a tube.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub flow_rate: Option<f64>,
-    /// `mean_speed` through a tube.
+    /// `mean_speed` through a tube or a channel.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mean_speed: Option<f64>,
-    /// `pressure_gradient` `−dp/dx` along a tube.
+    /// `pressure_gradient` `−dp/dx` along a tube or a channel.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub pressure_gradient: Option<f64>,
     /// `recycle`: cells leaving a tube's straight section re-enter it upstream.

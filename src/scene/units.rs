@@ -203,6 +203,8 @@ pub(super) fn to_dimensionless(f: &mut File, at: At) -> Result<Option<UnitScales
     for w in f.walls.iter_mut().flatten() {
         scale(&mut w.radius, l);
         scale(&mut w.length, l);
+        scale(&mut w.width, l);
+        scale(&mut w.height, l);
         scale3(&mut w.axes, l);
         scale3(&mut w.center, l);
         scale3(&mut w.angular_velocity, 1.0 / t);

@@ -5,16 +5,19 @@
 //! [[walls]]
 //! kind = "container"       # "container" (the fluid inside: a cavity, a closed vessel) |
 //! #                        # "body" (a fixed obstacle, the fluid outside)
-//! shape = "sphere"         # "sphere" | "ellipsoid" | "tube" | "grid" | "plane"
+//! shape = "sphere"         # "sphere" | "ellipsoid" | "tube" | "channel" | "grid" | "plane"
 //! radius = 4.0             # sphere, tube
 //! # axes = [6.0, 4.0, 3.0] # ellipsoid semi-axes
-//! # length = 24.0          # tube: end to end along x (at least 2 radii), rounded ends
+//! # length = 24.0          # tube: end to end along x (at least 2 radii), rounded ends;
+//! #                        # channel: end to end along x
+//! # width = 16.0           # channel: side to side along y (at least the height)
+//! # height = 4.0           # channel: plate to plate along z
 //! # positions = "vessel.npy"          # grid: the surface's points (below)
 //! # velocity = "vessel_velocity.npy"  # grid: the wall's velocity at the same points
 //! # normal = [0.0, 1.0, 0.0]          # plane: its normal, into the fluid
 //! center = [0.0, 0.0, 0.0]
 //! order = 16               # spherical-harmonic order of the wall (4 to 64; default 16, a
-//!                          # tube 32, a grid wall its file's order)
+//!                          # tube or a channel 32, a grid wall its file's order)
 //! # angular_velocity = [0.0, 0.0, 1.0]  # turn in place about the center (default at rest)
 //! ```
 //!
@@ -31,6 +34,11 @@
 //! writes a stenosed vessel and the velocity that drives Poiseuille's flow through it. A run
 //! copies the files into `DIR/walls/` and names them there in its scene copy, so `--resume`
 //! reads the same wall.
+//!
+//! **A channel** (`shape = "channel"`, a container): two plates `z = ±height/2` about the
+//! `center`, closed at their edges into one rounded box ([`crate::wall::channel_surface`]),
+//! with `[flow] kind = "channel"` carrying plane Poiseuille flow between them and across
+//! the sides and the ends ([`super::tube_flow`]).
 //!
 //! **A plane wall** (`shape = "plane"`, `kind = "body"`): the infinite plane through `center`
 //! (default the origin) with `normal` pointing into the fluid, at rest, by Blake's images
@@ -54,7 +62,8 @@ use toml::Spanned;
 
 use super::cell_scene::CellSpec;
 pub use super::cell_scene::{
-    PlaneSpec, WallFile, WallShape, WallSpec, DEFAULT_TUBE_ORDER, DEFAULT_WALL_ORDER,
+    PlaneSpec, WallFile, WallShape, WallSpec, DEFAULT_CHANNEL_ORDER, DEFAULT_TUBE_ORDER,
+    DEFAULT_WALL_ORDER,
 };
 use super::cells_schema::{Origin, WallSection};
 use super::line_col;
@@ -125,8 +134,20 @@ pub(super) fn walls(
             return Err(at(n.span(), format!("{name}: normal is for a plane")));
         }
         let positive = |v: f64| v.is_finite() && v > 0.0;
-        if let (Some(l), false) = (&w.length, w.shape.get_ref() == "tube") {
-            return Err(at(l.span(), format!("{name}: length is for a tube")));
+        let channel = w.shape.get_ref() == "channel";
+        if let (Some(l), false) = (&w.length, w.shape.get_ref() == "tube" || channel) {
+            return Err(at(
+                l.span(),
+                format!("{name}: length is for a tube or a channel"),
+            ));
+        }
+        for (key, given) in [("width", &w.width), ("height", &w.height)] {
+            if let (Some(v), false) = (given, channel) {
+                return Err(at(
+                    v.span(),
+                    format!("{name}: {key} is for a channel (shape = \"channel\")"),
+                ));
+            }
         }
         let grid = w.shape.get_ref() == "grid";
         for (key, given) in [("positions", &w.positions), ("velocity", &w.velocity)] {
@@ -166,6 +187,55 @@ pub(super) fn walls(
                     ));
                 }
                 WallShape::Tube { radius, length }
+            }
+            "channel" => {
+                for (key, span) in [
+                    ("radius", w.radius.as_ref().map(|v| v.span())),
+                    ("axes", w.axes.as_ref().map(|v| v.span())),
+                ] {
+                    if let Some(span) = span {
+                        return Err(at(
+                            span,
+                            format!(
+                                "{name}: {key} is not for a channel (its extents are length, \
+                                 width and height)"
+                            ),
+                        ));
+                    }
+                }
+                let (Some(l), Some(wd), Some(h)) = (&w.length, &w.width, &w.height) else {
+                    return Err(at(
+                        w.shape.span(),
+                        format!(
+                            "{name}: a channel needs length (along x), width (along y) and \
+                             height (along z, plate to plate)"
+                        ),
+                    ));
+                };
+                let height = *h.get_ref();
+                if !positive(height) {
+                    return Err(at(
+                        h.span(),
+                        format!("{name}: height must be positive, got {height}"),
+                    ));
+                }
+                for (key, v) in [("length", l), ("width", wd)] {
+                    let x = *v.get_ref();
+                    if !(x.is_finite() && x >= height) {
+                        return Err(at(
+                            v.span(),
+                            format!(
+                                "{name}: {key} must be at least the height {height} (plate to \
+                                 plate), got {x}"
+                            ),
+                        ));
+                    }
+                }
+                WallShape::Channel {
+                    length: *l.get_ref(),
+                    width: *wd.get_ref(),
+                    height,
+                }
             }
             "sphere" => {
                 if let Some(a) = &w.axes {
@@ -291,8 +361,8 @@ pub(super) fn walls(
                 return Err(at(
                     w.shape.span(),
                     format!(
-                        "{name}: shape must be \"sphere\", \"ellipsoid\", \"tube\", \"grid\" \
-                         or \"plane\", got \"{other}\""
+                        "{name}: shape must be \"sphere\", \"ellipsoid\", \"tube\", \
+                         \"channel\", \"grid\" or \"plane\", got \"{other}\""
                     ),
                 ))
             }
@@ -313,6 +383,7 @@ pub(super) fn walls(
             }
             Some(o) => *o.get_ref(),
             None if matches!(shape, WallShape::Tube { .. }) => DEFAULT_TUBE_ORDER,
+            None if matches!(shape, WallShape::Channel { .. }) => DEFAULT_CHANNEL_ORDER,
             None => match shape {
                 WallShape::Grid { p, .. } if (4..=64).contains(&p) => p,
                 WallShape::Grid { p, .. } => {
@@ -348,6 +419,7 @@ pub(super) fn walls(
                             && (om[2] == 0.0 || same(a, b))
                     }
                     WallShape::Tube { .. } => om[1] == 0.0 && om[2] == 0.0,
+                    WallShape::Channel { .. } => false,
                     WallShape::Grid { .. } => false,
                 };
                 if !keeps {
@@ -408,6 +480,8 @@ fn plane_entry(
         ("radius", w.radius.as_ref().map(|v| v.span())),
         ("axes", w.axes.as_ref().map(|v| v.span())),
         ("length", w.length.as_ref().map(|v| v.span())),
+        ("width", w.width.as_ref().map(|v| v.span())),
+        ("height", w.height.as_ref().map(|v| v.span())),
         ("order", w.order.as_ref().map(|v| v.span())),
         (
             "angular_velocity",

@@ -69,6 +69,7 @@
 //! assert!((f[0] + 6.0 * std::f64::consts::PI).abs() < 1e-8);
 //! ```
 
+mod channel;
 mod field;
 mod plane;
 mod quadrature;
@@ -76,6 +77,7 @@ mod surface;
 mod system;
 mod tube;
 
+pub use channel::{channel_surface, flat_fraction, CHANNEL_EXPONENT};
 pub use field::{scatter_add, WallField};
 pub use plane::PlaneWall;
 pub use surface::{Wall, WallKind};
