@@ -53,7 +53,9 @@
 //! and the field), and a sphere at the centre of a spherical container against the exact drag
 //! of Williams (1915) / Haberman & Sayre (1958), `K = (1 − λ⁵)/(1 − 9λ/4 + 5λ³/2 − 9λ⁵/4 + λ⁶)`;
 //! Poiseuille's flow through a [`tube_surface`] (exact), and a sphere on the axis of the tube
-//! against the drag of Haberman & Sayre (1958) and Bohlin (1960).
+//! against the drag of Haberman & Sayre (1958) and Bohlin (1960); plane Poiseuille flow between
+//! the plates of a [`channel_surface`] (exact), and a sphere midway between them against
+//! Faxén's drag (Happel & Brenner 1965, eq. 7-4.39).
 //!
 //! ```
 //! use mobo::vesicle::shapes;
