@@ -671,7 +671,7 @@ fn tube_flows_are_read_and_checked() {
         (
             settling_scene(2.0, 8, 4) + "[flow]\nkind = \"shear\"\nrate = 1.0\nflow_rate = 2.0\n",
             26,
-            "applies to kind = \"tube\" only",
+            "applies to kind = \"tube\" or \"channel\" only",
         ),
         (
             settling_scene(2.0, 8, 4) + "[flow]\nkind = \"shear\"\nrate = 1.0\nrecycle = true\n",
