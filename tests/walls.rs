@@ -311,16 +311,35 @@ fn bad_walls_and_data_are_refused_with_the_reason() {
     assert!(matches!(e, WallError::NotInFluid { index: 1, .. }), "{e}");
 }
 
+/// The largest error, at `targets`, of the flow `exact` inside the container `surface` that
+/// carries it on its whole wall (an exact Stokes flow: the solve must return it inside).
+fn container_flow_error(
+    surface: Surface,
+    exact: impl Fn([f64; 3]) -> [f64; 3],
+    targets: &[[f64; 3]],
+) -> f64 {
+    let wall = Wall::new(WallKind::Container, surface).unwrap();
+    let u = on_wall(&wall, &exact);
+    let system = WallSystem::new(vec![wall], WallParams::default()).unwrap();
+    let solution = system.solve(&u).unwrap();
+    let mut field = WallField::new(&system, NearParams::default()).unwrap();
+    let mut got = vec![0.0; 3 * targets.len()];
+    field.velocity(&solution, targets, &mut got).unwrap();
+    let n = targets.len();
+    let mut err: f64 = 0.0;
+    for (i, &x) in targets.iter().enumerate() {
+        let e = exact(x);
+        for a in 0..3 {
+            err = err.max((got[a * n + i] - e[a]).abs());
+        }
+    }
+    err
+}
+
 /// The largest error of Poiseuille's flow `U (1 − r²/R²)` through a tube of radius 1 and
 /// length 6 at order `p` (the profile prescribed on the whole wall), at points of the middle
 /// third (`|x| ≤ 1`) up to `r = 0.9`.
 fn tube_poiseuille_error(p: usize) -> f64 {
-    let tube = Wall::new(WallKind::Container, tube_surface(p, 1.0, 6.0).unwrap()).unwrap();
-    let pois = |x: [f64; 3]| [1.0 - x[1] * x[1] - x[2] * x[2], 0.0, 0.0];
-    let u = on_wall(&tube, pois);
-    let system = WallSystem::new(vec![tube], WallParams::default()).unwrap();
-    let solution = system.solve(&u).unwrap();
-    let mut field = WallField::new(&system, NearParams::default()).unwrap();
     let mut targets = vec![];
     for i in 0..=20 {
         for j in 0..6 {
@@ -328,17 +347,11 @@ fn tube_poiseuille_error(p: usize) -> f64 {
             targets.push([-1.0 + 0.4 * j as f64, r * phi.cos(), r * phi.sin()]);
         }
     }
-    let mut got = vec![0.0; 3 * targets.len()];
-    field.velocity(&solution, &targets, &mut got).unwrap();
-    let n = targets.len();
-    let mut err: f64 = 0.0;
-    for (i, &x) in targets.iter().enumerate() {
-        let e = pois(x);
-        for a in 0..3 {
-            err = err.max((got[a * n + i] - e[a]).abs());
-        }
-    }
-    err
+    container_flow_error(
+        tube_surface(p, 1.0, 6.0).unwrap(),
+        |x| [1.0 - x[1] * x[1] - x[2] * x[2], 0.0, 0.0],
+        &targets,
+    )
 }
 
 /// Poiseuille's flow through a finite tube with the profile as its inflow and outflow: the
@@ -364,16 +377,6 @@ fn tube_poiseuille_to_1e_6() {
 /// `2H = 2`, 10 long and 10 wide, at order `p` (the profile prescribed on the whole wall), at
 /// points across the height up to `|z| = 0.9` in the middle (`|x|, |y| ≤ 1.5`).
 fn channel_poiseuille_error(p: usize) -> f64 {
-    let channel = Wall::new(
-        WallKind::Container,
-        channel_surface(p, 10.0, 10.0, 2.0).unwrap(),
-    )
-    .unwrap();
-    let pois = |x: [f64; 3]| [1.0 - x[2] * x[2], 0.0, 0.0];
-    let u = on_wall(&channel, pois);
-    let system = WallSystem::new(vec![channel], WallParams::default()).unwrap();
-    let solution = system.solve(&u).unwrap();
-    let mut field = WallField::new(&system, NearParams::default()).unwrap();
     let mut targets = vec![];
     for i in 0..=20 {
         for j in 0..6 {
@@ -381,17 +384,11 @@ fn channel_poiseuille_error(p: usize) -> f64 {
             targets.push([-1.5 + 0.6 * j as f64, 1.5 - 0.6 * j as f64, z]);
         }
     }
-    let mut got = vec![0.0; 3 * targets.len()];
-    field.velocity(&solution, &targets, &mut got).unwrap();
-    let n = targets.len();
-    let mut err: f64 = 0.0;
-    for (i, &x) in targets.iter().enumerate() {
-        let e = pois(x);
-        for a in 0..3 {
-            err = err.max((got[a * n + i] - e[a]).abs());
-        }
-    }
-    err
+    container_flow_error(
+        channel_surface(p, 10.0, 10.0, 2.0).unwrap(),
+        |x| [1.0 - x[2] * x[2], 0.0, 0.0],
+        &targets,
+    )
 }
 
 /// Plane Poiseuille flow between the plates of a channel box, the undisturbed profile on its
