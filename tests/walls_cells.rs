@@ -111,6 +111,17 @@ fn scene_error(text: &str) -> String {
         .to_string()
 }
 
+/// The scene `text` is refused at line `line` of `walls.toml` with a message containing
+/// `needle`.
+fn refused_at(text: &str, line: usize, needle: &str) {
+    let e = scene_error(text);
+    assert!(
+        e.starts_with(&format!("walls.toml:{line}:")),
+        "{line} {needle}: {e}"
+    );
+    assert!(e.contains(needle), "{needle}: {e}");
+}
+
 /// Bad `[[walls]]` entries and cells outside the fluid are refused with the file, the line and
 /// the reason.
 #[test]
@@ -164,9 +175,7 @@ fn bad_walls_are_refused_with_the_place_and_reason() {
             "inside wall 0",
         ),
     ] {
-        let e = scene_error(&wall(body));
-        assert!(e.starts_with(&format!("walls.toml:{line}:")), "{body}: {e}");
-        assert!(e.contains(needle), "{body}: {e}");
+        refused_at(&wall(body), line, needle);
     }
     let two = format!(
         "{cell}[[walls]]\nkind = \"container\"\nshape = \"sphere\"\nradius = 3.0\n\
@@ -679,12 +688,7 @@ fn tube_flows_are_read_and_checked() {
             "recycle applies to kind = \"tube\" only",
         ),
     ] {
-        let e = scene_error(&text);
-        assert!(
-            e.starts_with(&format!("walls.toml:{line}:")),
-            "{line} {needle}: {e}"
-        );
-        assert!(e.contains(needle), "{needle}: {e}");
+        refused_at(&text, line, needle);
     }
 }
 
@@ -951,11 +955,6 @@ fn channel_flows_are_read_and_checked() {
             "recycle applies to kind = \"tube\" only",
         ),
     ] {
-        let e = scene_error(&text);
-        assert!(
-            e.starts_with(&format!("walls.toml:{line}:")),
-            "{line} {needle}: {e}"
-        );
-        assert!(e.contains(needle), "{needle}: {e}");
+        refused_at(&text, line, needle);
     }
 }
