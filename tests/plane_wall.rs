@@ -155,9 +155,10 @@ fn a_sphere_approaches_the_plane_at_brenners_rate() {
 /// are strong. With the explicit coupling they lag a step behind it, and the speed settles over
 /// tens of steps (148 % fast in the first, 10 % after ten); with the near-implicit coupling
 /// (the default beside a plane) they enter the step's own solve, and the first step is within
-/// 1.6 % of Brenner's rate. What remains, 1.1 % at p = 8, is the images' quadrature at order
-/// `3p` (the grid's nearest points lie 0.32 from their images, 2.4 spacings of it): 2.3e-3 at
-/// p = 12. The sphere is stiffer than the others here (bending 2e4): at 200 its own elastic
+/// 1.6 % of Brenner's rate. What remains, 1.1 % at p = 8 and 2.3e-3 at p = 12, is the sphere's
+/// own resolution of a traction that peaks in the gap: the images' quadrature, refined near
+/// the mirror since the fourteenth session (`timestep::image_quadrature`), leaves the numbers
+/// as they were (1.58e-2, 9.9e-3, 1.0e-2 in the three steps). The sphere is stiffer than the others here (bending 2e4): at 200 its own elastic
 /// response to the wall's strain takes a few steps too (43 % in the first step).
 #[test]
 fn the_images_inside_the_step_give_brenners_rate_from_the_first_step() {
@@ -454,4 +455,130 @@ t_end = 0.4
         at_wall < 1e-6 * higher,
         "{at_wall} at the wall, {higher} above it"
     );
+}
+
+/// The images of an RBC pressed edge-on to the contact distance (`d_min = 0.05` at p = 8) at
+/// its own grid points, single and double layer, against the brute-force order-`32p` rule:
+/// within 2e-9 of their largest value on the ladder of rules (`timestep::image_quadrature`;
+/// 6.1e-10 measured), where the order-`3p` rule alone is off by 6.1e-2 (tilted by 30°: 6.9e-10
+/// and 1.6e-2). Summed as a step sums them (every cell's coarse sources, then each cell's
+/// refinement: `PlaneCoupling::velocities`) they agree with the routed sum for output
+/// (`add_cell_images`) to round-off.
+#[test]
+fn the_images_of_a_cell_at_the_contact_distance_are_refined_to_2e_9() {
+    use mobo::sph_harmonics::ShTransform;
+    use mobo::timestep::plane_coupling::{ImageCell, PlaneCoupling};
+    use mobo::vesicle::{shapes, smooth_layer::SmoothLayer};
+    use mobo::wall::PlaneWall;
+    let p = 8;
+    let sht = ShTransform::new(p).unwrap();
+    let n = sht.n_points();
+    // A tilted plane, so that the wall's frame is not the global one.
+    let normal = [0.1, 0.2, 1.0];
+    let wall = PlaneWall::new([0.0, 0.0, -1.0], normal).unwrap();
+    // The images on one rule: sources as `PlaneCoupling` builds them, in the wall's frame.
+    let on_rule = |q: usize, coefs: &[f64], f: &[f64], g: &[f64], t: &[[f64; 3]]| {
+        let mut rule = SmoothLayer::new(p, q, 3.0).unwrap();
+        rule.set_surface(coefs).unwrap();
+        rule.set_density(f).unwrap();
+        let single: Vec<_> = rule
+            .weighted_points()
+            .unwrap()
+            .into_iter()
+            .map(|(y, f)| (wall.to_local(y), wall.vector_to_local(f)))
+            .collect();
+        rule.set_density(g).unwrap();
+        let double: Vec<_> = rule
+            .weighted_points()
+            .unwrap()
+            .into_iter()
+            .zip(rule.normals())
+            .map(|((y, g), n)| {
+                [
+                    wall.to_local(y),
+                    wall.vector_to_local(g),
+                    wall.vector_to_local(*n),
+                ]
+            })
+            .collect();
+        let mut out = vec![0.0; 3 * t.len()];
+        wall.add_images(1.3, &single, t, &mut out).unwrap();
+        wall.add_double_layer_images(&double, t, &mut out).unwrap();
+        out
+    };
+    let largest_error = |a: &[f64], b: &[f64]| {
+        let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        a.iter()
+            .zip(b)
+            .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()))
+            / scale
+    };
+    // Edge-on: the rim faces the plane.
+    let (tilt, coarse_at_least) = (90.0f64, 1e-2);
+    let mut s = shapes::rbc(p).unwrap();
+    let a = tilt.to_radians();
+    s.rotate([
+        [1.0, 0.0, 0.0],
+        [0.0, a.cos(), -a.sin()],
+        [0.0, a.sin(), a.cos()],
+    ])
+    .unwrap();
+    // Down to 0.05 above the plane (its lowest point on a fine grid).
+    let fine = ShTransform::new(64).unwrap();
+    let nf = fine.n_points();
+    let g64 = s.resampled(64).unwrap().grid_positions(&fine).unwrap();
+    let low = (0..nf)
+        .map(|j| wall.height([g64[j], g64[nf + j], g64[2 * nf + j]]))
+        .fold(f64::INFINITY, f64::min);
+    let len = (normal.iter().map(|v| v * v).sum::<f64>()).sqrt();
+    s.translate(normal.map(|v| (0.05 - low) * v / len));
+    let pos = s.grid_positions(&sht).unwrap();
+    let t: Vec<[f64; 3]> = (0..n)
+        .map(|j| [pos[j], pos[n + j], pos[2 * n + j]])
+        .collect();
+    let field = |k: usize, c: [f64; 3]| -> Vec<f64> {
+        (0..3 * n)
+            .map(|i| {
+                let x = t[i % n];
+                let m = (i / n + k) % 3;
+                c[m] + 0.3 * x[m] - 0.2 * x[(m + 1) % 3] * x[(m + 2) % 3]
+            })
+            .collect()
+    };
+    let f = field(0, [1.0, -0.5, 2.0]);
+    let g = field(1, [0.4, 0.7, -0.3]);
+    let reference = on_rule(32 * p, s.coefs(), &f, &g, &t);
+    let coarse = largest_error(&on_rule(3 * p, s.coefs(), &f, &g, &t), &reference);
+    let mut plane = PlaneCoupling::new(wall, 1.3).unwrap();
+    let mut routed = vec![0.0; 3 * n];
+    plane
+        .add_cell_images(0, p, s.coefs(), &f, Some(&g), &t, &mut routed)
+        .unwrap();
+    let refined = largest_error(&routed, &reference);
+    let (single, double) = plane.cell_sources(0, p, s.coefs(), &f, Some(&g)).unwrap();
+    let cell = ImageCell {
+        p,
+        coefs: s.coefs(),
+        traction: &f,
+        double_layer: Some(&g),
+        single: 0..single.len() / 6,
+        double: 0..double.len() / 9,
+    };
+    let stepped = plane
+        .velocities(&single, &double, &[cell], std::slice::from_ref(&t))
+        .unwrap()
+        .remove(0);
+    let apart = largest_error(&stepped, &routed);
+    println!(
+        "tilt {tilt}: order 3p {coarse:.2e} off, refined {refined:.2e}, as a step sums \
+         them {apart:.2e} from that; refined cells {}",
+        plane.stats().refined_cells
+    );
+    assert!(
+        coarse > coarse_at_least,
+        "the coarse rule alone: {coarse:.2e}"
+    );
+    assert!(refined < 2e-9, "refined: {refined:.2e}");
+    assert!(apart < 1e-12, "as a step sums them: {apart:.2e}");
+    assert_eq!(plane.stats().refined_cells, 1);
 }

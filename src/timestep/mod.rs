@@ -99,6 +99,7 @@ pub mod contact;
 pub mod coupling;
 mod gmres;
 pub mod grid_frame;
+pub mod image_quadrature;
 pub mod near_images;
 pub mod near_implicit;
 pub mod near_pairs;

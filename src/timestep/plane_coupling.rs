@@ -10,10 +10,13 @@
 //! u_wall(x) = (1/8πμ) Σ_j ∫_{Γ_j} G^img(x, y) f_j(y) dA(y) + (1 − λ_j) D^img_j[u_j](x),
 //! ```
 //!
-//! at every cell's grid points, by each cell's smooth quadrature upsampled to order
-//! [`IMAGE_ORDER_FACTOR`]`·p` ([`SmoothLayer`]). The image of a cell at height `h` lies `2h`
-//! from it, so the rule resolves it while `2h` exceeds a few spacings of that grid
-//! (`tests/plane_wall.rs` checks Brenner's drag down to a gap of half a radius).
+//! at every cell's grid points, by each cell's smooth quadrature upsampled to order `3p`
+//! ([`crate::vesicle::smooth_layer::SmoothLayer`]). The image of a cell at height `h` lies
+//! `2h` from it, so that rule resolves it while `2h` exceeds a few spacings of its grid; where a
+//! target is closer to a cell's mirror, that cell's images there are taken on a finer rule of
+//! the ladder `6p, 12p, 24p` ([`super::image_quadrature`]), so a cell at the contact
+//! projection's gap from the plane feels its own image to about `1e-12`
+//! (`tests/plane_wall.rs`, which also checks Brenner's drag).
 //! It enters a step as the walls' velocity does: explicitly, from the tractions at the start of
 //! the step, extrapolated by BDF2. The background flow `u_∞` must vanish on the plane (a
 //! shear flow along it, or none): the scene checks it.
@@ -25,18 +28,17 @@
 //!
 //! **What is not there.** The images are a direct sum, `O(N_points · N_sources)` over all
 //! cells (not through the FMM). Over MPI ranks every rank gathers every cell's sources (six
-//! numbers per node of the upsampled grid, nine more with a double layer) and sums them in the
+//! numbers per node of the upsampled grid, nine more with a double layer) and its surface,
+//! traction and double-layer density (for the refinement, [`ImageCell`]), and sums them in the
 //! order of the cells' global indices, so any number of ranks gives one rank's bits.
 
 use std::time::Instant;
 
 use super::contact::Wall as ContactPlane;
+use super::image_quadrature::{add_layer_images, DoubleLayerSource, ImageQuadrature, ImageReach};
 use super::TimestepError;
-use crate::vesicle::smooth_layer::{PointForce, SmoothLayer};
+use crate::vesicle::smooth_layer::PointForce;
 use crate::wall::PlaneWall;
-
-/// The order of the images' quadrature over the cell's order `p`.
-pub const IMAGE_ORDER_FACTOR: usize = 3;
 
 /// What the plane wall did (cumulative).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -47,6 +49,10 @@ pub struct PlaneStats {
     pub seconds: f64,
     /// Point forces over all cells in the last evaluation.
     pub sources: usize,
+    /// Cells whose images were refined near their mirror in the last evaluation
+    /// ([`super::image_quadrature`]).
+    #[serde(default)]
+    pub refined_cells: usize,
     /// The smallest height of a cell's grid point above the plane in the last step, and over
     /// the run.
     pub last_gap: Option<f64>,
@@ -58,8 +64,10 @@ pub struct PlaneStats {
 pub struct PlaneCoupling {
     wall: PlaneWall,
     viscosity: f64,
-    /// One smooth rule per cell slot, built on first use.
-    rules: Vec<SmoothLayer>,
+    /// One ladder of rules per cell slot, built on first use.
+    rules: Vec<ImageQuadrature>,
+    /// Ladders for the refinement of any cell's images, one per surface order.
+    refine: Vec<ImageQuadrature>,
     stats: PlaneStats,
 }
 
@@ -77,6 +85,7 @@ impl PlaneCoupling {
             wall,
             viscosity,
             rules: vec![],
+            refine: vec![],
             stats: PlaneStats::default(),
         })
     }
@@ -138,7 +147,8 @@ impl PlaneCoupling {
         ))
     }
 
-    /// [`layer_sources`] on the rule kept for cell `slot` (built for order `p` on first use).
+    /// The coarse sources ([`ImageQuadrature::sources`], level 0) on the ladder kept for
+    /// cell `slot` (built for order `p` on first use).
     fn slot_sources(
         &mut self,
         slot: usize,
@@ -147,28 +157,33 @@ impl PlaneCoupling {
         traction: &[f64],
         double_layer: Option<&[f64]>,
     ) -> Result<(Vec<PointForce>, Vec<DoubleLayerSource>), TimestepError> {
+        let wall = self.wall;
+        self.slot_rules(slot, p)
+            .sources(0, &wall, coefs, traction, double_layer)
+    }
+
+    /// The ladder kept for cell `slot`, of order `p`.
+    fn slot_rules(&mut self, slot: usize, p: usize) -> &mut ImageQuadrature {
         while self.rules.len() <= slot {
-            self.rules.push(image_rule(p)?);
+            self.rules.push(ImageQuadrature::new(p));
         }
         if self.rules[slot].order() != p {
-            self.rules[slot] = image_rule(p)?;
+            self.rules[slot] = ImageQuadrature::new(p);
         }
-        layer_sources(
-            &self.wall,
-            &mut self.rules[slot],
-            coefs,
-            traction,
-            double_layer,
-        )
+        &mut self.rules[slot]
     }
 
     /// The images of the sources `single` and `double` (every cell's [`Self::cell_sources`],
     /// each concatenated in the cells' global order) at the grid points `points` of each cell
-    /// held here (`3n` each, component-major). A grid point on or below the plane is an error.
+    /// held here (`3n` each, component-major), refined where a target is close to the mirror
+    /// of a cell of `near` ([`super::image_quadrature`]: every cell's data, in the same order,
+    /// with where its sources are in `single` and `double`). A grid point on or below the plane
+    /// is an error.
     pub fn velocities(
         &mut self,
         single: &[f64],
         double: &[f64],
+        near: &[ImageCell<'_>],
         points: &[Vec<[f64; 3]>],
     ) -> Result<Vec<Vec<f64>>, TimestepError> {
         let t0 = Instant::now();
@@ -181,6 +196,17 @@ impl PlaneCoupling {
             }
         }
         let (single, double) = unflatten(single, double);
+        for c in near {
+            if c.single.end > single.len() || c.double.end > double.len() {
+                return Err(TimestepError::Wall(format!(
+                    "a cell's image sources reach past the gathered ones ({:?} of {}, {:?} of {})",
+                    c.single,
+                    single.len(),
+                    c.double,
+                    double.len()
+                )));
+            }
+        }
         let mut gap = f64::INFINITY;
         for x in points.iter().flatten() {
             gap = gap.min(self.wall.height(*x));
@@ -198,9 +224,37 @@ impl PlaneCoupling {
             add_layer_images(&self.wall, self.viscosity, &single, &double, x, &mut u)?;
             out.push(u);
         }
+        let mut refined = 0;
+        for c in near {
+            let coarse = (&single[c.single.clone()], &double[c.double.clone()]);
+            if !ImageReach::of_sources(c.p, coarse.0).refines() {
+                continue;
+            }
+            refined += 1;
+            let k = match self.refine.iter().position(|r| r.order() == c.p) {
+                Some(k) => k,
+                None => {
+                    self.refine.push(ImageQuadrature::new(c.p));
+                    self.refine.len() - 1
+                }
+            };
+            for (x, u) in points.iter().zip(&mut out) {
+                self.refine[k].add_refinement(
+                    &self.wall,
+                    self.viscosity,
+                    c.coefs,
+                    c.traction,
+                    c.double_layer,
+                    coarse,
+                    x,
+                    u,
+                )?;
+            }
+        }
         let s = &mut self.stats;
         s.evaluations += 1;
         s.sources = single.len();
+        s.refined_cells = refined;
         s.seconds += t0.elapsed().as_secs_f64();
         if gap.is_finite() {
             s.last_gap = Some(gap);
@@ -212,8 +266,8 @@ impl PlaneCoupling {
     /// Add the images of one cell's layers, from its present surface `coefs`, traction and
     /// double-layer density (as [`Self::cell_sources`] takes them), at the `targets` above the
     /// plane to `out` (component-major over all targets; those on or below the plane are left
-    /// alone), for output. `slot` picks the rule kept for that cell; the statistics are not
-    /// touched.
+    /// alone), for output, refined near the mirror ([`ImageQuadrature::add`]). `slot` picks
+    /// the rules kept for that cell; the statistics are not touched.
     #[allow(clippy::too_many_arguments)]
     pub fn add_cell_images(
         &mut self,
@@ -225,76 +279,43 @@ impl PlaneCoupling {
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), TimestepError> {
-        let (single, double) = self.slot_sources(slot, p, coefs, traction, double_layer)?;
         let index: Vec<usize> = (0..targets.len())
             .filter(|&i| self.wall.height(targets[i]) > 0.0)
             .collect();
         let inner: Vec<[f64; 3]> = index.iter().map(|&i| targets[i]).collect();
         let mut v = vec![0.0; 3 * inner.len()];
-        add_layer_images(&self.wall, self.viscosity, &single, &double, &inner, &mut v)?;
+        let (wall, viscosity) = (self.wall, self.viscosity);
+        self.slot_rules(slot, p).add(
+            &wall,
+            viscosity,
+            coefs,
+            traction,
+            double_layer,
+            &inner,
+            &mut v,
+        )?;
         crate::wall::scatter_add(&v, &index, out, targets.len());
         Ok(())
     }
 }
 
-/// A double-layer source of the images: `(y, g dA, n)` in the wall's frame.
-pub(super) type DoubleLayerSource = [[f64; 3]; 3];
-
-/// The smooth rule of the images of cells of order `p`: order [`IMAGE_ORDER_FACTOR`]`·p`.
-pub(super) fn image_rule(p: usize) -> Result<SmoothLayer, TimestepError> {
-    Ok(SmoothLayer::new(p, IMAGE_ORDER_FACTOR * p, 3.0)?)
-}
-
-/// One cell's sources for the images, in the wall's frame: the nodes of its surface `coefs`
-/// on `rule`'s upsampled grid with its `traction` times the weights (point forces), and, where
-/// `double_layer` is given, `(y, g dA, n)` per node (empty without).
-pub(super) fn layer_sources(
-    wall: &PlaneWall,
-    rule: &mut SmoothLayer,
-    coefs: &[f64],
-    traction: &[f64],
-    double_layer: Option<&[f64]>,
-) -> Result<(Vec<PointForce>, Vec<DoubleLayerSource>), TimestepError> {
-    rule.set_surface(coefs)?;
-    rule.set_density(traction)?;
-    let single = rule
-        .weighted_points()?
-        .into_iter()
-        .map(|(y, f)| (wall.to_local(y), wall.vector_to_local(f)))
-        .collect();
-    let mut double = Vec::new();
-    if let Some(g) = double_layer {
-        rule.set_density(g)?;
-        for ((y, g), n) in rule.weighted_points()?.into_iter().zip(rule.normals()) {
-            double.push([
-                wall.to_local(y),
-                wall.vector_to_local(g),
-                wall.vector_to_local(*n),
-            ]);
-        }
-    }
-    Ok((single, double))
-}
-
-/// Add the images in `wall` (fluid of viscosity `viscosity`) of the point forces `single` and
-/// the double-layer sources `double` ([`layer_sources`]) at `targets` to `out`
-/// (component-major).
-pub(super) fn add_layer_images(
-    wall: &PlaneWall,
-    viscosity: f64,
-    single: &[PointForce],
-    double: &[DoubleLayerSource],
-    targets: &[[f64; 3]],
-    out: &mut [f64],
-) -> Result<(), TimestepError> {
-    let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
-    wall.add_images(viscosity, single, targets, out)
-        .map_err(fail)?;
-    if !double.is_empty() {
-        wall.add_double_layer_images(double, targets, out)
-            .map_err(fail)?;
-    }
-    Ok(())
+/// One cell as [`PlaneCoupling::velocities`] refines its images: its order, surface
+/// coefficients, traction and double-layer density on its grid, and where its coarse sources
+/// are among the gathered ones (counted in sources, not values).
+#[derive(Clone, Debug)]
+pub struct ImageCell<'a> {
+    /// Surface order.
+    pub p: usize,
+    /// Surface coefficients.
+    pub coefs: &'a [f64],
+    /// Traction on the grid (component-major).
+    pub traction: &'a [f64],
+    /// `(1 − λ) u` on the grid, for a cell with a viscosity contrast.
+    pub double_layer: Option<&'a [f64]>,
+    /// Its point forces among the single-layer sources.
+    pub single: std::ops::Range<usize>,
+    /// Its double-layer sources among those.
+    pub double: std::ops::Range<usize>,
 }
 
 /// The sources of [`PlaneCoupling::cell_sources`] as point forces and double-layer triples.

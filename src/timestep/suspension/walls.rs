@@ -4,7 +4,7 @@
 //! velocity (so BDF2 extrapolates it with the rest). Over MPI ranks every rank gathers every
 //! cell's layers at the walls and solves the same wall system.
 
-use super::super::plane_coupling::{PlaneCoupling, PlaneStats};
+use super::super::plane_coupling::{ImageCell, PlaneCoupling, PlaneStats};
 use super::super::wall_coupling::{WallCoupling, WallStats};
 use super::super::TimestepError;
 use super::{agree_cells, CellStepError, Suspension};
@@ -50,7 +50,9 @@ impl Suspension {
         let Some(plane) = &mut self.plane else {
             return Ok(());
         };
-        // This rank's cells' point forces and double-layer sources, by global index.
+        // This rank's cells' point forces and double-layer sources, by global index, with
+        // what the refinement near the mirror builds finer rules from: the order, surface,
+        // traction and double-layer density.
         let mut local = Vec::new();
         let mut mine = Ok(());
         let mut points = Vec::with_capacity(self.cells.len());
@@ -70,7 +72,7 @@ impl Suspension {
                 });
             match got {
                 Ok((sources, x)) => {
-                    local.push((c.id, sources));
+                    local.push((slot, c.id, [p as f64], sources));
                     points.push(x);
                 }
                 Err(source) => {
@@ -84,17 +86,45 @@ impl Suspension {
         }
         agree_cells(comm, mine)?;
         let fail = |source| CellStepError { cell: None, source };
-        let blocks: Vec<(usize, [&[f64]; 2])> = local
+        let blocks: Vec<(usize, [&[f64]; 6])> = local
             .iter()
-            .map(|(id, (single, double))| (*id, [single.as_slice(), double.as_slice()]))
+            .map(|(slot, id, p, (single, double))| {
+                (
+                    *id,
+                    [
+                        single.as_slice(),
+                        double.as_slice(),
+                        p.as_slice(),
+                        self.cells[*slot].state.coefs.as_slice(),
+                        tractions[*slot].as_slice(),
+                        double_layers[*slot].as_deref().unwrap_or(&[]),
+                    ],
+                )
+            })
             .collect();
         let all = super::gather::gather_by_cell(comm, &blocks)?;
         let single: Vec<f64> = all.iter().flat_map(|a| a.1[0].iter().copied()).collect();
         let double: Vec<f64> = all.iter().flat_map(|a| a.1[1].iter().copied()).collect();
+        let mut near = Vec::with_capacity(all.len());
+        let (mut s0, mut d0) = (0, 0);
+        for (_, [s, d, p, coefs, traction, g]) in &all {
+            let (s1, d1) = (s0 + s.len() / 6, d0 + d.len() / 9);
+            near.push(ImageCell {
+                p: p.first().map_or(0, |&v| v as usize),
+                coefs,
+                traction,
+                double_layer: (!g.is_empty()).then_some(g.as_slice()),
+                single: s0..s1,
+                double: d0..d1,
+            });
+            (s0, d0) = (s1, d1);
+        }
         // The same sources on every rank; a cell on the plane fails on its rank.
         let velocities = agree_cells(
             comm,
-            plane.velocities(&single, &double, &points).map_err(fail),
+            plane
+                .velocities(&single, &double, &near, &points)
+                .map_err(fail),
         )?;
         self.add_explicit_velocities(velocities);
         Ok(())
