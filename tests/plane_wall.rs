@@ -467,6 +467,7 @@ t_end = 0.4
 #[test]
 fn the_images_of_a_cell_at_the_contact_distance_are_refined_to_2e_9() {
     use mobo::sph_harmonics::ShTransform;
+    use mobo::timestep::image_quadrature::ImageLayers;
     use mobo::timestep::plane_coupling::{ImageCell, PlaneCoupling};
     use mobo::vesicle::{shapes, smooth_layer::SmoothLayer};
     use mobo::wall::PlaneWall;
@@ -550,17 +551,20 @@ fn the_images_of_a_cell_at_the_contact_distance_are_refined_to_2e_9() {
     let reference = on_rule(32 * p, s.coefs(), &f, &g, &t);
     let coarse = largest_error(&on_rule(3 * p, s.coefs(), &f, &g, &t), &reference);
     let mut plane = PlaneCoupling::new(wall, 1.3).unwrap();
-    let mut routed = vec![0.0; 3 * n];
-    plane
-        .add_cell_images(0, p, s.coefs(), &f, Some(&g), &t, &mut routed)
-        .unwrap();
-    let refined = largest_error(&routed, &reference);
-    let (single, double) = plane.cell_sources(0, p, s.coefs(), &f, Some(&g)).unwrap();
-    let cell = ImageCell {
-        p,
+    let layers = ImageLayers {
         coefs: s.coefs(),
         traction: &f,
         double_layer: Some(&g),
+    };
+    let mut routed = vec![0.0; 3 * n];
+    plane
+        .add_cell_images(0, p, layers, &t, &mut routed)
+        .unwrap();
+    let refined = largest_error(&routed, &reference);
+    let (single, double) = plane.cell_sources(0, p, layers).unwrap();
+    let cell = ImageCell {
+        p,
+        layers,
         single: 0..single.len() / 6,
         double: 0..double.len() / 9,
     };

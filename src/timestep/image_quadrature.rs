@@ -39,6 +39,17 @@ use crate::wall::PlaneWall;
 /// A double-layer source of the images: `(y, g dA, n)` in the wall's frame.
 pub type DoubleLayerSource = [[f64; 3]; 3];
 
+/// One cell's layers as its images take them.
+#[derive(Clone, Copy, Debug)]
+pub struct ImageLayers<'a> {
+    /// Surface coefficients (order `p`).
+    pub coefs: &'a [f64],
+    /// Traction on the order-`p` grid (component-major).
+    pub traction: &'a [f64],
+    /// `(1 − λ) u` on the grid, for a cell with a viscosity contrast.
+    pub double_layer: Option<&'a [f64]>,
+}
+
 /// The ladder of the images' quadrature orders over the cell's order `p`; the first is the
 /// coarse rule every target far enough from the mirror takes.
 pub const IMAGE_LEVELS: [usize; 4] = [3, 6, 12, 24];
@@ -162,28 +173,23 @@ impl ImageQuadrature {
         &mut self,
         level: usize,
         wall: &PlaneWall,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
     ) -> Result<(Vec<PointForce>, Vec<DoubleLayerSource>), TimestepError> {
-        layer_sources(wall, self.rule(level)?, coefs, traction, double_layer)
+        layer_sources(wall, self.rule(level)?, cell)
     }
 
-    /// Add the images of one cell's layers (surface `coefs`, traction, double-layer density)
-    /// at `targets` (above the plane) to `out` (component-major), each target on the level
-    /// its height asks (module docs).
-    #[allow(clippy::too_many_arguments)]
+    /// Add the images of one cell's layers at `targets` (above the plane) to `out`
+    /// (component-major), each target on the level its distance to the mirror asks (module
+    /// docs).
     pub fn add(
         &mut self,
         wall: &PlaneWall,
         viscosity: f64,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), TimestepError> {
-        let (single, double) = self.sources(0, wall, coefs, traction, double_layer)?;
+        let (single, double) = self.sources(0, wall, cell)?;
         let reach = ImageReach::of_sources(self.p, &single);
         let levels: Vec<usize> = targets
             .iter()
@@ -192,7 +198,7 @@ impl ImageQuadrature {
         add_on_level(wall, viscosity, &single, &double, targets, &levels, 0, out)?;
         for level in 1..IMAGE_LEVELS.len() {
             if levels.contains(&level) {
-                let (s, d) = self.sources(level, wall, coefs, traction, double_layer)?;
+                let (s, d) = self.sources(level, wall, cell)?;
                 add_on_level(wall, viscosity, &s, &d, targets, &levels, level, out)?;
             }
         }
@@ -201,32 +207,26 @@ impl ImageQuadrature {
 
     /// Add the images of one cell's layers at `targets` on the coarse rule alone (order `3p`,
     /// the rule of the joint solve's images, [`super::near_images`]).
-    #[allow(clippy::too_many_arguments)]
     pub fn add_coarse(
         &mut self,
         wall: &PlaneWall,
         viscosity: f64,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), TimestepError> {
-        let (single, double) = self.sources(0, wall, coefs, traction, double_layer)?;
+        let (single, double) = self.sources(0, wall, cell)?;
         add_layer_images(wall, viscosity, &single, &double, targets, out)
     }
 
     /// Add `fine − coarse` at the `targets` whose level is finer than the coarse one, for a
     /// caller that has summed the coarse sources `coarse` (this cell's, as
     /// [`Self::sources`] gives them at level 0) at every target already.
-    #[allow(clippy::too_many_arguments)]
     pub fn add_refinement(
         &mut self,
         wall: &PlaneWall,
         viscosity: f64,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
         coarse: (&[PointForce], &[DoubleLayerSource]),
         targets: &[[f64; 3]],
         out: &mut [f64],
@@ -248,7 +248,7 @@ impl ImageQuadrature {
         let mut v = vec![0.0; 3 * near.len()];
         for level in 1..IMAGE_LEVELS.len() {
             if near_levels.contains(&level) {
-                let (s, d) = self.sources(level, wall, coefs, traction, double_layer)?;
+                let (s, d) = self.sources(level, wall, cell)?;
                 add_on_level(wall, viscosity, &s, &d, &near, &near_levels, level, &mut v)?;
             }
         }
@@ -288,25 +288,23 @@ fn add_on_level(
     Ok(())
 }
 
-/// One cell's sources for the images, in the wall's frame: the nodes of its surface `coefs`
-/// on `rule`'s upsampled grid with its `traction` times the weights (point forces), and, where
-/// `double_layer` is given, `(y, g dA, n)` per node (empty without).
-pub(super) fn layer_sources(
+/// One cell's sources for the images, in the wall's frame: the nodes of its surface on
+/// `rule`'s upsampled grid with its traction times the weights (point forces), and, where it
+/// has a double-layer density, `(y, g dA, n)` per node (empty without).
+fn layer_sources(
     wall: &PlaneWall,
     rule: &mut SmoothLayer,
-    coefs: &[f64],
-    traction: &[f64],
-    double_layer: Option<&[f64]>,
+    cell: ImageLayers<'_>,
 ) -> Result<(Vec<PointForce>, Vec<DoubleLayerSource>), TimestepError> {
-    rule.set_surface(coefs)?;
-    rule.set_density(traction)?;
+    rule.set_surface(cell.coefs)?;
+    rule.set_density(cell.traction)?;
     let single = rule
         .weighted_points()?
         .into_iter()
         .map(|(y, f)| (wall.to_local(y), wall.vector_to_local(f)))
         .collect();
     let mut double = Vec::new();
-    if let Some(g) = double_layer {
+    if let Some(g) = cell.double_layer {
         rule.set_density(g)?;
         for ((y, g), n) in rule.weighted_points()?.into_iter().zip(rule.normals()) {
             double.push([

@@ -29,7 +29,7 @@
 
 use std::sync::Mutex;
 
-use super::image_quadrature::ImageQuadrature;
+use super::image_quadrature::{ImageLayers, ImageQuadrature};
 use super::TimestepError;
 use crate::wall::PlaneWall;
 
@@ -79,7 +79,12 @@ impl NearImages {
     ) -> Result<(), TimestepError> {
         let free = self.pool.lock().unwrap_or_else(|e| e.into_inner()).pop();
         let mut rule = free.unwrap_or_else(|| ImageQuadrature::new(self.p));
-        let done = rule.add_coarse(&self.wall, self.viscosity, surface, f, g, points, out);
+        let cell = ImageLayers {
+            coefs: surface,
+            traction: f,
+            double_layer: g,
+        };
+        let done = rule.add_coarse(&self.wall, self.viscosity, cell, points, out);
         self.pool
             .lock()
             .unwrap_or_else(|e| e.into_inner())

@@ -35,7 +35,9 @@
 use std::time::Instant;
 
 use super::contact::Wall as ContactPlane;
-use super::image_quadrature::{add_layer_images, DoubleLayerSource, ImageQuadrature, ImageReach};
+use super::image_quadrature::{
+    add_layer_images, DoubleLayerSource, ImageLayers, ImageQuadrature, ImageReach,
+};
 use super::TimestepError;
 use crate::vesicle::smooth_layer::PointForce;
 use crate::wall::PlaneWall;
@@ -108,21 +110,19 @@ impl PlaneCoupling {
         self.stats
     }
 
-    /// Cell `slot`'s sources for the images: the nodes of its surface `coefs` (order `p`)
-    /// upsampled to order `3p`, in the wall's frame. First its traction `traction` there times
-    /// the weights, flattened as `[y₁, y₂, y₃, F₁, F₂, F₃]` per node; then, for a cell with a
-    /// viscosity contrast, its double-layer density `g = (1 − λ) u` times the weights and the
-    /// normal, `[y, g dA, n]` per node (empty without).
+    /// Cell `slot`'s sources for the images: the nodes of its surface (order `p`) upsampled to
+    /// order `3p`, in the wall's frame. First its traction there times the weights, flattened
+    /// as `[y₁, y₂, y₃, F₁, F₂, F₃]` per node; then, for a cell with a viscosity contrast, its
+    /// double-layer density `g = (1 − λ) u` times the weights and the normal, `[y, g dA, n]`
+    /// per node (empty without).
     pub fn cell_sources(
         &mut self,
         slot: usize,
         p: usize,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
     ) -> Result<(Vec<f64>, Vec<f64>), TimestepError> {
         let t0 = Instant::now();
-        let sources = self.sources(slot, p, coefs, traction, double_layer);
+        let sources = self.sources(slot, p, cell);
         self.stats.seconds += t0.elapsed().as_secs_f64();
         sources
     }
@@ -132,11 +132,9 @@ impl PlaneCoupling {
         &mut self,
         slot: usize,
         p: usize,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
     ) -> Result<(Vec<f64>, Vec<f64>), TimestepError> {
-        let (single, double) = self.slot_sources(slot, p, coefs, traction, double_layer)?;
+        let (single, double) = self.slot_sources(slot, p, cell)?;
         Ok((
             single
                 .iter()
@@ -153,13 +151,10 @@ impl PlaneCoupling {
         &mut self,
         slot: usize,
         p: usize,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
     ) -> Result<(Vec<PointForce>, Vec<DoubleLayerSource>), TimestepError> {
         let wall = self.wall;
-        self.slot_rules(slot, p)
-            .sources(0, &wall, coefs, traction, double_layer)
+        self.slot_rules(slot, p).sources(0, &wall, cell)
     }
 
     /// The ladder kept for cell `slot`, of order `p`.
@@ -242,9 +237,7 @@ impl PlaneCoupling {
                 self.refine[k].add_refinement(
                     &self.wall,
                     self.viscosity,
-                    c.coefs,
-                    c.traction,
-                    c.double_layer,
+                    c.layers,
                     coarse,
                     x,
                     u,
@@ -263,19 +256,16 @@ impl PlaneCoupling {
         Ok(out)
     }
 
-    /// Add the images of one cell's layers, from its present surface `coefs`, traction and
-    /// double-layer density (as [`Self::cell_sources`] takes them), at the `targets` above the
-    /// plane to `out` (component-major over all targets; those on or below the plane are left
-    /// alone), for output, refined near the mirror ([`ImageQuadrature::add`]). `slot` picks
-    /// the rules kept for that cell; the statistics are not touched.
-    #[allow(clippy::too_many_arguments)]
+    /// Add the images of one cell's present layers (as [`Self::cell_sources`] takes them) at
+    /// the `targets` above the plane to `out` (component-major over all targets; those on or
+    /// below the plane are left alone), for output, refined near the mirror
+    /// ([`ImageQuadrature::add`]). `slot` picks the rules kept for that cell; the statistics
+    /// are not touched.
     pub fn add_cell_images(
         &mut self,
         slot: usize,
         p: usize,
-        coefs: &[f64],
-        traction: &[f64],
-        double_layer: Option<&[f64]>,
+        cell: ImageLayers<'_>,
         targets: &[[f64; 3]],
         out: &mut [f64],
     ) -> Result<(), TimestepError> {
@@ -285,33 +275,21 @@ impl PlaneCoupling {
         let inner: Vec<[f64; 3]> = index.iter().map(|&i| targets[i]).collect();
         let mut v = vec![0.0; 3 * inner.len()];
         let (wall, viscosity) = (self.wall, self.viscosity);
-        self.slot_rules(slot, p).add(
-            &wall,
-            viscosity,
-            coefs,
-            traction,
-            double_layer,
-            &inner,
-            &mut v,
-        )?;
+        self.slot_rules(slot, p)
+            .add(&wall, viscosity, cell, &inner, &mut v)?;
         crate::wall::scatter_add(&v, &index, out, targets.len());
         Ok(())
     }
 }
 
-/// One cell as [`PlaneCoupling::velocities`] refines its images: its order, surface
-/// coefficients, traction and double-layer density on its grid, and where its coarse sources
-/// are among the gathered ones (counted in sources, not values).
+/// One cell as [`PlaneCoupling::velocities`] refines its images: its order and layers, and
+/// where its coarse sources are among the gathered ones (counted in sources, not values).
 #[derive(Clone, Debug)]
 pub struct ImageCell<'a> {
     /// Surface order.
     pub p: usize,
-    /// Surface coefficients.
-    pub coefs: &'a [f64],
-    /// Traction on the grid (component-major).
-    pub traction: &'a [f64],
-    /// `(1 − λ) u` on the grid, for a cell with a viscosity contrast.
-    pub double_layer: Option<&'a [f64]>,
+    /// Its surface, traction and double-layer density.
+    pub layers: ImageLayers<'a>,
     /// Its point forces among the single-layer sources.
     pub single: std::ops::Range<usize>,
     /// Its double-layer sources among those.

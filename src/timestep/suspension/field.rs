@@ -23,6 +23,7 @@
 //! [`CellStepper::traction`]: super::super::cell_stepper::CellStepper::traction
 //! [`WallCoupling::field_at`]: super::super::wall_coupling::WallCoupling::field_at
 
+use super::super::image_quadrature::ImageLayers;
 use super::super::wall_coupling::{without_net_flux, CellLayers};
 use super::super::TimestepError;
 use super::{agree_cells, CellStepError, Suspension};
@@ -221,7 +222,12 @@ impl Suspension {
             }
             // A plane wall: the images of this cell's layers, from its present state.
             if let Some(w) = plane {
-                w.add_cell_images(slot, p, &c.state.coefs, &f, g.as_deref(), targets, layers)
+                let cell = ImageLayers {
+                    coefs: &c.state.coefs,
+                    traction: &f,
+                    double_layer: g.as_deref(),
+                };
+                w.add_cell_images(slot, p, cell, targets, layers)
                     .map_err(|e| fail(id, e))?;
             }
         }

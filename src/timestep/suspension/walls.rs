@@ -4,6 +4,7 @@
 //! velocity (so BDF2 extrapolates it with the rest). Over MPI ranks every rank gathers every
 //! cell's layers at the walls and solves the same wall system.
 
+use super::super::image_quadrature::ImageLayers;
 use super::super::plane_coupling::{ImageCell, PlaneCoupling, PlaneStats};
 use super::super::wall_coupling::{WallCoupling, WallStats};
 use super::super::TimestepError;
@@ -58,18 +59,15 @@ impl Suspension {
         let mut points = Vec::with_capacity(self.cells.len());
         for (slot, c) in self.cells.iter().enumerate() {
             let p = c.stepper.order();
-            let got = plane
-                .cell_sources(
-                    slot,
-                    p,
-                    &c.state.coefs,
-                    &tractions[slot],
-                    double_layers[slot].as_deref(),
-                )
-                .and_then(|s| {
-                    let x = c.stepper.with_geometry(&c.state.coefs, |g| g.x.clone())?;
-                    Ok((s, x))
-                });
+            let layers = ImageLayers {
+                coefs: &c.state.coefs,
+                traction: &tractions[slot],
+                double_layer: double_layers[slot].as_deref(),
+            };
+            let got = plane.cell_sources(slot, p, layers).and_then(|s| {
+                let x = c.stepper.with_geometry(&c.state.coefs, |g| g.x.clone())?;
+                Ok((s, x))
+            });
             match got {
                 Ok((sources, x)) => {
                     local.push((slot, c.id, [p as f64], sources));
@@ -111,9 +109,11 @@ impl Suspension {
             let (s1, d1) = (s0 + s.len() / 6, d0 + d.len() / 9);
             near.push(ImageCell {
                 p: p.first().map_or(0, |&v| v as usize),
-                coefs,
-                traction,
-                double_layer: (!g.is_empty()).then_some(g.as_slice()),
+                layers: ImageLayers {
+                    coefs,
+                    traction,
+                    double_layer: (!g.is_empty()).then_some(g.as_slice()),
+                },
                 single: s0..s1,
                 double: d0..d1,
             });
