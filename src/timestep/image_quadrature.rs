@@ -66,6 +66,9 @@ pub struct ImageReach {
     p: usize,
     /// The coarse nodes' mirror points `y* = (y₁, y₂, −y₃)`.
     mirror: Vec<[f64; 3]>,
+    /// Their mean, and their largest distance from it.
+    mirror_centre: [f64; 3],
+    mirror_radius: f64,
     /// How far a point of the surface may lie from the nearest node.
     margin: f64,
     /// A lower bound of the cell's height above the plane.
@@ -102,6 +105,8 @@ impl ImageReach {
         ImageReach {
             p,
             mirror: coarse.iter().map(|(y, _)| [y[0], y[1], -y[2]]).collect(),
+            mirror_centre: [c[0], c[1], -c[2]],
+            mirror_radius: r,
             margin,
             low: (low - 0.5 * margin).max(0.0),
             r_max,
@@ -123,7 +128,21 @@ impl ImageReach {
 
     /// The level (index into [`IMAGE_LEVELS`]) a target `x` (the wall's frame) takes.
     pub fn level(&self, x: [f64; 3]) -> usize {
-        let d = self.distance(x);
+        // A bound no larger than [`Self::distance`] (every mirror node lies within
+        // `mirror_radius` of their mean), in O(1): where it already takes the coarse rule, so
+        // does the distance, and the scan of the nodes is skipped.
+        let c = self.mirror_centre;
+        let to_centre =
+            ((x[0] - c[0]).powi(2) + (x[1] - c[1]).powi(2) + (x[2] - c[2]).powi(2)).sqrt();
+        let cheap = (x[2] + self.low).max(to_centre - self.mirror_radius - self.margin);
+        if self.level_at(cheap) == 0 {
+            return 0;
+        }
+        self.level_at(self.distance(x))
+    }
+
+    /// The level a lower bound `d` of the distance to the mirror asks.
+    fn level_at(&self, d: f64) -> usize {
         IMAGE_LEVELS
             .iter()
             .position(|&m| IMAGE_RESOLVE_RATIO * 2.0 * PI * self.r_max / (m * self.p) as f64 <= d)
@@ -221,7 +240,9 @@ impl ImageQuadrature {
 
     /// Add `fine − coarse` at the `targets` whose level is finer than the coarse one, for a
     /// caller that has summed the coarse sources `coarse` (this cell's, as
-    /// [`Self::sources`] gives them at level 0) at every target already.
+    /// [`Self::sources`] gives them at level 0) at every target already. Each finer rule is
+    /// built once per call, so callers pass all their targets at once. Whether the cell is
+    /// close enough to the plane for any target to need it ([`ImageReach::refines`]).
     pub fn add_refinement(
         &mut self,
         wall: &PlaneWall,
@@ -230,17 +251,17 @@ impl ImageQuadrature {
         coarse: (&[PointForce], &[DoubleLayerSource]),
         targets: &[[f64; 3]],
         out: &mut [f64],
-    ) -> Result<(), TimestepError> {
+    ) -> Result<bool, TimestepError> {
         let reach = ImageReach::of_sources(self.p, coarse.0);
         if !reach.refines() {
-            return Ok(());
+            return Ok(false);
         }
         let levels: Vec<usize> = targets
             .iter()
             .map(|&x| reach.level(wall.to_local(x)))
             .collect();
         if levels.iter().all(|&l| l == 0) {
-            return Ok(());
+            return Ok(true);
         }
         let index: Vec<usize> = (0..targets.len()).filter(|&t| levels[t] > 0).collect();
         let near: Vec<[f64; 3]> = index.iter().map(|&t| targets[t]).collect();
@@ -258,7 +279,7 @@ impl ImageQuadrature {
             *a -= b;
         }
         crate::wall::scatter_add(&v, &index, out, targets.len());
-        Ok(())
+        Ok(true)
     }
 }
 

@@ -35,9 +35,7 @@
 use std::time::Instant;
 
 use super::contact::Wall as ContactPlane;
-use super::image_quadrature::{
-    add_layer_images, DoubleLayerSource, ImageLayers, ImageQuadrature, ImageReach,
-};
+use super::image_quadrature::{add_layer_images, DoubleLayerSource, ImageLayers, ImageQuadrature};
 use super::TimestepError;
 use crate::vesicle::smooth_layer::PointForce;
 use crate::wall::PlaneWall;
@@ -219,13 +217,13 @@ impl PlaneCoupling {
             add_layer_images(&self.wall, self.viscosity, &single, &double, x, &mut u)?;
             out.push(u);
         }
+        // Every held cell's points as one target list, so that each near cell's finer rules
+        // are built once.
+        let all: Vec<[f64; 3]> = points.iter().flatten().copied().collect();
+        let nt = all.len();
         let mut refined = 0;
         for c in near {
             let coarse = (&single[c.single.clone()], &double[c.double.clone()]);
-            if !ImageReach::of_sources(c.p, coarse.0).refines() {
-                continue;
-            }
-            refined += 1;
             let k = match self.refine.iter().position(|r| r.order() == c.p) {
                 Some(k) => k,
                 None => {
@@ -233,15 +231,21 @@ impl PlaneCoupling {
                     self.refine.len() - 1
                 }
             };
+            let mut v = vec![0.0; 3 * nt];
+            let (wall, viscosity) = (self.wall, self.viscosity);
+            if !self.refine[k].add_refinement(&wall, viscosity, c.layers, coarse, &all, &mut v)? {
+                continue;
+            }
+            refined += 1;
+            let mut at = 0;
             for (x, u) in points.iter().zip(&mut out) {
-                self.refine[k].add_refinement(
-                    &self.wall,
-                    self.viscosity,
-                    c.layers,
-                    coarse,
-                    x,
-                    u,
-                )?;
+                let n = x.len();
+                for a in 0..3 {
+                    for t in 0..n {
+                        u[a * n + t] += v[a * nt + at + t];
+                    }
+                }
+                at += n;
             }
         }
         let s = &mut self.stats;
