@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use mobo::scene::cells::{parse, Flow, Scheme, Shape};
+use mobo::scene::cells::{parse, Flow, Scheme, Shape, WallSolve};
 use mobo::vesicle::geometry::SurfaceCalculus;
 
 const FULL: &str = r#"
@@ -40,6 +40,7 @@ scheme = "bdf2"
 adaptive_dt = true
 far_side_split = false
 operator_storage = "grid"
+wall_solve = "replicated"
 
 [output]
 every = 4
@@ -63,12 +64,10 @@ fn a_full_scene_parses_with_its_values_and_effects() {
     assert_eq!(s.numerics.scheme, Scheme::Bdf2);
     assert!(s.numerics.adaptive_dt);
     assert!(!s.numerics.far_side_split);
-    assert!(
-        parse(file(), "[[cells]]\nshape = \"rbc\"\n")
-            .unwrap()
-            .numerics
-            .far_side_split
-    );
+    assert_eq!(s.numerics.wall_solve, WallSolve::Replicated);
+    let plain = parse(file(), "[[cells]]\nshape = \"rbc\"\n").unwrap();
+    assert!(plain.numerics.far_side_split);
+    assert_eq!(plain.numerics.wall_solve, WallSolve::Auto);
     // The setting reaches every cell's own layer potentials.
     let susp = mobo::run::assembly::build(&s).unwrap();
     assert!(susp.steppers().iter().all(|c| !c.far_side_params().enabled));
@@ -308,6 +307,10 @@ fn bad_scenes_name_the_file_the_line_and_the_problem() {
         (
             "[[cells]]\nshape = \"sphere\"\n[numerics]\ngrid = \"sideways\"\n",
             "scene.toml:4:8: [numerics] grid: unknown choice \"sideways\" (auto, relaxed, material)",
+        ),
+        (
+            "[[cells]]\nshape = \"sphere\"\n[numerics]\nwall_solve = \"halved\"\n",
+            "scene.toml:4:14: [numerics] wall_solve: unknown choice \"halved\" (auto, replicated, split)",
         ),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"shear\"\n", "needs rate"),
         ("[[cells]]\nshape = \"sphere\"\n[flow]\nkind = \"vortex\"\nrate = 1.0\n", "unknown flow"),

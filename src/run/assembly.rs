@@ -20,7 +20,7 @@ use crate::timestep::TimestepError;
 use crate::vesicle::far_side::FarSideParams;
 use crate::vesicle::reparam::ReparamParams;
 use crate::vesicle::skalak::SkalakParams;
-use crate::wall::{Wall, WallKind, WallParams};
+use crate::wall::{RowShare, Wall, WallKind, WallParams};
 
 /// The setup of every cell of `scene`, in scene order (the settings `mobo run` uses: drift
 /// correction every step, the grids relaxed as `[numerics] grid` says, GMRES restart 200).
@@ -139,11 +139,22 @@ pub fn build(scene: &CellScene) -> Result<Suspension, CellRunError> {
 }
 
 /// One rank's share of the cells of `scene`: the cells `ids` (global indices) of `setups`
-/// (every cell's, from [`setups`]).
+/// (every cell's, from [`setups`]), with the walls' whole system.
 pub fn build_part(
     scene: &CellScene,
     setups: &[CellSetup],
     ids: &[usize],
+) -> Result<Suspension, CellRunError> {
+    build_part_share(scene, setups, ids, RowShare::WHOLE)
+}
+
+/// [`build_part`] holding only the rows `walls` of the walls' system
+/// ([`crate::wall::WallRows`]; its steps are then collective over those ranks).
+pub fn build_part_share(
+    scene: &CellScene,
+    setups: &[CellSetup],
+    ids: &[usize],
+    walls_share: RowShare,
 ) -> Result<Suspension, CellRunError> {
     let p = scene.numerics.order;
     let q = scene.numerics.upsample * p;
@@ -171,7 +182,9 @@ pub fn build_part(
     susp.set_contacts(p, scene.numerics.contact_distance.map(ContactParams::new))
         .map_err(|e| step_error(0, 0.0, e))?;
     if !scene.walls.is_empty() {
-        susp.set_walls(Some(walls(scene).map_err(|e| step_error(0, 0.0, e))?));
+        susp.set_walls(Some(
+            walls(scene, walls_share).map_err(|e| step_error(0, 0.0, e))?,
+        ));
     }
     if let Some(w) = &scene.plane {
         let plane = crate::wall::PlaneWall::new(w.point, w.normal).map_err(|e| {
@@ -207,8 +220,8 @@ pub fn build_part(
     Ok(susp)
 }
 
-/// The scene's rigid walls, assembled and factored ([`WallCoupling`]).
-fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
+/// The scene's rigid walls, assembled and factored ([`WallCoupling`]): the rows of `share`.
+fn walls(scene: &CellScene, share: RowShare) -> Result<WallCoupling, CellStepError> {
     let fail = |e: String| CellStepError {
         cell: None,
         source: TimestepError::Wall(e),
@@ -264,11 +277,12 @@ fn walls(scene: &CellScene) -> Result<WallCoupling, CellStepError> {
         velocity.extend(u);
         walls.push(wall);
     }
-    WallCoupling::new(
+    WallCoupling::new_share(
         walls,
         Some(velocity),
         scene.viscosity,
         WallParams::default(),
+        share,
     )
     .map_err(|source| CellStepError { cell: None, source })
 }

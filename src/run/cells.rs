@@ -35,7 +35,7 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::assembly::{build_part, run_effects, setups};
+use super::assembly::{build_part_share, run_effects, setups};
 use super::cell_step::{accepted_step, adaptive_control, flow_origin, rheology, step_error};
 use super::checkpoint::{self, Progress, Split};
 use super::error::{agreed, CellRunError};
@@ -57,6 +57,7 @@ use crate::timestep::suspension::{agree_cells, CellSetup, CellStepError, Suspens
 use crate::timestep::TimestepError;
 use crate::vesicle::geometry::{Geometry, SurfaceCalculus};
 use crate::vesicle::VesicleError;
+use crate::wall::RowShare;
 
 /// One cell's observables from its coefficients.
 fn observe(
@@ -320,7 +321,16 @@ impl<'a> CellRun<'a> {
             }
         };
         let mine: Vec<usize> = (0..nc).filter(|&i| owners[i] == comm.rank()).collect();
-        let mut susp = agreed(comm, build_part(scene, &setups, &mine))?;
+        // The walls' system split over the ranks, or every rank's whole ([numerics] wall_solve).
+        let walls_share = if scene.numerics.wall_solve.splits(comm.size()) {
+            RowShare {
+                rank: comm.rank(),
+                ranks: comm.size(),
+            }
+        } else {
+            RowShare::WHOLE
+        };
+        let mut susp = agreed(comm, build_part_share(scene, &setups, &mine, walls_share))?;
         let formats = FrameFormats {
             npy: scene.output.npy,
             hdf5: scene.output.hdf5,

@@ -403,6 +403,30 @@ pub struct Numerics {
     /// The FMM's near field on a GPU: `"auto"` (default), `true` or `false`
     /// ([`crate::fmm::gpu_near::choose`]).
     pub gpu: GpuChoice,
+    /// How the walls' dense system is held under `mpirun` (`[numerics] wall_solve`).
+    pub wall_solve: WallSolve,
+}
+
+/// How the walls' dense system is held over MPI ranks (`[numerics] wall_solve`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum WallSolve {
+    /// Split with two or more ranks (the default).
+    #[default]
+    Auto,
+    /// Every rank holds the whole system and its LU factors, and solves it alone: the same
+    /// bits on every rank count, `8 (3N)²` bytes a rank.
+    Replicated,
+    /// Each rank holds the rows of its band of the walls' grid and the factors of their
+    /// diagonal block; the system is solved by GMRES over the ranks
+    /// ([`crate::wall::WallRows`]), to a relative residual of 1e-13.
+    Split,
+}
+
+impl WallSolve {
+    /// Whether the walls are split over `ranks` ranks.
+    pub fn splits(self, ranks: usize) -> bool {
+        ranks > 1 && self != WallSolve::Replicated
+    }
 }
 
 /// One assembly decision: whether a piece of physics is built, and why.

@@ -92,6 +92,10 @@
 //! #                               # (0: off; see timestep::suspension)
 //! start_up_anderson_depth = 3     # passes mixed into the next by Anderson's method (0: plain)
 //! gpu = "auto"                    # FMM near field on a GPU: "auto" | true | false (feature gpu)
+//! wall_solve = "auto"             # under mpirun, the walls' dense system: "split" (each rank
+//! #                               # holds the rows of its band of the walls, solved by GMRES
+//! #                               # over the ranks) | "replicated" (every rank the whole
+//! #                               # system, factored) | "auto" (split on two or more ranks)
 //!
 //! [[walls]]                       # rigid walls (optional; see scene::walls, docs/walls.md)
 //! kind = "container"              # "container" (fluid inside) | "body" (fixed obstacle)
@@ -121,7 +125,8 @@ use super::cell_groups::{cell_specs, check_overlaps};
 pub(crate) use super::cell_scene::rotation;
 pub use super::cell_scene::{
     CellScene, CellSpec, Effect, Flow, GridMotion, Numerics, OutputSettings, PlaneSpec, Scheme,
-    Shape, TubeWindow, MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY, TUBE_WINDOW_TOLERANCE,
+    Shape, TubeWindow, WallSolve, MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY,
+    TUBE_WINDOW_TOLERANCE,
 };
 pub(crate) use super::cells_schema::Origin;
 use super::cells_schema::{File, NumericsSection};
@@ -483,6 +488,23 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
                 .get_ref()
                 .choice()
                 .map_err(|why| at(g.span(), format!("[numerics] gpu {why}")))?,
+        },
+        wall_solve: match n.and_then(|n| n.wall_solve.as_ref()) {
+            None => WallSolve::Auto,
+            Some(s) => match s.get_ref().as_str() {
+                "auto" => WallSolve::Auto,
+                "replicated" => WallSolve::Replicated,
+                "split" => WallSolve::Split,
+                other => {
+                    return Err(at(
+                        s.span(),
+                        format!(
+                            "[numerics] wall_solve: unknown choice \"{other}\" (auto, \
+                             replicated, split)"
+                        ),
+                    ))
+                }
+            },
         },
     };
     let mut numerics = numerics;

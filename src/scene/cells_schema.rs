@@ -107,6 +107,7 @@ pub(super) struct NumericsSection {
     pub(super) start_up_passes: Option<Spanned<u64>>,
     pub(super) start_up_anderson_depth: Option<Spanned<u64>>,
     pub(super) gpu: Option<Spanned<GpuFlag>>,
+    pub(super) wall_solve: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]

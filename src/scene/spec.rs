@@ -535,6 +535,21 @@ pub struct NumericsSpec {
     /// `gpu`: `"auto"`, `true` or `false`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gpu: Option<GpuSpec>,
+    /// `wall_solve`: how the walls' system is held over MPI ranks.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wall_solve: Option<WallSolveKind>,
+}
+
+/// `[numerics] wall_solve` ([`crate::scene::cells::WallSolve`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WallSolveKind {
+    /// Split with two or more ranks.
+    Auto,
+    /// Every rank the whole system.
+    Replicated,
+    /// Each rank its band's rows.
+    Split,
 }
 
 /// `[numerics] gpu`: written `"auto"`, `true` or `false` in the file.

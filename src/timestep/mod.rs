@@ -107,6 +107,7 @@ mod operator;
 pub mod operator_storage;
 mod own_preconditioner;
 pub mod plane_coupling;
+mod rank_sums;
 pub mod semi_implicit;
 pub mod sphere_preconditioner;
 mod step_engine;
@@ -117,6 +118,7 @@ pub mod step_solve;
 pub mod suspension;
 pub mod vesicle_stepper;
 pub mod wall_coupling;
+mod wall_rows_solve;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};
 pub use operator::{

@@ -26,11 +26,15 @@
 use std::time::Instant;
 
 use super::contact::FixedSurface;
+use super::gmres::GmresWorkspace;
+use super::wall_rows_solve::solve_over_ranks;
 use super::TimestepError;
+use crate::comm::Communicator;
 use crate::vesicle::smooth_layer::{Side, SmoothLayer};
 use crate::vesicle::{Geometry, LayerKernel, NearParams, OffSurface, TargetInfo};
 use crate::wall::{
-    scatter_add, Wall, WallError, WallField, WallKind, WallParams, WallSolution, WallSystem,
+    scatter_add, RowShare, Wall, WallError, WallField, WallKind, WallParams, WallSolution,
+    WallSystem,
 };
 
 /// What the walls did (cumulative).
@@ -65,6 +69,21 @@ pub struct WallStats {
     /// cells sees none; a value above about 1e-3 says the wall's grid does not resolve the
     /// cells' flow next to it (raise the wall's `order`).
     pub largest_wall_flux: f64,
+    /// Ranks the walls' system is split over (each holding its rows; 1: every rank holds the
+    /// whole system and its factors).
+    #[serde(default = "one")]
+    pub split_ranks: usize,
+    /// Bytes of the walls' operator held on this rank (the rows and their block's factors when
+    /// split, the whole factors otherwise).
+    #[serde(default)]
+    pub operator_bytes: usize,
+    /// GMRES iterations of the split solves, over the run (0 when not split).
+    #[serde(default)]
+    pub split_iterations: usize,
+}
+
+fn one() -> usize {
+    1
 }
 
 fn wall_error(e: WallError) -> TimestepError {
@@ -87,6 +106,8 @@ pub struct WallCoupling {
     stats: WallStats,
     /// The walls as fixed surfaces of the contact projection.
     fixed: Vec<FixedSurface>,
+    /// The split solve's Krylov storage (unused when the system is whole).
+    ws: GmresWorkspace,
 }
 
 impl WallCoupling {
@@ -98,6 +119,19 @@ impl WallCoupling {
         viscosity: f64,
         params: WallParams,
     ) -> Result<Self, TimestepError> {
+        Self::new_share(walls, velocity, viscosity, params, RowShare::WHOLE)
+    }
+
+    /// [`Self::new`] with the walls' system split over ranks: this rank holds the rows of
+    /// `share` ([`WallSystem::new_share`]), and every solve is collective over the ranks the
+    /// steps pass ([`super::wall_rows_solve`]). [`RowShare::WHOLE`] is [`Self::new`].
+    pub fn new_share(
+        walls: Vec<Wall>,
+        velocity: Option<Vec<f64>>,
+        viscosity: f64,
+        params: WallParams,
+        share: RowShare,
+    ) -> Result<Self, TimestepError> {
         if !(viscosity.is_finite() && viscosity > 0.0) {
             return Err(TimestepError::InvalidParameter {
                 name: "viscosity",
@@ -106,7 +140,7 @@ impl WallCoupling {
             });
         }
         let t0 = Instant::now();
-        let system = WallSystem::new(walls, params).map_err(wall_error)?;
+        let system = WallSystem::new_share(walls, params, share).map_err(wall_error)?;
         let field = WallField::new(&system, NearParams::default()).map_err(wall_error)?;
         let n = system.n_unknowns();
         let velocity = velocity.unwrap_or_else(|| vec![0.0; n]);
@@ -126,6 +160,8 @@ impl WallCoupling {
             walls: system.walls().len(),
             unknowns: n,
             setup_seconds: t0.elapsed().as_secs_f64(),
+            split_ranks: share.ranks,
+            operator_bytes: system.rows().map_or(8 * n * n, |r| r.bytes()),
             ..WallStats::default()
         };
         let fixed = system
@@ -149,7 +185,25 @@ impl WallCoupling {
             cells: vec![],
             last: None,
             stats,
+            ws: GmresWorkspace::default(),
         })
+    }
+
+    /// The densities for the boundary velocity `data` (of size `scale`): one direct solve of a
+    /// whole system, or a solve over the ranks of `comm` of a split one (collective).
+    fn solve(
+        &mut self,
+        comm: &dyn Communicator,
+        data: &[f64],
+        scale: f64,
+    ) -> Result<WallSolution, TimestepError> {
+        if self.system.rows().is_none() {
+            return self.system.solve_formed(data, scale).map_err(wall_error);
+        }
+        let (solution, iterations) =
+            solve_over_ranks(comm, &self.system, data, scale, &mut self.ws)?;
+        self.stats.split_iterations += iterations;
+        Ok(solution)
     }
 
     /// Grid points over all walls.
@@ -270,6 +324,7 @@ impl WallCoupling {
     /// (`3n` each, component-major).
     pub fn velocities(
         &mut self,
+        comm: &dyn Communicator,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         cells_at_walls: &[f64],
         points: &[Vec<[f64; 3]>],
@@ -319,7 +374,7 @@ impl WallCoupling {
             }
             offset += 3 * n;
         }
-        let solution = self.system.solve_formed(&data, scale).map_err(wall_error)?;
+        let solution = self.solve(comm, &data, scale)?;
         let t2 = Instant::now();
         let mut out = Vec::with_capacity(points.len());
         let mut speed: f64 = 0.0;
@@ -359,6 +414,7 @@ impl WallCoupling {
     /// not touched.
     pub fn field_at(
         &mut self,
+        comm: &dyn Communicator,
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         targets: &[[f64; 3]],
     ) -> Result<(Vec<f64>, Vec<bool>), TimestepError> {
@@ -370,7 +426,7 @@ impl WallCoupling {
             Some(s) => s,
             None => {
                 let (data, scale) = self.boundary_data(u_inf, None);
-                background = self.system.solve_formed(&data, scale).map_err(wall_error)?;
+                background = self.solve(comm, &data, scale)?;
                 &background
             }
         };

@@ -409,7 +409,8 @@ impl FarSide {
         }
         let fwd = std::mem::take(&mut self.forward_p);
         let mut r = Vec::new();
-        let result = self.coefficient_rows(kernel, x_grid, |chunk, cp| {
+        let targets = self.targets.clone();
+        let result = self.coefficient_rows(kernel, x_grid, &targets, |chunk, cp| {
             let nf = SYM.len() * chunk.len();
             r.resize(nf * np, 0.0);
             // R = Cᵀ F_p: row (target, a, b) over the order-p grid.
@@ -442,24 +443,35 @@ impl FarSide {
     /// row-major, row `a·n_p + t`, column `b·n_c + k`; [`super::SelfInteraction::assemble_rows`])
     /// gains `Y_Qᵀ W k E` for the kernel entry `(a, b)` of target `t`, so that
     /// `rows · blockdiag(F_p)` are the grid rows of [`Self::add_rows`].
+    ///
+    /// Only the targets `t` of `held` enter, at row `a·k + (t − held.start)` with
+    /// `k = held.len()` (all targets: the rows above).
     pub(crate) fn add_coefficient_rows(
         &mut self,
         kernel: LayerKernel,
         x_grid: &[f64],
+        held: std::ops::Range<usize>,
         rows: &mut [f64],
     ) -> Result<(), VesicleError> {
-        let np = self.sht_p.n_points();
+        let k = held.len();
         let ncp = self.sht_p.n_coefs();
-        self.coefficient_rows(kernel, x_grid, |chunk, cp| {
+        let targets: Vec<usize> = self
+            .targets
+            .iter()
+            .copied()
+            .filter(|t| held.contains(t))
+            .collect();
+        self.coefficient_rows(kernel, x_grid, &targets, |chunk, cp| {
             for (ti, &t) in chunk.iter().enumerate() {
+                let t = t - held.start;
                 for (e, &(a, b)) in SYM.iter().enumerate() {
                     let c = &cp[(SYM.len() * ti + e) * ncp..(SYM.len() * ti + e + 1) * ncp];
-                    let ra = (a * np + t) * 3 * ncp + b * ncp;
+                    let ra = (a * k + t) * 3 * ncp + b * ncp;
                     for (x, v) in rows[ra..ra + ncp].iter_mut().zip(c) {
                         *x += v;
                     }
                     if a != b {
-                        let rb = (b * np + t) * 3 * ncp + a * ncp;
+                        let rb = (b * k + t) * 3 * ncp + a * ncp;
                         for (x, v) in rows[rb..rb + ncp].iter_mut().zip(c) {
                             *x += v;
                         }
@@ -476,9 +488,10 @@ impl FarSide {
         &mut self,
         kernel: LayerKernel,
         x_grid: &[f64],
+        targets: &[usize],
         mut put: impl FnMut(&[usize], &[f64]),
     ) -> Result<(), VesicleError> {
-        let Some(far) = self.far.as_mut().filter(|_| !self.targets.is_empty()) else {
+        let Some(far) = self.far.as_mut().filter(|_| !targets.is_empty()) else {
             return Ok(());
         };
         let np = self.sht_p.n_points();
@@ -502,11 +515,11 @@ impl FarSide {
                 .collect::<Result<_, VesicleError>>()?;
         }
         let n = far.area.len();
-        let batch = ROW_BATCH.min(self.targets.len());
+        let batch = ROW_BATCH.min(targets.len());
         let nf = SYM.len() * batch;
         let mut rows = vec![0.0; nf * n];
         let mut cp = vec![0.0; nf * ncp];
-        for chunk in self.targets.chunks(batch) {
+        for chunk in targets.chunks(batch) {
             let nf = SYM.len() * chunk.len();
             for (ti, &t) in chunk.iter().enumerate() {
                 let (xt, ut) = (get3(x_grid, np, t), self.unit_p[t]);

@@ -349,29 +349,70 @@ impl SelfInteraction {
             // F_q = Y_qᵀ W fails for the Nyquist order m = q; nothing to gain without upsampling.
             return self.assemble_by_rotation_matrices(kernel, coefs, out);
         }
+        self.assemble_latitudes(kernel, coefs, 0..self.p + 1, out)
+    }
+
+    /// The rows of [`Self::assemble`] for the targets on the grid's latitudes `lats` only (a
+    /// band of the surface, `k = 2p·|lats|` targets from `t₀ = 2p·lats.start`): `out` is
+    /// `3k × 3n_p`, column-major, row `a·k + (t − t₀)`, column `b·n_p + j`. The rows are
+    /// those of the whole operator, computed latitude by latitude as it is; a wall split over
+    /// MPI ranks assembles each rank's band this way ([`crate::wall`]).
+    ///
+    /// # Errors
+    /// [`VesicleError::Parameter`] for latitudes past the grid's `p + 1`; as
+    /// [`Self::assemble`] otherwise.
+    pub fn assemble_latitudes(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        lats: std::ops::Range<usize>,
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
+        if lats.start > lats.end || lats.end > self.p + 1 {
+            return Err(VesicleError::Parameter {
+                name: "last latitude",
+                value: lats.end as f64 - 1.0,
+                reason: "the latitudes must form a range within the grid's 0..=p",
+            });
+        }
         let np = self.n_points();
-        let n3 = 3 * np;
-        check_len("operator", out.len(), n3 * n3)?;
+        let nlon = 2 * self.p;
+        let (k, t0) = (nlon * lats.len(), nlon * lats.start);
+        let k3 = 3 * k;
+        check_len("operator rows", out.len(), k3 * 3 * np)?;
+        if self.q == self.p {
+            let n3 = 3 * np;
+            let mut whole = vec![0.0; n3 * n3];
+            self.assemble_by_rotation_matrices(kernel, coefs, &mut whole)?;
+            for col in 0..n3 {
+                for a in 0..3 {
+                    let from = col * n3 + a * np + t0;
+                    out[col * k3 + a * k..col * k3 + (a + 1) * k]
+                        .copy_from_slice(&whole[from..from + k]);
+                }
+            }
+            return Ok(());
+        }
         let lp = self.sht_p.n_coefs();
         let mut rows = self
             .adjoint
             .as_mut()
             .map(|ad| std::mem::take(&mut ad.rows))
             .unwrap_or_default();
-        rows.resize(n3 * 3 * lp, 0.0);
-        let r = self.assemble_rows(kernel, coefs, &mut rows);
+        rows.resize(k3 * 3 * lp, 0.0);
+        let r = self.band_rows(kernel, coefs, lats, &mut rows);
         if r.is_ok() {
             let forward = &self.adjoint.as_ref().expect("built by the rows").forward;
-            let rows = MatRef::from_row_major_slice(&rows, n3, 3 * lp);
+            let rows = MatRef::from_row_major_slice(&rows, k3, 3 * lp);
             for b in 0..3 {
                 matmul(
                     MatMut::from_column_major_slice_mut(
-                        &mut out[b * np * n3..(b + 1) * np * n3],
-                        n3,
+                        &mut out[b * np * k3..(b + 1) * np * k3],
+                        k3,
                         np,
                     ),
                     Accum::Replace,
-                    rows.submatrix(0, b * lp, n3, lp),
+                    rows.submatrix(0, b * lp, k3, lp),
                     MatRef::from_column_major_slice(forward, lp, np),
                     1.0,
                     Par::Seq,
@@ -396,13 +437,26 @@ impl SelfInteraction {
         coefs: &[f64],
         out: &mut [f64],
     ) -> Result<(), VesicleError> {
+        self.band_rows(kernel, coefs, 0..self.p + 1, out)
+    }
+
+    /// [`Self::assemble_rows`] for the targets on the latitudes `lats` (`k` of them, row
+    /// `a·k + (t − t₀)` as in [`Self::assemble_latitudes`]).
+    fn band_rows(
+        &mut self,
+        kernel: LayerKernel,
+        coefs: &[f64],
+        lats: std::ops::Range<usize>,
+        out: &mut [f64],
+    ) -> Result<(), VesicleError> {
         if self.q == self.p {
             return Err(VesicleError::NotUpsampled { p: self.p });
         }
         kernel.check()?;
-        let np = self.n_points();
+        let nlon = 2 * self.p;
         let lp = self.sht_p.n_coefs();
-        check_len("operator rows", out.len(), 9 * np * lp)?;
+        let held = nlon * lats.start..nlon * lats.end;
+        check_len("operator rows", out.len(), 9 * held.len() * lp)?;
         self.set_surface(coefs)?;
         if matches!(self.rot, Rotator::Direct(_)) && self.sh_rot.is_none() {
             self.sh_rot = Some(Box::new(ShRotation::new(self.p, self.q)?));
@@ -418,19 +472,24 @@ impl SelfInteraction {
             )?),
         };
         let r = self
-            .coefficient_rows(kernel, &mut sc, &mut ad, out)
-            .and_then(|()| self.far.add_coefficient_rows(kernel, &self.x_grid, out));
+            .coefficient_rows(kernel, &mut sc, &mut ad, lats, out)
+            .and_then(|()| {
+                self.far
+                    .add_coefficient_rows(kernel, &self.x_grid, held, out)
+            });
         self.scratch = Some(sc);
         self.adjoint = Some(ad);
         r
     }
 
-    /// The rows `ρ` of [`Self::assemble_rows`] for every target into `rows`.
+    /// The rows `ρ` of [`Self::assemble_rows`] for the targets on the latitudes `lats` into
+    /// `rows` (row `a·k + (t − t₀)`, [`Self::assemble_latitudes`]).
     fn coefficient_rows(
         &mut self,
         kernel: LayerKernel,
         sc: &mut LatitudeScratch,
         ad: &mut AdjointScratch,
+        lats: std::ops::Range<usize>,
         rows: &mut [f64],
     ) -> Result<(), VesicleError> {
         let (np, nq, lp) = (
@@ -445,7 +504,8 @@ impl SelfInteraction {
         };
         let lw = ad.wide.len();
         let c_rot = &mut sc.c_all[..3 * nlon * lw];
-        for lat in 0..=self.p {
+        let (k, t0) = (nlon * lats.len(), nlon * lats.start);
+        for lat in lats {
             // The rotated surfaces of the latitude's 2p targets and their derivatives (degrees
             // ≤ p, in the layout of order p + 1, on the order-q grid).
             rot.rotate_coefs_every_longitude(lat, &self.x_coef, c_rot)?;
@@ -486,7 +546,8 @@ impl SelfInteraction {
                 for (e, &(a, b)) in SYM.iter().enumerate() {
                     let g = 6 * lon + e;
                     let rho = &ad.rho[g * lp..(g + 1) * lp];
-                    let (ra, rb) = ((a * np + t) * 3 * lp, (b * np + t) * 3 * lp);
+                    let tl = t - t0;
+                    let (ra, rb) = ((a * k + tl) * 3 * lp, (b * k + tl) * 3 * lp);
                     rows[ra + b * lp..ra + (b + 1) * lp].copy_from_slice(rho);
                     if a != b {
                         rows[rb + a * lp..rb + (a + 1) * lp].copy_from_slice(rho);

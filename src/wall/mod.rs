@@ -75,6 +75,7 @@ mod channel;
 mod field;
 mod plane;
 mod quadrature;
+mod rows;
 mod surface;
 mod system;
 mod tube;
@@ -82,6 +83,7 @@ mod tube;
 pub use channel::{channel_surface, flat_fraction, CHANNEL_EXPONENT};
 pub use field::{scatter_add, WallField};
 pub use plane::PlaneWall;
+pub use rows::{RowShare, WallBand, WallRows};
 pub use surface::{Wall, WallKind};
 pub use system::{WallParams, WallSolution, WallSystem, MAX_NET_FLUX};
 pub use tube::{straight_length, tube_surface, TUBE_END_EXPONENT};
@@ -176,6 +178,9 @@ pub enum WallError {
         /// Why.
         reason: &'static str,
     },
+    /// A solve of a system split over ranks asked of one rank alone.
+    #[error("the wall system is split over ranks: it is solved over all of them, not by one rank")]
+    Split,
     /// A target point outside the fluid.
     #[error("target {index} at {point:?} is not in the fluid ({reason})")]
     NotInFluid {

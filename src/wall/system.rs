@@ -2,12 +2,14 @@
 //! for every boundary velocity (the equations are in the [module docs](super)).
 
 use std::f64::consts::PI;
+use std::ops::Range;
 
 use crate::lu_pivots;
 use faer::linalg::solvers::{PartialPivLu, Solve};
 use faer::{Mat, MatMut};
 
 use super::quadrature::{resolving_order, Upsampled};
+use super::rows::{RowShare, WallBand, WallRows};
 use super::{check_len, Wall, WallError, WallKind};
 use crate::linalg3::dot3;
 use crate::sph_harmonics::ShTransform;
@@ -41,15 +43,22 @@ impl Default for WallParams {
 /// quadrature error, 4e-7 for a Stokeslet 0.7 radii outside a sphere at p = 12).
 pub const MAX_NET_FLUX: f64 = 1e-4;
 
-/// The walls' operator, assembled and LU-factored once.
+/// The walls' operator, assembled once and LU-factored once; or, split over ranks, this
+/// rank's rows of it ([`WallRows`]).
 pub struct WallSystem {
     walls: Vec<Wall>,
     offsets: Vec<usize>,
     container: Option<usize>,
     /// Smooth-quadrature order used for each (target, source) pair, `None` on the diagonal.
     orders: Vec<Vec<Option<usize>>>,
-    lu: PartialPivLu<f64>,
+    operator: Operator,
     pivot_ratio: f64,
+}
+
+/// The whole operator's factors, or one rank's rows.
+enum Operator {
+    Whole(PartialPivLu<f64>),
+    Rows(WallRows),
 }
 
 /// The densities of one solve, and what they say about the bodies.
@@ -75,6 +84,21 @@ impl WallSystem {
     /// not inside the container or inside another body), [`WallError::TooClose`] (a pair the
     /// largest quadrature order does not resolve), [`WallError::Singular`].
     pub fn new(walls: Vec<Wall>, params: WallParams) -> Result<Self, WallError> {
+        Self::new_share(walls, params, RowShare::WHOLE)
+    }
+
+    /// [`Self::new`] holding only the rows of `share` ([`RowShare::bands`]) and the factors of
+    /// their diagonal block ([`WallRows`]); the whole system for [`RowShare::WHOLE`]. Split,
+    /// the system is solved over the ranks ([`Self::rows`]), not by [`Self::solve`].
+    ///
+    /// # Errors
+    /// As [`Self::new`] (a singular diagonal block is [`WallError::Singular`]), and
+    /// [`WallError::Parameter`] for a rank outside the ranks.
+    pub fn new_share(
+        walls: Vec<Wall>,
+        params: WallParams,
+        share: RowShare,
+    ) -> Result<Self, WallError> {
         if walls.is_empty() {
             return Err(WallError::Empty);
         }
@@ -83,6 +107,13 @@ impl WallSystem {
                 name: "resolve_ratio",
                 value: params.resolve_ratio,
                 reason: "must be positive and finite",
+            });
+        }
+        if share.ranks == 0 || share.rank >= share.ranks {
+            return Err(WallError::Parameter {
+                name: "rank",
+                value: share.rank as f64,
+                reason: "must be below the number of ranks (at least one)",
             });
         }
         let mut container = None;
@@ -98,58 +129,11 @@ impl WallSystem {
         for w in &walls {
             offsets.push(offsets.last().unwrap() + 3 * w.n_points());
         }
-        let n = *offsets.last().unwrap();
         let orders = pair_orders(&walls, &params)?;
-        let mut m = Mat::<f64>::zeros(n, n);
-        for (k, w) in walls.iter().enumerate() {
-            add_self_block(
-                w,
-                &params,
-                m.as_mut().submatrix_mut(
-                    offsets[k],
-                    offsets[k],
-                    3 * w.n_points(),
-                    3 * w.n_points(),
-                ),
-            )?;
-        }
-        for (s, src) in walls.iter().enumerate() {
-            let mut cache: Option<Upsampled> = None;
-            for (t, tgt) in walls.iter().enumerate() {
-                let Some(q) = orders[t][s] else { continue };
-                if cache.as_ref().map(|u| u.order()) != Some(q) {
-                    cache = Some(Upsampled::new(src, q)?);
-                }
-                let up = cache.as_ref().expect("built above");
-                up.double_layer_block(
-                    &tgt.geometry().x,
-                    m.as_mut().submatrix_mut(
-                        offsets[t],
-                        offsets[s],
-                        3 * tgt.n_points(),
-                        3 * src.n_points(),
-                    ),
-                );
-            }
-        }
-        for (k, w) in walls.iter().enumerate() {
-            if w.kind() == WallKind::Body {
-                for (t, tgt) in walls.iter().enumerate() {
-                    add_body_completion(
-                        w,
-                        tgt,
-                        m.as_mut().submatrix_mut(
-                            offsets[t],
-                            offsets[k],
-                            3 * tgt.n_points(),
-                            3 * w.n_points(),
-                        ),
-                    );
-                }
-            }
-        }
-        for j in 0..n {
-            for i in 0..n {
+        let bands = share.bands(&walls);
+        let m = assemble_bands(&walls, &params, &offsets, &orders, &bands)?;
+        for j in 0..m.ncols() {
+            for i in 0..m.nrows() {
                 if !m[(i, j)].is_finite() {
                     return Err(WallError::NonFinite {
                         what: "the wall operator",
@@ -157,9 +141,16 @@ impl WallSystem {
                 }
             }
         }
-        let lu = m.partial_piv_lu();
-        let pivot_ratio = lu_pivots::pivot_ratio(lu.U());
-        if !lu_pivots::accepts(pivot_ratio, lu_pivots::roundoff_floor(n)) {
+        let (operator, pivot_ratio, n_block) = if share.is_whole() {
+            let lu = m.partial_piv_lu();
+            let pivot_ratio = lu_pivots::pivot_ratio(lu.U());
+            (Operator::Whole(lu), pivot_ratio, m.nrows())
+        } else {
+            let rows = WallRows::new(share, &walls, &offsets, m);
+            let (ratio, nr) = (rows.pivot_ratio(), rows.n_rows());
+            (Operator::Rows(rows), ratio, nr)
+        };
+        if n_block > 0 && !lu_pivots::accepts(pivot_ratio, lu_pivots::roundoff_floor(n_block)) {
             return Err(WallError::Singular { pivot_ratio });
         }
         Ok(WallSystem {
@@ -167,7 +158,7 @@ impl WallSystem {
             offsets,
             container,
             orders,
-            lu,
+            operator,
             pivot_ratio,
         })
     }
@@ -213,6 +204,35 @@ impl WallSystem {
     /// boundary velocity `U_w − u_∞` zero up to round-off, whose net flux is not small beside
     /// itself.
     pub fn solve_formed(&self, velocity: &[f64], scale: f64) -> Result<WallSolution, WallError> {
+        self.check_data(velocity, scale)?;
+        let Operator::Whole(lu) = &self.operator else {
+            return Err(WallError::Split);
+        };
+        let n = self.n_unknowns();
+        let mut rhs = Mat::<f64>::zeros(n, 1);
+        for (i, v) in velocity.iter().enumerate() {
+            rhs[(i, 0)] = *v;
+        }
+        lu.solve_in_place(rhs.as_mut());
+        let densities: Vec<f64> = (0..n).map(|i| rhs[(i, 0)]).collect();
+        self.solution(densities, velocity)
+    }
+
+    /// This rank's rows when the system is split over ranks ([`Self::new_share`]); `None` for
+    /// the whole system.
+    pub fn rows(&self) -> Option<&WallRows> {
+        match &self.operator {
+            Operator::Whole(_) => None,
+            Operator::Rows(r) => Some(r),
+        }
+    }
+
+    /// The checks of [`Self::solve_formed`] on a boundary velocity, without the solve: its
+    /// length, finite values and the container's net flux.
+    ///
+    /// # Errors
+    /// As [`Self::solve_formed`].
+    pub fn check_data(&self, velocity: &[f64], scale: f64) -> Result<(), WallError> {
         let n = self.n_unknowns();
         check_len("boundary velocity", velocity.len(), n)?;
         if !velocity.iter().all(|v| v.is_finite()) {
@@ -231,12 +251,22 @@ impl WallSystem {
                 });
             }
         }
-        let mut rhs = Mat::<f64>::zeros(n, 1);
-        for (i, v) in velocity.iter().enumerate() {
-            rhs[(i, 0)] = *v;
-        }
-        self.lu.solve_in_place(rhs.as_mut());
-        let densities: Vec<f64> = (0..n).map(|i| rhs[(i, 0)]).collect();
+        Ok(())
+    }
+
+    /// The solution with the densities `densities` (every wall's, as a solve for the boundary
+    /// velocity `velocity` gives them): the bodies' moments and a lone wall's own double layer.
+    /// A solve over the ranks ([`Self::rows`]) ends here.
+    ///
+    /// # Errors
+    /// [`WallError::Length`] for densities or a velocity of the wrong length.
+    pub fn solution(
+        &self,
+        densities: Vec<f64>,
+        velocity: &[f64],
+    ) -> Result<WallSolution, WallError> {
+        check_len("wall densities", densities.len(), self.n_unknowns())?;
+        check_len("boundary velocity", velocity.len(), self.n_unknowns())?;
         let moments = self
             .walls
             .iter()
@@ -404,29 +434,106 @@ fn pair_orders(walls: &[Wall], params: &WallParams) -> Result<Vec<Vec<Option<usi
     Ok(orders)
 }
 
-/// `K_kk ∓ ½ I` (the fluid's side) and, for a container, `n (1/A) ∫ n·ψ dA`.
-fn add_self_block(
+/// The rows of the bands `bands` of the walls' system (`Σ 3k_b × n`, band by band, each band's
+/// points component by component: [`RowShare::unknowns`]): every wall's own block, the double
+/// layers between walls and the bodies' completions at the bands' points. For the whole system
+/// (every wall one band) this is the system itself.
+fn assemble_bands(
+    walls: &[Wall],
+    params: &WallParams,
+    offsets: &[usize],
+    orders: &[Vec<Option<usize>>],
+    bands: &[WallBand],
+) -> Result<Mat<f64>, WallError> {
+    let n = *offsets.last().expect("offsets start at 0");
+    let firsts: Vec<usize> = bands
+        .iter()
+        .scan(0, |row, b| {
+            let first = *row;
+            *row += 3 * b.points(walls).len();
+            Some(first)
+        })
+        .collect();
+    let nr: usize = bands.iter().map(|b| 3 * b.points(walls).len()).sum();
+    let mut m = Mat::<f64>::zeros(nr, n);
+    for (b, &r0) in bands.iter().zip(&firsts) {
+        let w = &walls[b.wall];
+        let k3 = 3 * b.points(walls).len();
+        let np3 = 3 * w.n_points();
+        add_self_rows(
+            w,
+            params,
+            b.lats.clone(),
+            m.as_mut().submatrix_mut(r0, offsets[b.wall], k3, np3),
+        )?;
+    }
+    for (s, src) in walls.iter().enumerate() {
+        let mut cache: Option<Upsampled> = None;
+        for (b, &r0) in bands.iter().zip(&firsts) {
+            let Some(q) = orders[b.wall][s] else { continue };
+            if cache.as_ref().map(|u| u.order()) != Some(q) {
+                cache = Some(Upsampled::new(src, q)?);
+            }
+            let up = cache.as_ref().expect("built above");
+            let x = &walls[b.wall].geometry().x[b.points(walls)];
+            up.double_layer_block(
+                x,
+                m.as_mut()
+                    .submatrix_mut(r0, offsets[s], 3 * x.len(), 3 * src.n_points()),
+            );
+        }
+    }
+    for (k, w) in walls.iter().enumerate() {
+        if w.kind() == WallKind::Body {
+            for (b, &r0) in bands.iter().zip(&firsts) {
+                let x = &walls[b.wall].geometry().x[b.points(walls)];
+                add_body_completion(
+                    w,
+                    x,
+                    m.as_mut()
+                        .submatrix_mut(r0, offsets[k], 3 * x.len(), 3 * w.n_points()),
+                );
+            }
+        }
+    }
+    Ok(m)
+}
+
+/// The rows of wall `w`'s own block at the points of its latitudes `lats`: `K_kk ∓ ½ I` (the
+/// fluid's side) and, for a container, `n (1/A) ∫ n·ψ dA` (rows `a·k + (t − t₀)` over the
+/// band's `k` points from `t₀`).
+fn add_self_rows(
     w: &Wall,
     params: &WallParams,
+    lats: Range<usize>,
     mut out: MatMut<'_, f64>,
 ) -> Result<(), WallError> {
     let p = w.order();
     let np = w.n_points();
     let n3 = 3 * np;
+    let (t0, k) = (2 * p * lats.start, 2 * p * lats.len());
+    let k3 = 3 * k;
     let mut si = SelfInteraction::new(
         p,
         params.self_order.unwrap_or(2 * p),
         RotationAlgorithm::ViaSh,
     )?;
-    let mut k = vec![0.0; n3 * n3];
-    si.assemble(LayerKernel::DoubleLayer, w.surface().coefs(), &mut k)?;
+    let mut kmat = vec![0.0; k3 * n3];
+    si.assemble_latitudes(
+        LayerKernel::DoubleLayer,
+        w.surface().coefs(),
+        lats,
+        &mut kmat,
+    )?;
     let jump = match w.kind() {
         WallKind::Container => -0.5,
         WallKind::Body => 0.5,
     };
     for j in 0..n3 {
-        for i in 0..n3 {
-            out[(i, j)] = k[j * n3 + i] + if i == j { jump } else { 0.0 };
+        for i in 0..k3 {
+            // Row i is unknown (i / k)·n_p + t₀ + i % k of the wall.
+            let diagonal = (i / k) * np + t0 + i % k == j;
+            out[(i, j)] = kmat[j * k3 + i] + if diagonal { jump } else { 0.0 };
         }
     }
     if w.kind() == WallKind::Container {
@@ -436,8 +543,8 @@ fn add_self_block(
             for j in 0..np {
                 let wj = g.normal[j][b] * g.da[j] / area;
                 for a in 0..3 {
-                    for t in 0..np {
-                        out[(a * np + t, b * np + j)] += g.normal[t][a] * wj;
+                    for t in 0..k {
+                        out[(a * k + t, b * np + j)] += g.normal[t0 + t][a] * wj;
                     }
                 }
             }
@@ -446,14 +553,14 @@ fn add_self_block(
     Ok(())
 }
 
-/// Body `w`'s Stokeslet and rotlet at the points of `tgt`, as columns over `w`'s density:
+/// Body `w`'s Stokeslet and rotlet at the points `targets`, as columns over `w`'s density:
 /// `∂u_a(x_t)/∂ψ_b(y_j) = dA_j/8π [G_ab(r) + δ_ab (s·r)/r³ − s_a r_b/r³]`, `r = x_t − c`,
 /// `s = y_j − c` (from `(s × e_b) × r = e_b (s·r) − s r_b`).
-fn add_body_completion(w: &Wall, tgt: &Wall, mut out: MatMut<'_, f64>) {
+fn add_body_completion(w: &Wall, targets: &[[f64; 3]], mut out: MatMut<'_, f64>) {
     let g = w.geometry();
     let c = w.centroid();
-    let (np, nt) = (w.n_points(), tgt.n_points());
-    for (t, &x) in tgt.geometry().x.iter().enumerate() {
+    let (np, nt) = (w.n_points(), targets.len());
+    for (t, &x) in targets.iter().enumerate() {
         let r = [x[0] - c[0], x[1] - c[1], x[2] - c[2]];
         let r2 = dot3(r, r);
         let ri = 1.0 / r2.sqrt();

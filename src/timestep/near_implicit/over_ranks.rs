@@ -20,7 +20,8 @@
 
 use super::*;
 use crate::comm::{CommError, Communicator};
-use crate::timestep::gmres::{dot, gmres_with, GmresOperator, GmresParams, InnerProducts};
+use crate::timestep::gmres::{gmres_with, GmresOperator, GmresParams};
+use crate::timestep::rank_sums::RankSums;
 
 /// What the step over ranks came to on this rank.
 pub(in crate::timestep) enum RanksStep {
@@ -69,37 +70,6 @@ struct Gathered {
     /// `X*` (order-`p` coefficients).
     surface: Vec<f64>,
     points: Vec<[f64; 3]>,
-}
-
-/// Inner products summed over the ranks in rank order (the same value on every rank). A
-/// failed exchange gives NaN here, which ends this rank's solve, and is kept (an MPI failure
-/// is in practice the whole job's).
-struct RankSums<'a> {
-    comm: &'a dyn Communicator,
-    failure: Mutex<Option<CommError>>,
-}
-
-impl RankSums<'_> {
-    fn total(&self, local: f64) -> f64 {
-        match self.comm.all_gather_f64(&[local]) {
-            Ok(all) => all.iter().map(|v| v.first().copied().unwrap_or(0.0)).sum(),
-            Err(e) => {
-                let mut slot = self.failure.lock().unwrap_or_else(|e| e.into_inner());
-                slot.get_or_insert(e);
-                f64::NAN
-            }
-        }
-    }
-}
-
-impl InnerProducts for RankSums<'_> {
-    fn dot(&self, a: &[f64], b: &[f64]) -> f64 {
-        self.total(dot(a, b))
-    }
-    fn any(&self, local: bool) -> bool {
-        // NaN (a failed exchange) counts as true.
-        self.total(if local { 1.0 } else { 0.0 }) != 0.0
-    }
 }
 
 /// [`step_all`] over the ranks of `comm` (collective; `ids` the global indices of `cells`,
@@ -499,10 +469,7 @@ impl ClusterOverRanks<'_> {
             failure: Mutex::new(None),
         };
         let pc = ClusterPreconditioner::of(cells, steps, n);
-        let sums = RankSums {
-            comm: self.comm,
-            failure: Mutex::new(None),
-        };
+        let sums = RankSums::new(self.comm);
         let mut ws = GmresWorkspace::new(n4 * m, self.params.restart);
         let mut z = vec![0.0; n4 * m];
         let report = gmres_with(
@@ -518,7 +485,7 @@ impl ClusterOverRanks<'_> {
         if let Some(e) = near_failure {
             return Err(e);
         }
-        if let Some(e) = sums.failure.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        if let Some(e) = sums.failure() {
             return Err(TimestepError::Comm(e));
         }
         operator_failure(op.failure, &op.ops)?;

@@ -96,7 +96,7 @@ impl Suspension {
         let walls = self
             .walls
             .as_mut()
-            .map(|w| w.field_at(u_inf, targets))
+            .map(|w| w.field_at(comm, u_inf, targets))
             .transpose()
             .map_err(|source| CellStepError { cell: None, source });
         let walls = agree_cells(comm, walls)?;

@@ -207,7 +207,9 @@ impl Suspension {
         }
         let points: Vec<Vec<[f64; 3]>> = geometries.into_iter().map(|g| g.x).collect();
         // The same data and system on every rank: a failure is every rank's.
-        let velocities = walls.velocities(u_inf, &total, &points).map_err(fail)?;
+        let velocities = walls
+            .velocities(comm, u_inf, &total, &points)
+            .map_err(fail)?;
         self.add_explicit_velocities(velocities);
         Ok(())
     }
