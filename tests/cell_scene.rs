@@ -277,6 +277,22 @@ fn gpu_setting_is_auto_true_or_false() {
 }
 
 #[test]
+fn walls_are_split_over_ranks_when_asked_or_when_too_big_to_replicate() {
+    use mobo::scene::cells::WALL_SPLIT_BYTES;
+    let (small, big) = (WALL_SPLIT_BYTES / 2, WALL_SPLIT_BYTES + 1);
+    for (how, ranks, bytes, splits) in [
+        (WallSolve::Auto, 2, small, false),
+        (WallSolve::Auto, 2, big, true),
+        (WallSolve::Auto, 1, big, false),
+        (WallSolve::Split, 2, small, true),
+        (WallSolve::Split, 1, small, false),
+        (WallSolve::Replicated, 16, big, false),
+    ] {
+        assert_eq!(how.splits(ranks, bytes), splits, "{how:?} {ranks} {bytes}");
+    }
+}
+
+#[test]
 fn bad_scenes_name_the_file_the_line_and_the_problem() {
     let cases: &[(&str, &str)] = &[
         ("[[cells]]\nshape = \"sphere\"\ncolour = 1\n", "scene.toml:3"),

@@ -6,7 +6,8 @@
 //! ends every rank with one message naming the step and the cell and leaves the last
 //! checkpoint as it was; SIGUSR1 and Ctrl-C on `mpirun` stop every rank with a checkpoint.
 //! Cells between rigid walls (a container and an obstacle) give the one-rank result on 2 and 3
-//! ranks to 1e-10, with the walls' system split over the ranks (the default) and replicated.
+//! ranks to 1e-10, with the walls' system replicated on every rank (the default for small
+//! walls) and split over the ranks.
 //! `mpirun -n K mobo brownian` writes the one-process trajectory byte for byte.
 //!
 //! Needs `mpirun` (Debian's `openmpi-bin`) and the `mpi` feature (the binary must be built
@@ -453,20 +454,21 @@ fn cells_between_walls_give_the_one_rank_result_on_2_and_3_ranks() {
     let passes = s1["counters"]["start_up"]["passes"].as_u64().unwrap();
     assert_eq!(s1["counters"]["walls"]["solves"].as_u64(), Some(6 + passes));
     let whole_bytes = s1["counters"]["walls"]["operator_bytes"].as_u64().unwrap();
-    // The same walls replicated on every rank (`wall_solve = "replicated"`): each rank solves
-    // the whole system alone.
-    let replicated = write(
+    // Small walls stay whole on every rank by default (`wall_solve = "auto"`): each rank
+    // solves the whole system alone. Split, each rank holds its band's rows.
+    let split = write(
         &dir,
-        "replicated.toml",
+        "split.toml",
         &WALLS.replace(
             "coupling = \"explicit\"",
-            "coupling = \"explicit\"\nwall_solve = \"replicated\"",
+            "coupling = \"explicit\"\nwall_solve = \"split\"",
         ),
     );
+    let split = split.to_str().unwrap();
     let runs = [
-        (2, replicated.to_str().unwrap(), "replicated"),
-        (2, scene, "split"),
-        (3, scene, "split"),
+        (2, scene, "replicated"),
+        (2, split, "split"),
+        (3, split, "split"),
     ];
     for (k, file, how) in runs {
         let out = dir.join(format!("k{k}-{how}"));

@@ -322,7 +322,13 @@ impl<'a> CellRun<'a> {
         };
         let mine: Vec<usize> = (0..nc).filter(|&i| owners[i] == comm.rank()).collect();
         // The walls' system split over the ranks, or every rank's whole ([numerics] wall_solve).
-        let walls_share = if scene.numerics.wall_solve.splits(comm.size()) {
+        let wall_unknowns: u64 = scene
+            .walls
+            .iter()
+            .map(|w| 3 * (w.order as u64 + 1) * 2 * w.order as u64)
+            .sum();
+        let whole_bytes = 8 * wall_unknowns * wall_unknowns;
+        let walls_share = if scene.numerics.wall_solve.splits(comm.size(), whole_bytes) {
             RowShare {
                 rank: comm.rank(),
                 ranks: comm.size(),

@@ -95,7 +95,8 @@
 //! wall_solve = "auto"             # under mpirun, the walls' dense system: "split" (each rank
 //! #                               # holds the rows of its band of the walls, solved by GMRES
 //! #                               # over the ranks) | "replicated" (every rank the whole
-//! #                               # system, factored) | "auto" (split on two or more ranks)
+//! #                               # system, factored) | "auto" (split when the whole would
+//! #                               # take over 1 GiB a rank; see WallSolve)
 //!
 //! [[walls]]                       # rigid walls (optional; see scene::walls, docs/walls.md)
 //! kind = "container"              # "container" (fluid inside) | "body" (fixed obstacle)
@@ -126,7 +127,7 @@ pub(crate) use super::cell_scene::rotation;
 pub use super::cell_scene::{
     CellScene, CellSpec, Effect, Flow, GridMotion, Numerics, OutputSettings, PlaneSpec, Scheme,
     Shape, TubeWindow, WallSolve, MAX_IMBALANCE, RBC_MIN_ORDER, REBALANCE_EVERY,
-    TUBE_WINDOW_TOLERANCE,
+    TUBE_WINDOW_TOLERANCE, WALL_SPLIT_BYTES,
 };
 pub(crate) use super::cells_schema::Origin;
 use super::cells_schema::{File, NumericsSection};

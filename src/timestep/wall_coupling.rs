@@ -200,8 +200,9 @@ impl WallCoupling {
         if self.system.rows().is_none() {
             return self.system.solve_formed(data, scale).map_err(wall_error);
         }
+        let guess = self.last.as_ref().map(|s| s.densities());
         let (solution, iterations) =
-            solve_over_ranks(comm, &self.system, data, scale, &mut self.ws)?;
+            solve_over_ranks(comm, &self.system, data, scale, guess, &mut self.ws)?;
         self.stats.split_iterations += iterations;
         Ok(solution)
     }

@@ -70,9 +70,10 @@ impl Preconditioner for BlockJacobi<'_> {
 }
 
 /// Solve the split system `system` for the boundary velocity `data` (every wall's, the same on
-/// every rank; `scale` as in [`WallSystem::solve_formed`]); collective over the ranks of
-/// `comm`, which must be those the rows were split over. Returns the solution (the same on
-/// every rank) and the GMRES iterations.
+/// every rank; `scale` as in [`WallSystem::solve_formed`]), starting from the densities
+/// `guess` (every wall's: the last step's, which the cells change little; `None`: zero);
+/// collective over the ranks of `comm`, which must be those the rows were split over. Returns
+/// the solution (the same on every rank) and the GMRES iterations.
 ///
 /// # Errors
 /// The data's checks ([`WallSystem::check_data`]), a failed exchange, or GMRES not meeting
@@ -82,6 +83,7 @@ pub(in crate::timestep) fn solve_over_ranks(
     system: &WallSystem,
     data: &[f64],
     scale: f64,
+    guess: Option<&[f64]>,
     ws: &mut GmresWorkspace,
 ) -> Result<(WallSolution, usize), TimestepError> {
     let rows = system
@@ -110,11 +112,12 @@ pub(in crate::timestep) fn solve_over_ranks(
         min_cycle_reduction: 1e-3,
     };
     let mut x = vec![0.0; rows.n_rows()];
+    let x0 = guess.map(|g| rows.restrict(g));
     let report = gmres_with(
         &op,
         &BlockJacobi(rows),
         &b,
-        None,
+        x0.as_deref(),
         &mut x,
         &params,
         ws,

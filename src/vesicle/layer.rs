@@ -349,12 +349,16 @@ impl SelfInteraction {
             // F_q = Y_qᵀ W fails for the Nyquist order m = q; nothing to gain without upsampling.
             return self.assemble_by_rotation_matrices(kernel, coefs, out);
         }
+        let n3 = 3 * self.n_points();
+        check_len("operator", out.len(), n3 * n3)?;
+        let out = MatMut::from_column_major_slice_mut(out, n3, n3);
         self.assemble_latitudes(kernel, coefs, 0..self.p + 1, out)
     }
 
     /// The rows of [`Self::assemble`] for the targets on the grid's latitudes `lats` only (a
     /// band of the surface, `k = 2p·|lats|` targets from `t₀ = 2p·lats.start`): `out` is
-    /// `3k × 3n_p`, column-major, row `a·k + (t − t₀)`, column `b·n_p + j`. The rows are
+    /// `3k × 3n_p` (any strides: a block of a larger matrix), row `a·k + (t − t₀)`, column
+    /// `b·n_p + j`. The rows are
     /// those of the whole operator, computed latitude by latitude as it is; a wall split over
     /// MPI ranks assembles each rank's band this way ([`crate::wall`]).
     ///
@@ -366,7 +370,7 @@ impl SelfInteraction {
         kernel: LayerKernel,
         coefs: &[f64],
         lats: std::ops::Range<usize>,
-        out: &mut [f64],
+        mut out: MatMut<'_, f64>,
     ) -> Result<(), VesicleError> {
         if lats.start > lats.end || lats.end > self.p + 1 {
             return Err(VesicleError::Parameter {
@@ -379,16 +383,22 @@ impl SelfInteraction {
         let nlon = 2 * self.p;
         let (k, t0) = (nlon * lats.len(), nlon * lats.start);
         let k3 = 3 * k;
-        check_len("operator rows", out.len(), k3 * 3 * np)?;
+        if (out.nrows(), out.ncols()) != (k3, 3 * np) {
+            return Err(VesicleError::Length {
+                what: "operator rows (rows × columns)",
+                len: out.nrows() * out.ncols(),
+                expected: k3 * 3 * np,
+            });
+        }
         if self.q == self.p {
             let n3 = 3 * np;
             let mut whole = vec![0.0; n3 * n3];
             self.assemble_by_rotation_matrices(kernel, coefs, &mut whole)?;
             for col in 0..n3 {
                 for a in 0..3 {
-                    let from = col * n3 + a * np + t0;
-                    out[col * k3 + a * k..col * k3 + (a + 1) * k]
-                        .copy_from_slice(&whole[from..from + k]);
+                    for t in 0..k {
+                        out[(a * k + t, col)] = whole[col * n3 + a * np + t0 + t];
+                    }
                 }
             }
             return Ok(());
@@ -406,11 +416,7 @@ impl SelfInteraction {
             let rows = MatRef::from_row_major_slice(&rows, k3, 3 * lp);
             for b in 0..3 {
                 matmul(
-                    MatMut::from_column_major_slice_mut(
-                        &mut out[b * np * k3..(b + 1) * np * k3],
-                        k3,
-                        np,
-                    ),
+                    out.as_mut().submatrix_mut(0, b * np, k3, np),
                     Accum::Replace,
                     rows.submatrix(0, b * lp, k3, lp),
                     MatRef::from_column_major_slice(forward, lp, np),

@@ -323,6 +323,10 @@ fn own_double_layer(w: &Wall, velocity: &[f64], solution: &WallSolution) -> Vec<
 }
 
 impl WallSolution {
+    /// Every wall's density, walls in order (the layout of the system's unknowns).
+    pub fn densities(&self) -> &[f64] {
+        &self.densities
+    }
     /// Wall `i`'s density `ψ_i` (component-major on its grid).
     pub fn density(&self, i: usize) -> &[f64] {
         &self.densities[self.offsets[i]..self.offsets[i + 1]]
@@ -510,30 +514,25 @@ fn add_self_rows(
 ) -> Result<(), WallError> {
     let p = w.order();
     let np = w.n_points();
-    let n3 = 3 * np;
     let (t0, k) = (2 * p * lats.start, 2 * p * lats.len());
-    let k3 = 3 * k;
     let mut si = SelfInteraction::new(
         p,
         params.self_order.unwrap_or(2 * p),
         RotationAlgorithm::ViaSh,
     )?;
-    let mut kmat = vec![0.0; k3 * n3];
     si.assemble_latitudes(
         LayerKernel::DoubleLayer,
         w.surface().coefs(),
         lats,
-        &mut kmat,
+        out.as_mut(),
     )?;
     let jump = match w.kind() {
         WallKind::Container => -0.5,
         WallKind::Body => 0.5,
     };
-    for j in 0..n3 {
-        for i in 0..k3 {
-            // Row i is unknown (i / k)·n_p + t₀ + i % k of the wall.
-            let diagonal = (i / k) * np + t0 + i % k == j;
-            out[(i, j)] = kmat[j * k3 + i] + if diagonal { jump } else { 0.0 };
+    for a in 0..3 {
+        for t in 0..k {
+            out[(a * k + t, a * np + t0 + t)] += jump;
         }
     }
     if w.kind() == WallKind::Container {
