@@ -19,9 +19,12 @@
 //! The walls' part is a direct evaluation, `O(N_wall · N_cells · q²)` a step; the FMM does not
 //! carry the walls yet. Over MPI ranks each rank evaluates its own cells at the walls, every
 //! rank gathers every cell's contribution and sums them in the order of the cells' global
-//! indices (the one-rank order, so the sum is the same bits), and every rank solves the same
-//! (replicated, small) wall system and evaluates it at its own cells. The gather is
-//! `3 N_wall` values per cell and step; splitting the wall over the ranks is still to come.
+//! indices (the one-rank order, so the sum is the same bits), solves, and evaluates the walls
+//! at its own cells. The gather is `3 N_wall` values per cell and step. The solve is either
+//! every rank's own direct solve of the whole (replicated) system, the same bits as one rank,
+//! or, with the system split over the ranks ([`WallCoupling::new_share`], `[numerics]
+//! wall_solve`), one GMRES over the ranks on the rows each holds
+//! ([`super::wall_rows_solve`]), started from the last step's densities.
 
 use std::time::Instant;
 
