@@ -118,7 +118,7 @@ pub mod step_solve;
 pub mod suspension;
 pub mod vesicle_stepper;
 pub mod wall_coupling;
-mod wall_rows_solve;
+pub mod wall_rows_solve;
 
 pub use gmres::{gmres, GmresParams, GmresReport, GmresWorkspace};
 pub use operator::{

@@ -3,7 +3,7 @@
 //! GMRES on `A M⁻¹ y = U`, `ψ = M⁻¹ y`, with `M` the block Jacobi of the ranks' diagonal blocks.
 //! Each rank holds its rows of every Krylov vector; a product gathers the preconditioned vector
 //! whole (`3N_wall` values, one all-gather) and multiplies the rank's rows; the inner products
-//! are summed over the ranks in rank order ([`RankSums`]), so every rank runs the same
+//! are summed over the ranks in rank order (`RankSums`), so every rank runs the same
 //! recurrence. The densities are gathered whole at the end, and every rank evaluates them at its
 //! own cells as with a replicated system. The iterate meets [`WALL_ROWS_TOL`], so the answer is
 //! one rank's (a direct solve) to about that relative size.
