@@ -43,7 +43,9 @@
 //! distance (the error falls like `exp(−c d/h)` in the distance over the spacing `h` of the
 //! upsampled grid; a pair too close for the largest order is refused, not silently
 //! inaccurate). The whole system is dense, assembled once and factored once
-//! ([`WallSystem`]); every new boundary velocity is then one solve. The velocity at points in
+//! ([`WallSystem`]); every new boundary velocity is then one solve. Over MPI ranks it can
+//! instead be split by bands of the walls' latitudes, each rank assembling and holding its rows
+//! and the factors of their diagonal block, and solved by GMRES over the ranks ([`WallRows`]). The velocity at points in
 //! the fluid uses the near-singular evaluation of [`crate::vesicle::near`] for each surface.
 //!
 //! ## Checked against
