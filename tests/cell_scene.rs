@@ -280,15 +280,24 @@ fn gpu_setting_is_auto_true_or_false() {
 fn walls_are_split_over_ranks_when_asked_or_when_too_big_to_replicate() {
     use mobo::scene::cells::WALL_SPLIT_BYTES;
     let (small, big) = (WALL_SPLIT_BYTES / 2, WALL_SPLIT_BYTES + 1);
-    for (how, ranks, bytes, splits) in [
-        (WallSolve::Auto, 2, small, false),
-        (WallSolve::Auto, 2, big, true),
-        (WallSolve::Auto, 1, big, false),
-        (WallSolve::Split, 2, small, true),
-        (WallSolve::Split, 1, small, false),
-        (WallSolve::Replicated, 16, big, false),
+    // 64 GB free: 16 ranks' copies of half a GiB (twice that while factoring) fit in 60 % of
+    // it, 64 ranks' do not.
+    let free = Some(64_000_000_000);
+    for (how, ranks, bytes, available, splits) in [
+        (WallSolve::Auto, 2, small, None, false),
+        (WallSolve::Auto, 2, big, None, true),
+        (WallSolve::Auto, 1, big, None, false),
+        (WallSolve::Auto, 16, small, free, false),
+        (WallSolve::Auto, 64, small, free, true),
+        (WallSolve::Split, 2, small, None, true),
+        (WallSolve::Split, 1, small, None, false),
+        (WallSolve::Replicated, 64, big, free, false),
     ] {
-        assert_eq!(how.splits(ranks, bytes), splits, "{how:?} {ranks} {bytes}");
+        assert_eq!(
+            how.splits(ranks, bytes, available),
+            splits,
+            "{how:?} {ranks} {bytes}"
+        );
     }
 }
 

@@ -35,7 +35,7 @@ use std::time::Instant;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-use super::assembly::{build_part_share, run_effects, setups};
+use super::assembly::{available_memory, build_part_share, run_effects, setups};
 use super::cell_step::{accepted_step, adaptive_control, flow_origin, rheology, step_error};
 use super::checkpoint::{self, Progress, Split};
 use super::error::{agreed, CellRunError};
@@ -328,7 +328,14 @@ impl<'a> CellRun<'a> {
             .map(|w| 3 * (w.order as u64 + 1) * 2 * w.order as u64)
             .sum();
         let whole_bytes = 8 * wall_unknowns * wall_unknowns;
-        let walls_share = if scene.numerics.wall_solve.splits(comm.size(), whole_bytes) {
+        // Every rank decides on its own free memory; split where any rank would.
+        let mut split = [f64::from(u8::from(scene.numerics.wall_solve.splits(
+            comm.size(),
+            whole_bytes,
+            available_memory(),
+        )))];
+        comm.all_max(&mut split).map_err(CellRunError::Comm)?;
+        let walls_share = if split[0] > 0.0 {
             RowShare {
                 rank: comm.rank(),
                 ranks: comm.size(),

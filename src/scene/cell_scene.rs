@@ -418,7 +418,10 @@ pub struct Numerics {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum WallSolve {
     /// Split with two or more ranks when the whole operator would take more than
-    /// [`WALL_SPLIT_BYTES`] on every rank, replicated otherwise (the default).
+    /// [`WALL_SPLIT_BYTES`] on every rank, or when every rank's copy (twice the operator while
+    /// it is factored) would take more than 60 % of the memory available, the ranks taken to
+    /// share one machine (on several machines the split comes sooner than it must);
+    /// replicated otherwise (the default).
     #[default]
     Auto,
     /// Every rank holds the whole system and its LU factors, and solves it alone: the same
@@ -435,12 +438,17 @@ pub enum WallSolve {
 pub const WALL_SPLIT_BYTES: u64 = 1 << 30;
 
 impl WallSolve {
-    /// Whether walls whose whole operator takes `whole_bytes` are split over `ranks` ranks.
-    pub fn splits(self, ranks: usize, whole_bytes: u64) -> bool {
+    /// Whether walls whose whole operator takes `whole_bytes` are split over `ranks` ranks, on
+    /// a machine with `available` bytes of memory free (`None`: unknown).
+    pub fn splits(self, ranks: usize, whole_bytes: u64, available: Option<u64>) -> bool {
         match self {
             WallSolve::Replicated => false,
             WallSolve::Split => ranks > 1,
-            WallSolve::Auto => ranks > 1 && whole_bytes > WALL_SPLIT_BYTES,
+            WallSolve::Auto => {
+                let crowded = available
+                    .is_some_and(|a| 2 * whole_bytes as u128 * ranks as u128 > a as u128 / 10 * 6);
+                ranks > 1 && (whole_bytes > WALL_SPLIT_BYTES || crowded)
+            }
         }
     }
 }

@@ -96,7 +96,8 @@
 //! #                               # holds the rows of its band of the walls, solved by GMRES
 //! #                               # over the ranks) | "replicated" (every rank the whole
 //! #                               # system, factored) | "auto" (split when the whole would
-//! #                               # take over 1 GiB a rank; see WallSolve)
+//! #                               # take over 1 GiB a rank, or the ranks' copies would not
+//! #                               # fit in the free memory; see WallSolve)
 //!
 //! [[walls]]                       # rigid walls (optional; see scene::walls, docs/walls.md)
 //! kind = "container"              # "container" (fluid inside) | "body" (fixed obstacle)
