@@ -193,7 +193,7 @@ pub fn build_part_share(
                 0.0,
                 CellStepError {
                     cell: None,
-                    source: TimestepError::Wall(e.to_string()),
+                    source: TimestepError::from(e),
                 },
             )
         })?;

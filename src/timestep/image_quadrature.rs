@@ -349,12 +349,9 @@ pub(super) fn add_layer_images(
     targets: &[[f64; 3]],
     out: &mut [f64],
 ) -> Result<(), TimestepError> {
-    let fail = |e: crate::wall::WallError| TimestepError::Wall(e.to_string());
-    wall.add_images(viscosity, single, targets, out)
-        .map_err(fail)?;
+    wall.add_images(viscosity, single, targets, out)?;
     if !double.is_empty() {
-        wall.add_double_layer_images(double, targets, out)
-            .map_err(fail)?;
+        wall.add_double_layer_images(double, targets, out)?;
     }
     Ok(())
 }

@@ -289,3 +289,9 @@ impl From<crate::vesicle::VesicleError> for TimestepError {
         TimestepError::Vesicle(e.to_string())
     }
 }
+
+impl From<crate::wall::WallError> for TimestepError {
+    fn from(e: crate::wall::WallError) -> Self {
+        TimestepError::Wall(e.to_string())
+    }
+}

@@ -36,8 +36,7 @@ use crate::comm::Communicator;
 use crate::vesicle::smooth_layer::{Side, SmoothLayer};
 use crate::vesicle::{Geometry, LayerKernel, NearParams, OffSurface, TargetInfo};
 use crate::wall::{
-    scatter_add, RowShare, Wall, WallError, WallField, WallKind, WallParams, WallSolution,
-    WallSystem,
+    scatter_add, RowShare, Wall, WallField, WallKind, WallParams, WallSolution, WallSystem,
 };
 
 /// What the walls did (cumulative).
@@ -87,10 +86,6 @@ pub struct WallStats {
 
 fn one() -> usize {
     1
-}
-
-fn wall_error(e: WallError) -> TimestepError {
-    TimestepError::Wall(e.to_string())
 }
 
 /// The walls of a suspension: their factored operator, their prescribed velocity, and the
@@ -143,8 +138,8 @@ impl WallCoupling {
             });
         }
         let t0 = Instant::now();
-        let system = WallSystem::new_share(walls, params, share).map_err(wall_error)?;
-        let field = WallField::new(&system, NearParams::default()).map_err(wall_error)?;
+        let system = WallSystem::new_share(walls, params, share).map_err(TimestepError::from)?;
+        let field = WallField::new(&system, NearParams::default()).map_err(TimestepError::from)?;
         let n = system.n_unknowns();
         let velocity = velocity.unwrap_or_else(|| vec![0.0; n]);
         if velocity.len() != n {
@@ -201,7 +196,10 @@ impl WallCoupling {
         scale: f64,
     ) -> Result<WallSolution, TimestepError> {
         if self.system.rows().is_none() {
-            return self.system.solve_formed(data, scale).map_err(wall_error);
+            return self
+                .system
+                .solve_formed(data, scale)
+                .map_err(TimestepError::from);
         }
         let guess = self.last.as_ref().map(|s| s.densities());
         let (solution, iterations) =
@@ -388,7 +386,7 @@ impl WallCoupling {
             gap = gap.min(
                 self.field
                     .velocity(&solution, x, &mut u)
-                    .map_err(wall_error)?,
+                    .map_err(TimestepError::from)?,
             );
             let n = x.len();
             for i in 0..n {
@@ -422,7 +420,7 @@ impl WallCoupling {
         u_inf: &(dyn Fn([f64; 3]) -> [f64; 3] + Sync),
         targets: &[[f64; 3]],
     ) -> Result<(Vec<f64>, Vec<bool>), TimestepError> {
-        let fluid = self.field.in_fluid(targets).map_err(wall_error)?;
+        let fluid = self.field.in_fluid(targets).map_err(TimestepError::from)?;
         let index: Vec<usize> = (0..targets.len()).filter(|&i| fluid[i]).collect();
         let inner: Vec<[f64; 3]> = index.iter().map(|&i| targets[i]).collect();
         let background;
@@ -437,7 +435,7 @@ impl WallCoupling {
         let mut v = vec![0.0; 3 * inner.len()];
         self.field
             .velocity(solution, &inner, &mut v)
-            .map_err(wall_error)?;
+            .map_err(TimestepError::from)?;
         let mut out = vec![0.0; 3 * targets.len()];
         scatter_add(&v, &index, &mut out, targets.len());
         Ok((out, fluid))

@@ -20,8 +20,14 @@ use crate::wall::{WallRows, WallSolution, WallSystem};
 /// Relative residual the split wall solve meets (`‖U − Aψ‖ ≤ tol ‖U‖`).
 pub const WALL_ROWS_TOL: f64 = 1e-13;
 
-fn wall_error(e: crate::wall::WallError) -> TimestepError {
-    TimestepError::Wall(e.to_string())
+/// The whole vector from every rank's rows `x` of it (collective).
+fn gather_whole(
+    comm: &dyn Communicator,
+    rows: &WallRows,
+    x: &[f64],
+) -> Result<Vec<f64>, TimestepError> {
+    let parts = comm.all_gather_f64(x).map_err(TimestepError::Comm)?;
+    Ok(rows.gather(&parts)?)
 }
 
 /// `A_r` times the whole vector gathered from every rank's rows (collective).
@@ -29,13 +35,6 @@ struct RowsOperator<'a> {
     rows: &'a WallRows,
     comm: &'a dyn Communicator,
     failure: Mutex<Option<TimestepError>>,
-}
-
-impl RowsOperator<'_> {
-    fn whole(&self, x: &[f64]) -> Result<Vec<f64>, TimestepError> {
-        let parts = self.comm.all_gather_f64(x).map_err(TimestepError::Comm)?;
-        self.rows.gather(&parts).map_err(wall_error)
-    }
 }
 
 impl GmresOperator for RowsOperator<'_> {
@@ -46,7 +45,7 @@ impl GmresOperator for RowsOperator<'_> {
         self.rows.n_rows()
     }
     fn apply(&self, x: &[f64], y: &mut [f64]) {
-        match self.whole(x) {
+        match gather_whole(self.comm, self.rows, x) {
             Ok(w) => self.rows.apply(&w, y),
             Err(e) => {
                 let mut slot = self.failure.lock().unwrap_or_else(|e| e.into_inner());
@@ -97,7 +96,7 @@ pub(in crate::timestep) fn solve_over_ranks(
         }));
     }
     // The same data on every rank: the checks agree.
-    system.check_data(data, scale).map_err(wall_error)?;
+    system.check_data(data, scale)?;
     let b = rows.restrict(data);
     let op = RowsOperator {
         rows,
@@ -130,13 +129,8 @@ pub(in crate::timestep) fn solve_over_ranks(
         return Err(e);
     }
     let report = report?;
-    let op = RowsOperator {
-        rows,
-        comm,
-        failure: Mutex::new(None),
-    };
-    let densities = op.whole(&x)?;
-    let solution = system.solution(densities, data).map_err(wall_error)?;
+    let densities = gather_whole(comm, rows, &x)?;
+    let solution = system.solution(densities, data)?;
     Ok((solution, report.iterations))
 }
 

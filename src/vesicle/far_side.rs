@@ -409,7 +409,8 @@ impl FarSide {
         }
         let fwd = std::mem::take(&mut self.forward_p);
         let mut r = Vec::new();
-        let targets = self.targets.clone();
+        // The flagged targets are read while `self` lends its transforms: taken, then put back.
+        let targets = std::mem::take(&mut self.targets);
         let result = self.coefficient_rows(kernel, x_grid, &targets, |chunk, cp| {
             let nf = SYM.len() * chunk.len();
             r.resize(nf * np, 0.0);
@@ -436,6 +437,7 @@ impl FarSide {
             }
         });
         self.forward_p = fwd;
+        self.targets = targets;
         result
     }
 
@@ -455,13 +457,12 @@ impl FarSide {
     ) -> Result<(), VesicleError> {
         let k = held.len();
         let ncp = self.sht_p.n_coefs();
-        let targets: Vec<usize> = self
-            .targets
-            .iter()
-            .copied()
-            .filter(|t| held.contains(t))
-            .collect();
-        self.coefficient_rows(kernel, x_grid, &targets, |chunk, cp| {
+        // The flagged targets are ascending: those held are one run of them (taken while
+        // `self` lends its transforms, then put back).
+        let targets = std::mem::take(&mut self.targets);
+        let run = targets.partition_point(|&t| t < held.start)
+            ..targets.partition_point(|&t| t < held.end);
+        let result = self.coefficient_rows(kernel, x_grid, &targets[run], |chunk, cp| {
             for (ti, &t) in chunk.iter().enumerate() {
                 let t = t - held.start;
                 for (e, &(a, b)) in SYM.iter().enumerate() {
@@ -478,7 +479,9 @@ impl FarSide {
                     }
                 }
             }
-        })
+        });
+        self.targets = targets;
+        result
     }
 
     /// The far rows of the flagged targets in coefficient space, a batch of targets at a time:
