@@ -17,12 +17,13 @@
 //! does: explicitly, from the densities at the start of the step, extrapolated by BDF2.
 //!
 //! The walls' part is a direct evaluation, `O(N_wall · N_cells · q²)` a step; the FMM does not
-//! carry the walls yet. Over MPI ranks each rank evaluates its own cells at the walls, every
-//! rank gathers every cell's contribution and sums them in the order of the cells' global
-//! indices (the one-rank order, so the sum is the same bits), solves, and evaluates the walls
-//! at its own cells. The gather is `3 N_wall` values per cell and step. The solve is either
-//! every rank's own direct solve of the whole (replicated) system, the same bits as one rank,
-//! or, with the system split over the ranks ([`WallCoupling::new_share`], `[numerics]
+//! carry the walls yet. Over MPI ranks each rank evaluates its own cells at the walls and sums
+//! them in the order of their global indices; the ranks' sums are added in rank order
+//! ([`crate::comm::sum_in_rank_order`], `3 N_wall` values a rank each way and step, whatever
+//! the number of cells; until the sixteenth session every rank gathered every cell's `3 N_wall`
+//! values). So the data equal one rank's to round-off, not bit for bit. Each rank solves and
+//! evaluates the walls at its own cells. The solve is either every rank's own direct solve of
+//! the whole (replicated) system, or, with the system split over the ranks ([`WallCoupling::new_share`], `[numerics]
 //! wall_solve`), one GMRES over the ranks on the rows each holds
 //! ([`super::wall_rows_solve`]), started from the last step's densities.
 
@@ -82,6 +83,10 @@ pub struct WallStats {
     /// GMRES iterations of the split solves, over the run (0 when not split).
     #[serde(default)]
     pub split_iterations: usize,
+    /// Bytes this rank sent to others for the walls, over the run: the cells' layers at the
+    /// wall points summed over the ranks, and the split solves' exchanges (0 on one rank).
+    #[serde(default)]
+    pub exchange_bytes: u64,
 }
 
 fn one() -> usize {
@@ -206,6 +211,11 @@ impl WallCoupling {
             solve_over_ranks(comm, &self.system, data, scale, guess, &mut self.ws)?;
         self.stats.split_iterations += iterations;
         Ok(solution)
+    }
+
+    /// Count `bytes` sent to other ranks for the walls ([`WallStats::exchange_bytes`]).
+    pub(super) fn count_exchange(&mut self, bytes: u64) {
+        self.stats.exchange_bytes += bytes;
     }
 
     /// Grid points over all walls.

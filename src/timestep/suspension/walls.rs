@@ -1,15 +1,17 @@
 //! Rigid walls in a suspension's step ([`super::super::wall_coupling`]): after the inter-cell
 //! velocity, the walls are solved for the cells' tractions and double layers at the start of
 //! the step, and their velocity at each cell's grid points is added to that cell's explicit
-//! velocity (so BDF2 extrapolates it with the rest). Over MPI ranks every rank gathers every
-//! cell's layers at the walls and solves the same wall system.
+//! velocity (so BDF2 extrapolates it with the rest). Over MPI ranks each rank sums its own
+//! cells' layers at the walls, the sums are added over the ranks in rank order
+//! ([`crate::comm::sum_in_rank_order`]: `3 N_wall` values a rank each way, whatever the number
+//! of cells), and every rank solves the same wall system.
 
 use super::super::image_quadrature::ImageLayers;
 use super::super::plane_coupling::{ImageCell, PlaneCoupling, PlaneStats};
 use super::super::wall_coupling::{WallCoupling, WallStats};
 use super::super::TimestepError;
 use super::{agree_cells, CellStepError, Suspension};
-use crate::comm::Communicator;
+use crate::comm::{sum_in_rank_order, Communicator};
 use crate::vesicle::Geometry;
 
 impl Suspension {
@@ -148,6 +150,7 @@ impl Suspension {
             return Ok(());
         };
         let fail = |source| CellStepError { cell: None, source };
+        let sent = comm.bytes_sent();
         let nw = walls.n_wall_points();
         // Each cell's geometry, once: its normals and weights for the double layer's flux, its
         // grid points as the targets of the walls' velocity.
@@ -164,10 +167,14 @@ impl Suspension {
             })
             .collect();
         let geometries = agree_cells(comm, geometries)?;
-        // This rank's cells at the walls, each tagged with its global index.
-        let mut local = Vec::with_capacity(self.cells.len() * (1 + 3 * nw));
+        // This rank's cells at the walls, summed in the order of their global indices (on one
+        // rank the one-process order), then over the ranks in rank order.
+        let mut order: Vec<usize> = (0..self.cells.len()).collect();
+        order.sort_by_key(|&slot| self.cells[slot].id);
+        let mut partial = vec![0.0; 3 * nw];
         let mut mine = Ok(());
-        for (slot, c) in self.cells.iter().enumerate() {
+        for slot in order {
+            let c = &self.cells[slot];
             let at = walls.cell_at_walls(
                 slot,
                 &c.state.coefs,
@@ -177,8 +184,9 @@ impl Suspension {
             );
             match at {
                 Ok(v) => {
-                    local.push(c.id as f64);
-                    local.extend_from_slice(&v);
+                    for (t, x) in partial.iter_mut().zip(&v) {
+                        *t += x;
+                    }
                 }
                 Err(source) => {
                     mine = Err(CellStepError {
@@ -190,26 +198,12 @@ impl Suspension {
             }
         }
         agree_cells(comm, mine)?;
-        let gathered = comm
-            .all_gather_f64(&local)
-            .map_err(|e| fail(TimestepError::Comm(e)))?;
-        let mut all: Vec<(usize, &[f64])> = gathered
-            .iter()
-            .flat_map(|part| part.chunks_exact(1 + 3 * nw))
-            .map(|c| (c[0] as usize, &c[1..]))
-            .collect();
-        all.sort_by_key(|a| a.0);
-        let mut total = vec![0.0; 3 * nw];
-        for (_, v) in all {
-            for (t, x) in total.iter_mut().zip(v) {
-                *t += x;
-            }
-        }
+        let total = sum_in_rank_order(comm, &partial).map_err(|e| fail(TimestepError::Comm(e)))?;
         let points: Vec<Vec<[f64; 3]>> = geometries.into_iter().map(|g| g.x).collect();
         // The same data and system on every rank: a failure is every rank's.
-        let velocities = walls
-            .velocities(comm, u_inf, &total, &points)
-            .map_err(fail)?;
+        let velocities = walls.velocities(comm, u_inf, &total, &points);
+        walls.count_exchange(comm.bytes_sent() - sent);
+        let velocities = velocities.map_err(fail)?;
         self.add_explicit_velocities(velocities);
         Ok(())
     }
