@@ -278,6 +278,7 @@ pub fn pack(
     let fixed: &[FixedSurface] = region.as_ref().map_or(&[], |r| &r.fixed);
     let mut params = ContactParams::new(req.min_gap);
     params.rotations = true;
+    params.spread = true;
     params.max_rounds = 40;
     params.stall_rounds = 10;
     params.period = window.map(|w| [w.outlet - w.inlet, 0.0, 0.0]);

@@ -20,10 +20,16 @@
 //! The move is the smallest one in the metric `M = diag(1, 1, 1, R², R², R²)` (`R` the body's
 //! reach): `min ½ vᵀ M v` subject to the constraints, a convex quadratic program whose dual is the
 //! linear complementarity problem `0 ≤ λ ⊥ g + J M⁻¹ Jᵀ λ − d_target ≥ 0`, solved by projected
-//! Gauss–Seidel (Moreau's and Jean's contact dynamics). `d_target = 1.2 d_min` so that the
-//! curvature neglected by the linearisation is absorbed; the gaps are then measured again at
-//! the moved surfaces, and the rounds repeat until every gap is at least `d_min` (or fail after
-//! `max_rounds`, or after `stall_rounds` rounds in which the smallest gap did not grow).
+//! Gauss–Seidel (Moreau's and Jean's contact dynamics). A gap below `d_min` is pushed to
+//! `d_target = 1.2 d_min`, so that the curvature neglected by the linearisation is absorbed; a
+//! gap already at least `d_min` (within `3 d_min`) only has to stay at `d_min`
+//! (`d_target = d_min`) in a time step: asking every gap in reach for `1.2 d_min` asks a jammed
+//! suspension for more room than it has (16 RBCs at 45 % of a Couette shell: the linearised
+//! problem had no solution, and the rounds swung between two pairs at 0.99 `d_min` until they
+//! gave up). A packing ([`ContactParams::spread`]) pushes every gap in reach to the margin. The
+//! gaps are then measured again at the moved surfaces, and the rounds repeat until every gap is
+//! at least `d_min` (or fail after `max_rounds`, or after `stall_rounds` rounds in which the
+//! smallest gap did not grow).
 //!
 //! This is the position-level counterpart of the space-time interference volumes of Lu,
 //! Rahimian & Zorin (J. Comput. Phys. 347, 2017): the same guarantee (no pair closer than
@@ -126,19 +132,25 @@ pub struct ContactParams {
     /// Rounds without the smallest gap growing (by `10⁻³ d_min`) after which the projection
     /// gives up (an infeasible set: cells jammed between others or walls).
     pub stall_rounds: usize,
+    /// Whether gaps already at least `d_min` (within reach) are pushed to the margin
+    /// `1.2 d_min` as well (a packing: room ahead of the next growth) or only kept at `d_min`
+    /// (a time step: the least move; module docs).
+    pub spread: bool,
     /// The bodies' images shifted by this vector keep `d_min` from the bodies as well (module
     /// docs; `None`: no images). It must exceed twice a body's reach plus `3 d_min`.
     pub period: Option<[f64; 3]>,
 }
 
 impl ContactParams {
-    /// Translations only, at most 30 rounds, giving up after 5 stalled ones.
+    /// Translations only, at most 30 rounds, giving up after 5 stalled ones, met gaps kept at
+    /// `d_min`.
     pub fn new(distance: f64) -> Self {
         ContactParams {
             distance,
             rotations: false,
             max_rounds: 30,
             stall_rounds: 5,
+            spread: false,
             period: None,
         }
     }
@@ -686,7 +698,7 @@ impl ContactSolver {
     /// Projected Gauss–Seidel on the dual of `min ½ vᵀ M v` subject to `g + J v ≥ d_target`:
     /// the moves `v` per body and the number of active constraints.
     fn project(&self, bodies: &[SurfaceDistance], cons: &[Constraint]) -> (Vec<[f64; 6]>, usize) {
-        let target = OVERSHOOT * self.params.distance;
+        let (d_min, spread) = (self.params.distance, self.params.spread);
         let minv: Vec<[f64; 6]> = bodies
             .iter()
             .map(|b| {
@@ -714,7 +726,7 @@ impl ContactSolver {
         for _ in 0..2000 {
             let mut change = 0.0f64;
             for (k, c) in cons.iter().enumerate() {
-                let mut r = c.gap - target + dot6(c.ja, v[c.a]);
+                let mut r = c.gap - target(c.gap, d_min, spread) + dot6(c.ja, v[c.a]);
                 if let Some(b) = c.b {
                     r += dot6(c.jb, v[b]);
                 }
@@ -739,6 +751,18 @@ impl ContactSolver {
             }
         }
         (v, lambda.iter().filter(|&&l| l > 0.0).count())
+    }
+}
+
+/// The gap a constraint of gap `gap` is pushed to: `OVERSHOOT · d_min` where it is below
+/// `d_min` (the margin absorbs the curvature the linearisation neglects) or where `spread`,
+/// else `d_min` (kept from being pushed through, not pushed further: in a jammed packing every
+/// gap within reach asked for `1.2 d_min` is more room than there is).
+fn target(gap: f64, d_min: f64, spread: bool) -> f64 {
+    if spread || gap < d_min {
+        OVERSHOOT * d_min
+    } else {
+        d_min
     }
 }
 
@@ -792,6 +816,59 @@ mod tests {
         let least = 0.5 * (2.0 + d_min - (1.7f64.powi(2) + 0.3f64.powi(2)).sqrt());
         let moved = dot3(ta, ta).sqrt();
         assert!(moved >= least && moved < 1.1 * least, "{ta:?} {least}");
+    }
+
+    /// A unit sphere between two planes, its samples (which a plane's gap is measured from)
+    /// `0.9 d_min` from the lower plane and `1.4 d_min` from the upper. A time step's
+    /// projection pushes only the gap below `d_min` to the margin and keeps the met one at
+    /// `d_min`: one round, the sphere moved up by the least move to `1.2 d_min` (0.3 `d_min`),
+    /// the upper gap left at `1.1 d_min`. With `spread` (a packing's target) the met gap asks
+    /// for `1.2 d_min` too, `2.4 d_min` of room where there is `2.3`: the linearised problem
+    /// has no solution, and projected Gauss–Seidel ends where its last sweep left it (here
+    /// the upper gap at `1.2 d_min`, the lower at `1.1`). In a jammed suspension such
+    /// compromises swung between two pairs below `d_min` until the rounds gave up
+    /// (docs/hard_cases.md, the 45 % Couette shell).
+    #[test]
+    fn a_time_step_pushes_only_the_gaps_below_d_min_to_the_margin() {
+        let p = 6;
+        let d_min = 0.05;
+        let id = rotation_from_vector([0.0; 3]);
+        let sphere = placed(shapes::sphere(p, 1.0).unwrap(), id, [0.0; 3]);
+        let sht = ShTransform::new(2 * p).unwrap();
+        let surface = SurfaceDistance::new(p, &sphere, &sht).unwrap();
+        let z = || surface.samples().iter().map(|x| x[2]);
+        let (low, high) = (z().fold(f64::INFINITY, f64::min), z().fold(0.0, f64::max));
+        let planes = [
+            Wall {
+                normal: [0.0, 0.0, 1.0],
+                offset: low - 0.9 * d_min,
+            },
+            Wall {
+                normal: [0.0, 0.0, -1.0],
+                offset: -(high + 1.4 * d_min),
+            },
+        ];
+        let mut spread = ContactParams::new(d_min);
+        spread.spread = true;
+        let both = ContactSolver::new(p, spread)
+            .unwrap()
+            .resolve(&[&sphere], &planes)
+            .unwrap();
+        let t = both.moves[0].translation;
+        assert!((t[2] - 0.2 * d_min).abs() < 1e-6 * d_min, "{t:?}");
+        let out = ContactSolver::new(p, ContactParams::new(d_min))
+            .unwrap()
+            .resolve(&[&sphere], &planes)
+            .unwrap();
+        assert_eq!(out.rounds, 1);
+        let t = out.moves[0].translation;
+        assert!(t[0].abs() < 1e-12 && t[1].abs() < 1e-12, "{t:?}");
+        assert!((t[2] - 0.3 * d_min).abs() < 1e-6 * d_min, "{t:?}");
+        assert!(
+            (out.gap_after - 1.1 * d_min).abs() < 1e-6 * d_min,
+            "{}",
+            out.gap_after
+        );
     }
 
     /// With a period `P`: two unit spheres that overlap only across it (`c₂ + P` within `2` of
