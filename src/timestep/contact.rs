@@ -26,7 +26,10 @@
 //! (`d_target = d_min`) in a time step: asking every gap in reach for `1.2 d_min` asks a jammed
 //! suspension for more room than it has (16 RBCs at 45 % of a Couette shell: the linearised
 //! problem had no solution, and the rounds swung between two pairs at 0.99 `d_min` until they
-//! gave up). A packing ([`ContactParams::spread`]) pushes every gap in reach to the margin. The
+//! gave up). After a round in which the smallest gap did not grow, a time step halves the
+//! margin above `d_min` (1.2, 1.1, 1.05 … `d_min`): the same suspension later stalled with a
+//! gap within 1e-6 of `d_min` that the full margin had no room for. A packing
+//! ([`ContactParams::spread`]) pushes every gap in reach to the full margin. The
 //! gaps are then measured again at the moved surfaces, and the rounds repeat until every gap is
 //! at least `d_min` (or fail after `max_rounds`, or after `stall_rounds` rounds in which the
 //! smallest gap did not grow).
@@ -367,6 +370,7 @@ impl ContactSolver {
         let mut moves: Vec<Move> = bodies.iter().map(|b| Move::identity(b.centre())).collect();
         let (mut active, mut gap_before) = (0, f64::INFINITY);
         let (mut best, mut stalled) = (f64::NEG_INFINITY, 0);
+        let mut margin = OVERSHOOT;
         for round in 0..=self.params.max_rounds {
             let images = self.images(&bodies, range)?;
             let (cons, least) = self.measure(&bodies, &images, walls, fixed, range, None);
@@ -389,6 +393,11 @@ impl ContactSolver {
                 (best, stalled) = (gap, 0);
             } else {
                 stalled += 1;
+                // A time step's stalled round: the margin the gaps below `d_min` are pushed to
+                // may be more room than the jam has; ask for half as much above `d_min`.
+                if !self.params.spread {
+                    margin = 1.0 + 0.5 * (margin - 1.0);
+                }
             }
             if round == self.params.max_rounds || stalled >= self.params.stall_rounds {
                 let (gap, a, b) = least.expect("a gap below d_min was measured");
@@ -400,7 +409,7 @@ impl ContactSolver {
                     b,
                 });
             }
-            let (v, n_active) = self.project(&bodies, &cons);
+            let (v, n_active) = self.project(&bodies, &cons, margin);
             active += n_active;
             let mut changed = Vec::new();
             for (k, vk) in v.iter().enumerate() {
@@ -697,7 +706,12 @@ impl ContactSolver {
 
     /// Projected Gauss–Seidel on the dual of `min ½ vᵀ M v` subject to `g + J v ≥ d_target`:
     /// the moves `v` per body and the number of active constraints.
-    fn project(&self, bodies: &[SurfaceDistance], cons: &[Constraint]) -> (Vec<[f64; 6]>, usize) {
+    fn project(
+        &self,
+        bodies: &[SurfaceDistance],
+        cons: &[Constraint],
+        margin: f64,
+    ) -> (Vec<[f64; 6]>, usize) {
         let (d_min, spread) = (self.params.distance, self.params.spread);
         let minv: Vec<[f64; 6]> = bodies
             .iter()
@@ -726,7 +740,7 @@ impl ContactSolver {
         for _ in 0..2000 {
             let mut change = 0.0f64;
             for (k, c) in cons.iter().enumerate() {
-                let mut r = c.gap - target(c.gap, d_min, spread) + dot6(c.ja, v[c.a]);
+                let mut r = c.gap - target(c.gap, d_min, spread, margin) + dot6(c.ja, v[c.a]);
                 if let Some(b) = c.b {
                     r += dot6(c.jb, v[b]);
                 }
@@ -754,13 +768,13 @@ impl ContactSolver {
     }
 }
 
-/// The gap a constraint of gap `gap` is pushed to: `OVERSHOOT · d_min` where it is below
-/// `d_min` (the margin absorbs the curvature the linearisation neglects) or where `spread`,
-/// else `d_min` (kept from being pushed through, not pushed further: in a jammed packing every
-/// gap within reach asked for `1.2 d_min` is more room than there is).
-fn target(gap: f64, d_min: f64, spread: bool) -> f64 {
+/// The gap a constraint of gap `gap` is pushed to: `margin · d_min` where it is below `d_min`
+/// (the margin, `OVERSHOOT` at first, absorbs the curvature the linearisation neglects) or
+/// where `spread`, else `d_min` (kept from being pushed through, not pushed further: in a
+/// jammed packing every gap within reach asked for `1.2 d_min` is more room than there is).
+fn target(gap: f64, d_min: f64, spread: bool, margin: f64) -> f64 {
     if spread || gap < d_min {
-        OVERSHOOT * d_min
+        margin * d_min
     } else {
         d_min
     }
