@@ -23,9 +23,9 @@
 //! the number of cells; until the sixteenth session every rank gathered every cell's `3 N_wall`
 //! values). So the data equal one rank's to round-off, not bit for bit. Each rank solves and
 //! evaluates the walls at its own cells. The solve is either every rank's own direct solve of
-//! the whole (replicated) system, or, with the system split over the ranks ([`WallCoupling::new_share`], `[numerics]
-//! wall_solve`), one GMRES over the ranks on the rows each holds
-//! ([`super::wall_rows_solve`]), started from the last step's densities.
+//! the whole (replicated) system, or, with the system split over the ranks
+//! ([`WallCoupling::new_share`], `[numerics] wall_solve`), one GMRES over the ranks on the rows
+//! each holds ([`super::wall_rows_solve`]), started from the last step's densities.
 
 use std::time::Instant;
 
