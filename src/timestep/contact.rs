@@ -20,19 +20,21 @@
 //! The move is the smallest one in the metric `M = diag(1, 1, 1, R², R², R²)` (`R` the body's
 //! reach): `min ½ vᵀ M v` subject to the constraints, a convex quadratic program whose dual is the
 //! linear complementarity problem `0 ≤ λ ⊥ g + J M⁻¹ Jᵀ λ − d_target ≥ 0`, solved by projected
-//! Gauss–Seidel (Moreau's and Jean's contact dynamics). A gap below `d_min` is pushed to
-//! `d_target = 1.2 d_min`, so that the curvature neglected by the linearisation is absorbed; a
-//! gap already at least `d_min` (within `3 d_min`) only has to stay at `d_min`
-//! (`d_target = d_min`) in a time step: asking every gap in reach for `1.2 d_min` asks a jammed
-//! suspension for more room than it has (16 RBCs at 45 % of a Couette shell: the linearised
-//! problem had no solution, and the rounds swung between two pairs at 0.99 `d_min` until they
-//! gave up). After a round in which the smallest gap did not grow, a time step halves the
-//! margin above `d_min` (1.2, 1.1, 1.05 … `d_min`): the same suspension later stalled with a
-//! gap within 1e-6 of `d_min` that the full margin had no room for. A packing
-//! ([`ContactParams::spread`]) pushes every gap in reach to the full margin. The
-//! gaps are then measured again at the moved surfaces, and the rounds repeat until every gap is
-//! at least `d_min` (or fail after `max_rounds`, or after `stall_rounds` rounds in which the
-//! smallest gap did not grow).
+//! Gauss–Seidel (Moreau's and Jean's contact dynamics). In a time step a gap below `d_min` is
+//! pushed past `d_min` by its own deficit `d_min − g` (at least a slack `s = 10⁻³ d_min`, at
+//! most `0.2 d_min`), so that the curvature neglected by the linearisation, second order in
+//! the move, is absorbed; a gap already at least `d_min` (within `3 d_min`) only has to stay at
+//! `d_min + s`. Asking every gap in reach for `1.2 d_min` asks a jammed suspension for more
+//! room than it has (16 RBCs at 45 % of a Couette shell: the linearised problem had no
+//! solution, and the rounds swung between two pairs at 0.99 `d_min` until they gave up), and
+//! a fixed `0.2 d_min` overshoot on a gap that lacks `10⁻³ d_min` moved a jam by `0.8 d_min`,
+//! whose curvature error then opened new deficits elsewhere. After a round in which the
+//! smallest gap did not grow, a time step halves the margin and the slack above `d_min`
+//! (1.2, 1.1, 1.05 … `d_min`), for a jam with less room. A packing
+//! ([`ContactParams::spread`]) pushes every gap in reach to the full `1.2 d_min`. The gaps are
+//! then measured again at the moved surfaces, and the rounds repeat until every gap is at
+//! least `d_min` (or fail after `max_rounds`, or after `stall_rounds` rounds in which the
+//! smallest gap grew neither by `10⁻³ d_min` nor by half of what it lacked).
 //!
 //! This is the position-level counterpart of the space-time interference volumes of Lu,
 //! Rahimian & Zorin (J. Comput. Phys. 347, 2017): the same guarantee (no pair closer than
@@ -54,6 +56,10 @@ use crate::vesicle::VesicleError;
 
 /// The margin `d_target / d_min` the projection aims at.
 const OVERSHOOT: f64 = 1.2;
+
+/// A time step's slack above `d_min` for gaps at or near it, relative to `d_min`, at the full
+/// margin (ten times projected Gauss–Seidel's tolerance; [`target`]).
+const SLACK: f64 = 1e-3;
 
 /// Gaps below `RANGE · d_min` enter the projection as constraints (met ones stay inactive but
 /// keep a move from pushing their points through).
@@ -132,12 +138,13 @@ pub struct ContactParams {
     pub rotations: bool,
     /// Rounds of measure-and-project before giving up.
     pub max_rounds: usize,
-    /// Rounds without the smallest gap growing (by `10⁻³ d_min`) after which the projection
-    /// gives up (an infeasible set: cells jammed between others or walls).
+    /// Rounds without the smallest gap growing (by `10⁻³ d_min`, or by half of what it lacked
+    /// of `d_min`) after which the projection gives up (an infeasible set: cells jammed
+    /// between others or walls).
     pub stall_rounds: usize,
-    /// Whether gaps already at least `d_min` (within reach) are pushed to the margin
-    /// `1.2 d_min` as well (a packing: room ahead of the next growth) or only kept at `d_min`
-    /// (a time step: the least move; module docs).
+    /// Whether every gap in reach is pushed to the margin `1.2 d_min` (a packing: room ahead
+    /// of the next growth) or only the gaps below `d_min` past it, by their deficit, the met
+    /// ones kept at `d_min` plus a slack (a time step: the least move; module docs).
     pub spread: bool,
     /// The bodies' images shifted by this vector keep `d_min` from the bodies as well (module
     /// docs; `None`: no images). It must exceed twice a body's reach plus `3 d_min`.
@@ -389,7 +396,7 @@ impl ContactSolver {
                     gap_after: gap,
                 });
             }
-            if gap > best + 1e-3 * d_min {
+            if progressed(gap, best, d_min) {
                 (best, stalled) = (gap, 0);
             } else {
                 stalled += 1;
@@ -768,16 +775,36 @@ impl ContactSolver {
     }
 }
 
-/// The gap a constraint of gap `gap` is pushed to: `margin · d_min` where it is below `d_min`
-/// (the margin, `OVERSHOOT` at first, absorbs the curvature the linearisation neglects) or
-/// where `spread`, else `d_min` (kept from being pushed through, not pushed further: in a
-/// jammed packing every gap within reach asked for `1.2 d_min` is more room than there is).
+/// The gap a constraint of gap `gap` is pushed to. With `spread` (a packing): `margin · d_min`.
+///
+/// In a time step, a gap below `d_min` is pushed past `d_min` by its own deficit `d_min − gap`,
+/// at least the slack `s` and at most `(margin − 1) d_min`: the curvature the linearisation
+/// neglects is second order in the move, so a small deficit needs a small overshoot, and a jam
+/// has no room for `0.2 d_min` more on a gap that lacks `10⁻⁵ d_min`. A met gap only has to
+/// stay at `d_min + s`: kept from being pushed through, not pushed further (in a jam every gap
+/// within reach asked for `1.2 d_min` is more room than there is). The slack
+/// `s = SLACK · d_min · (margin − 1)/(OVERSHOOT − 1)` is ten times what projected Gauss–Seidel
+/// leaves unconverged, so that a met gap does not end a hair below `d_min`; it halves with the
+/// margin after each stalled round, for a jam with less room than that.
 fn target(gap: f64, d_min: f64, spread: bool, margin: f64) -> f64 {
-    if spread || gap < d_min {
-        margin * d_min
-    } else {
-        d_min
+    if spread {
+        return margin * d_min;
     }
+    let slack = SLACK * d_min * (margin - 1.0) / (OVERSHOOT - 1.0);
+    if gap < d_min {
+        d_min + ((margin - 1.0) * d_min).min((d_min - gap).max(slack))
+    } else {
+        d_min + slack
+    }
+}
+
+/// Whether a round made progress: its smallest gap `gap` exceeds the best one so far by
+/// `10⁻³ d_min`, or by half of what the best still lacked of `d_min` (a gap within `10⁻³ d_min`
+/// of `d_min` cannot grow by more than it lacks: the 45 % Couette shell's rounds took its gap
+/// from `d_min − 6·10⁻⁴ d_min` to `− 4·10⁻⁵` and `− 5·10⁻⁶ d_min`, which the fixed
+/// `10⁻³ d_min` counted as stalled).
+fn progressed(gap: f64, best: f64, d_min: f64) -> bool {
+    gap > best + (1e-3 * d_min).min(0.5 * (d_min - best))
 }
 
 fn dot6(a: [f64; 6], b: [f64; 6]) -> f64 {
@@ -832,20 +859,9 @@ mod tests {
         assert!(moved >= least && moved < 1.1 * least, "{ta:?} {least}");
     }
 
-    /// A unit sphere between two planes, its samples (which a plane's gap is measured from)
-    /// `0.9 d_min` from the lower plane and `1.4 d_min` from the upper. A time step's
-    /// projection pushes only the gap below `d_min` to the margin and keeps the met one at
-    /// `d_min`: one round, the sphere moved up by the least move to `1.2 d_min` (0.3 `d_min`),
-    /// the upper gap left at `1.1 d_min`. With `spread` (a packing's target) the met gap asks
-    /// for `1.2 d_min` too, `2.4 d_min` of room where there is `2.3`: the linearised problem
-    /// has no solution, and projected Gauss–Seidel ends where its last sweep left it (here
-    /// the upper gap at `1.2 d_min`, the lower at `1.1`). In a jammed suspension such
-    /// compromises swung between two pairs below `d_min` until the rounds gave up
-    /// (docs/hard_cases.md, the 45 % Couette shell).
-    #[test]
-    fn a_time_step_pushes_only_the_gaps_below_d_min_to_the_margin() {
-        let p = 6;
-        let d_min = 0.05;
+    /// A unit sphere at the origin (order `p`) and two planes `z = const` whose gaps to its
+    /// lowest and highest distance samples are `below` and `above`.
+    fn sphere_between_planes(p: usize, below: f64, above: f64) -> (Vec<f64>, [Wall; 2]) {
         let id = rotation_from_vector([0.0; 3]);
         let sphere = placed(shapes::sphere(p, 1.0).unwrap(), id, [0.0; 3]);
         let sht = ShTransform::new(2 * p).unwrap();
@@ -855,13 +871,31 @@ mod tests {
         let planes = [
             Wall {
                 normal: [0.0, 0.0, 1.0],
-                offset: low - 0.9 * d_min,
+                offset: low - below,
             },
             Wall {
                 normal: [0.0, 0.0, -1.0],
-                offset: -(high + 1.4 * d_min),
+                offset: -(high + above),
             },
         ];
+        (sphere, planes)
+    }
+
+    /// A unit sphere between two planes, its samples (which a plane's gap is measured from)
+    /// `0.9 d_min` from the lower plane and `1.4 d_min` from the upper. A time step's
+    /// projection pushes only the gap below `d_min` past it, by its deficit (to `1.1 d_min`),
+    /// and keeps the met one at `(1 + SLACK) d_min`: one round, the sphere moved up by the
+    /// least move (0.2 `d_min`), the upper gap left at `1.2 d_min`. With `spread` (a packing's
+    /// target) the met gap asks for `1.2 d_min` too, `2.4 d_min` of room where there is `2.3`: the linearised problem
+    /// has no solution, and projected Gauss–Seidel ends where its last sweep left it (here
+    /// the upper gap at `1.2 d_min`, the lower at `1.1`). In a jammed suspension such
+    /// compromises swung between two pairs below `d_min` until the rounds gave up
+    /// (docs/hard_cases.md, the 45 % Couette shell).
+    #[test]
+    fn a_time_step_pushes_only_the_gaps_below_d_min_to_the_margin() {
+        let p = 6;
+        let d_min = 0.05;
+        let (sphere, planes) = sphere_between_planes(p, 0.9 * d_min, 1.4 * d_min);
         let mut spread = ContactParams::new(d_min);
         spread.spread = true;
         let both = ContactSolver::new(p, spread)
@@ -877,12 +911,51 @@ mod tests {
         assert_eq!(out.rounds, 1);
         let t = out.moves[0].translation;
         assert!(t[0].abs() < 1e-12 && t[1].abs() < 1e-12, "{t:?}");
-        assert!((t[2] - 0.3 * d_min).abs() < 1e-6 * d_min, "{t:?}");
+        assert!((t[2] - 0.2 * d_min).abs() < 1e-6 * d_min, "{t:?}");
         assert!(
             (out.gap_after - 1.1 * d_min).abs() < 1e-6 * d_min,
             "{}",
             out.gap_after
         );
+    }
+
+    /// A jam tighter than the slack: a unit sphere between two planes with `2.0005 d_min` of
+    /// room, its lower gap `10⁻⁴ d_min` short of `d_min`. Asking both gaps for `d_min` plus the
+    /// full slack (`10⁻³ d_min`) has no solution; the stalled rounds halve the slack until it
+    /// fits, and the step ends with both gaps at least `d_min` (the 45 % Couette shell's step
+    /// 462 stopped on such a pair when a stalled round had to gain `10⁻³ d_min`). The rounds
+    /// that only halve what the smallest gap lacks count as progress.
+    #[test]
+    fn a_jam_tighter_than_the_slack_still_ends_at_d_min() {
+        let p = 6;
+        let d_min = 0.05;
+        let (sphere, planes) = sphere_between_planes(p, 0.9999 * d_min, 1.0006 * d_min);
+        let out = ContactSolver::new(p, ContactParams::new(d_min))
+            .unwrap()
+            .resolve(&[&sphere], &planes)
+            .unwrap();
+        assert!(out.gap_after >= d_min, "{out:?}");
+        let t = out.moves[0].translation[2];
+        let (lower, upper) = (0.9999 * d_min + t, 1.0006 * d_min - t);
+        assert!(lower >= d_min && upper >= d_min, "{lower} {upper} {out:?}");
+        assert!(out.rounds >= 2, "the full slack does not fit: {out:?}");
+    }
+
+    /// The stall rule: a fixed growth of `10⁻³ d_min` where the gap is far from `d_min`, half
+    /// the deficit near it; the 45 % shell's step-462 rounds are progress, a round that only
+    /// holds its gap (or loses) is not.
+    #[test]
+    fn rounds_that_halve_the_deficit_are_progress() {
+        let d = 0.05;
+        assert!(
+            progressed(-10.0 * d, f64::NEG_INFINITY, d),
+            "the first round"
+        );
+        assert!(progressed(-0.5 * d + 1.1e-3 * d, -0.5 * d, d));
+        assert!(!progressed(-0.5 * d + 0.9e-3 * d, -0.5 * d, d));
+        let steps = [d * (1.0 - 6e-4), d * (1.0 - 3.7e-5), d * (1.0 - 4.9e-6)];
+        assert!(progressed(steps[1], steps[0], d) && progressed(steps[2], steps[1], d));
+        assert!(!progressed(steps[0], steps[0], d) && !progressed(d * (1.0 - 4e-4), steps[0], d));
     }
 
     /// With a period `P`: two unit spheres that overlap only across it (`c₂ + P` within `2` of
