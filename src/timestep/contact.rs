@@ -133,8 +133,10 @@ impl From<VesicleError> for ContactError {
 pub struct ContactParams {
     /// The smallest gap `d_min` left between surfaces (and between a surface and a wall).
     pub distance: f64,
-    /// Whether bodies may rotate (packing) or only translate (a time step: a translation of
-    /// the whole history keeps the step's extrapolations consistent).
+    /// Whether bodies may turn as well as translate (a packing; a suspension's step, which
+    /// moves each cell with its whole history rigidly, `timestep::suspension`'s contacts) or
+    /// only translate (the default of [`ContactParams::new`]). A body wedged between others
+    /// or walls may have room only by turning (module docs).
     pub rotations: bool,
     /// Rounds of measure-and-project before giving up.
     pub max_rounds: usize,
@@ -956,6 +958,69 @@ mod tests {
         let steps = [d * (1.0 - 6e-4), d * (1.0 - 3.7e-5), d * (1.0 - 4.9e-6)];
         assert!(progressed(steps[1], steps[0], d) && progressed(steps[2], steps[1], d));
         assert!(!progressed(steps[0], steps[0], d) && !progressed(d * (1.0 - 4e-4), steps[0], d));
+    }
+
+    /// A wedge: a prolate ellipsoid (semi-axes 2, 0.5, 0.5) tilted by 0.3 rad between two
+    /// planes that leave each of its ends `0.5 d_min` from them. No translation can lift both
+    /// gaps (the planes hold `d_min` less room than the tilted body needs), so the
+    /// translations-only projection gives up; with rotations it turns the body upright by the
+    /// least angle, about the axis of the tilt, with no net shift. The exact gaps after the
+    /// move (an ellipsoid's extent along `z` is `√(zᵀ Q A² Qᵀ z)`, `Q` its orientation,
+    /// `A = diag(axes)`) are checked, not the sampled ones the projection measures.
+    #[test]
+    fn a_wedged_body_has_room_only_by_turning() {
+        let p = 8;
+        let d_min = 0.05;
+        let axes = [2.0, 0.5, 0.5];
+        let tilt = rotation_from_vector([0.0, 0.3, 0.0]);
+        let body = placed(shapes::ellipsoid(p, axes).unwrap(), tilt, [0.0; 3]);
+        let extent = |q: [[f64; 3]; 3]| {
+            (0..3)
+                .map(|i| (axes[i] * q[2][i]).powi(2))
+                .sum::<f64>()
+                .sqrt()
+        };
+        let h = extent(tilt);
+        let planes = [
+            Wall {
+                normal: [0.0, 0.0, 1.0],
+                offset: -h - 0.5 * d_min,
+            },
+            Wall {
+                normal: [0.0, 0.0, -1.0],
+                offset: -h - 0.5 * d_min,
+            },
+        ];
+        let stuck = ContactSolver::new(p, ContactParams::new(d_min))
+            .unwrap()
+            .resolve(&[&body], &planes);
+        assert!(
+            matches!(stuck, Err(ContactError::Unresolved { .. })),
+            "{stuck:?}"
+        );
+        let mut params = ContactParams::new(d_min);
+        params.rotations = true;
+        let out = ContactSolver::new(p, params)
+            .unwrap()
+            .resolve(&[&body], &planes)
+            .unwrap();
+        assert!(out.gap_after >= d_min, "{out:?}");
+        let m = &out.moves[0];
+        let q = matmul3(m.rotation, tilt);
+        let shift = m.translation[2] + m.centre[2] - dot3(m.rotation[2], m.centre);
+        let (low, high) = (
+            h + 0.5 * d_min + shift - extent(q),
+            h + 0.5 * d_min - shift - extent(q),
+        );
+        println!(
+            "exact gaps {low:.6e} {high:.6e} (d_min {d_min}), tilt now {:.4}",
+            q[2][0].asin()
+        );
+        assert!(low >= 0.99 * d_min && high >= 0.99 * d_min, "{low} {high}");
+        // Turned about y, upright by little more than it needs (extent drops by d_min/2).
+        assert!(m.rotation[1][1] > 1.0 - 1e-12, "{:?}", m.rotation);
+        assert!(shift.abs() < 1e-3 * d_min, "{shift}");
+        assert!(h - extent(q) < 1.2 * d_min, "{} {}", h, extent(q));
     }
 
     /// With a period `P`: two unit spheres that overlap only across it (`c₂ + P` within `2` of

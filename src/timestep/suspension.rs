@@ -41,6 +41,7 @@ mod dissipation;
 mod field;
 mod gather;
 mod recycle;
+mod rigid_move;
 mod start_up;
 mod stepping;
 mod walls;

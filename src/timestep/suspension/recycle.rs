@@ -223,43 +223,13 @@ impl Suspension {
     }
 }
 
-/// Move a cell's state by the rigid `m` (a landing, [`Recycling::landing`]): its surfaces'
-/// modes, and the vectors it keeps on its grid (component blocks of `n` points), turned; its
-/// own preconditioner dropped when `m` turns it.
+/// Move a cell's state by the rigid `m` (a landing, [`Recycling::landing`]):
+/// [`super::rigid_move::move_state`], with its own preconditioner dropped when `m` turns it.
 fn land(state: &mut CellState, m: &Move) {
-    m.apply(&mut state.coefs);
-    if let Some(prev) = &mut state.previous_coefs {
-        m.apply(prev);
+    super::rigid_move::move_state(state, m);
+    if super::rigid_move::turns(m) {
+        state.preconditioner = None;
     }
-    if m.rotation == Move::identity(m.centre).rotation {
-        return;
-    }
-    let turn = |v: &mut [f64]| {
-        let n = v.len() / 3;
-        for j in 0..n {
-            let x = [v[j], v[n + j], v[2 * n + j]];
-            for (a, row) in m.rotation.iter().enumerate() {
-                v[a * n + j] = crate::linalg3::dot3(*row, x);
-            }
-        }
-    };
-    for v in [
-        &mut state.membrane_velocity,
-        &mut state.velocity,
-        &mut state.previous_velocity,
-    ]
-    .into_iter()
-    .flatten()
-    {
-        turn(v);
-    }
-    if let Some(d) = &mut state.previous_density {
-        let half = d.len() / 2;
-        let (f, g) = d.split_at_mut(half);
-        turn(f);
-        turn(g);
-    }
-    state.preconditioner = None;
 }
 
 #[cfg(test)]
