@@ -39,7 +39,7 @@
 //! This is the position-level counterpart of the space-time interference volumes of Lu,
 //! Rahimian & Zorin (J. Comput. Phys. 347, 2017): the same guarantee (no pair closer than
 //! `d_min` at the end of a step), with the contact impulse distributed by the rigid-body metric
-//! `M` instead of the cells' Stokes mobility. A translation changes no shape, area or volume.
+//! `M` instead of the cells' Stokes mobility. A rigid move changes no shape, area or volume.
 //!
 //! **Periodic images.** With [`ContactParams::period`] a vector `P`, the bodies are also kept
 //! `d_min` from each other's images `x + P` (the periodic packing of a tube's recycling window,
