@@ -672,7 +672,7 @@ impl ContactSolver {
                         gap: g,
                     });
                 };
-                let mut nearest: Option<(usize, f64)> = None;
+                let mut near: Vec<(usize, f64)> = Vec::new();
                 for (j, &x) in body.samples().iter().enumerate() {
                     if f.container && dist(x, fc) + range < f.r_min {
                         continue;
@@ -681,14 +681,12 @@ impl ContactSolver {
                     let (g, nm) = f.gap_and_normal(&cl);
                     if g < range {
                         push(x, g, nm);
-                        if nearest.is_none_or(|(_, least)| g < least) {
-                            nearest = Some((j, g));
-                        }
+                        near.push((j, g));
                     }
                 }
-                // Between the samples the surfaces can come closer: Newton from the nearest
-                // sample (as between cells, `SurfaceDistance::gaps_to`).
-                if let Some((j, g0)) = nearest.filter(|n| n.1 > 0.0) {
+                // Between the samples the surfaces can come closer: Newton from each local
+                // minimum of the sampled gap (as between cells, `SurfaceDistance::gaps_to`).
+                for (j, g0) in body.pair_starts(&near) {
                     let (x, cl) = body.closest_pair_to(
                         &mut own_scratch,
                         &f.surface,
@@ -1122,6 +1120,57 @@ mod tests {
         let d0 = dist(sa0.samples()[5], sa0.samples()[900]);
         let d1 = dist(sa.samples()[5], sa.samples()[900]);
         assert!((d0 - d1).abs() < 1e-12);
+    }
+
+    /// The wedged cell of the 45 % Couette shell (docs/hard_cases.md; its coefficients at step
+    /// 650 in tests/data) between the shell's walls, a container sphere of radius 3.32 and a
+    /// body of radius 1 about the origin: the least gap the projection measures from each wall
+    /// is never above the exact one on an order-96 grid of the cell, and within that grid's
+    /// resolution of it. With Newton from the nearest sample alone the container's gap read
+    /// 0.05005 where it is 0.04761: a second place near the wall, measured at its samples only.
+    #[test]
+    fn a_bent_cell_is_measured_at_its_least_gap_from_a_curved_wall() {
+        let coefs = crate::vesicle::surface_distance::coefs_from_text(include_str!(
+            "../../tests/data/wedged_rbc_p8.txt"
+        ));
+        let p = 8;
+        let d_min = 0.05;
+        let solver = ContactSolver::new(p, ContactParams::new(d_min)).unwrap();
+        let fine = SurfaceDistance::new(p, &coefs, &ShTransform::new(96).unwrap()).unwrap();
+        let bodies = solver.bodies(&[&coefs]).unwrap();
+        for (container, radius) in [(true, 3.32), (false, 1.0)] {
+            let q = 16;
+            let wall = FixedSurface::new(q, shapes::sphere(q, radius).unwrap().coefs(), container)
+                .unwrap();
+            let exact = fine
+                .samples()
+                .iter()
+                .map(|&y| {
+                    let r = dot3(y, y).sqrt();
+                    if container {
+                        radius - r
+                    } else {
+                        r - radius
+                    }
+                })
+                .fold(f64::INFINITY, f64::min);
+            let (_, least) = solver.measure(
+                &bodies,
+                &[],
+                &[],
+                std::slice::from_ref(&wall),
+                3.0 * d_min,
+                None,
+            );
+            let least = least.map_or(f64::INFINITY, |l| l.0);
+            if exact < 3.0 * d_min {
+                assert!(
+                    least <= exact + 1e-9,
+                    "{container}: {least} against {exact}"
+                );
+                assert!(exact - least < 1e-3, "{container}: {least} against {exact}");
+            }
+        }
     }
 
     /// Bodies already apart are not touched, and a bad `d_min` is refused.
