@@ -273,7 +273,12 @@ impl Move {
 
     /// Whether the move is the identity.
     pub fn is_identity(&self) -> bool {
-        self.translation == [0.0; 3] && self.rotation == Move::identity(self.centre).rotation
+        self.translation == [0.0; 3] && !self.turns()
+    }
+
+    /// Whether the move turns what it moves (its rotation is not the identity).
+    pub fn turns(&self) -> bool {
+        self.rotation != Move::identity(self.centre).rotation
     }
 }
 
@@ -741,13 +746,18 @@ impl ContactSolver {
                 d
             })
             .collect();
+        // Each constraint's target depends on its gap and the round's margin only.
+        let goal: Vec<f64> = cons
+            .iter()
+            .map(|c| target(c.gap, d_min, spread, margin))
+            .collect();
         let mut v = vec![[0.0; 6]; bodies.len()];
         let mut lambda = vec![0.0; cons.len()];
         let tol = 1e-4 * self.params.distance;
         for _ in 0..2000 {
             let mut change = 0.0f64;
             for (k, c) in cons.iter().enumerate() {
-                let mut r = c.gap - target(c.gap, d_min, spread, margin) + dot6(c.ja, v[c.a]);
+                let mut r = c.gap - goal[k] + dot6(c.ja, v[c.a]);
                 if let Some(b) = c.b {
                     r += dot6(c.jb, v[b]);
                 }
@@ -868,17 +878,21 @@ mod tests {
         let surface = SurfaceDistance::new(p, &sphere, &sht).unwrap();
         let z = || surface.samples().iter().map(|x| x[2]);
         let (low, high) = (z().fold(f64::INFINITY, f64::min), z().fold(0.0, f64::max));
-        let planes = [
+        (sphere, z_planes(low - below, high + above))
+    }
+
+    /// The planes `z = lower` (allowed side above) and `z = upper` (allowed side below).
+    fn z_planes(lower: f64, upper: f64) -> [Wall; 2] {
+        [
             Wall {
                 normal: [0.0, 0.0, 1.0],
-                offset: low - below,
+                offset: lower,
             },
             Wall {
                 normal: [0.0, 0.0, -1.0],
-                offset: -(high + above),
+                offset: -upper,
             },
-        ];
-        (sphere, planes)
+        ]
     }
 
     /// A unit sphere between two planes, its samples (which a plane's gap is measured from)
@@ -886,9 +900,9 @@ mod tests {
     /// projection pushes only the gap below `d_min` past it, by its deficit (to `1.1 d_min`),
     /// and keeps the met one at `(1 + SLACK) d_min`: one round, the sphere moved up by the
     /// least move (0.2 `d_min`), the upper gap left at `1.2 d_min`. With `spread` (a packing's
-    /// target) the met gap asks for `1.2 d_min` too, `2.4 d_min` of room where there is `2.3`: the linearised problem
-    /// has no solution, and projected Gauss–Seidel ends where its last sweep left it (here
-    /// the upper gap at `1.2 d_min`, the lower at `1.1`). In a jammed suspension such
+    /// target) the met gap asks for `1.2 d_min` too, `2.4 d_min` of room where there is
+    /// `2.3`: the linearised problem has no solution, and projected Gauss–Seidel ends where
+    /// its last sweep left it (here the upper gap at `1.2 d_min`, the lower at `1.1`). In a jammed suspension such
     /// compromises swung between two pairs below `d_min` until the rounds gave up
     /// (docs/hard_cases.md, the 45 % Couette shell).
     #[test]
@@ -979,16 +993,7 @@ mod tests {
                 .sqrt()
         };
         let h = extent(tilt);
-        let planes = [
-            Wall {
-                normal: [0.0, 0.0, 1.0],
-                offset: -h - 0.5 * d_min,
-            },
-            Wall {
-                normal: [0.0, 0.0, -1.0],
-                offset: -h - 0.5 * d_min,
-            },
-        ];
+        let planes = z_planes(-h - 0.5 * d_min, h + 0.5 * d_min);
         let stuck = ContactSolver::new(p, ContactParams::new(d_min))
             .unwrap()
             .resolve(&[&body], &planes);
@@ -1009,10 +1014,6 @@ mod tests {
         let (low, high) = (
             h + 0.5 * d_min + shift - extent(q),
             h + 0.5 * d_min - shift - extent(q),
-        );
-        println!(
-            "exact gaps {low:.6e} {high:.6e} (d_min {d_min}), tilt now {:.4}",
-            q[2][0].asin()
         );
         assert!(low >= 0.99 * d_min && high >= 0.99 * d_min, "{low} {high}");
         // Turned about y, upright by little more than it needs (extent drops by d_min/2).

@@ -3,8 +3,9 @@
 //!
 //! The surface `X(θ, φ) = Σ c_nm Y_n^m(θ, φ)` is sampled on the grid of an order `q ≥ p`
 //! (spacing about `2π R_max / (2q)`); the nearest sample starts Newton's method on
-//! `½ |X(θ, φ) − x|²` (the crate's closest-point solve), which converges to the closest point `y` of the
-//! continuous surface. The distance is `|x − y|`, negative when `x − y` points against the
+//! `½ |X(θ, φ) − x|²` (the crate's closest-point solve), which converges to the closest point
+//! `y` of the continuous surface (where it ends farther than that sample, the next nearest
+//! samples start it again, and failing those the nearest sample is the answer). The distance is `|x − y|`, negative when `x − y` points against the
 //! outward normal `X_θ × X_φ` (the point is inside). A point farther than `far` from every sample
 //! (with the grid spacing added) returns its distance to the nearest sample, an upper bound, and
 //! no Newton solve: what only asks "is it within `far`?" pays for the samples alone.
@@ -159,8 +160,9 @@ impl SurfaceDistance {
         if near[0].0.sqrt() - self.spacing > far {
             return None;
         }
-        let starts = near.iter().filter(|s| s.0.is_finite()).map(|s| s.1);
-        Some(self.newton(scratch, x, starts))
+        let found = near.iter().take_while(|s| s.0.is_finite()).count();
+        let starts = near.map(|s| s.1);
+        Some(self.newton(scratch, x, &starts[..found]))
     }
 
     /// Every sample of this surface within `range` of `other` (signed distance below `range`),
@@ -310,24 +312,18 @@ impl SurfaceDistance {
         (x, cl)
     }
 
-    /// Newton's closest point from each of `starts` (samples, nearest first) until one ends
-    /// no farther than the nearest sample. Newton can stall at a pole's degenerate
+    /// Newton's closest point from each of `starts` (samples, nearest first, at least one)
+    /// until one ends no farther than the nearest sample. Newton can stall at a pole's degenerate
     /// parametrisation, or end at a critical point of the distance that is not its minimum (a
     /// point beside a strongly deformed cell, whose nearest sample is far from the closest
     /// point); if every start does, the nearest sample is the answer, with the surface's own
     /// normal there. (The direction from the centre, taken as that normal before, points the
     /// wrong way near a red cell's dimple and beside a bent one: the sign flipped, and points
     /// 0.4–0.7 outside a cell of the 45 % Couette shell read as that deep inside.)
-    fn newton(
-        &self,
-        scratch: &mut DistanceScratch,
-        x: [f64; 3],
-        starts: impl Iterator<Item = usize>,
-    ) -> Closest {
-        let mut nearest: Option<usize> = None;
+    fn newton(&self, scratch: &mut DistanceScratch, x: [f64; 3], starts: &[usize]) -> Closest {
+        let first = starts[0];
         let mut found: Option<([f64; 3], [f64; 3])> = None;
-        for start in starts {
-            let first = *nearest.get_or_insert(start);
+        for &start in starts {
             let (u, pd) = closest_point(
                 &mut scratch.point,
                 &self.lay,
@@ -343,7 +339,6 @@ impl SurfaceDistance {
                 break;
             }
         }
-        let first = nearest.expect("a surface has samples");
         let (y, nv) = found.unwrap_or_else(|| {
             let u = self.angles[first];
             let pd = scratch.point.eval(&self.lay, &self.coefs, u.0, u.1);

@@ -3,14 +3,15 @@
 //! with its whole history ([`super::rigid_move`]), so that the step's extrapolations
 //! (`X* = 2Xⁿ − Xⁿ⁻¹`, the BDF2 derivative) see a rigid motion and no spurious velocity.
 //!
-//! Until the eighteenth session a step only translated cells. In the 45 % Couette shell of
+//! Until the seventeenth session a step only translated cells. In the 45 % Couette shell of
 //! docs/hard_cases.md (16 RBCs jammed between a turning inner sphere and the container) a cell
 //! came to be wedged at step 505: translations alone had no solution (projected Gauss–Seidel
 //! ran 100 000 sweeps a round without meeting the linearised constraints, and the rounds
 //! stalled with a gap 6 % short of `d_min`), while with rotations every round of that step and
-//! the next converged in about 15 sweeps and one round. Over several ranks every rank gathers every cell's surface and
-//! solves the same projection (deterministic: the same moves on every rank), then moves its
-//! own cells.
+//! the next converged in about 15 sweeps and one round.
+//!
+//! Over several ranks every rank gathers every cell's surface and solves the same projection
+//! (deterministic: the same moves on every rank), then moves its own cells.
 
 use super::super::contact::{ContactParams, ContactSolver, ContactStats};
 use super::super::TimestepError;

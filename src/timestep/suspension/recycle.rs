@@ -227,7 +227,7 @@ impl Suspension {
 /// [`super::rigid_move::move_state`], with its own preconditioner dropped when `m` turns it.
 fn land(state: &mut CellState, m: &Move) {
     super::rigid_move::move_state(state, m);
-    if super::rigid_move::turns(m) {
+    if m.turns() {
         state.preconditioner = None;
     }
 }

@@ -20,7 +20,7 @@ pub(super) fn move_state(state: &mut CellState, m: &Move) {
     if let Some(prev) = &mut state.previous_coefs {
         m.apply(prev);
     }
-    if !turns(m) {
+    if !m.turns() {
         return;
     }
     let turn = |v: &mut [f64]| {
@@ -48,9 +48,4 @@ pub(super) fn move_state(state: &mut CellState, m: &Move) {
         turn(f);
         turn(g);
     }
-}
-
-/// Whether `m` turns what it moves.
-pub(super) fn turns(m: &Move) -> bool {
-    m.rotation != Move::identity(m.centre).rotation
 }
