@@ -3,10 +3,12 @@
 //!
 //! **What is guaranteed, and where it is measured.** Gaps are signed distances from the samples
 //! of one surface (its grid of order `q = 2p`) to the other, continuous, surface
-//! ([`SurfaceDistance`]: Newton's closest point), both ways round; from the nearest sample of a
-//! pair, Newton's method over the first surface's parameters
-//! ([`SurfaceDistance::closest_pair`]) finds the pair of closest points of the two continuous
-//! surfaces, whose distance is measured too. [`ContactSolver::resolve`] returns only
+//! ([`SurfaceDistance`]: Newton's closest point), both ways round; from each local minimum of
+//! the sampled gap of a pair ([`SurfaceDistance::pair_starts`]), Newton's method over the first
+//! surface's parameters ([`SurfaceDistance::closest_pair`]) finds a pair of closest points of
+//! the two continuous surfaces, whose distance is measured too. Against a plane wall, the
+//! same search finds the body's least height above the plane between its samples
+//! ([`SurfaceDistance::closest_to_plane`]). [`ContactSolver::resolve`] returns only
 //! when every such gap is at least `d_min`, or fails with the smallest gap left.
 //!
 //! **The projection.** Each body moves rigidly: a translation `t_a` and, when rotations are
@@ -624,6 +626,7 @@ impl ContactSolver {
             )
             .flatten()
             .collect();
+        let mut own_scratch = DistanceScratch::new(p);
         for (a, body) in bodies.iter().enumerate() {
             if only.is_some_and(|k| k != a) {
                 continue;
@@ -633,25 +636,37 @@ impl ContactSolver {
                 if dot3(w.normal, c) - w.offset > body.reach() + range {
                     continue;
                 }
-                for &x in body.samples() {
-                    let g = dot3(w.normal, x) - w.offset;
+                let nm = w.normal;
+                let mut push = |x: [f64; 3], g: f64| {
+                    let ra = cross3(sub3(x, c), nm);
+                    cons.push(Constraint {
+                        a,
+                        b: None,
+                        ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
+                        jb: [0.0; 6],
+                        gap: g,
+                    });
+                };
+                let mut near: Vec<(usize, f64)> = Vec::new();
+                for (j, &x) in body.samples().iter().enumerate() {
+                    let g = dot3(nm, x) - w.offset;
                     if g < range {
-                        let ra = cross3(sub3(x, c), w.normal);
-                        let nm = w.normal;
-                        cons.push(Constraint {
-                            a,
-                            b: None,
-                            ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
-                            jb: [0.0; 6],
-                            gap: g,
-                        });
+                        push(x, g);
+                        near.push((j, g));
+                    }
+                }
+                // Between the samples the body can come closer: Newton from each local minimum
+                // of the sampled height (as against curved walls below).
+                for (j, g0) in body.pair_starts(&near) {
+                    let (x, cl) = body.closest_to_plane(&mut own_scratch, nm, w.offset, j);
+                    if cl.distance < g0 {
+                        push(x, cl.distance);
                     }
                 }
             }
         }
         for f in fixed {
             let mut scratch = DistanceScratch::new(f.p);
-            let mut own_scratch = DistanceScratch::new(p);
             let fc = f.surface.centre();
             for (a, body) in bodies.iter().enumerate() {
                 if only.is_some_and(|k| k != a) {
@@ -869,16 +884,12 @@ mod tests {
         assert!(moved >= least && moved < 1.1 * least, "{ta:?} {least}");
     }
 
-    /// A unit sphere at the origin (order `p`) and two planes `z = const` whose gaps to its
-    /// lowest and highest distance samples are `below` and `above`.
+    /// A unit sphere at the origin (order `p`) and two planes `z = const` whose gaps to it are
+    /// `below` and `above` (the sphere's expansion is exact, its extent along `z` is 1).
     fn sphere_between_planes(p: usize, below: f64, above: f64) -> (Vec<f64>, [Wall; 2]) {
         let id = rotation_from_vector([0.0; 3]);
         let sphere = placed(shapes::sphere(p, 1.0).unwrap(), id, [0.0; 3]);
-        let sht = ShTransform::new(2 * p).unwrap();
-        let surface = SurfaceDistance::new(p, &sphere, &sht).unwrap();
-        let z = || surface.samples().iter().map(|x| x[2]);
-        let (low, high) = (z().fold(f64::INFINITY, f64::min), z().fold(0.0, f64::max));
-        (sphere, z_planes(low - below, high + above))
+        (sphere, z_planes(-1.0 - below, 1.0 + above))
     }
 
     /// The planes `z = lower` (allowed side above) and `z = upper` (allowed side below).
@@ -895,8 +906,7 @@ mod tests {
         ]
     }
 
-    /// A unit sphere between two planes, its samples (which a plane's gap is measured from)
-    /// `0.9 d_min` from the lower plane and `1.4 d_min` from the upper. A time step's
+    /// A unit sphere between two planes, `0.9 d_min` from the lower plane and `1.4 d_min` from the upper. A time step's
     /// projection pushes only the gap below `d_min` past it, by its deficit (to `1.1 d_min`),
     /// and keeps the met one at `(1 + SLACK) d_min`: one round, the sphere moved up by the
     /// least move (0.2 `d_min`), the upper gap left at `1.2 d_min`. With `spread` (a packing's
@@ -1020,6 +1030,54 @@ mod tests {
         assert!(m.rotation[1][1] > 1.0 - 1e-12, "{:?}", m.rotation);
         assert!(shift.abs() < 1e-3 * d_min, "{shift}");
         assert!(h - extent(q) < 1.2 * d_min, "{} {}", h, extent(q));
+    }
+
+    /// A plane's gap is measured on the continuous surface, not at the samples alone: a prolate
+    /// ellipsoid (semi-axes 2, 0.5, 0.5) turned (by the rotation vector `(0, 1.3, 0.6)`) so that
+    /// its lowest point falls between its samples, above the plane `z = const` at an exact gap
+    /// of `0.95 d_min` (its extent along `z` is `√(zᵀ Q A² Qᵀ z)`, as in the wedge). Its lowest
+    /// sample stands `0.27 d_min` higher, above `d_min`, so the samples alone found nothing to
+    /// do and left the body too close; Newton from the lowest sample finds the least
+    /// height, and the body is lifted until the exact gap is `d_min`.
+    #[test]
+    fn a_body_tilted_towards_a_plane_is_kept_d_min_from_it_between_its_samples() {
+        let p = 8;
+        let d_min = 0.05;
+        let axes = [2.0, 0.5, 0.5];
+        let tilt = rotation_from_vector([0.0, 1.3, 0.6]);
+        let body = placed(shapes::ellipsoid(p, axes).unwrap(), tilt, [0.0; 3]);
+        let h = (0..3)
+            .map(|i| (axes[i] * tilt[2][i]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let floor = -h - 0.95 * d_min;
+        let planes = [Wall {
+            normal: [0.0, 0.0, 1.0],
+            offset: floor,
+        }];
+        let sht = ShTransform::new(2 * p).unwrap();
+        let surface = SurfaceDistance::new(p, &body, &sht).unwrap();
+        let lowest = surface
+            .samples()
+            .iter()
+            .map(|x| x[2])
+            .fold(f64::INFINITY, f64::min);
+        assert!(lowest - floor > 1.05 * d_min, "premise: {}", lowest - floor);
+        let out = ContactSolver::new(p, ContactParams::new(d_min))
+            .unwrap()
+            .resolve(&[&body], &planes)
+            .unwrap();
+        assert!(out.rounds >= 1, "{out:?}");
+        assert!(
+            (out.gap_before - 0.95 * d_min).abs() < 1e-8 * d_min,
+            "{out:?}"
+        );
+        let t = out.moves[0].translation;
+        let gap = 0.95 * d_min + t[2];
+        assert!(
+            gap >= d_min * (1.0 - 1e-8) && gap < 1.2 * d_min,
+            "{gap} {out:?}"
+        );
     }
 
     /// With a period `P`: two unit spheres that overlap only across it (`c₂ + P` within `2` of

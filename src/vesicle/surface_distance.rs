@@ -260,6 +260,34 @@ impl SurfaceDistance {
         self.closest_pair_by(scratch, start, sign, |_, x| other.closest(other_scratch, x))
     }
 
+    /// The point of this surface nearest to the plane `normal · x = offset` (`normal` a unit
+    /// vector into the side the surface lies on), near the sample `start`: the height
+    /// `normal · X(u) − offset` minimised over the parameters by the Newton search of
+    /// [`Self::closest_pair`] (the plane's closest point to `x` is `x − d normal`, its normal
+    /// `normal`). Returns the surface point and its projection on the plane, with the height as
+    /// the distance. Measured at the samples alone, a curved body tilted towards a plane comes
+    /// closer than its nearest sample between the samples.
+    pub fn closest_to_plane(
+        &self,
+        scratch: &mut DistanceScratch,
+        normal: [f64; 3],
+        offset: f64,
+        start: usize,
+    ) -> ([f64; 3], Closest) {
+        self.closest_pair_by(scratch, start, 1.0, |_, x| {
+            let d = dot(normal, x) - offset;
+            Closest {
+                distance: d,
+                point: [
+                    x[0] - d * normal[0],
+                    x[1] - d * normal[1],
+                    x[2] - d * normal[2],
+                ],
+                normal,
+            }
+        })
+    }
+
     /// The Newton search of [`Self::closest_pair`] on `sign · d(u)`, `closest` the other
     /// surface's closest point to a point.
     fn closest_pair_by(
