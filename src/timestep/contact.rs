@@ -331,6 +331,21 @@ struct Constraint {
     gap: f64,
 }
 
+impl Constraint {
+    /// Body `a` (centre `c`) at its point `x`, `gap` from a fixed wall whose normal into the
+    /// allowed side is `nm`: the row `[n, (x − c) × n]`.
+    fn wall(a: usize, c: [f64; 3], x: [f64; 3], nm: [f64; 3], gap: f64) -> Self {
+        let ra = cross3(sub3(x, c), nm);
+        Constraint {
+            a,
+            b: None,
+            ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
+            jb: [0.0; 6],
+            gap,
+        }
+    }
+}
+
 /// Every body's distance surface, built by [`ContactSolver::prepare`]: the others' surfaces
 /// against which places for one body are tried.
 pub struct PreparedBodies {
@@ -637,16 +652,7 @@ impl ContactSolver {
                     continue;
                 }
                 let nm = w.normal;
-                let mut push = |x: [f64; 3], g: f64| {
-                    let ra = cross3(sub3(x, c), nm);
-                    cons.push(Constraint {
-                        a,
-                        b: None,
-                        ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
-                        jb: [0.0; 6],
-                        gap: g,
-                    });
-                };
+                let mut push = |x: [f64; 3], g: f64| cons.push(Constraint::wall(a, c, x, nm, g));
                 let mut near: Vec<(usize, f64)> = Vec::new();
                 for (j, &x) in body.samples().iter().enumerate() {
                     let g = dot3(nm, x) - w.offset;
@@ -682,16 +688,8 @@ impl ContactSolver {
                 if far {
                     continue;
                 }
-                let mut push = |x: [f64; 3], g: f64, nm: [f64; 3]| {
-                    let ra = cross3(sub3(x, c), nm);
-                    cons.push(Constraint {
-                        a,
-                        b: None,
-                        ja: [nm[0], nm[1], nm[2], ra[0], ra[1], ra[2]],
-                        jb: [0.0; 6],
-                        gap: g,
-                    });
-                };
+                let mut push =
+                    |x: [f64; 3], g: f64, nm: [f64; 3]| cons.push(Constraint::wall(a, c, x, nm, g));
                 let mut near: Vec<(usize, f64)> = Vec::new();
                 for (j, &x) in body.samples().iter().enumerate() {
                     if f.container && dist(x, fc) + range < f.r_min {
