@@ -53,7 +53,9 @@ use crate::vesicle::near::{NearParams, OffSurface, TargetInfo};
 /// lattice at `p = 8`, `λ = 5` (a cluster of 9 cells): the operator's values change by 0.8 %
 /// of their norm and one application takes a third of the time (0.041 s against 0.124 s).
 /// This operator acts on the densities' change within a step (module docs), so its error
-/// multiplies an `O(Δt²)` quantity.
+/// multiplies an `O(Δt²)` quantity. The joint solve hands each cell's on-surface values from
+/// its step's dense operators ([`OnSurface`], at the step's own order `2p`); the order `p`
+/// serves matrix-free cells.
 const FAR_ORDER: usize = 3;
 const SELF_ORDER: usize = 1;
 
@@ -101,6 +103,17 @@ pub struct NearZones {
 }
 
 impl NearZones {
+    /// Per cell of `n`, whether it is the source of a zone (its densities are evaluated).
+    pub fn is_source(&self, n: usize) -> Vec<bool> {
+        let mut source = vec![false; n];
+        for z in &self.sources {
+            if let Some(s) = source.get_mut(z.source) {
+                *s = true;
+            }
+        }
+        source
+    }
+
     /// The pairs `(i, j)`, `i ≠ j`, with a target of `i` in the zone of `j` (or of its image).
     pub fn pairs(&self) -> BTreeSet<(usize, usize)> {
         self.sources
@@ -208,6 +221,20 @@ pub struct ZoneCell<'a> {
     pub radius: f64,
     /// Whether the cell takes part (a cell that does not is neither source nor target).
     pub joins: bool,
+}
+
+/// A source cell's layers on its own surface, at its grid points (component-major `3n` each),
+/// for the densities a [`NearPairs::apply`] is given: `S f` and, with a double layer, `D g`.
+/// A cell's step holds the dense operators `S` and `D` at the same geometry (assembled at the
+/// upsampled order `2p` that its own step uses), so a product costs a matrix–vector product
+/// instead of the near-singular evaluator's singular quadrature at every grid point (at
+/// `p = 12`, 22 % of a 27-cell lattice's step; that quadrature ran at order `p`).
+#[derive(Clone, Copy, Debug)]
+pub struct OnSurface<'a> {
+    /// `S f` at the grid points.
+    pub single: &'a [f64],
+    /// `D g` at the grid points, where the cell's double layer is coupled.
+    pub double: Option<&'a [f64]>,
 }
 
 /// The near-zone operator of cells of order `p`: evaluators pooled between calls.
@@ -371,13 +398,17 @@ impl NearPairs {
 
     /// `out_i += Σ_j K_ij (f_j, g_j)` at the targets of `zones` (`out`: one component-major
     /// `3n` vector per cell; `surfaces[j]` the coefficients of cell `j` the zones were found
-    /// at; `g_j = None`: no double layer). Sums in the zones' order: deterministic.
+    /// at; `g_j = None`: no double layer). `on_surface[j]`, where given (the slice may be
+    /// empty), holds cell `j`'s layers of these densities on its own surface, which the
+    /// near-singular evaluation then takes instead of its own singular quadrature over the
+    /// whole surface ([`OnSurface`]). Sums in the zones' order: deterministic.
     pub fn apply(
         &self,
         zones: &NearZones,
         surfaces: &[&[f64]],
         f: &[&[f64]],
         g: &[Option<&[f64]>],
+        on_surface: &[Option<OnSurface<'_>>],
         out: &mut [Vec<f64>],
     ) -> Result<(), TimestepError> {
         let values: Result<Vec<Vec<f64>>, TimestepError> = zones
@@ -393,19 +424,27 @@ impl NearPairs {
                 };
                 // The zone's classification was made on this surface when the zones were
                 // found; a zone built by hand (no classification) is classified here.
-                let eval = |off: &mut OffSurface, kernel, density: &[f64], out: &mut [f64]| {
+                let eval = |off: &mut OffSurface,
+                            kernel,
+                            density: &[f64],
+                            given: Option<&[f64]>,
+                            out: &mut [f64]| {
                     if z.infos.len() == z.points.len() {
-                        off.evaluate_classified(kernel, density, &z.points, &z.infos, out)
+                        off.evaluate_classified(kernel, density, given, &z.points, &z.infos, out)
+                    } else if let Some(v) = given {
+                        off.evaluate_given_on_surface(kernel, density, v, &z.points, out)
                     } else {
                         off.evaluate(kernel, density, &z.points, out)
                     }
                 };
+                let given = on_surface.get(j).and_then(|o| o.as_ref());
                 let mut r = off
                     .set_surface(surfaces[j])
-                    .and_then(|_| eval(&mut off, single, f[j], &mut u));
+                    .and_then(|_| eval(&mut off, single, f[j], given.map(|o| o.single), &mut u));
                 if let (Ok(_), Some(gj)) = (&r, g[j]) {
                     let mut d = vec![0.0; 3 * m];
-                    r = eval(&mut off, LayerKernel::DoubleLayer, gj, &mut d);
+                    let given = given.and_then(|o| o.double);
+                    r = eval(&mut off, LayerKernel::DoubleLayer, gj, given, &mut d);
                     for (a, b) in u.iter_mut().zip(&d) {
                         *a += b;
                     }
@@ -470,6 +509,7 @@ fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
 mod tests {
     use super::*;
     use crate::sph_harmonics::ShTransform;
+    use crate::vesicle::layer::{RotationAlgorithm, SelfInteraction};
     use crate::vesicle::shapes::ellipsoid;
 
     fn zone(source: usize, targets: &[(usize, usize)]) -> SourceZone {
@@ -578,7 +618,40 @@ mod tests {
             &[&surfaces[0], &surfaces[1]],
             &[&f[0], &f[1]],
             &[Some(&g[0]), Some(&g[1])],
+            &[],
             &mut out,
+        )
+        .unwrap();
+        // The same with the layers on each surface given, as a step's dense operators (the
+        // singular quadrature at order 2p) give them.
+        let mut own = SelfInteraction::new(p, 2 * p, RotationAlgorithm::Direct).unwrap();
+        let single = LayerKernel::SingleLayer { viscosity: 1.3 };
+        let values: Vec<(Vec<f64>, Vec<f64>)> = (0..2)
+            .map(|j| {
+                let (mut sf, mut dg) = (vec![0.0; 3 * n], vec![0.0; 3 * n]);
+                own.evaluate(single, &surfaces[j], &f[j], &mut sf).unwrap();
+                own.evaluate(LayerKernel::DoubleLayer, &surfaces[j], &g[j], &mut dg)
+                    .unwrap();
+                (sf, dg)
+            })
+            .collect();
+        let given: Vec<Option<OnSurface<'_>>> = values
+            .iter()
+            .map(|(sf, dg)| {
+                Some(OnSurface {
+                    single: sf,
+                    double: Some(dg),
+                })
+            })
+            .collect();
+        let mut out_given = vec![vec![0.0; 3 * n]; 2];
+        near.apply(
+            &zones,
+            &[&surfaces[0], &surfaces[1]],
+            &[&f[0], &f[1]],
+            &[Some(&g[0]), Some(&g[1])],
+            &given,
+            &mut out_given,
         )
         .unwrap();
         // The fine evaluators of the coupling.
@@ -592,7 +665,7 @@ mod tests {
             },
         )
         .unwrap();
-        let (mut worst, mut scale) = (0.0f64, 0.0f64);
+        let (mut worst, mut worst_given, mut scale) = (0.0f64, 0.0f64, 0.0f64);
         for z in &zones.sources {
             let j = z.source;
             let m = z.points.len();
@@ -614,12 +687,33 @@ mod tests {
                 for c in 0..3 {
                     let want = us[c * m + t] + ud[c * m + t];
                     worst = worst.max((out[i][c * n + k] - want).abs());
+                    worst_given = worst_given.max((out_given[i][c * n + k] - want).abs());
                     scale = scale.max(want.abs());
                 }
             }
         }
         assert!(scale > 0.1, "the potentials are not small: {scale}");
         assert!(worst <= 0.02 * scale, "error {worst:.3e} of {scale:.3e}");
+        // With the layers given (the finer quadrature of a step's operators, where the
+        // evaluator's own is of order p), the values move by less than their error against the
+        // fine evaluators, which the check points and the smooth quadrature set.
+        let moved = out
+            .iter()
+            .zip(&out_given)
+            .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).abs()))
+            .fold(0.0f64, f64::max);
+        println!(
+            "error {worst:.3e}, with the layers given {worst_given:.3e} (moved {moved:.3e}), \
+             of {scale:.3e}"
+        );
+        assert!(
+            moved > 0.0 && moved < 0.1 * worst,
+            "{moved:.3e} against {worst:.3e}"
+        );
+        assert!(
+            worst_given <= 1.01 * worst,
+            "{worst_given:.3e} against {worst:.3e}"
+        );
         // Points outside the zones get nothing.
         let inside: BTreeSet<(usize, usize)> = zones
             .sources

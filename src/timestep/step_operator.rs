@@ -29,6 +29,10 @@ pub(crate) enum StepOperator<'a> {
     Kernel(LayerKernel),
 }
 
+/// A cell's layers on its own surface, `S f` and, where asked, `D g`
+/// ([`InextensibleOperator::layer_values`]); `None` where they are not stored dense.
+pub(crate) type LayerValues = Option<(Vec<f64>, Option<Vec<f64>>)>;
+
 /// One term `β K x` of a product: the operator, the input (a grid vector, `3n`) and `β`.
 pub(crate) type Term<'a> = (StepOperator<'a>, &'a [f64], f64);
 
@@ -420,6 +424,44 @@ impl<'a> InextensibleOperator<'a> {
 }
 
 impl InextensibleOperator<'_> {
+    /// `S f` and, with `g`, `D g` at the grid points, with this step's stored dense layers at
+    /// its geometry `X*` (the near zones' on-surface values,
+    /// [`super::near_pairs::OnSurface`]); `None` where a layer this asks for is applied
+    /// matrix-free (the near zones' evaluator then computes them).
+    pub fn layer_values(&self, f: &[f64], g: Option<&[f64]>) -> Result<LayerValues, VesicleError> {
+        let dense = |op: &StepOperator<'_>| matches!(op, StepOperator::Dense(_));
+        let stored = matches!(
+            self.storage,
+            OperatorStorage::Grid | OperatorStorage::Coefficients
+        );
+        if !stored || !dense(&self.s_op) || (g.is_some() && !self.d_op.as_ref().is_some_and(dense))
+        {
+            return Ok(None);
+        }
+        let n3 = 3 * self.n;
+        let mut guard = self.work.lock().unwrap_or_else(|e| e.into_inner());
+        let w = &mut *guard;
+        let mut product = |op: StepOperator<'_>, x: &[f64]| {
+            let mut y = vec![0.0; n3];
+            apply_operators(
+                self.storage,
+                self.sht,
+                &mut w.products,
+                self.xstar,
+                (op, x, 1.0),
+                None,
+                &mut y,
+            )
+            .map(|_| y)
+        };
+        let single = product(self.s_op, f)?;
+        let double = match (g, self.d_op) {
+            (Some(g), Some(d)) => Some(product(d, g)?),
+            _ => None,
+        };
+        Ok(Some((single, double)))
+    }
+
     /// `y ← A z` and `f ← B X + T σ (+ J X)`, the traction of `z` that the product passes
     /// through the single layer (the density the near-implicit coupling passes to the other
     /// cells, [`super::near_implicit`]). A failure writes NaN into both and is kept.
@@ -467,5 +509,106 @@ impl LinearOperator for InextensibleOperator<'_> {
             self.fail(e);
             y.fill(f64::NAN);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::timestep::step_engine::EnginePool;
+    use crate::timestep::step_solve::assemble_operator;
+    use crate::vesicle::layer::{RotationAlgorithm, SelfInteraction};
+    use crate::vesicle::shapes::ellipsoid;
+
+    /// The layers a step's operator hands the near zones (`S f`, `D g` with its stored dense
+    /// operators, in either storage) are the singular quadrature's values at the grid points,
+    /// computed matrix-free by an independent `SelfInteraction` of the same orders; matrix-free
+    /// storage hands none.
+    #[test]
+    fn layer_values_are_the_self_interaction_at_the_grid_points() {
+        let (p, q) = (6, 12);
+        let surface = ellipsoid(p, [1.3, 1.0, 0.7]).unwrap();
+        let coefs = surface.coefs().to_vec();
+        let pool = EnginePool::shared(p, q, 20);
+        let mut engine = pool.lease().unwrap();
+        let n = engine.sht.n_points();
+        // Smooth densities (low-degree polynomials of the position).
+        let x = surface.grid_positions(&engine.sht).unwrap();
+        let f: Vec<f64> = (0..3 * n)
+            .map(|i| {
+                let k = i % n;
+                1.0 + 0.5 * x[k] * x[n + k] - (i / n) as f64 * x[2 * n + k]
+            })
+            .collect();
+        let g: Vec<f64> = (0..3 * n)
+            .map(|i| {
+                let k = i % n;
+                0.3 * x[n + k] + (i / n) as f64 * x[k] * x[k]
+            })
+            .collect();
+        let single = LayerKernel::SingleLayer { viscosity: 1.7 };
+        let mut own = SelfInteraction::new(p, q, RotationAlgorithm::ViaSh).unwrap();
+        let (mut sf, mut dg) = (vec![0.0; 3 * n], vec![0.0; 3 * n]);
+        own.evaluate(single, &coefs, &f, &mut sf).unwrap();
+        own.evaluate(LayerKernel::DoubleLayer, &coefs, &g, &mut dg)
+            .unwrap();
+        let scale = |v: &[f64]| v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        for storage in [OperatorStorage::Grid, OperatorStorage::Coefficients] {
+            let (mut s, mut d) = (Vec::new(), Vec::new());
+            assemble_operator(&mut engine, storage, single, &coefs, &mut s).unwrap();
+            let dl = LayerKernel::DoubleLayer;
+            assemble_operator(&mut engine, storage, dl, &coefs, &mut d).unwrap();
+            let op = InextensibleOperator::new(
+                n,
+                &engine.work,
+                &engine.sht,
+                storage,
+                &coefs,
+                (StepOperator::Dense(&s), Some(StepOperator::Dense(&d))),
+                [3.0, -4.0, 0.01, 0.1],
+                None,
+                1.0,
+            );
+            let (s_f, d_g) = op.layer_values(&f, Some(&g)).unwrap().unwrap();
+            let d_g = d_g.unwrap();
+            // Coefficient storage returns the band-limited part (degrees <= p) of the values.
+            let band = |v: &[f64]| {
+                let mut ws = engine.sht.workspace();
+                let mut c = vec![0.0; 3 * engine.sht.n_coefs()];
+                let mut out = vec![0.0; 3 * n];
+                engine.sht.forward(v, &mut c, &mut ws).unwrap();
+                engine.sht.inverse(&c, &mut out, &mut ws).unwrap();
+                out
+            };
+            let (sf_want, dg_want) = match storage {
+                OperatorStorage::Coefficients => (band(&sf), band(&dg)),
+                _ => (sf.clone(), dg.clone()),
+            };
+            for (got, want) in [(&s_f, &sf_want), (&d_g, &dg_want)] {
+                let err = got
+                    .iter()
+                    .zip(want.iter())
+                    .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+                assert!(
+                    err <= 1e-11 * scale(want),
+                    "{storage:?}: {err:.3e} of {:.3e}",
+                    scale(want)
+                );
+            }
+            let alone = op.layer_values(&f, None).unwrap().unwrap();
+            assert!(alone.1.is_none() && alone.0 == s_f);
+        }
+        let free = InextensibleOperator::new(
+            n,
+            &engine.work,
+            &engine.sht,
+            OperatorStorage::MatrixFree,
+            &coefs,
+            (StepOperator::Kernel(single), None),
+            [1.0, 0.0, 0.01, 0.1],
+            None,
+            1.0,
+        );
+        assert!(free.layer_values(&f, None).unwrap().is_none());
     }
 }

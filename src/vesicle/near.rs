@@ -425,17 +425,22 @@ impl OffSurface {
     /// [`Self::evaluate`] with each target's classification given (`infos`, as
     /// [`Self::classify`] returned them on this surface), where a caller evaluates several
     /// densities at the same targets on the same surface (the near zones' products, once per
-    /// GMRES iteration). Returns the classifications.
+    /// GMRES iteration), and optionally the layer's on-surface values (as
+    /// [`Self::evaluate_given_on_surface`] takes them). Returns the classifications.
     pub fn evaluate_classified(
         &mut self,
         kernel: LayerKernel,
         density: &[f64],
+        on_surface: Option<&[f64]>,
         targets: &[[f64; 3]],
         infos: &[TargetInfo],
         out: &mut [f64],
     ) -> Result<Vec<TargetInfo>, VesicleError> {
         check_len("target classifications", infos.len(), targets.len())?;
-        self.evaluate_inner(kernel, density, None, Some(infos), targets, out)
+        if let Some(v) = on_surface {
+            check_len("on-surface values", v.len(), 3 * self.sht_p.n_points())?;
+        }
+        self.evaluate_inner(kernel, density, on_surface, Some(infos), targets, out)
     }
 
     /// [`Self::evaluate`] with the layer's on-surface (principal) values at the grid points

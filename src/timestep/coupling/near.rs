@@ -116,6 +116,7 @@ impl Coupling {
                     .evaluate_classified(
                         LayerKernel::SingleLayer { viscosity: mu },
                         s.traction,
+                        None,
                         &pts,
                         &near_infos,
                         &mut u_near,

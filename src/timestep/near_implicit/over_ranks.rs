@@ -39,7 +39,8 @@ pub(in crate::timestep) enum RanksStep {
 type Local<T> = Result<T, (Option<usize>, TimestepError)>;
 
 /// Every member's traction and double-layer density (`None`: none), in cluster order.
-type Densities = (Vec<Vec<f64>>, Vec<Option<Vec<f64>>>);
+/// Every member's densities `(f, g)` and its [`LayerValues`] (where its rank holds them).
+type Densities = (Vec<Vec<f64>>, Vec<Option<Vec<f64>>>, Vec<LayerValues>);
 
 /// `local` where no rank failed; otherwise what this rank reports (collective).
 fn settle<T>(comm: &dyn Communicator, local: Local<T>) -> Result<T, RanksStep> {
@@ -376,23 +377,41 @@ impl ClusterOverRanks<'_> {
         Ok((settle(self.comm, ended)?, report.iterations))
     }
 
-    /// The members' densities `(f, g)` of every rank, in cluster order (collective): `f`, and
-    /// `g` where given, `3n` each; members held elsewhere without a double layer get `None`.
+    /// Every member's densities `f`, `g` and layers on its own surface (`S f`, `D g`) from
+    /// the ranks that hold them (`f`, `g` and `ops` for the members held here, in cluster
+    /// order; collective): `g` where given, `3n` each; members held elsewhere without a double
+    /// layer get `None`, and without dense layers no values.
     fn gather_densities(
         &self,
+        ops: &[InextensibleOperator<'_>],
         f: &[Vec<f64>],
         g: &[Option<Vec<f64>>],
         n3: usize,
     ) -> Result<Densities, TimestepError> {
-        let record = 2 + 2 * n3;
+        let source = self.zones.is_source(self.surfaces.len());
+        let wanted: Vec<bool> = self.positions.iter().map(|&pos| source[pos]).collect();
+        let values = layer_values(ops, &wanted, f, g)?;
+        let record = 4 + 4 * n3;
+        let zeros = || std::iter::repeat_n(0.0, n3);
         let mut mine = Vec::with_capacity(record * f.len());
-        for ((&pos, fk), gk) in self.positions.iter().zip(f).zip(g) {
-            mine.push(pos as f64);
-            mine.push(f64::from(u8::from(gk.is_some())));
+        for (((&pos, fk), gk), vk) in self.positions.iter().zip(f).zip(g).zip(&values) {
+            let (sf, dg) = match vk {
+                Some((sf, dg)) => (Some(sf), dg.as_ref()),
+                None => (None, None),
+            };
+            let flag = |b: bool| f64::from(u8::from(b));
+            mine.extend([
+                pos as f64,
+                flag(gk.is_some()),
+                flag(sf.is_some()),
+                flag(dg.is_some()),
+            ]);
             mine.extend_from_slice(fk);
-            match gk {
-                Some(gk) => mine.extend_from_slice(gk),
-                None => mine.extend(std::iter::repeat_n(0.0, n3)),
+            for part in [gk.as_ref(), sf, dg] {
+                match part {
+                    Some(v) => mine.extend_from_slice(v),
+                    None => mine.extend(zeros()),
+                }
             }
         }
         let all = self
@@ -402,6 +421,7 @@ impl ClusterOverRanks<'_> {
         let m = self.surfaces.len();
         let mut fa = vec![Vec::new(); m];
         let mut ga = vec![None; m];
+        let mut va = vec![None; m];
         for (r, buf) in all.iter().enumerate() {
             if buf.len() % record != 0 {
                 return Err(TimestepError::Comm(CommError::Ranks {
@@ -412,30 +432,35 @@ impl ClusterOverRanks<'_> {
             }
             for rec in buf.chunks_exact(record) {
                 let pos = rec[0] as usize;
-                fa[pos] = rec[2..2 + n3].to_vec();
-                ga[pos] = (rec[1] != 0.0).then(|| rec[2 + n3..].to_vec());
+                let part = |i: usize| rec[4 + i * n3..4 + (i + 1) * n3].to_vec();
+                fa[pos] = part(0);
+                ga[pos] = (rec[1] != 0.0).then(|| part(1));
+                va[pos] = (rec[2] != 0.0).then(|| (part(2), (rec[3] != 0.0).then(|| part(3))));
             }
         }
-        Ok((fa, ga))
+        Ok((fa, ga, va))
     }
 
     /// `out_i = Σ_j K_ij (f_j, g_j)` at this rank's targets (`out`: `3n` for the members held
-    /// here, in cluster order; empty elsewhere), after gathering every member's densities.
+    /// here, in cluster order; empty elsewhere), after gathering every member's densities and
+    /// layers on its own surface.
     fn near_field(
         &self,
+        ops: &[InextensibleOperator<'_>],
         f: &[Vec<f64>],
         g: &[Option<Vec<f64>>],
         n3: usize,
     ) -> Result<Vec<Vec<f64>>, TimestepError> {
-        let (fa, ga) = self.gather_densities(f, g, n3)?;
+        let (fa, ga, va) = self.gather_densities(ops, f, g, n3)?;
         let fref: Vec<&[f64]> = fa.iter().map(|v| v.as_slice()).collect();
         let gref: Vec<Option<&[f64]>> = ga.iter().map(|v| v.as_deref()).collect();
+        let on: Vec<Option<OnSurface<'_>>> = va.iter().map(on_surface).collect();
         let mut w = vec![Vec::new(); self.surfaces.len()];
         for &pos in &self.positions {
             w[pos] = vec![0.0; n3];
         }
         self.near
-            .apply(self.zones, self.surfaces, &fref, &gref, &mut w)?;
+            .apply(self.zones, self.surfaces, &fref, &gref, &on, &mut w)?;
         Ok(w)
     }
 
@@ -453,9 +478,10 @@ impl ClusterOverRanks<'_> {
         let (n3, n4) = (3 * n, 4 * n);
         let (tau, dl) = joint_factors(steps, with_dl);
         let (fc, gc) = constant_densities(cells, steps, omegas, &dl, n3);
+        let ops = joint_operators(cells, steps);
         // A failure of the near field here still enters GMRES, with a NaN right-hand side:
         // every rank leaves it at the same collective (the finiteness check of `b`).
-        let (w, near_failure) = match self.near_field(&fc, &gc, n3) {
+        let (w, near_failure) = match self.near_field(&ops, &fc, &gc, n3) {
             Ok(w) => (w, None),
             Err(e) => (vec![vec![f64::NAN; n3]; self.surfaces.len()], Some(e)),
         };
@@ -463,7 +489,7 @@ impl ClusterOverRanks<'_> {
         let op = RanksOperator {
             cluster: self,
             n,
-            ops: joint_operators(cells, steps),
+            ops,
             tau,
             dl,
             failure: Mutex::new(None),
@@ -518,7 +544,7 @@ impl GmresOperator for RanksOperator<'_> {
         let (n3, n4) = (3 * self.n, 4 * self.n);
         let (f, g) = own_products(&self.ops, &self.dl, self.n, x, y);
         // Every rank gathers, whatever failed here: the others wait for this rank's part.
-        match self.cluster.near_field(&f, &g, n3) {
+        match self.cluster.near_field(&self.ops, &f, &g, n3) {
             Ok(w) => {
                 for (k, &pos) in self.cluster.positions.iter().enumerate() {
                     for (yi, wi) in y[k * n4..k * n4 + n3].iter_mut().zip(&w[pos]) {
