@@ -293,7 +293,7 @@ fn cells_driven_head_on_in_shear_never_end_a_step_closer_than_d_min() {
 
 #[test]
 fn bad_packing_and_contact_keys_are_refused_with_their_place() {
-    let cases: [(&str, &str, &str); 6] = [
+    let cases: [(&str, &str, &str); 8] = [
         ("count = 16", "count = 16\nspacing = 2.5", "spacing"),
         (
             "volume_fraction = 0.4",
@@ -316,6 +316,16 @@ fn bad_packing_and_contact_keys_are_refused_with_their_place() {
             "t_end = 0.05\nstart_up_passes = 101",
             "start_up_passes",
         ),
+        (
+            "t_end = 0.05",
+            "t_end = 0.05\nimplicit_zone = 1.5",
+            "implicit_zone",
+        ),
+        (
+            "t_end = 0.05",
+            "t_end = 0.05\nimplicit_zone = nan",
+            "implicit_zone",
+        ),
     ];
     for (from, to, key) in cases {
         let text = PACKED.replace(from, to);
@@ -324,6 +334,17 @@ fn bad_packing_and_contact_keys_are_refused_with_their_place() {
             .to_string();
         assert!(e.contains("bad.toml:") && e.contains(key), "{to}: {e}");
     }
+    let zone = |text: &str| {
+        parse(std::path::Path::new("zone.toml"), text)
+            .unwrap()
+            .numerics
+            .implicit_zone
+    };
+    assert_eq!(zone(PACKED), mobo::timestep::near_implicit::IMPLICIT_ZONE);
+    assert_eq!(
+        zone(&PACKED.replace("t_end = 0.05", "t_end = 0.05\nimplicit_zone = 4.0")),
+        4.0
+    );
     // Jammed: 8 spheres at 40 % need a cube of side 4.37, 2 × 2 × 2 of them with gaps of half
     // a radius (also to the faces) need 5.5.
     let text = PACKED

@@ -175,6 +175,7 @@ pub fn build_part_share(
     susp.set_operator_storage(storage);
     susp.set_preconditioning(preconditioning);
     susp.set_coupling_mode(scene.numerics.coupling);
+    susp.set_implicit_zone(scene.numerics.implicit_zone);
     susp.set_start_up_passes(scene.numerics.start_up_passes);
     susp.set_start_up_anderson_depth(scene.numerics.start_up_anderson_depth);
     susp.set_local_area_rate(local_area_rate(scene))

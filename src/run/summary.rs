@@ -72,6 +72,9 @@ pub struct CellRunSummary {
     pub scheme: &'static str,
     /// How the cells' coupling entered the steps: `"explicit"` or `"near_implicit"`.
     pub coupling: &'static str,
+    /// The near-implicit coupling's zone in units of `R/√p` (`[numerics] implicit_zone`;
+    /// `null` with the explicit coupling).
+    pub implicit_zone: Option<f64>,
     /// The smallest surface gap `d_min` the contact projection keeps (`null`: no projection).
     pub contact_distance: Option<f64>,
     /// GMRES relative residual tolerance.

@@ -392,6 +392,11 @@ pub struct Numerics {
     /// projection (`[numerics] contact_distance`, a length; `None`: off; absent from the file,
     /// [`crate::scene::dense_defaults::auto_contact_distance`]; [`crate::timestep::contact`]).
     pub contact_distance: Option<f64>,
+    /// The width of the zone in which near cells are coupled inside the solve, in units of
+    /// `R/√p` (`[numerics] implicit_zone`, default
+    /// [`crate::timestep::near_implicit::IMPLICIT_ZONE`]; at least 2, the coupling's
+    /// near-singular zone; see [`crate::timestep::near_implicit`]).
+    pub implicit_zone: f64,
     /// The most start-up passes before the first step of a coupled scene (`[numerics]
     /// start_up_passes`, default [`crate::timestep::suspension::START_UP_PASSES`]; 0: none;
     /// see [`crate::timestep::suspension`]'s start-up).

@@ -87,6 +87,9 @@
 //! # contact_distance = 0.02       # keep every surface gap >= 0.02 at the end of each step
 //! #                               # (a length; default 0.4·R_min/p with two cells or a cell
 //! #                               # and a wall, 0: off; see scene::dense_defaults)
+//! implicit_zone = 8.0             # near_implicit: neighbours within 8 R/√p coupled inside
+//! #                               # the solve (>= 2; narrower is cheaper, see
+//! #                               # timestep::near_implicit::IMPLICIT_ZONE)
 //! start_up_passes = 8             # first steps solved and thrown away to start the coupled
 //! #                               # cells from a consistent tension and membrane velocity
 //! #                               # (0: off; see timestep::suspension)
@@ -471,6 +474,20 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             Some(v) if *v.get_ref() == 0.0 => None,
             Some(v) => Some(positive(v, "[numerics] contact_distance")?),
             None => None,
+        },
+        implicit_zone: match n.and_then(|n| n.implicit_zone.as_ref()) {
+            Some(v) if !(v.get_ref().is_finite() && *v.get_ref() >= 2.0) => {
+                return Err(at(
+                    v.span(),
+                    format!(
+                        "[numerics] implicit_zone must be a number of at least 2 (the \
+                         coupling's near-singular zone, in R/√p), got {}",
+                        v.get_ref()
+                    ),
+                ))
+            }
+            Some(v) => *v.get_ref(),
+            None => crate::timestep::near_implicit::IMPLICIT_ZONE,
         },
         start_up_passes: at_most(
             n.and_then(|n| n.start_up_passes.as_ref()),

@@ -104,6 +104,7 @@ pub(super) struct NumericsSection {
     pub(super) max_imbalance: Option<Spanned<f64>>,
     pub(super) coupling: Option<Spanned<String>>,
     pub(super) contact_distance: Option<Spanned<f64>>,
+    pub(super) implicit_zone: Option<Spanned<f64>>,
     pub(super) start_up_passes: Option<Spanned<u64>>,
     pub(super) start_up_anderson_depth: Option<Spanned<u64>>,
     pub(super) gpu: Option<Spanned<GpuFlag>>,

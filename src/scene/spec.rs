@@ -524,6 +524,10 @@ pub struct NumericsSpec {
     /// [`crate::scene::dense_defaults`]; 0: no projection).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_distance: Option<f64>,
+    /// `implicit_zone`: the width of the near-implicit coupling's zone in units of `R/√p`
+    /// (absent: 8; at least 2).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub implicit_zone: Option<f64>,
     /// `start_up_passes`: the most first steps solved and thrown away to start coupled cells
     /// from a consistent tension and membrane velocity (absent: 8; 0: none).
     #[serde(skip_serializing_if = "Option::is_none")]

@@ -265,6 +265,12 @@ impl NearPairs {
         }
     }
 
+    /// Near zones of `δ = zone · R / √p` from now on (evaluators already pooled are kept: they
+    /// depend on the order alone).
+    pub fn set_zone(&mut self, zone: f64) {
+        self.near_factor = zone;
+    }
+
     /// The images in the plane wall `wall` join the operator (module docs); `None`: no plane.
     pub fn set_plane(&mut self, wall: Option<crate::wall::PlaneWall>) {
         self.images = wall.map(|w| NearImages::new(w, self.viscosity, self.p));
@@ -591,6 +597,23 @@ mod tests {
         let near = NearPairs::new(p, 1.3, 2.0);
         let zones = near.zones(&cells).unwrap();
         assert_eq!(zones.clusters(2), vec![vec![0, 1]]);
+        // A wider zone (`set_zone`, the scene's `implicit_zone`) holds every target of this one
+        // and more; set back, the same zones.
+        let mut other = NearPairs::new(p, 1.3, 2.0);
+        other.set_zone(4.0);
+        let wide = other.zones(&cells).unwrap();
+        let count = |z: &NearZones| z.sources.iter().map(|s| s.targets.len()).sum::<usize>();
+        assert!(
+            count(&wide) > count(&zones),
+            "{} {}",
+            count(&wide),
+            count(&zones)
+        );
+        for (w, z) in wide.sources.iter().zip(&zones.sources) {
+            assert!(z.targets.iter().all(|t| w.targets.contains(t)));
+        }
+        other.set_zone(2.0);
+        assert_eq!(other.zones(&cells).unwrap().sources, zones.sources);
         for z in &zones.sources {
             assert!(z.targets.len() < n / 2, "only the facing side is near");
             for &(i, k) in &z.targets {

@@ -608,6 +608,12 @@ impl Suspension {
         self.coupling_mode = mode;
     }
 
+    /// The near-implicit coupling's zone, `zone · R/√p` around each cell (default
+    /// [`IMPLICIT_ZONE`]); a plane wall's images set before are kept.
+    pub fn set_implicit_zone(&mut self, zone: f64) {
+        self.near_pairs.set_zone(zone);
+    }
+
     /// Record, at every step, the velocity each cell feels from the other cells and the walls,
     /// as computed at the start of the step on the grid the step began on
     /// ([`Suspension::recorded_coupling`]; off by default: it copies `3n` values per cell a

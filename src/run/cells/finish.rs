@@ -157,6 +157,9 @@ impl<'a> CellRun<'a> {
             area_volume_error_sum: prog.error_sum,
             scheme: scheme_name(scene.numerics.scheme),
             coupling: scene.numerics.coupling.name(),
+            implicit_zone: (scene.numerics.coupling
+                == crate::timestep::near_implicit::CouplingMode::NearImplicit)
+                .then_some(scene.numerics.implicit_zone),
             contact_distance: scene.numerics.contact_distance,
             gmres_tol: scene.numerics.gmres_tol,
             fmm_digits: (nc > 1).then_some(scene.numerics.fmm_digits),
