@@ -6,8 +6,8 @@
 //! signed distance to each neighbour is Newton's closest point on the neighbour's continuous
 //! surface; a sphere wall's distance is exact (`R − |x|` inside a container of radius `R`,
 //! `|x| − r` outside a body of radius `r`). The projection measures from order-`2p` samples plus
-//! Newton searches from the local minima of their gaps, so this checks what it guarantees with
-//! denser samples and no shared code path but the closest-point solve.
+//! Newton searches from the minima of their gaps along the grid lines, so this checks what it
+//! guarantees with denser samples and no shared code path but the closest-point solve.
 //!
 //! `cargo run --release --example frame_gaps -- OUT/frames [--container R] [--body r]`
 //! prints one line per frame (the least cell–cell and cell–wall gaps, and where) and the least

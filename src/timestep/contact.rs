@@ -3,11 +3,11 @@
 //!
 //! **What is guaranteed, and where it is measured.** Gaps are signed distances from the samples
 //! of one surface (its grid of order `q = 2p`) to the other, continuous, surface
-//! ([`SurfaceDistance`]: Newton's closest point), both ways round; from each local minimum of
-//! the sampled gap of a pair ([`SurfaceDistance::pair_starts`]), Newton's method over the first
-//! surface's parameters ([`SurfaceDistance::closest_pair`]) finds a pair of closest points of
-//! the two continuous surfaces, whose distance is measured too. Against a plane wall, the
-//! same search finds the body's least height above the plane between its samples
+//! ([`SurfaceDistance`]: Newton's closest point), both ways round; from the minima of the
+//! sampled gap along the grid's lines ([`SurfaceDistance::pair_starts`]), Newton's method over
+//! the first surface's parameters ([`SurfaceDistance::closest_pair`]) finds a pair of closest
+//! points of the two continuous surfaces, whose distance is measured too. Against a plane
+//! wall, the same search finds the body's least height above the plane between its samples
 //! ([`SurfaceDistance::closest_to_plane`]). [`ContactSolver::resolve`] returns only
 //! when every such gap is at least `d_min`, or fails with the smallest gap left.
 //!
@@ -661,7 +661,7 @@ impl ContactSolver {
                         near.push((j, g));
                     }
                 }
-                // Between the samples the body can come closer: Newton from each local minimum
+                // Between the samples the body can come closer: Newton from each minimum
                 // of the sampled height (as against curved walls below).
                 for (j, g0) in body.pair_starts(&near) {
                     let (x, cl) = body.closest_to_plane(&mut own_scratch, nm, w.offset, j);
@@ -1179,22 +1179,33 @@ mod tests {
         assert!((d0 - d1).abs() < 1e-12);
     }
 
-    /// The wedged cell of the 45 % Couette shell (docs/hard_cases.md; its coefficients at step
-    /// 650 in tests/data) between the shell's walls, a container sphere of radius 3.32 and a
-    /// body of radius 1 about the origin: the least gap the projection measures from each wall
-    /// is never above the exact one on an order-96 grid of the cell, and within that grid's
-    /// resolution of it. With Newton from the nearest sample alone the container's gap read
-    /// 0.05005 where it is 0.04761: a second place near the wall, measured at its samples only.
+    /// Two cells of the 45 % Couette shell (docs/hard_cases.md; their coefficients in
+    /// tests/data) between the shell's walls, a container sphere of radius 3.32 and a body of
+    /// radius 1 about the origin: the least gap the projection measures from each wall is never
+    /// above the exact one on an order-96 grid of the cell, and within that grid's resolution
+    /// of it. The wedged cell at step 650: with Newton from the nearest sample alone the
+    /// container's gap read 0.05005 where it is 0.04761 (a second place near the wall, measured
+    /// at its samples only). Its rim against the container at step 950: with Newton from the
+    /// sampled gap's local minima it read 0.05005 where it is 0.04934 (the rim's crest lies
+    /// between samples, whose gap falls along the rim to another place).
     #[test]
     fn a_bent_cell_is_measured_at_its_least_gap_from_a_curved_wall() {
-        let coefs = crate::vesicle::surface_distance::coefs_from_text(include_str!(
-            "../../tests/data/wedged_rbc_p8.txt"
-        ));
+        for text in [
+            include_str!("../../tests/data/wedged_rbc_p8.txt"),
+            include_str!("../../tests/data/rimmed_rbc_p8.txt"),
+        ] {
+            least_wall_gaps_are_measured(&crate::vesicle::surface_distance::coefs_from_text(text));
+        }
+    }
+
+    /// The check of [`a_bent_cell_is_measured_at_its_least_gap_from_a_curved_wall`] on one
+    /// cell of order 8.
+    fn least_wall_gaps_are_measured(coefs: &[f64]) {
         let p = 8;
         let d_min = 0.05;
         let solver = ContactSolver::new(p, ContactParams::new(d_min)).unwrap();
-        let fine = SurfaceDistance::new(p, &coefs, &ShTransform::new(96).unwrap()).unwrap();
-        let bodies = solver.bodies(&[&coefs]).unwrap();
+        let fine = SurfaceDistance::new(p, coefs, &ShTransform::new(96).unwrap()).unwrap();
+        let bodies = solver.bodies(&[coefs]).unwrap();
         for (container, radius) in [(true, 3.32), (false, 1.0)] {
             let q = 16;
             let wall = FixedSurface::new(q, shapes::sphere(q, radius).unwrap().coefs(), container)
