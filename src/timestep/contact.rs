@@ -890,6 +890,15 @@ mod tests {
         (sphere, z_planes(-1.0 - below, 1.0 + above))
     }
 
+    /// The extent along `z` from its centre of an ellipsoid of semi-axes `axes` turned by `q`:
+    /// `√(zᵀ Q A² Qᵀ z)`, `A = diag(axes)` (its support function along `z`).
+    fn z_extent(axes: [f64; 3], q: [[f64; 3]; 3]) -> f64 {
+        (0..3)
+            .map(|i| (axes[i] * q[2][i]).powi(2))
+            .sum::<f64>()
+            .sqrt()
+    }
+
     /// The planes `z = lower` (allowed side above) and `z = upper` (allowed side below).
     fn z_planes(lower: f64, upper: f64) -> [Wall; 2] {
         [
@@ -994,12 +1003,7 @@ mod tests {
         let axes = [2.0, 0.5, 0.5];
         let tilt = rotation_from_vector([0.0, 0.3, 0.0]);
         let body = placed(shapes::ellipsoid(p, axes).unwrap(), tilt, [0.0; 3]);
-        let extent = |q: [[f64; 3]; 3]| {
-            (0..3)
-                .map(|i| (axes[i] * q[2][i]).powi(2))
-                .sum::<f64>()
-                .sqrt()
-        };
+        let extent = |q: [[f64; 3]; 3]| z_extent(axes, q);
         let h = extent(tilt);
         let planes = z_planes(-h - 0.5 * d_min, h + 0.5 * d_min);
         let stuck = ContactSolver::new(p, ContactParams::new(d_min))
@@ -1044,10 +1048,7 @@ mod tests {
         let axes = [2.0, 0.5, 0.5];
         let tilt = rotation_from_vector([0.0, 1.3, 0.6]);
         let body = placed(shapes::ellipsoid(p, axes).unwrap(), tilt, [0.0; 3]);
-        let h = (0..3)
-            .map(|i| (axes[i] * tilt[2][i]).powi(2))
-            .sum::<f64>()
-            .sqrt();
+        let h = z_extent(axes, tilt);
         let floor = -h - 0.95 * d_min;
         let planes = [Wall {
             normal: [0.0, 0.0, 1.0],

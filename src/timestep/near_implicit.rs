@@ -49,7 +49,7 @@
 //! the near-zone operator once. The near-zone operator's on-surface values (its near-singular
 //! evaluation extrapolates from them) are each source cell's `S f` and `D g` from the dense
 //! operators its own step already holds, a matrix–vector product instead of a singular
-//! quadrature at every grid point (27 RBCs at `p = 12`, `λ = 5`: 25 % off a step;
+//! quadrature at every grid point (27 RBCs at `λ = 5`: 1.65× at `p = 8`, 1.42× at `p = 12`;
 //! [`super::near_pairs::OnSurface`]). Over ranks they travel with the densities. Cells whose
 //! step is not the inextensible `[X; σ]` system (a capsule, a linearly implicit elasticity)
 //! step alone with the explicit coupling.
