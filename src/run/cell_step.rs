@@ -165,11 +165,16 @@ pub(crate) fn flow_origin(
 }
 
 /// The cells' extra dissipation `P − P₀` in the scene's flow (about `origin`,
-/// [`flow_origin`]) and, for a tube flow, the relative apparent viscosity of the tube's
-/// straight section of length `L` (where its radius is within
-/// [`crate::scene::cells::TUBE_WINDOW_TOLERANCE`] of `R`): `1 + (P − P₀)/(Q G L)` with
-/// `Q G = 2πμU²` ([`Suspension::extra_dissipation`]; collective). Both `None` without a flow
-/// or before the first step.
+/// [`flow_origin`]) and, for a tube or channel flow, the relative apparent viscosity of the
+/// vessel's straight part ([`Suspension::extra_dissipation`]; collective). Both `None` without
+/// a flow or before the first step.
+/// * A tube: its straight section of length `L` (where its radius is within
+///   [`crate::scene::cells::TUBE_WINDOW_TOLERANCE`] of `R`), `1 + (P − P₀)/(Q G L)` with
+///   `Q G = 2πμU²` (`Q = πR²U/2`, `G = 4μU/R²`).
+/// * A channel: the plates' flat area `A` (where they are within the same tolerance of `±H`,
+///   [`crate::wall::flat_area`]), `1 + (P − P₀)/(q G A)` with `q G = 8μU²/3H` (the flow rate
+///   per unit width `q = 4UH/3`, `G = 2μU/H²`): the power plane Poiseuille flow dissipates
+///   over that area.
 pub(crate) fn rheology(
     comm: &dyn Communicator,
     susp: &Suspension,
@@ -183,19 +188,37 @@ pub(crate) fn rheology(
     let d = susp.extra_dissipation(comm, &|x| flow.velocity_about(x, origin), &|x| {
         flow.stress(x, mu)
     })?;
-    let section = scene.walls.iter().find_map(|w| match (w.kind, &w.shape) {
+    let tolerance = crate::scene::cells::TUBE_WINDOW_TOLERANCE;
+    let container = scene
+        .walls
+        .iter()
+        .find(|w| {
+            w.kind == crate::wall::WallKind::Container
+                && matches!(
+                    w.shape,
+                    crate::scene::walls::WallShape::Tube { .. }
+                        | crate::scene::walls::WallShape::Channel { .. }
+                )
+        })
+        .map(|w| &w.shape);
+    let relative = match (flow, d, container) {
+        // P₀ = Q G L over the tube's straight section: Q = πR²U/2, G = 4μU/R².
         (
-            crate::wall::WallKind::Container,
-            &crate::scene::walls::WallShape::Tube { length, .. },
-        ) => Some(crate::wall::straight_length(
-            length,
-            crate::scene::cells::TUBE_WINDOW_TOLERANCE,
-        )),
-        _ => None,
-    });
-    let relative = match (flow, d, section) {
-        (Flow::Tube { speed, .. }, Some(d), Some(l)) if speed != 0.0 => {
+            Flow::Tube { speed, .. },
+            Some(d),
+            Some(&crate::scene::walls::WallShape::Tube { length, .. }),
+        ) if speed != 0.0 => {
+            let l = crate::wall::straight_length(length, tolerance);
             Some(1.0 + d / (2.0 * std::f64::consts::PI * mu * speed * speed * l))
+        }
+        // P₀ = q G A over the plates' flat area: q = 4UH/3 a unit width, G = 2μU/H².
+        (
+            Flow::Channel { speed, half_height },
+            Some(d),
+            Some(&crate::scene::walls::WallShape::Channel { length, width, .. }),
+        ) if speed != 0.0 => {
+            let a = crate::wall::flat_area(length, width, tolerance);
+            Some(1.0 + d * 3.0 * half_height / (8.0 * mu * speed * speed * a))
         }
         _ => None,
     };

@@ -12,7 +12,8 @@
 //! ([`crate::timestep::suspension::Suspension::extra_dissipation`]; empty without a flow), and
 //! `relative_viscosity` the apparent viscosity of a tube flow's straight section
 //! `μ_app/μ = 1 + (P − P₀)/(Q G L)` (flow rate `Q`, pressure gradient `G`, the section's length
-//! `L`; empty for other flows). Tables of the 7 or 8 columns before these are read as ones
+//! `L`), or of a channel flow's flat part, `1 + (P − P₀)/(q G A)` (flow rate per unit width
+//! `q`, the plates' flat area `A`); empty for other flows. Tables of the 7 or 8 columns before these are read as ones
 //! without them. The file is rewritten atomically with
 //! every checkpoint and when a run fails; a resumed run keeps the rows up to its checkpoint.
 //!

@@ -10,6 +10,14 @@
 //! centroid `c`, taken over the order-`q` samples less one spacing). The test costs `O(1)` per
 //! target where [`super::near::OffSurface`] searches the whole fine grid, so callers send it
 //! the targets it resolves and the rest to [`super::near::OffSurface`].
+//!
+//! The bounding spheres resolve nothing inside a long container (a tube's `R_max` is its
+//! half-length, beyond its radius). [`SmoothLayer::side_by_distance`] bounds `d` from below by
+//! the rule's own nodes instead: the nearest node's distance less the largest distance of a
+//! surface point from its nearest node (`slack`: the largest diagonal of a grid cell, or the
+//! diameter of a pole's first ring, whichever is larger), and takes the side from the solid
+//! angle, `O(q²)` per target: a quarter of one sum of [`super::near::OffSurface`]'s far rule at
+//! `6p`, which also searches its nodes and takes the solid angle on them.
 
 use std::f64::consts::PI;
 
@@ -29,6 +37,30 @@ pub enum Side {
     FarInside,
     /// Anywhere else: ask the near-zone evaluator.
     Unresolved,
+}
+
+/// The largest distance of a surface point from its nearest node, bounded by the grid of
+/// order `q` (latitude-major, `2q` longitudes): the largest diagonal of a cell between two
+/// latitudes, and the diameter of the first and last latitude (the caps around the poles).
+fn node_slack(x: &[[f64; 3]], q: usize) -> f64 {
+    let nl = 2 * q;
+    let dist = |u: usize, v: usize| {
+        ((x[u][0] - x[v][0]).powi(2) + (x[u][1] - x[v][1]).powi(2) + (x[u][2] - x[v][2]).powi(2))
+            .sqrt()
+    };
+    let mut s = 0.0f64;
+    for i in 0..q {
+        for k in 0..nl {
+            let (a, b) = (i * nl + k, i * nl + (k + 1) % nl);
+            s = s.max(dist(a, b + nl)).max(dist(b, a + nl));
+        }
+    }
+    for ring in [0, q] {
+        for k in 0..nl / 2 {
+            s = s.max(dist(ring * nl + k, ring * nl + k + nl / 2));
+        }
+    }
+    s
 }
 
 /// The smooth quadrature of one surface of order `p` at order `q`.
@@ -51,6 +83,8 @@ pub struct SmoothLayer {
     r_max: f64,
     /// `ratio · 2π R_max / q`.
     resolved: f64,
+    /// Largest distance of a surface point from its nearest node (bound).
+    slack: f64,
     ratio: f64,
     has_surface: bool,
 }
@@ -92,6 +126,7 @@ impl SmoothLayer {
             r_min: 0.0,
             r_max: 0.0,
             resolved: f64::INFINITY,
+            slack: f64::INFINITY,
             ratio,
             has_surface: false,
         })
@@ -127,8 +162,32 @@ impl SmoothLayer {
         self.r_min = (lo - spacing).max(0.0);
         self.r_max = hi + spacing;
         self.resolved = self.ratio * 2.0 * PI * self.r_max / q;
+        self.slack = node_slack(&self.geom.x, self.sht_q.order());
         self.has_surface = true;
         Ok(())
+    }
+
+    /// The distance the rule resolves, `ratio · 2π R_max / q`.
+    pub fn resolved_distance(&self) -> f64 {
+        self.resolved
+    }
+
+    /// Where `x` is, from the distance to the rule's nearest node less the slack (a lower
+    /// bound on the distance to the surface) and, where that resolves it, the solid angle
+    /// `(1/4π) ∫ (y − x)·n/|y − x|³ dA` (inside above ½). Costs `O(q²)`; for the targets
+    /// [`Self::side`] leaves unresolved.
+    pub fn side_by_distance(&self, x: [f64; 3]) -> Side {
+        if !self.has_surface {
+            return Side::Unresolved;
+        }
+        let (d2, _) = self.src.nearest(x);
+        if d2.sqrt() - self.slack < self.resolved {
+            Side::Unresolved
+        } else if self.src.solid_angle(x) > 0.5 {
+            Side::FarInside
+        } else {
+            Side::FarOutside
+        }
     }
 
     /// Where `x` is, from the bounding spheres.

@@ -88,6 +88,17 @@ pub fn flat_fraction(tolerance: f64) -> f64 {
     (1.0 - (1.0 - tolerance.clamp(0.0, 1.0)).powi(n)).powf(1.0 / n as f64)
 }
 
+/// The area of `|ξ|ⁿ + |η|ⁿ ≤ 1` for the channel's exponent `n = 6`, `4 Γ(1 + 1/n)² / Γ(1 + 2/n)`.
+const UNIT_FLAT_AREA: f64 = 3.855_242_593_319_997;
+
+/// The area over which each plate of a channel `length × width` (full extents) is flat to
+/// `tolerance · H`: the region `|x/L|ⁿ + |y/W|ⁿ ≤ 1 − (1 − tolerance)ⁿ` (`L`, `W` the half
+/// extents), `4 L W f² Γ(1 + 1/n)²/Γ(1 + 2/n)` with `f` the [`flat_fraction`].
+pub fn flat_area(length: f64, width: f64, tolerance: f64) -> f64 {
+    let f = flat_fraction(tolerance);
+    0.25 * length * width * f * f * UNIT_FLAT_AREA
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -123,5 +134,28 @@ mod tests {
         assert!(channel_surface(8, 1.0, 4.0, 2.0).is_err());
         assert!(channel_surface(8, 4.0, 4.0, -2.0).is_err());
         assert!(channel_surface(8, 4.0, f64::NAN, 2.0).is_err());
+    }
+
+    /// The flat area against a midpoint sum over the plate's grid of the points where the
+    /// surface's height is within the tolerance.
+    #[test]
+    fn the_flat_area_is_the_region_where_the_plate_is_flat() {
+        let (l, w, tol): (f64, f64, f64) = (8.0, 6.0, 1e-3);
+        let n = CHANNEL_EXPONENT;
+        let m = 2000;
+        let c = 1.0 - (1.0 - tol).powi(n);
+        let mut count = 0usize;
+        for i in 0..m {
+            for j in 0..m {
+                let x: f64 = (i as f64 + 0.5) / m as f64;
+                let y: f64 = (j as f64 + 0.5) / m as f64;
+                if x.powi(n) + y.powi(n) <= c {
+                    count += 1;
+                }
+            }
+        }
+        let direct = 4.0 * (0.5 * l) * (0.5 * w) * count as f64 / (m * m) as f64;
+        let a = flat_area(l, w, tol);
+        assert!((a - direct).abs() < 2e-3 * a, "{a} against {direct}");
     }
 }

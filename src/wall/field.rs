@@ -2,9 +2,10 @@
 //!
 //! `u(x) = Σ_k D_k[ψ_k](x) + Σ_bodies (1/8π)[G(x − c_k) a_k + b_k × r/r³]`. Each double layer
 //! is the smooth quadrature at order `3p` ([`SmoothLayer`]) at the targets its bounding-sphere
-//! test resolves (about 1e-10), and the off-surface evaluation of [`crate::vesicle::near`]
-//! (smooth quadrature at `6p`, check-point extrapolation or refined quadrature close to the
-//! wall) at the rest; either says which side of the wall a target is on.
+//! test, or failing that its nodes' distance, resolves (about 1e-10), and the off-surface
+//! evaluation of [`crate::vesicle::near`] (smooth quadrature at `6p`, check-point extrapolation
+//! or refined quadrature close to the wall) at the rest; either says which side of the wall a
+//! target is on.
 
 use super::{check_len, WallError, WallKind, WallSolution, WallSystem};
 use crate::vesicle::smooth_layer::{Side, SmoothLayer};
@@ -22,6 +23,8 @@ pub struct WallField {
     kinds: Vec<WallKind>,
     n_points: Vec<usize>,
     buf: Vec<f64>,
+    /// Targets the coarse rule took in the last [`WallField::velocity`], over all walls.
+    coarse_targets: usize,
 }
 
 impl WallField {
@@ -43,6 +46,7 @@ impl WallField {
             kinds: system.walls().iter().map(|w| w.kind()).collect(),
             n_points: system.walls().iter().map(|w| w.n_points()).collect(),
             buf: vec![],
+            coarse_targets: 0,
         })
     }
 
@@ -68,6 +72,7 @@ impl WallField {
         let mut near_index = vec![];
         let mut far_targets = vec![];
         let mut far_index = vec![];
+        self.coarse_targets = 0;
         for k in 0..self.surfaces.len() {
             let density = solution.density(k);
             check_len("wall density", density.len(), 3 * self.n_points[k])?;
@@ -87,7 +92,18 @@ impl WallField {
             far_targets.clear();
             far_index.clear();
             for (i, &x) in targets.iter().enumerate() {
-                match (self.coarse[k].side(x), kind) {
+                let side = match self.coarse[k].side(x) {
+                    // The bounding spheres leave every point of a long wall unresolved; its
+                    // nodes may still bound the point's distance above the resolved one.
+                    Side::Unresolved => match self.coarse[k].side_by_distance(x) {
+                        // The near-zone evaluator decides (and names) a point on the wrong side.
+                        Side::FarInside if kind == WallKind::Body => Side::Unresolved,
+                        Side::FarOutside if kind == WallKind::Container => Side::Unresolved,
+                        s => s,
+                    },
+                    s => s,
+                };
+                match (side, kind) {
                     (Side::FarOutside, WallKind::Body) | (Side::FarInside, WallKind::Container) => {
                         far_targets.push(x);
                         far_index.push(i);
@@ -99,6 +115,7 @@ impl WallField {
                     _ => return wrong_side(i),
                 }
             }
+            self.coarse_targets += far_targets.len();
             if !far_targets.is_empty() {
                 let c = &mut self.coarse[k];
                 c.set_density(density)?;
@@ -149,6 +166,12 @@ impl WallField {
 }
 
 impl WallField {
+    /// How many targets the coarse rule took in the last [`WallField::velocity`] (counted once
+    /// per wall), the rest going to the near-zone evaluator.
+    pub fn coarse_targets(&self) -> usize {
+        self.coarse_targets
+    }
+
     /// Whether each target is in the fluid (inside the container, outside every body): the
     /// bounding spheres decide where they can, the closest surface point's normal (or the
     /// solid angle, see [`OffSurface::classify`]) elsewhere.
@@ -180,5 +203,91 @@ pub fn scatter_add(v: &[f64], index: &[usize], out: &mut [f64], nt: usize) {
         for a in 0..3 {
             out[a * nt + i] += v[a * m + j];
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::wall::{tube_surface, Wall, WallParams};
+
+    /// Points of a tube that its bounding sphere leaves unresolved, but whose distance from
+    /// the wall's nodes resolves them, take the coarse rule, and get the value the near-zone
+    /// evaluator gives every point (about 1e-10 apart); the points near the wall keep the
+    /// near-zone evaluator.
+    #[test]
+    fn points_deep_in_a_tube_take_the_coarse_rule_to_the_near_zone_value() {
+        // The coarse rule resolves `3 · 2π R_max / 3p` = 1.4 at order 24, R_max the half-length.
+        let (radius, length) = (3.0, 10.0);
+        let wall = Wall::new(
+            WallKind::Container,
+            tube_surface(24, radius, length).unwrap(),
+        )
+        .unwrap();
+        // Poiseuille's profile on the whole wall, the inflow and outflow at the ends.
+        let n = wall.n_points();
+        let mut u = vec![0.0; 3 * n];
+        for (j, x) in wall.geometry().x.iter().enumerate() {
+            u[j] = 1.0 - (x[1] * x[1] + x[2] * x[2]) / (radius * radius);
+        }
+        let system = WallSystem::new(vec![wall], WallParams::default()).unwrap();
+        let solution = system.solve(&u).unwrap();
+        let mut field = WallField::new(&system, NearParams::default()).unwrap();
+        let mut targets = vec![];
+        for i in 0..=12 {
+            for j in 0..7 {
+                let (r, phi) = (2.85 * i as f64 / 12.0, 0.9 * j as f64);
+                targets.push([-3.0 + j as f64, r * phi.cos(), r * phi.sin()]);
+            }
+        }
+        let coarse = &field.coarse[0];
+        let by_sphere = targets
+            .iter()
+            .filter(|&&x| coarse.side(x) != Side::Unresolved)
+            .count();
+        let by_nodes = targets
+            .iter()
+            .filter(|&&x| coarse.side_by_distance(x) == Side::FarInside)
+            .count();
+        assert!(
+            by_nodes >= 2 * by_sphere && 3 * by_nodes > targets.len() && by_nodes < targets.len(),
+            "{by_nodes} of {} points resolved by the nodes, {by_sphere} by the sphere",
+            targets.len()
+        );
+        let nt = targets.len();
+        let mut got = vec![0.0; 3 * nt];
+        field.velocity(&solution, &targets, &mut got).unwrap();
+        assert_eq!(field.coarse_targets(), by_nodes);
+        // Every point through the near-zone evaluator, as before the nodes' test.
+        let mut want = vec![0.0; 3 * nt];
+        field.surfaces[0]
+            .evaluate_given_on_surface(
+                LayerKernel::DoubleLayer,
+                solution.density(0),
+                solution.own_double_layer(0).unwrap(),
+                &targets,
+                &mut want,
+            )
+            .unwrap();
+        for (i, &x) in targets.iter().enumerate() {
+            let c = solution.completion_at(x);
+            for a in 0..3 {
+                want[a * nt + i] += c[a];
+            }
+        }
+        let size = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let diff = got
+            .iter()
+            .zip(&want)
+            .fold(0.0f64, |m, (g, w)| m.max((g - w).abs()))
+            / size;
+        println!(
+            "{by_nodes} of {nt} points resolved by the nodes ({by_sphere} by the sphere); \
+             largest difference {diff:.2e}"
+        );
+        assert!(
+            diff < 1e-9,
+            "coarse rule off the near-zone value by {diff:.2e}"
+        );
     }
 }

@@ -82,7 +82,7 @@ mod surface;
 mod system;
 mod tube;
 
-pub use channel::{channel_surface, flat_fraction, CHANNEL_EXPONENT};
+pub use channel::{channel_surface, flat_area, flat_fraction, CHANNEL_EXPONENT};
 pub use field::{scatter_add, WallField};
 pub use plane::PlaneWall;
 pub use rows::{RowShare, WallBand, WallRows};
