@@ -13,9 +13,8 @@
 //! `relative_viscosity` the apparent viscosity of a tube flow's straight section
 //! `μ_app/μ = 1 + (P − P₀)/(Q G L)` (flow rate `Q`, pressure gradient `G`, the section's length
 //! `L`), or of a channel flow's flat part, `1 + (P − P₀)/(q G A)` (flow rate per unit width
-//! `q`, the plates' flat area `A`); empty for other flows. Tables of the 7 or 8 columns before these are read as ones
-//! without them. The file is rewritten atomically with
-//! every checkpoint and when a run fails; a resumed run keeps the rows up to its checkpoint.
+//! `q`, the plates' flat area `A`); empty for other flows. Tables of the 7 or 8 columns before
+//! these are read as ones without them. The file is rewritten atomically with every checkpoint and when a run fails; a resumed run keeps the rows up to its checkpoint.
 //!
 //! When a step fails, `summary.json` says so (`completed = false`, the error, the last good
 //! step and time, the step of the last checkpoint, which is kept, and the last row), and

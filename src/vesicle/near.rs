@@ -45,6 +45,7 @@ use std::f64::consts::PI;
 use super::geometry::{Geometry, SurfaceCalculus};
 use super::layer::{LayerKernel, RotationAlgorithm, SelfInteraction};
 use super::point::{closest_point, PointEval};
+use super::smooth_layer::largest_cell_diagonal;
 use super::smooth_sources::SmoothSources;
 use super::{check_len, dot, VesicleError};
 use crate::sph_harmonics::basis::{eval_basis, BasisScratch};
@@ -273,22 +274,7 @@ impl OffSurface {
         // A deformed surface's grid can be stretched well beyond a sphere's: the bound is also
         // at least the largest diagonal of a grid cell (neighbours in θ and φ), so that a point
         // within δ of the surface always reaches the closest-point solve below.
-        let nl = self.far_grid.n_lon();
-        let x = &self.geom_far.x;
-        let mut diag = 0.0f64;
-        for i in 0..self.far_grid.n_lat().saturating_sub(1) {
-            for k in 0..nl {
-                let (a, b) = (i * nl + k, i * nl + (k + 1) % nl);
-                let (c, d) = (a + nl, b + nl);
-                let len = |u: usize, v: usize| {
-                    ((x[u][0] - x[v][0]).powi(2)
-                        + (x[u][1] - x[v][1]).powi(2)
-                        + (x[u][2] - x[v][2]).powi(2))
-                    .sqrt()
-                };
-                diag = diag.max(len(a, d)).max(len(b, c));
-            }
-        }
+        let diag = largest_cell_diagonal(&self.geom_far.x, self.far_grid.order());
         self.spacing = (2.0 * PI * rmax / self.far_grid.order() as f64).max(diag);
         self.rmax = rmax;
         for l in &mut self.levels {

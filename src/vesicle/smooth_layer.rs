@@ -23,6 +23,7 @@ use std::f64::consts::PI;
 
 use super::smooth_sources::SmoothSources;
 use super::{check_len, Geometry, LayerKernel, SurfaceCalculus, VesicleError};
+use crate::linalg3::dist3;
 use crate::sph_harmonics::{resample_coefs, ShTransform, ShWorkspace};
 
 /// A point force: where it acts and the force (a quadrature node and its weighted density).
@@ -39,25 +40,30 @@ pub enum Side {
     Unresolved,
 }
 
-/// The largest distance of a surface point from its nearest node, bounded by the grid of
-/// order `q` (latitude-major, `2q` longitudes): the largest diagonal of a cell between two
-/// latitudes, and the diameter of the first and last latitude (the caps around the poles).
-fn node_slack(x: &[[f64; 3]], q: usize) -> f64 {
+/// The largest diagonal of a cell between two neighbouring latitudes of the points `x` on the
+/// grid of order `q` (latitude-major, `2q` longitudes): a bound on the spacing of a grid however
+/// a surface stretches it.
+pub(crate) fn largest_cell_diagonal(x: &[[f64; 3]], q: usize) -> f64 {
     let nl = 2 * q;
-    let dist = |u: usize, v: usize| {
-        ((x[u][0] - x[v][0]).powi(2) + (x[u][1] - x[v][1]).powi(2) + (x[u][2] - x[v][2]).powi(2))
-            .sqrt()
-    };
     let mut s = 0.0f64;
     for i in 0..q {
         for k in 0..nl {
             let (a, b) = (i * nl + k, i * nl + (k + 1) % nl);
-            s = s.max(dist(a, b + nl)).max(dist(b, a + nl));
+            s = s.max(dist3(x[a], x[b + nl])).max(dist3(x[b], x[a + nl]));
         }
     }
+    s
+}
+
+/// The largest distance of a surface point from its nearest node, bounded by the grid of
+/// order `q`: the [`largest_cell_diagonal`], and the diameter of the first and last latitude
+/// (the caps around the poles).
+fn node_slack(x: &[[f64; 3]], q: usize) -> f64 {
+    let nl = 2 * q;
+    let mut s = largest_cell_diagonal(x, q);
     for ring in [0, q] {
         for k in 0..nl / 2 {
-            s = s.max(dist(ring * nl + k, ring * nl + k + nl / 2));
+            s = s.max(dist3(x[ring * nl + k], x[ring * nl + k + nl / 2]));
         }
     }
     s
@@ -165,11 +171,6 @@ impl SmoothLayer {
         self.slack = node_slack(&self.geom.x, self.sht_q.order());
         self.has_surface = true;
         Ok(())
-    }
-
-    /// The distance the rule resolves, `ratio · 2π R_max / q`.
-    pub fn resolved_distance(&self) -> f64 {
-        self.resolved
     }
 
     /// Where `x` is, from the distance to the rule's nearest node less the slack (a lower
