@@ -53,8 +53,10 @@ use rayon::prelude::*;
 
 use crate::linalg3::{cross3, dist3 as dist, dot3, matmul3, rotation_from_vector, sub3};
 use crate::sph_harmonics::ShTransform;
-use crate::vesicle::surface_distance::{Closest, DistanceScratch, SurfaceDistance};
+use crate::vesicle::surface_distance::{DistanceScratch, SurfaceDistance};
 use crate::vesicle::VesicleError;
+
+pub use super::fixed_surface::FixedSurface;
 
 /// The margin `d_target / d_min` the projection aims at.
 const OVERSHOOT: f64 = 1.2;
@@ -177,61 +179,6 @@ pub struct Wall {
     pub normal: [f64; 3],
     /// `normal · x` on the plane.
     pub offset: f64,
-}
-
-/// A fixed curved wall (a rigid body or a container of [`crate::wall`]): the allowed side is
-/// outside a body and inside a container. A cell's order-`2p` samples are measured against it
-/// by Newton's closest point; only the cell moves.
-pub struct FixedSurface {
-    surface: SurfaceDistance,
-    p: usize,
-    container: bool,
-    /// The smallest distance of the surface from its centre, less a sample spacing (a
-    /// container's samples closer to its centre than this less the range need no test).
-    r_min: f64,
-}
-
-impl FixedSurface {
-    /// The surface of order `p` with coefficients `coefs`; `container`: the allowed side is
-    /// inside.
-    pub fn new(p: usize, coefs: &[f64], container: bool) -> Result<Self, ContactError> {
-        let sht = ShTransform::new(2 * p).map_err(VesicleError::Sph)?;
-        let surface = SurfaceDistance::new(p, coefs, &sht)?;
-        let c = surface.centre();
-        let lo = surface
-            .samples()
-            .iter()
-            .map(|&y| dist(y, c))
-            .fold(f64::INFINITY, f64::min);
-        let r_min = lo - std::f64::consts::PI * surface.reach() / (2 * p) as f64;
-        Ok(FixedSurface {
-            surface,
-            p,
-            container,
-            r_min,
-        })
-    }
-
-    /// The order of the surface (the order of a [`DistanceScratch`] for it).
-    pub fn order(&self) -> usize {
-        self.p
-    }
-
-    /// The gap of a point whose closest point on the surface is `cl`, positive on the allowed
-    /// side, and the normal into that side.
-    fn gap_and_normal(&self, cl: &Closest) -> (f64, [f64; 3]) {
-        if self.container {
-            (-cl.distance, cl.normal.map(|v| -v))
-        } else {
-            (cl.distance, cl.normal)
-        }
-    }
-
-    /// The distance of `x` from the surface, positive on the allowed side (`scratch` of
-    /// [`Self::order`]).
-    pub fn clearance(&self, scratch: &mut DistanceScratch, x: [f64; 3]) -> f64 {
-        self.gap_and_normal(&self.surface.closest(scratch, x)).0
-    }
 }
 
 /// A rigid move of a body: `x ↦ centre + R (x − centre) + translation`.
@@ -672,52 +619,59 @@ impl ContactSolver {
             }
         }
         for f in fixed {
-            let mut scratch = DistanceScratch::new(f.p);
-            let fc = f.surface.centre();
-            for (a, body) in bodies.iter().enumerate() {
-                if only.is_some_and(|k| k != a) {
-                    continue;
-                }
-                let c = body.centre();
-                let d = dist(c, fc);
-                let far = if f.container {
-                    d + body.reach() + range < f.r_min
-                } else {
-                    d > body.reach() + f.surface.reach() + range
-                };
-                if far {
-                    continue;
-                }
-                let mut push =
-                    |x: [f64; 3], g: f64, nm: [f64; 3]| cons.push(Constraint::wall(a, c, x, nm, g));
-                let mut near: Vec<(usize, f64)> = Vec::new();
-                for (j, &x) in body.samples().iter().enumerate() {
-                    if f.container && dist(x, fc) + range < f.r_min {
-                        continue;
-                    }
-                    let cl = f.surface.closest(&mut scratch, x);
-                    let (g, nm) = f.gap_and_normal(&cl);
-                    if g < range {
-                        push(x, g, nm);
-                        near.push((j, g));
-                    }
-                }
-                // Between the samples the surfaces can come closer: Newton from each local
-                // minimum of the sampled gap (as between cells, `SurfaceDistance::gaps_to`).
-                for (j, g0) in body.pair_starts(&near) {
-                    let (x, cl) = body.closest_pair_to(
-                        &mut own_scratch,
-                        &f.surface,
-                        &mut scratch,
-                        j,
-                        f.container,
-                    );
-                    let (g, nm) = f.gap_and_normal(&cl);
-                    if g < g0 {
-                        push(x, g, nm);
-                    }
-                }
-            }
+            let (fs, container) = (f.surface(), f.is_container());
+            let fc = fs.centre();
+            // Each body against the wall in parallel, the constraints kept in body order.
+            let per_body: Vec<Vec<Constraint>> = bodies
+                .par_iter()
+                .enumerate()
+                .map_init(
+                    || (DistanceScratch::new(f.order()), DistanceScratch::new(p)),
+                    |(scratch, own), (a, body)| {
+                        let mut out = Vec::new();
+                        if only.is_some_and(|k| k != a) {
+                            return out;
+                        }
+                        let c = body.centre();
+                        let d = dist(c, fc);
+                        let far = if container {
+                            d + body.reach() + range < f.r_min()
+                        } else {
+                            d > body.reach() + fs.reach() + range
+                        };
+                        if far {
+                            return out;
+                        }
+                        // Samples proven more than `range` from the wall on the allowed side
+                        // take no Newton solve (`FixedSurface::clear_samples`).
+                        let clear = f.clear_samples(body, scratch, range);
+                        let mut near: Vec<(usize, f64)> = Vec::new();
+                        for (j, &x) in body.samples().iter().enumerate() {
+                            if clear[j] || (container && dist(x, fc) + range < f.r_min()) {
+                                continue;
+                            }
+                            let cl = fs.closest(scratch, x);
+                            let (g, nm) = f.gap_and_normal(&cl);
+                            if g < range {
+                                out.push(Constraint::wall(a, c, x, nm, g));
+                                near.push((j, g));
+                            }
+                        }
+                        // Between the samples the surfaces can come closer: Newton from each
+                        // local minimum of the sampled gap (as between cells,
+                        // `SurfaceDistance::gaps_to`).
+                        for (j, g0) in body.pair_starts(&near) {
+                            let (x, cl) = body.closest_pair_to(own, fs, scratch, j, container);
+                            let (g, nm) = f.gap_and_normal(&cl);
+                            if g < g0 {
+                                out.push(Constraint::wall(a, c, x, nm, g));
+                            }
+                        }
+                        out
+                    },
+                )
+                .collect();
+            cons.extend(per_body.into_iter().flatten());
         }
         let least = cons.iter().fold(
             None,

@@ -97,6 +97,7 @@ pub mod cell_state;
 pub mod cell_stepper;
 pub mod contact;
 pub mod coupling;
+pub mod fixed_surface;
 mod gmres;
 pub mod grid_frame;
 pub mod image_quadrature;

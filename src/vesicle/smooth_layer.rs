@@ -58,7 +58,7 @@ pub(crate) fn largest_cell_diagonal(x: &[[f64; 3]], q: usize) -> f64 {
 /// The largest distance of a surface point from its nearest node, bounded by the grid of
 /// order `q`: the [`largest_cell_diagonal`], and the diameter of the first and last latitude
 /// (the caps around the poles).
-fn node_slack(x: &[[f64; 3]], q: usize) -> f64 {
+pub(crate) fn node_slack(x: &[[f64; 3]], q: usize) -> f64 {
     let nl = 2 * q;
     let mut s = largest_cell_diagonal(x, q);
     for ring in [0, q] {

@@ -126,6 +126,11 @@ impl SurfaceDistance {
         &self.samples
     }
 
+    /// Samples per latitude of the grid of [`Self::samples`] (`2q`).
+    pub fn n_lon(&self) -> usize {
+        self.n_lon
+    }
+
     /// The centre `c_00 / √(4π)` (the constant term of the expansion).
     pub fn centre(&self) -> [f64; 3] {
         self.centre
