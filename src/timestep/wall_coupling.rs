@@ -10,7 +10,8 @@
 //!
 //! (`A` the completed wall operator, factored once). [`WallCoupling::velocities`] evaluates the
 //! cells' layers at the wall points (each cell's smooth quadrature at order `3p` where its
-//! bounding sphere is far enough for it, [`SmoothLayer`]; the off-surface evaluation of
+//! bounding sphere, or failing that the distance from its nodes, is far enough for it,
+//! [`SmoothLayer`]; the off-surface evaluation of
 //! [`crate::vesicle::near`] elsewhere: near-singular close to the cell), solves, and evaluates
 //! `u_walls` at every cell's grid points the same way ([`WallField`]). The
 //! suspension adds it to the inter-cell velocity, so it enters a step the way that velocity
@@ -268,8 +269,15 @@ impl WallCoupling {
         let coarse = &mut self.cells[slot].1;
         coarse.set_surface(coefs)?;
         let (mut far, mut near) = (vec![], vec![]);
+        // The bounding sphere first; a point it leaves unresolved (a red cell's flat faces
+        // hold wall points well within the sphere but far from the membrane) by the distance
+        // from the coarse rule's nodes (`SmoothLayer::side_by_distance`).
         for (i, &x) in self.points.iter().enumerate() {
-            match coarse.side(x) {
+            let side = match coarse.side(x) {
+                Side::Unresolved => coarse.side_by_distance(x),
+                side => side,
+            };
+            match side {
                 Side::FarOutside => far.push(i),
                 _ => near.push(i),
             }

@@ -338,4 +338,52 @@ mod tests {
         assert_eq!(smooth.side([0.5, 0.2, 0.0]), Side::FarInside);
         assert_eq!(smooth.side([4.9, 0.0, 0.0]), Side::Unresolved);
     }
+
+    /// Above and below a red cell's flat faces, within its bounding sphere's unresolved shell,
+    /// the points whose distance from the order-3p nodes resolves them (how a cell's layers
+    /// reach a wall beside it) get the near-zone evaluator's value to 1e-8 of the field.
+    #[test]
+    fn points_off_a_red_cells_faces_resolved_by_the_nodes_agree_with_the_near_zone() {
+        let p = 8;
+        let rbc = shapes::rbc(p).unwrap();
+        let n = 2 * p * (p + 1);
+        let dens: Vec<f64> = (0..3 * n)
+            .map(|i| ((i * 29) % 13) as f64 / 13.0 - 0.45)
+            .collect();
+        let mut smooth = SmoothLayer::new(p, 3 * p, 3.0).unwrap();
+        smooth.set_surface(rbc.coefs()).unwrap();
+        smooth.set_density(&dens).unwrap();
+        let mut near = OffSurface::new(p, NearParams::default()).unwrap();
+        near.set_surface(rbc.coefs()).unwrap();
+        let mut targets = vec![];
+        for i in 0..5 {
+            for j in 0..5 {
+                for z in [-2.0, -1.6, -1.2, 1.2, 1.6, 2.0] {
+                    targets.push([0.5 * i as f64 - 1.0, 0.5 * j as f64 - 1.0, z]);
+                }
+            }
+        }
+        assert!(targets.iter().all(|&x| smooth.side(x) == Side::Unresolved));
+        let far: Vec<[f64; 3]> = targets
+            .iter()
+            .copied()
+            .filter(|&x| smooth.side_by_distance(x) == Side::FarOutside)
+            .collect();
+        assert!(
+            4 * far.len() > targets.len() && far.len() < targets.len(),
+            "{} of {} resolved by the nodes",
+            far.len(),
+            targets.len()
+        );
+        for kernel in [
+            LayerKernel::SingleLayer { viscosity: 1.3 },
+            LayerKernel::DoubleLayer,
+        ] {
+            let mut a = vec![0.0; 3 * far.len()];
+            smooth.add_to(kernel, &far, &mut a).unwrap();
+            let mut b = vec![0.0; 3 * far.len()];
+            near.evaluate(kernel, &dens, &far, &mut b).unwrap();
+            crate::check::assert_close("order-3p rule off the faces", &a, &b, 1e-8);
+        }
+    }
 }
