@@ -298,19 +298,45 @@ mod tests {
     /// the RBC's double layer at p = 8, against the distance over `2π R_max/q`: at `q = 2p`
     /// 3e-5 at 1.5, 5e-7 at 2.3, 1.6e-8 at 3.1, a floor of 2.5e-9 beyond; at `q = 3p` 3.4e-5 at
     /// 1.2, 8e-9 at 2.4, 7e-12 at 3.7; at `q = 4p` 3e-7 at 1.7, 2e-12 at 3.4.)
-    #[test]
-    fn resolved_targets_agree_with_the_off_surface_evaluator() {
-        let p = 8;
+    /// An RBC of order `p` with the density `density(i)` at its grid values: its order-3p
+    /// rule and its near-zone evaluator.
+    fn rbc_rules(p: usize, density: impl Fn(usize) -> f64) -> (SmoothLayer, OffSurface, Vec<f64>) {
         let rbc = shapes::rbc(p).unwrap();
         let n = 2 * p * (p + 1);
-        let dens: Vec<f64> = (0..3 * n)
-            .map(|i| ((i * 37) % 11) as f64 / 11.0 - 0.4)
-            .collect();
+        let dens: Vec<f64> = (0..3 * n).map(density).collect();
         let mut smooth = SmoothLayer::new(p, 3 * p, 3.0).unwrap();
         smooth.set_surface(rbc.coefs()).unwrap();
         smooth.set_density(&dens).unwrap();
         let mut near = OffSurface::new(p, NearParams::default()).unwrap();
         near.set_surface(rbc.coefs()).unwrap();
+        (smooth, near, dens)
+    }
+
+    /// Both kernels by the order-3p rule and by the near-zone evaluator agree at `targets` to
+    /// 1e-8 of the field.
+    fn assert_rules_agree(
+        smooth: &SmoothLayer,
+        near: &mut OffSurface,
+        dens: &[f64],
+        targets: &[[f64; 3]],
+        what: &str,
+    ) {
+        for kernel in [
+            LayerKernel::SingleLayer { viscosity: 1.3 },
+            LayerKernel::DoubleLayer,
+        ] {
+            let mut a = vec![0.0; 3 * targets.len()];
+            smooth.add_to(kernel, targets, &mut a).unwrap();
+            let mut b = vec![0.0; 3 * targets.len()];
+            near.evaluate(kernel, dens, targets, &mut b).unwrap();
+            crate::check::assert_close(what, &a, &b, 1e-8);
+        }
+    }
+
+    #[test]
+    fn resolved_targets_agree_with_the_off_surface_evaluator() {
+        let p = 8;
+        let (smooth, mut near, dens) = rbc_rules(p, |i| ((i * 37) % 11) as f64 / 11.0 - 0.4);
         let targets: Vec<[f64; 3]> = (0..40)
             .map(|k| {
                 let t = k as f64 * 0.7;
@@ -320,16 +346,7 @@ mod tests {
             .collect();
         assert!(targets.iter().all(|&x| smooth.side(x) == Side::FarOutside));
         assert_eq!(smooth.side([0.0, 0.0, 0.0]), Side::Unresolved);
-        for kernel in [
-            LayerKernel::SingleLayer { viscosity: 1.3 },
-            LayerKernel::DoubleLayer,
-        ] {
-            let mut a = vec![0.0; 3 * targets.len()];
-            smooth.add_to(kernel, &targets, &mut a).unwrap();
-            let mut b = vec![0.0; 3 * targets.len()];
-            near.evaluate(kernel, &dens, &targets, &mut b).unwrap();
-            crate::check::assert_close("smooth order-3p rule", &a, &b, 1e-8);
-        }
+        assert_rules_agree(&smooth, &mut near, &dens, &targets, "smooth order-3p rule");
         // Inside a sphere: targets near its centre are resolved from inside (at q = 4p, those
         // within 1.3 of the centre of a sphere of radius 5).
         let s = shapes::sphere(p, 5.0).unwrap();
@@ -344,17 +361,7 @@ mod tests {
     /// reach a wall beside it) get the near-zone evaluator's value to 1e-8 of the field.
     #[test]
     fn points_off_a_red_cells_faces_resolved_by_the_nodes_agree_with_the_near_zone() {
-        let p = 8;
-        let rbc = shapes::rbc(p).unwrap();
-        let n = 2 * p * (p + 1);
-        let dens: Vec<f64> = (0..3 * n)
-            .map(|i| ((i * 29) % 13) as f64 / 13.0 - 0.45)
-            .collect();
-        let mut smooth = SmoothLayer::new(p, 3 * p, 3.0).unwrap();
-        smooth.set_surface(rbc.coefs()).unwrap();
-        smooth.set_density(&dens).unwrap();
-        let mut near = OffSurface::new(p, NearParams::default()).unwrap();
-        near.set_surface(rbc.coefs()).unwrap();
+        let (smooth, mut near, dens) = rbc_rules(8, |i| ((i * 29) % 13) as f64 / 13.0 - 0.45);
         let mut targets = vec![];
         for i in 0..5 {
             for j in 0..5 {
@@ -375,15 +382,12 @@ mod tests {
             far.len(),
             targets.len()
         );
-        for kernel in [
-            LayerKernel::SingleLayer { viscosity: 1.3 },
-            LayerKernel::DoubleLayer,
-        ] {
-            let mut a = vec![0.0; 3 * far.len()];
-            smooth.add_to(kernel, &far, &mut a).unwrap();
-            let mut b = vec![0.0; 3 * far.len()];
-            near.evaluate(kernel, &dens, &far, &mut b).unwrap();
-            crate::check::assert_close("order-3p rule off the faces", &a, &b, 1e-8);
-        }
+        assert_rules_agree(
+            &smooth,
+            &mut near,
+            &dens,
+            &far,
+            "order-3p rule off the faces",
+        );
     }
 }
