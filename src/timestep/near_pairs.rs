@@ -71,6 +71,7 @@ const EVALUATOR: NearParams = NearParams {
     far_order: None,
     self_order: None,
     max_order: Some(0),
+    smooth_ratio: None,
 };
 
 /// The least ratio of the smallest to the largest distance of a round cell's grid points from

@@ -145,7 +145,7 @@ impl WallCoupling {
         }
         let t0 = Instant::now();
         let system = WallSystem::new_share(walls, params, share).map_err(TimestepError::from)?;
-        let field = WallField::new(&system, NearParams::default()).map_err(TimestepError::from)?;
+        let field = WallField::new(&system, crate::wall::NEAR_ZONE).map_err(TimestepError::from)?;
         let n = system.n_unknowns();
         let velocity = velocity.unwrap_or_else(|| vec![0.0; n]);
         if velocity.len() != n {
@@ -396,22 +396,30 @@ impl WallCoupling {
         }
         let solution = self.solve(comm, &data, scale)?;
         let t2 = Instant::now();
+        // Every cell's points in one evaluation (the walls' densities resampled once; each
+        // target's sum does not depend on the others).
+        let all: Vec<[f64; 3]> = points.iter().flatten().copied().collect();
+        let nt = all.len();
+        let mut u = vec![0.0; 3 * nt];
+        let gap = self
+            .field
+            .velocity(&solution, &all, &mut u)
+            .map_err(TimestepError::from)?;
         let mut out = Vec::with_capacity(points.len());
         let mut speed: f64 = 0.0;
-        let mut gap = f64::INFINITY;
+        let mut first = 0;
         for x in points {
-            let mut u = vec![0.0; 3 * x.len()];
-            gap = gap.min(
-                self.field
-                    .velocity(&solution, x, &mut u)
-                    .map_err(TimestepError::from)?,
-            );
             let n = x.len();
+            let mut v = vec![0.0; 3 * n];
+            for a in 0..3 {
+                v[a * n..(a + 1) * n].copy_from_slice(&u[a * nt + first..a * nt + first + n]);
+            }
             for i in 0..n {
-                let s = (0..3).map(|a| u[a * n + i].powi(2)).sum::<f64>().sqrt();
+                let s = (0..3).map(|a| v[a * n + i].powi(2)).sum::<f64>().sqrt();
                 speed = speed.max(s);
             }
-            out.push(u);
+            out.push(v);
+            first += n;
         }
         self.stats.walls_at_cells_seconds += t2.elapsed().as_secs_f64();
         self.last = Some(solution);

@@ -83,7 +83,7 @@ mod system;
 mod tube;
 
 pub use channel::{channel_surface, flat_area, flat_fraction, CHANNEL_EXPONENT};
-pub use field::{scatter_add, WallField};
+pub use field::{scatter_add, WallField, NEAR_ZONE};
 pub use plane::PlaneWall;
 pub use rows::{RowShare, WallBand, WallRows};
 pub use surface::{Wall, WallKind};

@@ -81,6 +81,7 @@ const DOUBLE_LAYER_NEAR: NearParams = NearParams {
     far_order: None,
     self_order: None,
     max_order: None,
+    smooth_ratio: None,
 };
 
 /// Settings of the inter-cell coupling.
