@@ -18,6 +18,10 @@ reads `OUT/scene.toml` and `OUT/frames/*.npy` and prints, over consecutive block
 * the cell-free layer: R less the largest distance of a membrane point (of a cell in the
   window) from the axis, averaged over the block's frames.
 
+A check of the Fåhræus ratio by the cells' flux follows the table: H_D from the cells' centres
+crossing seven planes across the window between frames (the recycling's jumps unwrapped) over
+the second half of the run, against the mean of the table's rows there.
+
 * the relative apparent viscosity mu_app/mu of the tube's straight section, averaged over the
   block's steps: the `relative_viscosity` column of OUT/observables.csv, 1 + (P - P_0)/(Q G L),
   the cells' extra dissipation by the reciprocal theorem over the flow rate times the pressure
@@ -149,6 +153,8 @@ def main():
         sys.exit(f"{a.out}: fewer than two frames")
     s = math.sqrt(4 * math.pi)
     rows = []
+    crossings = []
+    planes = np.linspace(-0.88 * half, 0.88 * half, 7)
     prev = None
     for k, f in enumerate(frames):
         pos = np.load(f)  # (cells, 3, points)
@@ -166,6 +172,12 @@ def main():
                 speed = float(np.mean(dx[both]) / dt)
         rows.append((times[k], int(inside.sum()), speed,
                      float(r_max[inside].max()) if inside.any() else np.nan))
+        if prev is not None:
+            # Crossings of the planes (and their images one window away) by the unwrapped path.
+            a0, e0 = prev[1][:, 0] - xc, prev[1][:, 0] - xc + dx
+            c = [int(np.sum((a0 < q) & (e0 >= q)) - np.sum((a0 >= q) & (e0 < q)))
+                 for p in planes for q in (p - period, p, p + period)]
+            crossings.append((prev[0], times[k], sum(c) / len(planes)))
         prev = (times[k], centre, inside)
 
     d_um = 2 * radius * a.cell_radius_um / cell_radius
@@ -195,6 +207,17 @@ def main():
         print(f"| {block[0][0]:g}–{block[-1][0]:g} | {n:.2f} | {ht:.3f} | {sp / u_mean:.3f} | "
               f"{ratio:.3f} | {hd:.3f} | {pries_ht_over_hd(d_um, hd):.3f} | {layer:.3f} | "
               f"{mu} | {pries_mu} |")
+    t_half = 0.5 * times[-1]
+    late = [c for c in crossings if c[0] >= t_half]
+    ratios = [p[1] for p in plotted if p[0] >= t_half]
+    if late and ratios:
+        span = sum(c[1] - c[0] for c in late)
+        n_late = np.mean([r[1] for r in rows if r[0] > t_half])
+        hd_flux = sum(c[2] for c in late) * v_cell / span / (u_mean * math.pi * radius**2)
+        print(f"\nflux check, t = {late[0][0]:g}–{late[-1][1]:g}: "
+              f"{sum(c[2] for c in late):.1f} crossings a plane, H_D {hd_flux:.3f}, "
+              f"H_T/H_D {n_late * v_cell / v_window / hd_flux:.3f} (table's rows there: "
+              f"{np.mean(ratios):.3f})")
     if a.svg and hds:
         hd = float(np.mean(hds))
         svg(a.svg, mu_rows, plotted, pries_mu_rel(d_um, hd), pries_ht_over_hd(d_um, hd))
