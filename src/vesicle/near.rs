@@ -148,8 +148,6 @@ pub struct OffSurface {
     /// there (three per point).
     batch: Vec<[f64; 3]>,
     batch_vals: Vec<f64>,
-    /// Where each check point of the current call is summed (`m` per near target).
-    check_slots: Vec<Slot>,
     /// Near targets extrapolated from check points in the last call.
     checked: usize,
     /// Largest distance of the surface from its centroid.
@@ -179,8 +177,8 @@ struct Level {
 enum Route {
     /// A smooth rule's sum at one of its batch points.
     Smooth(Slot),
-    /// Extrapolation from the on-surface value (given) and the `m` check points, whose sums are
-    /// at the slots from this index of [`OffSurface`]'s `check_slots` on.
+    /// Extrapolation from the on-surface value (given) and the `m` check points at the far
+    /// rule's batch points from this index on.
     Check([f64; 3], usize),
 }
 
@@ -268,7 +266,6 @@ impl OffSurface {
             levels: Vec::new(),
             batch: Vec::new(),
             batch_vals: Vec::new(),
-            check_slots: Vec::new(),
             checked: 0,
             rmax: 0.0,
             sht_p,
@@ -580,7 +577,6 @@ impl OffSurface {
         let h = self.delta * self.params.check_spacing;
         // Route every target, and gather the points each smooth rule sums at.
         self.batch.clear();
-        self.check_slots.clear();
         for l in &mut self.levels {
             l.batch.clear();
         }
@@ -631,14 +627,13 @@ impl OffSurface {
                         v0[c] += side * 0.5 * dens[c];
                     }
                 }
-                let first = self.check_slots.len();
+                // Always the far rule: the extrapolation to the target amplifies the check
+                // points' errors (a coarser rule for the farther ones, at the ratio the nearest
+                // has, gave 1e-2 at 0.02 from a small tube's wall).
+                let first = self.batch.len();
                 for k in 0..m {
                     let t = self.delta + k as f64 * h;
-                    // Always the far rule: the extrapolation to the target amplifies the
-                    // check points' errors (a coarser rule for the farther ones, at the
-                    // ratio the nearest has, gave 1e-2 at 0.02 from a small tube's wall).
-                    let slot = self.push_to(None, std::array::from_fn(|c| pd.x[c] + t * n[c]))?;
-                    self.check_slots.push(slot);
+                    self.batch.push(std::array::from_fn(|c| pd.x[c] + t * n[c]));
                 }
                 Route::Check(v0, first)
             };
@@ -677,7 +672,7 @@ impl OffSurface {
                     self.vals.push(v0);
                     for k in 0..m {
                         self.nodes.push(self.delta + k as f64 * h);
-                        let v = at(self, self.check_slots[first + k]);
+                        let v = at(self, Slot(None, first + k));
                         self.vals.push(v);
                     }
                     lagrange(&self.nodes, &self.vals, info.distance)

@@ -16,13 +16,14 @@ use crate::vesicle::{LayerKernel, NearParams, OffSurface};
 const COARSE_FACTOR: usize = 3;
 const COARSE_RATIO: f64 = 3.0;
 
-/// The walls' near-zone settings in a run: the defaults, with every smooth sum on the coarsest
-/// rule that resolves it and near targets 2.5 far-rule spacings or more from the wall summed
-/// directly ([`NearParams::smooth_ratio`]). A wall's near zone spans several spacings (on the
-/// 20 µm tube at order 40, `δ` = 0.88 and the order-240 spacing bound 0.21), so many of a
-/// cell's points close to a wall need no check points. `cargo bench --bench wall_near_zone`:
-/// on that tube the largest error over 400 points 0.05–1.3 from the wall is 7.9e-9 of the
-/// largest value against 8.4e-9 with the defaults (both against the order-480 rule).
+/// The walls' near-zone settings in a run: the defaults, with near targets 2.5 far-rule
+/// spacings or more from the wall summed directly, and those and the far targets on the
+/// coarsest rule that resolves them ([`NearParams::smooth_ratio`]). A wall's near zone spans
+/// several spacings (on the 20 µm tube at order 40, `δ` = 0.88 and the order-240 spacing bound
+/// 0.21), so many of a cell's points close to a wall need no check points. `cargo bench --bench
+/// wall_near_zone`: on that tube the largest error over 400 points 0.05–1.3 from the wall is
+/// 8.4e-9 of the largest value with these settings and with the defaults (both against the
+/// order-480 rule).
 pub const NEAR_ZONE: NearParams = NearParams {
     smooth_ratio: Some(2.5),
     ..NearParams::DEFAULT
