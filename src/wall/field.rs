@@ -23,9 +23,13 @@ const COARSE_RATIO: f64 = 3.0;
 /// 0.21), so many of a cell's points close to a wall need no check points. `cargo bench --bench
 /// wall_near_zone`: on that tube the largest error over 400 points 0.05–1.3 from the wall is
 /// 8.4e-9 of the largest value with these settings and with the defaults (both against the
-/// order-480 rule).
+/// order-480 rule). No refined rules (`max_order: Some(0)`): the defaults give a near target of a
+/// wall of order ≤ 21 (`2 · 6p ≤ 256`) the refined order-12p rule where its spacing criterion
+/// holds, accurate to about 1e-5 (4.5e-5 of the field 0.1 from a tube of order 20, against
+/// 6.9e-9 with check points; docs/walls.md).
 pub const NEAR_ZONE: NearParams = NearParams {
     smooth_ratio: Some(2.5),
+    max_order: Some(0),
     ..NearParams::DEFAULT
 };
 
