@@ -341,6 +341,12 @@ fn bad_packing_and_contact_keys_are_refused_with_their_place() {
             .implicit_zone
     };
     assert_eq!(zone(PACKED), mobo::timestep::near_implicit::IMPLICIT_ZONE);
+    // Above p = 8 the default keeps the p = 8 width, 8 R/√8 = 2√2 R: 8 √(12/8) R/√12.
+    let at_12 = zone(&PACKED.replace("order = 8", "order = 12"));
+    assert!(
+        (at_12 / 12f64.sqrt() - 8.0 / 8f64.sqrt()).abs() < 1e-12,
+        "{at_12}"
+    );
     assert_eq!(
         zone(&PACKED.replace("t_end = 0.05", "t_end = 0.05\nimplicit_zone = 4.0")),
         4.0

@@ -394,7 +394,7 @@ pub struct Numerics {
     pub contact_distance: Option<f64>,
     /// The width of the zone in which near cells are coupled inside the solve, in units of
     /// `R/√p` (`[numerics] implicit_zone`, default
-    /// [`crate::timestep::near_implicit::IMPLICIT_ZONE`]; at least 2, the coupling's
+    /// [`crate::timestep::near_implicit::default_implicit_zone`]; at least 2, the coupling's
     /// near-singular zone; see [`crate::timestep::near_implicit`]).
     pub implicit_zone: f64,
     /// The most start-up passes before the first step of a coupled scene (`[numerics]

@@ -88,8 +88,9 @@
 //! #                               # (a length; default 0.4·R_min/p with two cells or a cell
 //! #                               # and a wall, 0: off; see scene::dense_defaults)
 //! implicit_zone = 8.0             # near_implicit: neighbours within 8 R/√p coupled inside
-//! #                               # the solve (>= 2; narrower is cheaper, see
-//! #                               # timestep::near_implicit::IMPLICIT_ZONE)
+//! #                               # the solve (>= 2; narrower is cheaper; default 8, or
+//! #                               # 8·√(p/8) above p = 8: a width of 2√2 R at least, see
+//! #                               # timestep::near_implicit::default_implicit_zone)
 //! start_up_passes = 8             # first steps solved and thrown away to start the coupled
 //! #                               # cells from a consistent tension and membrane velocity
 //! #                               # (0: off; see timestep::suspension)
@@ -275,20 +276,21 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
             }
         },
     };
+    let order_value = match order {
+        Some(o) if !(2..=64).contains(o.get_ref()) => {
+            return Err(at(
+                o.span(),
+                format!(
+                    "[numerics] order must be between 2 and 64, got {}",
+                    o.get_ref()
+                ),
+            ))
+        }
+        Some(o) => *o.get_ref(),
+        None => 12,
+    };
     let numerics = Numerics {
-        order: match order {
-            Some(o) if !(2..=64).contains(o.get_ref()) => {
-                return Err(at(
-                    o.span(),
-                    format!(
-                        "[numerics] order must be between 2 and 64, got {}",
-                        o.get_ref()
-                    ),
-                ))
-            }
-            Some(o) => *o.get_ref(),
-            None => 12,
-        },
+        order: order_value,
         upsample: match n.and_then(|n| n.upsample.as_ref()) {
             Some(u) if !(1..=4).contains(u.get_ref()) => {
                 return Err(at(
@@ -487,7 +489,7 @@ pub(crate) fn parse_from(file: &Path, text: &str, origin: Origin) -> Result<Cell
                 ))
             }
             Some(v) => *v.get_ref(),
-            None => crate::timestep::near_implicit::IMPLICIT_ZONE,
+            None => crate::timestep::near_implicit::default_implicit_zone(order_value),
         },
         start_up_passes: at_most(
             n.and_then(|n| n.start_up_passes.as_ref()),

@@ -525,7 +525,7 @@ pub struct NumericsSpec {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_distance: Option<f64>,
     /// `implicit_zone`: the width of the near-implicit coupling's zone in units of `R/√p`
-    /// (absent: 8; at least 2).
+    /// (absent: 8, or `8 √(p/8)` above `p = 8`; at least 2).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub implicit_zone: Option<f64>,
     /// `start_up_passes`: the most first steps solved and thrown away to start coupled cells

@@ -85,8 +85,23 @@ use super::{gmres, GmresReport, GmresWorkspace, LinearOperator, Preconditioner, 
 /// beyond it stays explicit. A scene sets it with `[numerics] implicit_zone`. Since the
 /// near-zone operator takes each cell's on-surface values from its own step's operators, the
 /// width costs less: at `p = 12` (27 RBCs, 2 steps on one thread) zone 4 took 28.2 s and zone 8
-/// 31.2 s, with the same GMRES iterations.
+/// 31.2 s, with the same GMRES iterations. Above `p = 8` the default is wider in these units
+/// ([`default_implicit_zone`]): the zone's width is physical, not a quadrature's.
 pub const IMPLICIT_ZONE: f64 = 8.0;
+
+/// The implicit zone's default for cells of order `p`, in units of `R/√p`: [`IMPLICIT_ZONE`] up
+/// to `p = 8`, and `IMPLICIT_ZONE · √(p/8)` above it, so that the width never falls below its
+/// `p = 8` value `2√2 R`. How strongly a neighbour's double layer couples, and so whether BDF2's
+/// extrapolation of the part beyond the zone grows, depends on the distance and on `λ`, not on
+/// the resolution. Measured (27 RBCs at 17 %, `λ = 10`, p = 12, `Δt = 0.01`, docs/hard_cases.md):
+/// with `8 R/√p` (2.31 R) the area/volume error before correction grew from 7e-6 at step 2 to
+/// 2.7e-4 at step 15 and 5.7e-3 at step 96, with the dissipation alternating between steps and
+/// the gaps closing from 0.13 to 0.04; at `Δt = 0.005` it grew alike (1.6e-4 at step 20); with
+/// `9.8 R/√p` (2.83 R, this default) it fell to 7e-8 by step 50. The same lattice at `p = 8`
+/// (zone 2.83 R) ran 2000 steps.
+pub fn default_implicit_zone(p: usize) -> f64 {
+    IMPLICIT_ZONE * (p as f64 / 8.0).sqrt().max(1.0)
+}
 
 /// How the cells' hydrodynamic coupling enters a step (scene `[numerics] coupling`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -55,7 +55,7 @@ use super::cell_stepper::CellStepper;
 use super::contact::{ContactSolver, ContactStats};
 use super::coupling::{Coupling, CouplingParams, CouplingStats};
 use super::near_implicit::{
-    step_all_on, CouplingMode, JointCell, JointStats, RanksStep, IMPLICIT_ZONE,
+    default_implicit_zone, step_all_on, CouplingMode, JointCell, JointStats, RanksStep,
 };
 use super::near_pairs::NearPairs;
 use super::semi_implicit::{
@@ -240,7 +240,7 @@ impl Suspension {
             preconditioning: None,
             solve_s: 0.0,
             coupling_mode: CouplingMode::Explicit,
-            near_pairs: NearPairs::new(p, coupling.viscosity, IMPLICIT_ZONE),
+            near_pairs: NearPairs::new(p, coupling.viscosity, default_implicit_zone(p)),
             joint: JointStats::default(),
             contacts: None,
             contact_stats: ContactStats::default(),
@@ -609,7 +609,7 @@ impl Suspension {
     }
 
     /// The near-implicit coupling's zone, `zone · R/√p` around each cell (default
-    /// [`IMPLICIT_ZONE`]); a plane wall's images set before are kept.
+    /// [`default_implicit_zone`]); a plane wall's images set before are kept.
     pub fn set_implicit_zone(&mut self, zone: f64) {
         self.near_pairs.set_zone(zone);
     }
