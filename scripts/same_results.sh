@@ -3,7 +3,8 @@
 # binary of REV and with that of the working tree, and compares what they wrote byte for byte:
 # observables.csv, the frames (frames/*.npy, vtk/*.vtp, frames.h5), profile.csv, trajectory.npy,
 # the checkpoint (less its wall clocks), scene.toml, and summary.json less its timings (every key that names a time
-# measured by the clock: "timings", "*seconds*", "wall*", "*_s", "*per_second*", "*rate*").
+# measured by the clock: "timings", "*seconds*", "wall*", "*_s", "*per_second*", "*rate*", and the
+# memory measured, "*rss*").
 #
 #   scripts/same_results.sh REV            # e.g. scripts/same_results.sh HEAD~3
 #
@@ -65,6 +66,8 @@ for f in examples/scenes/*.toml; do
         cp "$f" "$out/scenes/$name.toml"
     fi
 done
+# The data files scenes name beside them (a wall's points, its velocities).
+cp examples/scenes/*.npy "$out/scenes/" 2>/dev/null || true
 
 # run_all BIN DIR: every run into DIR; a run's failure is recorded (its stderr), not fatal: a
 # refactor must fail the same way.
@@ -110,7 +113,7 @@ python3 - "$out/base" "$out/head" <<'EOF' || status=$?
 import json, os, re, sys
 
 base, head = sys.argv[1], sys.argv[2]
-TIMED = re.compile(r"(timing|second|wall_time|elapsed|_s$|^ms_|_ms$|per_second|throughput|duration)", re.I)
+TIMED = re.compile(r"(timing|second|wall_time|elapsed|_s$|^ms_|_ms$|per_second|throughput|duration|rss)", re.I)
 
 def strip(v):
     if isinstance(v, dict):
