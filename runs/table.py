@@ -12,4 +12,5 @@ for a in range(0, len(rows), every):
     e = [float(r['end_gap']) for r in ch if r['end_gap']]
     err = max(float(r['area_volume_error']) for r in ch)
     gm = sum(float(r['gmres_mean']) for r in ch)/len(ch); gx = max(int(r['gmres_max']) for r in ch)
-    print(f"| {ch[0]['step']}–{ch[-1]['step']} | {g:.4f} | {min(e):.5f} | {err:.1e} | {gm:.1f}, {gx} |" if e else f"| {ch[0]['step']}–{ch[-1]['step']} | {g:.4f} | – | {err:.1e} | {gm:.1f}, {gx} |")
+    end = f"{min(e):.5f}" if e else "–"
+    print(f"| {ch[0]['step']}–{ch[-1]['step']} | {g:.4f} | {end} | {err:.1e} | {gm:.1f}, {gx} |")
